@@ -1,0 +1,87 @@
+"""Vehicle config and run params: frozen pydantic models, loaded from YAML, hashed, with JSON Schemas.
+
+``load_vehicle(path)`` and ``load_params(path)`` validate a file and raise :class:`ConfigError` naming
+the file and the key (``thrusters.1.direction``) on any problem. ``config_hash`` is the sha256 of the
+canonical JSON of a model: it goes into every output's provenance. ``python -m pipeline.config`` writes
+the JSON Schemas into ``schemas/``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from pipeline.config.params import Params
+from pipeline.config.vehicle import Vehicle
+from pipeline.errors import ConfigError
+from pipeline.tableio import canonical_json
+
+__all__ = ["Params", "Vehicle", "config_hash", "load_params", "load_vehicle", "parse", "write_schemas"]
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def _describe(err: ValidationError) -> str:
+    lines = []
+    for item in err.errors():
+        key = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        lines.append(f"{key}: {item['msg']}")
+    return "; ".join(lines)
+
+
+def parse(model: type[M], data: Any, source: str | Path = "<memory>") -> M:
+    """Validate ``data`` as ``model``; a ConfigError names ``source`` and every offending key."""
+    try:
+        return model.model_validate(data if data is not None else {})
+    except ValidationError as err:
+        first_key = ".".join(str(p) for p in err.errors()[0]["loc"]) if err.errors() else None
+        raise ConfigError(f"invalid {model.__name__} config: {_describe(err)}", file=source,
+                          field=first_key) from None
+
+
+def _load_yaml(path: str | Path) -> Any:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError("config file not found", file=path) from None
+    except IsADirectoryError:
+        raise ConfigError("expected a YAML file, found a directory", file=path) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"not valid YAML: {err}", file=path) from None
+
+
+def load_vehicle(path: str | Path) -> Vehicle:
+    """Load and validate a vehicle config YAML file."""
+    return parse(Vehicle, _load_yaml(path), path)
+
+
+def load_params(path: str | Path | None) -> Params:
+    """Load and validate ``params.yaml``; ``None`` gives the defaults."""
+    if path is None:
+        return Params()
+    return parse(Params, _load_yaml(path), path)
+
+
+def config_hash(model: BaseModel) -> str:
+    """sha256 of the canonical JSON of a config model."""
+    return hashlib.sha256(canonical_json(model.model_dump(mode="json")).encode()).hexdigest()
+
+
+def write_schemas(directory: str | Path) -> list[Path]:
+    """Write the JSON Schemas of the vehicle config and the params into ``directory``."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, model in (("vehicle", Vehicle), ("params", Params)):
+        target = directory / f"{name}.schema.json"
+        target.write_text(json.dumps(model.model_json_schema(), indent=2, sort_keys=True) + "\n")
+        written.append(target)
+    return written

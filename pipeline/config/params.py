@@ -1,0 +1,75 @@
+"""Run parameters (``params.yaml``), one section per stage, so that ``dvc.yaml`` can name exactly the keys a
+stage uses. Each stage's owner keeps its section; add fields with defaults so old params files stay valid.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from pipeline.config.base import Frozen
+
+
+class IngestParams(Frozen):
+    salvage: bool = Field(True, description="Keep every complete message of a file cut short.")
+
+
+class SyncParams(Frozen):
+    rate_hz: float = Field(20.0, gt=0)
+    max_gap_s: dict[str, float] = Field(
+        default_factory=lambda: {"default": 0.5},
+        description="Largest gap between samples bridged by interpolation, per signal ('default' for the rest).")
+    interpolation: dict[str, Literal["linear", "zoh", "nearest"]] = Field(
+        default_factory=dict,
+        description="Per signal; default: linear for states, zoh for *_rpm commands, nearest for *_flag.")
+    min_segment_s: float = Field(5.0, ge=0, description="Shorter valid stretches get no segment id.")
+
+
+class DifferentiateParams(Frozen):
+    method: Literal["gaussian", "savgol"] = "gaussian"
+    sigma_s: float = Field(0.25, gt=0, description="Gaussian kernel width.")
+    savgol_window_s: float = Field(1.0, gt=0)
+    savgol_order: int = Field(3, ge=1)
+    edge_sigmas: float = Field(3.0, ge=0, description="Samples within this many sigma of a segment edge are dropped.")
+
+
+class FeaturesParams(Frozen):
+    tuning_fraction: float = Field(0.2, ge=0, lt=1, description="First fraction of each trial's time: tuning block.")
+    test_trials: list[str] = Field(default_factory=list, description="Trials held out of tuning and CV (final check).")
+
+
+class CoupledParams(Frozen):
+    inputs: list[str] = Field(default_factory=lambda: ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"])
+    outputs: list[str] = Field(default_factory=lambda: ["udot_mps2", "vdot_mps2", "rdot_radps2"])
+    models: list[str] = Field(default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr",
+                                                       "gertler_hagen", "mcfarland_whitcomb"])
+    folds: int = Field(5, ge=2)
+    search: Literal["paper_grid", "fast"] = "fast"
+    max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
+    seed: int = 0
+
+
+class DecoupledParams(Frozen):
+    dofs: list[str] = Field(default_factory=lambda: ["u", "v", "r"])
+    models: list[str] = Field(default_factory=lambda: ["ls", "mlp", "krr", "svr", "gp"])
+    folds: int = Field(5, ge=2)
+    search: Literal["paper_grid", "fast"] = "fast"
+    gp_max_samples: int = Field(2000, ge=50)
+    seed: int = 0
+
+
+class SimulateParams(Frozen):
+    horizons_s: list[float] = Field(default_factory=lambda: [1.0, 5.0, 10.0])
+    outage_windows_s: list[float] = Field(default_factory=lambda: [10.0, 30.0, 60.0])
+    divergence_factor: float = Field(10.0, gt=1, description="A rollout beyond this many times the measured range diverged.")
+
+
+class Params(Frozen):
+    ingest: IngestParams = IngestParams()
+    sync: SyncParams = SyncParams()
+    differentiate: DifferentiateParams = DifferentiateParams()
+    features: FeaturesParams = FeaturesParams()
+    coupled: CoupledParams = CoupledParams()
+    decoupled: DecoupledParams = DecoupledParams()
+    simulate: SimulateParams = SimulateParams()

@@ -1,0 +1,95 @@
+"""The topic map: which stream of a log carries which signal, with clock, offset and unit.
+
+A *stream* is one topic of a ROS log (or one CSV file of a trial directory); it is decoded once and
+written as one Parquet file at native rate. Each of its *signals* is a field path into the message (or a
+CSV column) whose name, in the config, ends with the unit it is converted to (see :mod:`pipeline.units`).
+
+```yaml
+streams:
+  dvl:
+    topic: /dvl/data
+    clock: header            # header stamp or log time: chosen per topic, never guessed
+    offset_s: 0.0            # constant offset added to the stamps
+    signals:
+      u_dvl_mps: {field: velocity.x}
+      v_dvl_mps: {field: velocity.y, unit: m/s}
+      dvl_valid_flag: {field: bottom_lock}
+  thrusters:
+    topic: /thrusters/joint_states
+    clock: header
+    signals:
+      n1_rpm: {field: "velocity[name=th1]", unit: rad/s}
+  fog:
+    file: fog.csv.gz         # CSV: a file inside the trial directory
+    clock: column
+    csv: {time_column: t, time_unit: ms, time_origin: absolute}
+    signals:
+      r_fog_radps: {field: rate, unit: deg/s}
+```
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from pipeline.config.base import Frozen
+from pipeline.units import conversion
+
+
+class SignalSource(Frozen):
+    field: str = Field(description="Field path into the message (velocity.x, velocity[2], "
+                       "velocity[name=th1]) or the CSV column name.")
+    unit: str | None = Field(None, description="Unit of the raw value; None: already in the unit the "
+                             "signal name's suffix states.")
+
+
+class CsvOptions(Frozen):
+    time_column: str = Field(description="Column holding the time stamp.")
+    time_unit: Literal["s", "ms", "us", "µs", "ns"] = "s"
+    time_origin: Literal["absolute", "relative"] = Field(
+        "absolute", description="absolute: since the Unix epoch; relative: since epoch_s.")
+    epoch_s: float = Field(0.0, description="Start of a relative time column, Unix seconds.")
+    delimiter: str | None = Field(None, description="None: detect comma, tab, semicolon or whitespace.")
+    skip_rows: int = Field(0, ge=0, description="Preamble lines before the header (or the data).")
+    header: bool = Field(True, description="False: the file has no header; give `columns`.")
+    columns: list[str] | None = Field(None, description="Column names when the file has no header.")
+    encoding: str = "utf-8"
+
+    @model_validator(mode="after")
+    def _columns_when_headerless(self) -> CsvOptions:
+        if not self.header and not self.columns:
+            raise ValueError("a CSV without header needs `columns`")
+        return self
+
+
+class StreamSource(Frozen):
+    topic: str | None = Field(None, description="Topic in a ROS log / MCAP file.")
+    file: str | None = Field(None, description="CSV file name (or glob) inside the trial directory.")
+    clock: Literal["log", "header", "column"] = Field(
+        description="Which time stamps the stream: log time, the message header stamp, or the CSV time "
+        "column. Never guessed.")
+    offset_s: float = Field(0.0, description="Constant offset added to every stamp of this stream.")
+    csv: CsvOptions | None = None
+    signals: dict[str, SignalSource] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> StreamSource:
+        if (self.topic is None) == (self.file is None):
+            raise ValueError("give exactly one of `topic` (ROS log) or `file` (CSV)")
+        if self.file is not None:
+            if self.csv is None:
+                raise ValueError("a CSV stream needs `csv` options (time_column, time_unit, ...)")
+            if self.clock != "column":
+                raise ValueError("a CSV stream is stamped by its time column: set `clock: column`")
+        elif self.clock == "column":
+            raise ValueError("`clock: column` is for CSV streams; a topic uses `log` or `header`")
+        return self
+
+    @field_validator("signals")
+    @classmethod
+    def _units_known(cls, signals: dict[str, SignalSource]) -> dict[str, SignalSource]:
+        for name, source in signals.items():
+            conversion(name, source.unit)  # raises on unknown suffix / unit / dimension mismatch
+        return signals

@@ -1,0 +1,118 @@
+"""The vehicle: rigid body, added mass, thrusters, sensor mounting, and the topic map.
+
+Matrices are 6x6 in Fossen's DOF order [u v w p q r] (surge, sway, heave, roll, pitch, yaw); the models
+choose which DOFs they use (``dofs``), nothing here hard-wires 3 DOF.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from pipeline.config.base import Frozen
+from pipeline.config.sources import StreamSource
+
+Vec3 = tuple[float, float, float]
+DOF_NAMES = ("u", "v", "w", "p", "q", "r")
+
+
+class RigidBody(Frozen):
+    mass_kg: float = Field(gt=0)
+    inertia_kgm2: list[list[float]] = Field(description="3x3 inertia about the CG, body axes.")
+    cg_m: Vec3 = (0.0, 0.0, 0.0)
+    cb_m: Vec3 = (0.0, 0.0, 0.0)
+    buoyancy_N: float | None = Field(None, description="Buoyancy; None: equal to the weight (neutral).")
+    gravity_mps2: float = 9.81
+
+
+class ThrustCurve(Frozen):
+    """T = k n|n| (n in rpm), with separate coefficients forward and backward; or a measured table."""
+
+    k_fwd_N_per_rpm2: float | None = None
+    k_bwd_N_per_rpm2: float | None = None
+    table: str | None = Field(None, description="CSV thrust table, path relative to the vehicle file.")
+    table_speed_column: str | None = None
+    table_thrust_column: str | None = None
+    table_thrust_unit: str = "N"
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> ThrustCurve:
+        has_k = self.k_fwd_N_per_rpm2 is not None
+        if has_k == (self.table is not None):
+            raise ValueError("give either k_fwd_N_per_rpm2 (and optionally k_bwd_N_per_rpm2) or a table")
+        if self.table is not None and (self.table_speed_column is None or self.table_thrust_column is None):
+            raise ValueError("a thrust table needs table_speed_column and table_thrust_column")
+        return self
+
+
+class Thruster(Frozen):
+    name: str
+    speed_signal: str = Field(description="Signal carrying this thruster's propeller speed, in rpm.")
+    position_m: Vec3
+    direction: Vec3 = Field(description="Thrust direction in body axes (normalized by the pipeline).")
+    thrust: ThrustCurve
+    lag_s: float = Field(0.0, ge=0, description="First-order lag of the propeller (simulator only).")
+
+
+class DvlMount(Frozen):
+    velocity: tuple[str, str, str] = Field(description="Signals of the DVL's x, y, z velocity.")
+    valid: str | None = Field(None, description="Bottom-lock flag signal (nonzero = valid).")
+    zero_is_invalid: bool = Field(True, description="An exact zero vector means lost lock, not rest.")
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    rotation_rpy_deg: Vec3 = Field((0.0, 0.0, 0.0), description="DVL frame to body frame, roll-pitch-yaw.")
+
+
+class AttitudeSource(Frozen):
+    quaternion: str | None = Field(None, description="Quaternion signal (columns _w _x _y _z).")
+    convention: Literal["frd_ned", "flu_enu"] = Field(
+        "frd_ned", description="body FRD -> NED (marine), or ROS body FLU -> ENU.")
+    roll: str | None = None
+    pitch: str | None = None
+    yaw: str | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> AttitudeSource:
+        if (self.quaternion is None) == (self.yaw is None):
+            raise ValueError("give either `quaternion` or `roll`/`pitch`/`yaw` signals")
+        return self
+
+
+class RateSource(Frozen):
+    """Angular rates in body FRD axes: per body axis, the signal and a sign (gyro axis mapping)."""
+
+    p: str | None = None
+    q: str | None = None
+    r: str | None = None
+    signs: Vec3 = (1.0, 1.0, 1.0)
+
+
+class Sensors(Frozen):
+    dvl: DvlMount
+    attitude: AttitudeSource
+    rates: RateSource = RateSource()
+    depth: str | None = None
+
+
+class Vehicle(Frozen):
+    name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$")
+    rigid_body: RigidBody
+    added_mass: list[list[float]] = Field(description="6x6 added-mass matrix M_A (positive definite part).")
+    thrusters: list[Thruster] = Field(min_length=1)
+    sensors: Sensors
+    streams: dict[str, StreamSource] = Field(min_length=1)
+
+    def signal_names(self) -> list[str]:
+        return [name for stream in self.streams.values() for name in stream.signals]
+
+    @model_validator(mode="after")
+    def _references_exist(self) -> Vehicle:
+        known = set(self.signal_names())
+        dupes = {n for n in known if self.signal_names().count(n) > 1}
+        if dupes:
+            raise ValueError(f"signals defined in more than one stream: {sorted(dupes)}")
+        for i, thr in enumerate(self.thrusters):
+            if thr.speed_signal not in known:
+                raise ValueError(f"thrusters[{i}].speed_signal {thr.speed_signal!r} is not a configured "
+                                 f"signal; known: {sorted(known)}")
+        return self

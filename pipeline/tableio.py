@@ -1,0 +1,100 @@
+"""Deterministic, atomic, self-describing Parquet and JSON writes.
+
+Every Parquet file carries, under the ``auvid`` metadata key, a JSON document with the schema version,
+the package version and the provenance the writer passes in. Writes go to a temporary file beside the
+target and are moved into place with :func:`os.replace`, so a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline import SCHEMA_VERSION, __version__
+from pipeline.errors import SchemaError
+
+META_KEY = b"auvid"
+
+
+@contextmanager
+def atomic_path(target: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``target``; move it over ``target`` only if the block succeeds."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, target)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def file_sha256(path: str | Path, chunk_bytes: int = 1 << 20) -> str:
+    """sha256 of a file's bytes (a bag directory: of its files in name order)."""
+    path = Path(path)
+    digest = hashlib.sha256()
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    for file in files:
+        if path.is_dir():
+            digest.update(str(file.relative_to(path)).encode())
+        with open(file, "rb") as handle:
+            while chunk := handle.read(chunk_bytes):
+                digest.update(chunk)
+    return digest.hexdigest()
+
+
+def canonical_json(obj: Any) -> str:
+    """JSON with sorted keys and no whitespace variation: equal objects give equal bytes."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=False, default=str)
+
+
+def write_parquet(table: pa.Table, target: str | Path, provenance: dict[str, Any]) -> Path:
+    """Write ``table`` atomically with schema version, package version and ``provenance`` in its metadata.
+
+    Byte-identical output for identical input: fixed compression, no timestamps, sorted JSON metadata.
+    """
+    meta = {"schema_version": SCHEMA_VERSION, "package_version": __version__, **provenance}
+    existing = dict(table.schema.metadata or {})
+    existing[META_KEY] = canonical_json(meta).encode()
+    table = table.replace_schema_metadata(existing)
+    with atomic_path(target) as tmp:
+        pq.write_table(table, tmp, compression="zstd", compression_level=3, use_dictionary=False,
+                       write_statistics=True, store_schema=True)
+    return Path(target)
+
+
+def read_meta(path: str | Path) -> dict[str, Any]:
+    """The ``auvid`` metadata document of a Parquet file written by :func:`write_parquet`."""
+    schema = pq.read_schema(path)
+    raw = (schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise SchemaError("no auvid metadata; was this file written by auvid?", file=path)
+    return json.loads(raw)
+
+
+def read_parquet(path: str | Path) -> tuple[pa.Table, dict[str, Any]]:
+    """Read a Parquet file and its ``auvid`` metadata."""
+    table = pq.read_table(path)
+    raw = (table.schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise SchemaError("no auvid metadata; was this file written by auvid?", file=path)
+    return table, json.loads(raw)
+
+
+def write_json(obj: Any, target: str | Path) -> Path:
+    """Write ``obj`` as indented, key-sorted JSON, atomically."""
+    with atomic_path(target) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, ensure_ascii=False, default=str) + "\n")
+    return Path(target)
