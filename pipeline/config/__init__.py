@@ -60,7 +60,9 @@ def _load_yaml(path: str | Path) -> Any:
 
 def load_vehicle(path: str | Path) -> Vehicle:
     """Load and validate a vehicle config YAML file."""
-    return parse(Vehicle, _load_yaml(path), path)
+    vehicle = parse(Vehicle, _load_yaml(path), path)
+    vehicle._base_dir = Path(path).resolve().parent
+    return vehicle
 
 
 def load_params(path: str | Path | None) -> Params:

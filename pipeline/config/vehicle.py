@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pathlib import Path
+
+from pydantic import Field, PrivateAttr, model_validator
 
 from pipeline.config.base import Frozen
 from pipeline.config.sources import StreamSource
@@ -101,6 +103,12 @@ class Vehicle(Frozen):
     thrusters: list[Thruster] = Field(min_length=1)
     sensors: Sensors
     streams: dict[str, StreamSource] = Field(min_length=1)
+
+    _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
+
+    def resolve(self, relative: str | Path) -> Path:
+        """A path from the config (a thrust table), relative to the vehicle file's directory."""
+        return self._base_dir / relative
 
     def signal_names(self) -> list[str]:
         return [name for stream in self.streams.values() for name in stream.signals]
