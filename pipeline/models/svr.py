@@ -1,0 +1,164 @@
+"""SVR variants of the coupled acceleration model (paper 000): RBF, 2-weights and WDSE kernels.
+
+All three standardize their inputs and then call libsvm's native RBF kernel. The WDSE kernel
+
+    k(x, x') = exp(-sum_i gamma_i (x_i - x'_i)^2)
+
+equals an RBF kernel with gamma = 1 on inputs scaled by sqrt(gamma_i), so every variant is "scale the
+standardized inputs by a per-column factor, then ``SVR(kernel='rbf', gamma=1)``": exact, as fast as a plain
+RBF-SVR, and picklable (no callable kernel, no Gram matrix). The gammas refer to STANDARDIZED inputs.
+
+Each estimator is single-output; :class:`PerOutputRegressor` fits one estimator per output column so that
+every output keeps its own hyperparameters (Table II of the paper).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin, clone
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVR
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+log = logging.getLogger(__name__)
+
+__all__ = ["RBFSVR", "TwoWeightsSVR", "WDSESVR", "PerOutputRegressor", "wdse_gram"]
+
+
+class _ScaledRBFSVR(RegressorMixin, BaseEstimator):
+    """Shared machinery: standardize, scale column i by sqrt(gamma_i), libsvm RBF with gamma = 1."""
+
+    def _gamma_vector(self, n_features: int) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _svr(self) -> SVR:
+        return SVR(kernel="rbf", gamma=1.0, C=self.C, epsilon=self.epsilon, tol=self.tol,
+                   cache_size=self.cache_size, max_iter=self.max_iter)
+
+    def _transform(self, X: np.ndarray) -> np.ndarray:
+        return self.scaler_.transform(X) * self.feature_scale_
+
+    def fit(self, X, y):
+        X, y = validate_data(self, X, y, y_numeric=True, dtype=np.float64)
+        gammas = self._gamma_vector(X.shape[1])
+        if np.any(~np.isfinite(gammas)) or np.any(gammas < 0):
+            raise ValueError(f"gammas must be finite and >= 0, got {gammas.tolist()}")
+        self.gammas_ = gammas
+        self.feature_scale_ = np.sqrt(gammas)
+        self.scaler_ = StandardScaler().fit(X)
+        self.svr_ = self._svr().fit(self._transform(X), y)
+        self.n_iter_ = int(np.max(self.svr_.n_iter_))
+        return self
+
+    def predict(self, X):
+        check_is_fitted(self, "svr_")
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        return self.svr_.predict(self._transform(X))
+
+    @property
+    def n_support_(self) -> int:
+        check_is_fitted(self, "svr_")
+        return int(self.svr_.support_.size)
+
+
+class RBFSVR(_ScaledRBFSVR):
+    """RBF-SVR on standardized inputs: k(x, x') = exp(-gamma ||x - x'||^2)."""
+
+    def __init__(self, gamma: float = 0.1, C: float = 1.0, epsilon: float = 0.1, *, tol: float = 1e-3,
+                 cache_size: float = 200.0, max_iter: int = -1) -> None:
+        self.gamma = gamma
+        self.C = C
+        self.epsilon = epsilon
+        self.tol = tol
+        self.cache_size = cache_size
+        self.max_iter = max_iter
+
+    def _gamma_vector(self, n_features: int) -> np.ndarray:
+        return np.full(n_features, float(self.gamma))
+
+
+class TwoWeightsSVR(_ScaledRBFSVR):
+    """"2-weights-RBF" SVR: ``gamma_velocity`` for the first ``n_velocity`` inputs, ``gamma_actuator`` for the rest.
+
+    With the default column order ``u v r n1 n2 n3``, ``n_velocity=3``.
+    """
+
+    def __init__(self, gamma_velocity: float = 0.1, gamma_actuator: float = 0.1, C: float = 1.0,
+                 epsilon: float = 0.1, *, n_velocity: int = 3, tol: float = 1e-3, cache_size: float = 200.0,
+                 max_iter: int = -1) -> None:
+        self.gamma_velocity = gamma_velocity
+        self.gamma_actuator = gamma_actuator
+        self.C = C
+        self.epsilon = epsilon
+        self.n_velocity = n_velocity
+        self.tol = tol
+        self.cache_size = cache_size
+        self.max_iter = max_iter
+
+    def _gamma_vector(self, n_features: int) -> np.ndarray:
+        if self.n_velocity < 0:
+            raise ValueError(f"n_velocity must be >= 0, got {self.n_velocity}")
+        k = min(int(self.n_velocity), n_features)
+        out = np.full(n_features, float(self.gamma_actuator))
+        out[:k] = float(self.gamma_velocity)
+        return out
+
+
+class WDSESVR(_ScaledRBFSVR):
+    """WDSE-SVR: one gamma per (standardized) input, k(x, x') = exp(-sum_i gamma_i (x_i - x'_i)^2).
+
+    ``gammas=None`` means 1 / n_features for every input (sklearn's 'scale' on standardized data).
+    """
+
+    def __init__(self, gammas: Sequence[float] | None = None, C: float = 1.0, epsilon: float = 0.1, *,
+                 tol: float = 1e-3, cache_size: float = 200.0, max_iter: int = -1) -> None:
+        self.gammas = gammas
+        self.C = C
+        self.epsilon = epsilon
+        self.tol = tol
+        self.cache_size = cache_size
+        self.max_iter = max_iter
+
+    def _gamma_vector(self, n_features: int) -> np.ndarray:
+        if self.gammas is None:
+            return np.full(n_features, 1.0 / n_features)
+        g = np.asarray(self.gammas, dtype=np.float64).ravel()
+        if g.size != n_features:
+            raise ValueError(f"WDSESVR has {g.size} gammas but X has {n_features} features")
+        return g
+
+
+def wdse_gram(A: np.ndarray, B: np.ndarray, gammas: Sequence[float]) -> np.ndarray:
+    """Explicit WDSE Gram matrix exp(-sum_i gamma_i (a_i - b_i)^2) (for tests and checks; O(n m d) memory)."""
+    g = np.asarray(gammas, dtype=np.float64)
+    diff = A[:, None, :] - B[None, :, :]
+    return np.exp(-np.einsum("ijk,k->ij", diff * diff, g))
+
+
+class PerOutputRegressor(RegressorMixin, BaseEstimator):
+    """One single-output regressor per output column, each with its own hyperparameters.
+
+    ``estimators`` is a list (one per output, in column order) of unfitted estimators; they are cloned at fit.
+    Unlike :class:`sklearn.multioutput.MultiOutputRegressor`, which clones ONE estimator for every output.
+    """
+
+    def __init__(self, estimators: Sequence[BaseEstimator] = ()) -> None:
+        self.estimators = estimators
+
+    def fit(self, X, y):
+        X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64)
+        y2 = y.reshape(-1, 1) if y.ndim == 1 else y
+        if len(self.estimators) != y2.shape[1]:
+            raise ValueError(f"{len(self.estimators)} estimators for {y2.shape[1]} outputs")
+        self._y_1d = y.ndim == 1
+        self.estimators_ = [clone(est).fit(X, y2[:, k]) for k, est in enumerate(self.estimators)]
+        return self
+
+    def predict(self, X):
+        check_is_fitted(self, "estimators_")
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        out = np.column_stack([est.predict(X) for est in self.estimators_])
+        return out[:, 0] if self._y_1d else out

@@ -1,0 +1,63 @@
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.svm import SVR
+from sklearn.utils.estimator_checks import parametrize_with_checks
+
+from pipeline.models.svr import RBFSVR, WDSESVR, PerOutputRegressor, TwoWeightsSVR, wdse_gram
+
+
+@parametrize_with_checks([RBFSVR(), TwoWeightsSVR(n_velocity=1), WDSESVR()])
+def test_sklearn_contract(estimator, check):
+    check(estimator)
+
+
+def _data(n=200, d=6, seed=0):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, d)) * np.array([1.0, 0.3, 0.1, 500.0, 800.0, 300.0])[:d]
+    y = np.sin(X[:, 0]) + 5 * X[:, 1] ** 2 + 1e-3 * X[:, 3] + 0.01 * rng.normal(size=n)
+    return X, y
+
+
+def test_wdse_equals_explicit_kernel():
+    X, y = _data()
+    gammas = [0.3, 2.0, 0.05, 1e-3, 0.1, 0.7]
+    est = WDSESVR(gammas=gammas, C=3.0, epsilon=0.01, tol=1e-8).fit(X, y)
+    Z = est.scaler_.transform(X)  # the kernel acts on standardized inputs
+    ref = SVR(kernel="precomputed", C=3.0, epsilon=0.01, tol=1e-8).fit(wdse_gram(Z, Z, gammas), y)
+    Xt, _ = _data(50, seed=1)
+    Zt = est.scaler_.transform(Xt)
+    np.testing.assert_allclose(est.predict(Xt), ref.predict(wdse_gram(Zt, Z, gammas)), atol=1e-8, rtol=0)
+
+
+def test_special_cases_agree():
+    X, y = _data()
+    a = RBFSVR(gamma=0.2, C=2.0, epsilon=0.05).fit(X, y).predict(X)
+    b = TwoWeightsSVR(gamma_velocity=0.2, gamma_actuator=0.2, C=2.0, epsilon=0.05).fit(X, y).predict(X)
+    c = WDSESVR(gammas=[0.2] * 6, C=2.0, epsilon=0.05).fit(X, y).predict(X)
+    np.testing.assert_allclose(a, b, atol=1e-12)
+    np.testing.assert_allclose(a, c, atol=1e-12)
+    tw = TwoWeightsSVR(gamma_velocity=0.5, gamma_actuator=0.01).fit(X, y)
+    np.testing.assert_allclose(tw.gammas_, [0.5, 0.5, 0.5, 0.01, 0.01, 0.01])
+
+
+def test_wrong_gamma_count():
+    X, y = _data()
+    with pytest.raises(ValueError, match="gammas"):
+        WDSESVR(gammas=[1.0, 2.0]).fit(X, y)
+
+
+def test_per_output_pickle_and_clone():
+    X, y = _data()
+    Y = np.column_stack([y, -2 * y + X[:, 2]])
+    model = PerOutputRegressor([WDSESVR(gammas=[0.1] * 6, C=1.0), RBFSVR(gamma=0.5, C=10.0)])
+    model.fit(X, Y)
+    assert model.predict(X).shape == (200, 2)
+    assert clone(model).get_params()["estimators"][1].C == 10.0
+    again = pickle.loads(pickle.dumps(model))
+    np.testing.assert_array_equal(again.predict(X), model.predict(X))
+    assert model.estimators_[0].C == 1.0 and model.estimators_[1].gamma == 0.5
