@@ -1,0 +1,266 @@
+"""Rigid-body physics of the vehicle: thrust, allocation, M, C(nu), g(eta) and the damping target.
+
+Everything is vectorized over samples: velocity-like arrays are ``(n, 6)`` in Fossen's DOF order
+:data:`DOFS` = u v w p q r (body FRD axes, about the body origin CO), forces are ``(n, 6)`` in N / N*m,
+propeller speeds are rpm. The equation of motion is
+
+    M nu_dot + C(nu) nu + d(nu) + g(eta) = tau,        tau = B T,
+
+so :func:`damping_target` returns ``d = tau - M nu_dot - C(nu) nu - g(eta)``.
+
+Thrust tables: a CSV with a speed column (rpm) and a thrust column (any force unit of
+:mod:`pipeline.units`, e.g. ``kgf``). Header names are compared after stripping whitespace. A table whose
+speeds are all non-negative while its thrust takes both signs (the Blue Robotics T200 sheet: RPM unsigned,
+reverse thrust negative) is read as *unsigned* speed: each row's speed takes the sign of its thrust. Rows
+with equal speed are averaged. Speeds beyond the table are **clamped** to the end values (the propeller was
+not measured there; extrapolating a fitted curve would invent thrust), with a logged warning.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.config.vehicle import RigidBody, Thruster, Vehicle
+from pipeline.errors import ConfigError
+from pipeline.units import SOURCE_UNITS
+
+log = logging.getLogger(__name__)
+
+DOFS = ("u", "v", "w", "p", "q", "r")
+FORCE_UNITS = ("N", "N", "N", "Nm", "Nm", "Nm")
+
+
+def skew(a: np.ndarray) -> np.ndarray:
+    """Skew-symmetric cross-product matrix S(a), with S(a) b = a x b; ``a`` (..., 3) -> (..., 3, 3)."""
+    a = np.asarray(a, dtype=float)
+    out = np.zeros(a.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -a[..., 2]
+    out[..., 0, 2] = a[..., 1]
+    out[..., 1, 0] = a[..., 2]
+    out[..., 1, 2] = -a[..., 0]
+    out[..., 2, 0] = -a[..., 1]
+    out[..., 2, 1] = a[..., 0]
+    return out
+
+
+def _spd_check(matrix: np.ndarray, field: str, what: str) -> None:
+    if not np.all(np.isfinite(matrix)):
+        raise ConfigError(f"{what} has non-finite entries", field=field)
+    if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.abs(matrix).max()))):
+        raise ConfigError(f"{what} must be symmetric; max |A - A^T| = {np.abs(matrix - matrix.T).max():.3g}",
+                          field=field)
+    eig = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    if eig.min() <= 0:
+        raise ConfigError(f"{what} must be positive definite; smallest eigenvalue {eig.min():.6g}", field=field)
+
+
+def rigid_body_mass(rb: RigidBody) -> np.ndarray:
+    """6x6 rigid-body mass matrix about the body origin (Fossen 2011, eq. 3.44).
+
+    ``M_RB = [[m I, -m S(r_g)], [m S(r_g), I_o]]`` with ``I_o = I_g - m S(r_g)^2`` (parallel axes), where
+    ``rb.inertia_kgm2`` is the inertia about the CG and ``r_g = rb.cg_m``.
+    """
+    inertia = np.asarray(rb.inertia_kgm2, dtype=float)
+    if inertia.shape != (3, 3):
+        raise ConfigError(f"inertia must be 3x3, found shape {inertia.shape}", field="rigid_body.inertia_kgm2")
+    _spd_check(inertia, "rigid_body.inertia_kgm2", "rigid-body inertia")
+    m = rb.mass_kg
+    s = skew(np.asarray(rb.cg_m, dtype=float))
+    out = np.zeros((6, 6))
+    out[:3, :3] = m * np.eye(3)
+    out[:3, 3:] = -m * s
+    out[3:, :3] = m * s
+    out[3:, 3:] = inertia - m * s @ s
+    return out
+
+
+def added_mass_matrix(vehicle: Vehicle) -> np.ndarray:
+    """The configured 6x6 added-mass matrix M_A, checked for shape and symmetry."""
+    ma = np.asarray(vehicle.added_mass, dtype=float)
+    if ma.shape != (6, 6):
+        raise ConfigError(f"added_mass must be 6x6, found shape {ma.shape}", field="added_mass")
+    if not np.all(np.isfinite(ma)):
+        raise ConfigError("added_mass has non-finite entries", field="added_mass")
+    if not np.allclose(ma, ma.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.abs(ma).max()))):
+        raise ConfigError(f"added_mass must be symmetric; max |A - A^T| = {np.abs(ma - ma.T).max():.3g}",
+                          field="added_mass")
+    return ma
+
+
+def mass_matrix(vehicle: Vehicle) -> np.ndarray:
+    """M = M_RB + M_A, validated symmetric positive definite (ConfigError names the offending key)."""
+    m_rb = rigid_body_mass(vehicle.rigid_body)
+    m = m_rb + added_mass_matrix(vehicle)
+    _spd_check(m, "added_mass", "the mass matrix M = M_RB + M_A")
+    return m
+
+
+def coriolis_matrix(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
+    """Coriolis-centripetal matrix C(nu) from M, Fossen's skew-symmetric form; nu (n, 6) -> (n, 6, 6).
+
+    ``C = [[0, -S(M11 v1 + M12 v2)], [-S(M11 v1 + M12 v2), -S(M21 v1 + M22 v2)]]`` with the symmetric part
+    of M, so that ``nu . C(nu) nu = 0`` for every nu.
+    """
+    M = np.asarray(M, dtype=float)
+    ms = 0.5 * (M + M.T)
+    nu = np.atleast_2d(np.asarray(nu, dtype=float))
+    v1, v2 = nu[:, :3], nu[:, 3:]
+    a = v1 @ ms[:3, :3].T + v2 @ ms[:3, 3:].T
+    b = v1 @ ms[3:, :3].T + v2 @ ms[3:, 3:].T
+    out = np.zeros((nu.shape[0], 6, 6))
+    sa = skew(a)
+    out[:, :3, 3:] = -sa
+    out[:, 3:, :3] = -sa
+    out[:, 3:, 3:] = -skew(b)
+    return out
+
+
+def coriolis_force(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
+    """C(nu) nu, (n, 6), without building the (n, 6, 6) stack."""
+    M = np.asarray(M, dtype=float)
+    ms = 0.5 * (M + M.T)
+    nu = np.atleast_2d(np.asarray(nu, dtype=float))
+    v1, v2 = nu[:, :3], nu[:, 3:]
+    a = v1 @ ms[:3, :3].T + v2 @ ms[:3, 3:].T
+    b = v1 @ ms[3:, :3].T + v2 @ ms[3:, 3:].T
+    # -S(a) v2 = -a x v2 = v2 x a ; -S(a) v1 - S(b) v2 = v1 x a + v2 x b
+    return np.hstack([np.cross(v2, a), np.cross(v1, a) + np.cross(v2, b)])
+
+
+def weight_buoyancy_N(rb: RigidBody) -> tuple[float, float]:
+    """(W, B) in N: W = m g; B from the config or equal to W (neutral)."""
+    w = rb.mass_kg * rb.gravity_mps2
+    return w, (w if rb.buoyancy_N is None else float(rb.buoyancy_N))
+
+
+def restoring_force(vehicle: Vehicle, roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
+    """Restoring forces g(eta), (n, 6), for a submerged vehicle (Fossen 2011, eq. 4.6)."""
+    rb = vehicle.rigid_body
+    w, b = weight_buoyancy_N(rb)
+    xg, yg, zg = rb.cg_m
+    xb, yb, zb = rb.cb_m
+    phi = np.atleast_1d(np.asarray(roll_rad, dtype=float))
+    theta = np.atleast_1d(np.asarray(pitch_rad, dtype=float))
+    sphi, cphi, sth, cth = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+    out = np.empty((phi.shape[0], 6))
+    out[:, 0] = (w - b) * sth
+    out[:, 1] = -(w - b) * cth * sphi
+    out[:, 2] = -(w - b) * cth * cphi
+    out[:, 3] = -(yg * w - yb * b) * cth * cphi + (zg * w - zb * b) * cth * sphi
+    out[:, 4] = (zg * w - zb * b) * sth + (xg * w - xb * b) * cth * cphi
+    out[:, 5] = -(xg * w - xb * b) * cth * sphi - (yg * w - yb * b) * sth
+    return out
+
+
+def allocation_matrix(vehicle: Vehicle) -> np.ndarray:
+    """Thrust allocation B, (6, n_thrusters): column i is [d_i; r_i x d_i] with d_i normalized."""
+    cols = []
+    for i, thr in enumerate(vehicle.thrusters):
+        d = np.asarray(thr.direction, dtype=float)
+        norm = float(np.linalg.norm(d))
+        if not np.isfinite(norm) or norm < 1e-12:
+            raise ConfigError(f"thruster {thr.name!r} has a zero (or non-finite) direction {thr.direction}",
+                              field=f"thrusters.{i}.direction")
+        d = d / norm
+        r = np.asarray(thr.position_m, dtype=float)
+        cols.append(np.concatenate([d, np.cross(r, d)]))
+    return np.stack(cols, axis=1)
+
+
+@functools.lru_cache(maxsize=32)
+def _load_table(path: str, speed_column: str, thrust_column: str, unit: str) -> tuple[np.ndarray, np.ndarray]:
+    """(signed speed rpm, thrust N), sorted by speed, duplicates averaged. Cached per file and columns."""
+    try:
+        frame = pd.read_csv(path, encoding="utf-8", sep=None, engine="python")
+    except FileNotFoundError:
+        raise ConfigError("thrust table not found", file=path, field="thrust.table") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as err:
+        raise ConfigError(f"thrust table cannot be parsed: {err}", file=path, field="thrust.table") from None
+    frame.columns = [str(c).strip() for c in frame.columns]
+    for key, col in (("thrust.table_speed_column", speed_column), ("thrust.table_thrust_column", thrust_column)):
+        if col.strip() not in frame.columns:
+            raise ConfigError(f"column {col!r} not in thrust table; available: {list(frame.columns)}",
+                              file=path, field=key)
+    unit_def = SOURCE_UNITS.get(unit)
+    if unit_def is None or unit_def.dimension != "force":
+        known = sorted(k for k, v in SOURCE_UNITS.items() if v.dimension == "force")
+        raise ConfigError(f"table_thrust_unit {unit!r} is not a force unit; known: {known}", file=path,
+                          field="thrust.table_thrust_unit")
+    speed = pd.to_numeric(frame[speed_column.strip()], errors="coerce").to_numpy(dtype=float)
+    thrust = pd.to_numeric(frame[thrust_column.strip()], errors="coerce").to_numpy(dtype=float)
+    ok = np.isfinite(speed) & np.isfinite(thrust)
+    speed, thrust = speed[ok], thrust[ok] * unit_def.factor + unit_def.offset
+    if speed.size < 2:
+        raise ConfigError("thrust table needs at least two numeric rows", file=path, field="thrust.table")
+    if speed.min() >= 0 and thrust.min() < 0:
+        speed = speed * np.sign(thrust)  # unsigned speed column: the thrust sign gives the direction
+    uniq, inverse = np.unique(speed, return_inverse=True)
+    mean_thrust = np.bincount(inverse, weights=thrust) / np.bincount(inverse)
+    uniq.setflags(write=False)
+    mean_thrust.setflags(write=False)
+    return uniq, mean_thrust
+
+
+def thrust_table(thruster: Thruster, base_dir: str | Path | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The thruster's measured table as (signed speed rpm, thrust N), sorted; see the module notes."""
+    curve = thruster.thrust
+    if curve.table is None:
+        raise ConfigError(f"thruster {thruster.name!r} has no thrust table", field="thrust.table")
+    path = Path(curve.table)
+    if base_dir is not None:
+        path = Path(base_dir) / path
+    assert curve.table_speed_column is not None and curve.table_thrust_column is not None
+    return _load_table(str(path.resolve()), curve.table_speed_column, curve.table_thrust_column,
+                       curve.table_thrust_unit)
+
+
+def thrust_N(thruster: Thruster, n_rpm: np.ndarray, base_dir: str | Path | None = None) -> np.ndarray:
+    """Thrust in N of one thruster at propeller speed ``n_rpm`` (any shape).
+
+    ``k_fwd n|n|`` for n >= 0 and ``k_bwd n|n|`` for n < 0 (k_bwd defaults to k_fwd); or linear
+    interpolation of the measured table (``base_dir``: directory the table path is relative to), clamped
+    to the table's end values beyond its speed range (logged as a warning).
+    """
+    n = np.asarray(n_rpm, dtype=float)
+    curve = thruster.thrust
+    if curve.table is None:
+        k_fwd = float(curve.k_fwd_N_per_rpm2)  # type: ignore[arg-type]
+        k_bwd = k_fwd if curve.k_bwd_N_per_rpm2 is None else float(curve.k_bwd_N_per_rpm2)
+        return np.where(n >= 0, k_fwd, k_bwd) * n * np.abs(n)
+    speed, thrust = thrust_table(thruster, base_dir)
+    outside = (n < speed[0]) | (n > speed[-1])
+    if np.any(outside):
+        log.warning("thruster %s: %d of %d speeds outside the thrust table [%g, %g] rpm; thrust clamped",
+                    thruster.name, int(outside.sum()), n.size, speed[0], speed[-1])
+    return np.interp(n, speed, thrust)
+
+
+def thrusts(vehicle: Vehicle, speeds_rpm: np.ndarray) -> np.ndarray:
+    """Per-thruster thrust in N, (n, n_thrusters), columns in config thruster order."""
+    speeds = np.atleast_2d(np.asarray(speeds_rpm, dtype=float))
+    if speeds.shape[1] != len(vehicle.thrusters):
+        raise ValueError(f"speeds_rpm has {speeds.shape[1]} columns, the vehicle {len(vehicle.thrusters)} thrusters")
+    base = vehicle.resolve("")
+    return np.stack([thrust_N(thr, speeds[:, i], base) for i, thr in enumerate(vehicle.thrusters)], axis=1)
+
+
+def generalized_forces(vehicle: Vehicle, speeds_rpm: np.ndarray) -> np.ndarray:
+    """tau = B T, (n, 6)."""
+    return thrusts(vehicle, speeds_rpm) @ allocation_matrix(vehicle).T
+
+
+def damping_target(M: np.ndarray, tau: np.ndarray, nudot: np.ndarray, nu: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """d = tau - M nu_dot - C(nu) nu - g(eta), (n, 6)."""
+    M = np.asarray(M, dtype=float)
+    nudot = np.atleast_2d(np.asarray(nudot, dtype=float))
+    return np.atleast_2d(tau) - nudot @ M.T - coriolis_force(M, nu) - np.atleast_2d(g)
+
+
+def force_columns(prefix: str) -> list[str]:
+    """Column names of a generalized-force 6-vector: ``tau`` -> tau_u_N ... tau_r_Nm."""
+    return [f"{prefix}_{dof}_{unit}" for dof, unit in zip(DOFS, FORCE_UNITS, strict=True)]
