@@ -8,19 +8,33 @@ with quarantined inputs, 2 usage or config error.
 from __future__ import annotations
 
 import argparse
+import importlib
+import inspect
 import logging
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from pipeline.config import Params, Vehicle, load_params, load_vehicle
 from pipeline.errors import ConfigError, PipelineError
+from pipeline.parallel import backend
 
 log = logging.getLogger(__name__)
 
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE = 0, 1, 2
+
+#: The DAG in execution order (``auvid run`` and ``dvc.yaml`` follow it).
+STAGE_ORDER: tuple[str, ...] = ("ingest", "sync", "differentiate", "derive", "features", "tune", "train",
+                                "decoupled", "simulate", "report")
+#: Stages whose work is per trial (``run(..., trial=...)``): fanned out over trials, ``foreach`` in dvc.yaml.
+PER_TRIAL: frozenset[str] = frozenset({"sync", "differentiate", "derive"})
+
+
+class MissingStageError(PipelineError):
+    """A stage module the DAG needs is not there (not written yet, or an incomplete install)."""
 
 
 @dataclass
@@ -57,11 +71,13 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
     if extra is not None:
         extra(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(levelname)s %(name)s: %(message)s")
     kwargs = {k: v for k, v in vars(args).items() if k not in {"root", "vehicle", "params", "verbose"}}
     try:
         vehicle, params = load_configs(args.root, args.vehicle, args.params)
-        result = run(args.root, vehicle, params, **kwargs)
+        with backend():  # AUVID_SCHEDULER sends joblib fan-out to a Dask cluster, else local processes
+            result = run(args.root, vehicle, params, **kwargs)
     except ConfigError as err:
         print(f"config error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -72,3 +88,60 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
     for entry in result.quarantined:
         print(f"  quarantined {entry.get('file')}: {entry.get('reason')}", file=sys.stderr)
     return result.exit_code
+
+
+def load_stage(name: str) -> ModuleType:
+    """Import ``stages.<name>``; a MissingStageError names the stage if it does not exist or has no ``run``."""
+    if name not in STAGE_ORDER and name != "example":
+        raise MissingStageError(f"unknown stage {name!r}; the DAG is {', '.join(STAGE_ORDER)}")
+    try:
+        module = importlib.import_module(f"stages.{name}")
+    except ModuleNotFoundError as err:
+        if err.name in (f"stages.{name}", "stages"):
+            raise MissingStageError(f"stage {name!r} is not available (no module stages/{name}.py)") from None
+        raise
+    if not callable(getattr(module, "run", None)):
+        raise MissingStageError(f"stage {name!r} has no run(root, vehicle, params, ...) function",
+                                file=getattr(module, "__file__", None))
+    return module
+
+
+def accepted_kwargs(fn: Callable[..., Any], kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The subset of ``kwargs`` that ``fn`` accepts (all of them if it takes ``**kw``)."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return dict(kwargs)
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return dict(kwargs)
+    return {k: v for k, v in kwargs.items() if k in params}
+
+
+def call_stage(name: str, root: Path, vehicle: Vehicle, params: Params, **kwargs: Any) -> StageResult:
+    """Run one stage's ``run`` with the optional keyword arguments it accepts (``trial``, ``progress``, ...)."""
+    module = load_stage(name)
+    result = module.run(Path(root), vehicle, params, **accepted_kwargs(module.run, kwargs))
+    if not isinstance(result, StageResult):
+        raise PipelineError(f"stage {name!r} returned {type(result).__name__}, expected StageResult")
+    return result
+
+
+def merge_results(name: str, results: list[StageResult]) -> StageResult:
+    """One StageResult from the per-trial results of a stage."""
+    merged = StageResult(stage=name)
+    for result in results:
+        merged.outputs.extend(result.outputs)
+        merged.quarantined.extend(result.quarantined)
+        if result.summary:
+            merged.summary.setdefault("trials", []).append(result.summary)
+    return merged
+
+
+def discover_trials(root: Path) -> list[str]:
+    """Trials that ingest produced under ``data/signals/`` (sorted), the unit of per-trial work."""
+    from pipeline.layout import SIGNALS
+
+    base = Path(root) / SIGNALS
+    if not base.is_dir():
+        return []
+    return sorted(p.name for p in base.iterdir() if p.is_dir() and not p.name.startswith("."))
