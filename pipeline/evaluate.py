@@ -1,0 +1,147 @@
+"""Evaluation protocol: split blocks, unshuffled blocked k-fold CV with a leakage guard, metrics.
+
+Generic on purpose (the coupled and the decoupled studies both use it): an estimator, ``X``, ``y`` (1-D or
+2-D), and optionally a ``keys`` frame that says where each row comes from (``trial`` + ``t_ns`` by default)
+so that the guard can prove no test fold touches its training rows or the tuning block.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from joblib import Parallel, delayed
+from sklearn.base import clone
+from sklearn.metrics import mean_absolute_error, r2_score
+from sklearn.model_selection import KFold
+
+from pipeline.errors import ModelError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SPLITS", "split_blocks", "blocked_folds", "check_no_leakage", "regression_scores",
+           "cross_validate_blocked", "summarize_folds", "score_holdout"]
+
+SPLITS = ("tuning", "train_test", "test")
+
+
+def split_blocks(frame: pd.DataFrame, column: str = "split") -> dict[str, pd.DataFrame]:
+    """The rows of each split label (``tuning``, ``train_test``, ``test``), original order kept."""
+    if column not in frame.columns:
+        raise ModelError(f"feature table has no {column!r} column; columns: {list(frame.columns)}")
+    unknown = set(frame[column].unique()) - set(SPLITS)
+    if unknown:
+        raise ModelError(f"unknown split label(s) {sorted(unknown)}; expected {list(SPLITS)}")
+    return {name: frame[frame[column] == name] for name in SPLITS}
+
+
+def blocked_folds(n_samples: int, n_folds: int = 5) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Unshuffled k-fold on contiguous blocks (``KFold(shuffle=False)``): list of (train_idx, test_idx)."""
+    if n_samples < 2 * n_folds:
+        raise ModelError(f"{n_samples} samples are too few for {n_folds}-fold CV")
+    return list(KFold(n_splits=n_folds, shuffle=False).split(np.arange(n_samples)))
+
+
+def _key_frame(keys: pd.DataFrame, group: str, time_col: str) -> pd.DataFrame:
+    missing = [c for c in (group, time_col) if c not in keys.columns]
+    if missing:
+        raise ModelError(f"leakage guard needs key columns {missing}; got {list(keys.columns)}")
+    return keys[[group, time_col]].reset_index(drop=True)
+
+
+def check_no_leakage(train: pd.DataFrame, test: pd.DataFrame, tuning: pd.DataFrame | None = None, *,
+                     group: str = "trial", time_col: str = "t_ns") -> None:
+    """Raise :class:`ModelError` if the test rows overlap the training rows or the tuning block.
+
+    Two checks, per ``group`` (trial): no (group, time) row id is shared, and no training / tuning sample lies
+    inside the time span of the test rows (which catches shuffled or interleaved folds).
+    """
+    test_k = _key_frame(test, group, time_col)
+    others = [("training", train)] + ([("tuning", tuning)] if tuning is not None else [])
+    spans = test_k.groupby(group, sort=False)[time_col].agg(["min", "max"])
+    test_ids = pd.MultiIndex.from_frame(test_k)
+    for label, other in others:
+        other_k = _key_frame(other, group, time_col)
+        shared = test_ids.intersection(pd.MultiIndex.from_frame(other_k))
+        if len(shared):
+            raise ModelError(f"leakage: {len(shared)} test row(s) also in the {label} data, e.g. {shared[0]}")
+        merged = other_k.merge(spans, left_on=group, right_index=True, how="inner")
+        inside = merged[(merged[time_col] >= merged["min"]) & (merged[time_col] <= merged["max"])]
+        if len(inside):
+            row = inside.iloc[0]
+            raise ModelError(f"leakage: {len(inside)} {label} sample(s) inside the test time span of "
+                             f"{group} {row[group]!r} (t={row[time_col]} in [{row['min']}, {row['max']}])")
+
+
+def regression_scores(y_true: np.ndarray, y_pred: np.ndarray, outputs: Sequence[str] | None = None
+                      ) -> dict[str, dict[str, float]]:
+    """R² and MAE per output column: ``{output: {"r2": .., "mae": ..}}``."""
+    yt = np.asarray(y_true, dtype=float).reshape(len(y_true), -1)
+    yp = np.asarray(y_pred, dtype=float).reshape(len(y_pred), -1)
+    names = list(outputs) if outputs is not None else [f"y{k}" for k in range(yt.shape[1])]
+    if len(names) != yt.shape[1]:
+        raise ModelError(f"{len(names)} output names for {yt.shape[1]} output columns")
+    return {name: {"r2": float(r2_score(yt[:, k], yp[:, k])), "mae": float(mean_absolute_error(yt[:, k], yp[:, k]))}
+            for k, name in enumerate(names)}
+
+
+def _fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray,
+              outputs: Sequence[str] | None) -> dict[str, Any]:
+    est = clone(estimator)
+    t0 = time.perf_counter()
+    est.fit(X[train], y[train])
+    t1 = time.perf_counter()
+    pred_test = est.predict(X[test])
+    t2 = time.perf_counter()
+    pred_train = est.predict(X[train])
+    return {"train": regression_scores(y[train], pred_train, outputs),
+            "test": regression_scores(y[test], pred_test, outputs),
+            "fit_time_s": t1 - t0, "predict_time_s": t2 - t1,
+            "n_train": int(train.size), "n_test": int(test.size),
+            "test_start": int(test[0]), "test_stop": int(test[-1]) + 1}
+
+
+def cross_validate_blocked(estimator: Any, X: np.ndarray, y: np.ndarray, *, n_folds: int = 5,
+                           keys: pd.DataFrame | None = None, tuning_keys: pd.DataFrame | None = None,
+                           outputs: Sequence[str] | None = None, n_jobs: int | None = 1,
+                           group: str = "trial", time_col: str = "t_ns") -> list[dict[str, Any]]:
+    """Unshuffled blocked k-fold CV. Every fold passes the leakage guard (when ``keys`` are given) first.
+
+    Returns one dict per fold: ``train`` / ``test`` scores per output, fit / predict time, sizes, test block.
+    """
+    X = np.asarray(X, dtype=float)
+    y = np.asarray(y, dtype=float)
+    folds = blocked_folds(len(X), n_folds)
+    if keys is not None:
+        if len(keys) != len(X):
+            raise ModelError(f"keys have {len(keys)} rows, X has {len(X)}")
+        keys = keys.reset_index(drop=True)
+        for train, test in folds:
+            check_no_leakage(keys.iloc[train], keys.iloc[test], tuning_keys, group=group, time_col=time_col)
+    results = Parallel(n_jobs=n_jobs)(delayed(_fit_fold)(estimator, X, y, tr, te, outputs) for tr, te in folds)
+    for k, res in enumerate(results):
+        res["fold"] = k
+    return list(results)
+
+
+def summarize_folds(folds: Sequence[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
+    """Mean and SD (ddof=1) over folds: ``{output: {"train_r2": {"mean", "sd"}, "test_r2": .., "train_mae": ..}}``."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for output in folds[0]["test"]:
+        out[output] = {}
+        for part in ("train", "test"):
+            for metric in ("r2", "mae"):
+                vals = np.array([f[part][output][metric] for f in folds])
+                out[output][f"{part}_{metric}"] = {"mean": float(vals.mean()),
+                                                   "sd": float(vals.std(ddof=1)) if vals.size > 1 else 0.0}
+    return out
+
+
+def score_holdout(model: Any, X: np.ndarray, y: np.ndarray, outputs: Sequence[str] | None = None
+                  ) -> dict[str, dict[str, float]]:
+    """Scores of a fitted model on a held-out block (the final check on an unseen trial)."""
+    return regression_scores(y, model.predict(np.asarray(X, dtype=float)), outputs)
