@@ -1,0 +1,276 @@
+"""Ingest: one log (MCAP, ROS 1 bag, ROS 2 bag, or a directory of CSV files) -> one table per configured stream.
+
+:func:`ingest_log` is the pure-ish core the stage shell calls; it reads, it never writes. For each stream of the
+vehicle config it returns a pyarrow Table (``t_ns`` int64 from the configured clock plus the stream's offset,
+sorted stably; one float64 column per signal in the unit its name states; a ``*_quat`` signal as four columns
+``_w _x _y _z``), the provenance that goes into the Parquet metadata (``docs/contracts.md``), and an ingest
+report (JSON-able): per topic messages read vs held by the storage, time span, mean rate, largest gap, decode
+path; salvage; failed topics; CSV rows dropped; quarantine reasons.
+
+Validation happens before anything is decoded: every configured topic (or CSV file and column) must exist, a
+``header`` clock needs a message type with a header; the :class:`~pipeline.errors.IngestError` lists what is
+available. A configured topic that exists but fails to decode, or yields no message, makes that stream missing;
+every configured stream is needed downstream, so the log gets **quarantine reasons** (``IngestOutput.quarantine``)
+and the stage writes none of its streams (the report goes into the quarantine entry). Streams whose source kind
+does not match the log (a CSV ``file`` stream while reading a bag, or a ``topic`` stream while reading a CSV
+directory) are listed as ``skipped_streams``; a log to which no stream applies is an IngestError.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.config import Vehicle, config_hash
+from pipeline.config.sources import StreamSource
+from pipeline.errors import IngestError
+from pipeline.io.base import ReadResult, TopicData, TopicInfo
+from pipeline.tableio import file_sha256
+from pipeline.units import conversion
+
+log = logging.getLogger(__name__)
+
+QUAT_COMPONENTS = ("w", "x", "y", "z")
+_LOG_SUFFIXES = (".mcap", ".bag", ".db3", ".csv", ".tsv", ".txt", ".dat", ".gz", ".zst", ".zstd", ".active")
+
+
+@dataclass(frozen=True)
+class ColumnPlan:
+    column: str  # output column name (unit suffix)
+    signal: str  # signal name in the config
+    field: str  # field path / CSV column
+    unit: str | None  # source unit
+    factor: float
+    offset: float
+
+
+@dataclass
+class IngestOutput:
+    trial: str
+    tables: dict[str, pa.Table] = field(default_factory=dict)
+    provenance: dict[str, dict[str, Any]] = field(default_factory=dict)
+    report: dict[str, Any] = field(default_factory=dict)
+    quarantine: list[dict[str, Any]] = field(default_factory=list)
+
+
+def trial_id(path: str | Path) -> str:
+    """The log's name without its (log-format) extensions: ``trial01.csv.gz`` -> ``trial01``."""
+    name = Path(path).name
+    while True:
+        lower = name.lower()
+        for suffix in _LOG_SUFFIXES:
+            if lower.endswith(suffix) and len(name) > len(suffix):
+                name = name[: -len(suffix)]
+                break
+        else:
+            return name
+
+
+def column_plans(stream: StreamSource) -> list[ColumnPlan]:
+    """Output columns of a stream: one per signal, four per quaternion signal (``<field>.w`` -> ``<name>_w``)."""
+    plans = []
+    for name, source in stream.signals.items():
+        conv = conversion(name, source.unit)
+        if name.endswith("_quat"):
+            for comp in QUAT_COMPONENTS:
+                plans.append(ColumnPlan(f"{name}_{comp}", name, f"{source.field}.{comp}", source.unit,
+                                        conv.factor, conv.offset))
+        else:
+            plans.append(ColumnPlan(name, name, source.field, source.unit, conv.factor, conv.offset))
+    return plans
+
+
+def _open(path: Path) -> Any:
+    from pipeline.io import text
+
+    try:
+        from pipeline.io import open_log
+    except ImportError:  # binary readers not present: only CSV trials can be read
+        if path.is_dir() or text.looks_like_text_dir(path):
+            return text.open_text(path)
+        raise IngestError("no reader for this file (pipeline.io.open_log unavailable)", file=path) from None
+    return open_log(path)
+
+
+def _resolve_csv_file(name: str, pattern: str, available: list[str], path: Path) -> str:
+    if pattern in available:
+        return pattern
+    matches = [a for a in available if fnmatch.fnmatch(a, pattern)]
+    if len(matches) == 1:
+        return matches[0]
+    if not matches:
+        raise IngestError(f"stream {name!r}: no CSV file matches {pattern!r}; available: {available}",
+                          file=path, topic=pattern)
+    raise IngestError(f"stream {name!r}: pattern {pattern!r} matches several files {matches}; make it unique",
+                      file=path, topic=pattern)
+
+
+def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
+    """Span, mean rate and largest gap of a stamp array (in the order given, so also counts steps back)."""
+    n = int(t_ns.size)
+    out: dict[str, Any] = {"count": n, "first_ns": None, "last_ns": None, "span_s": 0.0,
+                           "mean_rate_hz": None, "largest_gap_s": None, "steps_back": 0}
+    if n == 0:
+        return out
+    lo, hi = int(t_ns.min()), int(t_ns.max())
+    out.update(first_ns=lo, last_ns=hi, span_s=(hi - lo) / 1e9)
+    if n > 1:
+        diffs = np.diff(t_ns)
+        out["steps_back"] = int((diffs < 0).sum())
+        out["largest_gap_s"] = float(np.diff(np.sort(t_ns)).max()) / 1e9
+        out["mean_rate_hz"] = (n - 1) / ((hi - lo) / 1e9) if hi > lo else None
+    return out
+
+
+def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, salvage: bool = True,
+               source_name: str | None = None) -> IngestOutput:
+    """Read one log and build one table per configured stream (see the module docstring).
+
+    ``source_name`` is what provenance records as ``source_file`` (the stage passes a root-relative path, so
+    that outputs do not depend on where the run directory lives); default: ``str(path)``.
+    """
+    path = Path(path)
+    out = IngestOutput(trial=trial or trial_id(path))
+    with _open(path) as reader:
+        is_csv = reader.format == "csv"
+        infos: dict[str, TopicInfo] = reader.topics()
+        sources: dict[str, str] = {}  # stream -> topic / file
+        skipped: dict[str, str] = {}
+        for name, stream in vehicle.streams.items():
+            if (stream.file is not None) != is_csv:
+                kind = "a CSV file" if stream.file is not None else "a topic"
+                skipped[name] = f"reads {kind}; this log is {reader.format}"
+                continue
+            if is_csv:
+                assert stream.file is not None and stream.csv is not None
+                sources[name] = _resolve_csv_file(name, stream.file, sorted(infos), path)
+            else:
+                assert stream.topic is not None
+                sources[name] = stream.topic
+        if not sources:
+            raise IngestError(f"no configured stream applies to this {reader.format} log: {skipped}", file=path)
+        _validate(path, vehicle, sources, infos, reader)
+        requests: dict[str, list[str]] = {}
+        for name, source in sources.items():
+            fields = requests.setdefault(source, [])
+            fields.extend(p.field for p in column_plans(vehicle.streams[name]) if p.field not in fields)
+        log.info("%s: reading %d topic(s) for %d stream(s)", path, len(requests), len(sources))
+        result: ReadResult = reader.read(requests)
+        fmt = reader.format
+
+    if result.salvage is not None and not salvage:
+        raise IngestError(f"file is damaged ({result.salvage.reason}); salvage is disabled in params",
+                          file=path)
+    sha = file_sha256(path)
+    chash = config_hash(vehicle)
+    source_file = source_name if source_name is not None else str(path)
+    report: dict[str, Any] = {
+        "trial": out.trial, "source_file": source_file, "source_sha256": sha, "format": fmt,
+        "config_hash": chash, "salvage": asdict(result.salvage) if result.salvage else None,
+        "failed_topics": dict(sorted(result.failed.items())), "skipped_streams": skipped,
+        "topics": {}, "streams": {},
+    }
+    for topic, data in sorted(result.topics.items()):
+        report["topics"][topic] = _topic_report(data, infos.get(topic))
+
+    for name, source in sources.items():
+        stream = vehicle.streams[name]
+        data = result.topics.get(source)
+        where = {"stream": name, "topic": source}
+        if data is None:
+            reason = result.failed.get(source, "the reader returned no data")
+            out.quarantine.append({**where, "reason": f"configured topic failed to decode: {reason}"})
+            continue
+        if data.read == 0 or data.log_ns.size == 0:
+            out.quarantine.append({**where, "reason": "configured topic holds no message (or no valid row)"})
+            continue
+        table, stamps = _build_table(path, name, stream, data)
+        out.tables[name] = table
+        stream_report = {"topic" if not is_csv else "file": source, "clock": stream.clock,
+                         "offset_s": stream.offset_s, **time_stats(stamps)}
+        report["streams"][name] = stream_report
+        prov: dict[str, Any] = {
+            "trial": out.trial, "stream": name, "source_file": source_file, "source_sha256": sha,
+            "message_type": data.msgtype, "clock": stream.clock, "offset_s": stream.offset_s,
+            "config_hash": chash, "decode_path": data.path, "reader_format": fmt,
+            "fields": {p.column: {"signal": p.signal, "field": p.field, "unit": p.unit}
+                       for p in column_plans(stream)},
+        }
+        if is_csv:
+            prov["file"] = source
+            prov["file_sha256"] = file_sha256(reader.path / source if reader.path.is_dir() else reader.path)
+        else:
+            prov["topic"] = source
+        if result.salvage is not None:
+            prov["salvage"] = asdict(result.salvage)
+        out.provenance[name] = prov
+    report["quarantine"] = out.quarantine
+    out.report = report
+    return out
+
+
+def _validate(path: Path, vehicle: Vehicle, sources: dict[str, str], infos: dict[str, TopicInfo],
+              reader: Any) -> None:
+    """Every configured topic / file / column exists and a header clock has a header; before any decoding."""
+    available = sorted(infos)
+    for name, source in sources.items():
+        stream = vehicle.streams[name]
+        if source not in infos:
+            raise IngestError(f"stream {name!r}: topic {source!r} not in {path.name}; available: {available}",
+                              file=path, topic=source)
+        if stream.clock == "header" and not infos[source].has_header:
+            raise IngestError(f"stream {name!r} uses clock: header, but {infos[source].msgtype} has no header; "
+                              f"use clock: log", file=path, topic=source)
+        if stream.file is not None:
+            assert stream.csv is not None
+            reader.configure({source: stream.csv})
+            columns = reader.fields(source)
+            needed = [stream.csv.time_column, *(p.field for p in column_plans(stream))]
+            for col in needed:
+                if col.strip() not in columns:
+                    raise IngestError(f"stream {name!r}: no column {col!r} in {source}; available: {columns}",
+                                      file=path, topic=source, field=col)
+
+
+def _topic_report(data: TopicData, info: TopicInfo | None) -> dict[str, Any]:
+    rep: dict[str, Any] = {
+        "message_type": data.msgtype, "decode_path": data.path, "messages_read": int(data.read),
+        "messages_in_storage": int(info.count) if info is not None else None, "expected": int(data.expected),
+        "lost": int(data.expected) - int(data.read), "log_time": time_stats(np.asarray(data.log_ns)),
+    }
+    dropped = getattr(data, "dropped_count", 0)
+    if dropped:
+        rep["rows_dropped"] = int(dropped)
+        rep["rows_dropped_lines"] = list(getattr(data, "dropped_lines", []))
+    return rep
+
+
+def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData) -> tuple[pa.Table, np.ndarray]:
+    if stream.clock == "header":
+        if data.header_ns is None:
+            raise IngestError(f"stream {name!r} uses clock: header, but {data.msgtype} has no header stamp",
+                              file=path, topic=data.topic)
+        base = np.asarray(data.header_ns, dtype=np.int64)
+    else:
+        base = np.asarray(data.log_ns, dtype=np.int64)
+    t_ns = base + np.int64(round(stream.offset_s * 1e9))
+    order = np.argsort(t_ns, kind="stable")
+    arrays: dict[str, pa.Array] = {"t_ns": pa.array(t_ns[order], type=pa.int64())}
+    for plan in column_plans(stream):
+        try:
+            raw = np.asarray(data.columns[plan.field], dtype=np.float64)
+        except KeyError:
+            key = plan.field.strip()
+            if key not in data.columns:
+                raise IngestError(f"stream {name!r}: the reader returned no column for field {plan.field!r}",
+                                  file=path, topic=data.topic, field=plan.field) from None
+            raw = np.asarray(data.columns[key], dtype=np.float64)
+        values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
+        arrays[plan.column] = pa.array(values[order], type=pa.float64())
+    return pa.table(arrays), t_ns

@@ -1,0 +1,327 @@
+"""Delimited text logs: a CSV trial is a directory of text files, each file one stream ("topic").
+
+What a lab exports varies, so the reader copes with: comma, tab, semicolon or whitespace separators (detected
+from the first lines unless given), preamble lines before the header (``skip_rows``), files without a header
+(column names from the config), header names with stray spaces or non-ASCII units (``" PWM (µs)"`` is matched
+as ``"PWM (µs)"``), and gzip-compressed files (detected by content, the ``1f 8b`` magic, not by name).
+
+The time column is parsed from its text, exactly: ``1700000000.123456789`` s becomes ``1700000000123456789`` ns
+without a trip through float64 (which keeps only ~0.4 µs at today's epoch). Relative times get ``epoch_s`` added.
+
+Parsing options live in the vehicle config (:class:`~pipeline.config.sources.CsvOptions`, per stream), so
+:func:`open_text` alone can only list files; give the options with :meth:`TextLogReader.configure` (or as
+``read(requests, csv_options=...)``). A file without options is read with the defaults: detected delimiter,
+header on the first line, no time column (``log_ns`` is then the row number).
+
+A value that does not parse as a number is not fatal: its row is dropped from the file's columns and the
+1-based line numbers are reported in :attr:`CsvTopicData.dropped_lines` (the ingest report shows them). A bad
+or empty time stamp raises :class:`~pipeline.errors.IngestError` with the line numbers. Line numbers assume one
+record per physical line (no quoted newlines).
+"""
+
+from __future__ import annotations
+
+import gzip
+import logging
+import re
+from dataclasses import dataclass, field
+from decimal import Decimal
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+import pandas as pd
+
+from pipeline.config.sources import CsvOptions
+from pipeline.errors import IngestError
+from pipeline.io.base import ReadResult, TopicData, TopicInfo
+from pipeline.units import TIME_UNITS_NS
+
+log = logging.getLogger(__name__)
+
+GZIP_MAGIC = b"\x1f\x8b"
+TEXT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".log", ".gz")
+_CANDIDATE_DELIMITERS = (",", "\t", ";")
+_WHITESPACE = r"\s+"
+_SNIFF_LINES = 20
+_MAX_REPORTED_LINES = 50
+_DECIMAL = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
+
+
+@dataclass
+class CsvTopicData(TopicData):
+    """TopicData of one CSV file, plus the rows dropped because a value did not parse."""
+
+    dropped_lines: list[int] = field(default_factory=list)
+    dropped_count: int = 0
+
+
+def is_gzip(path: str | Path) -> bool:
+    with open(path, "rb") as handle:
+        return handle.read(2) == GZIP_MAGIC
+
+
+def looks_like_text_dir(path: str | Path) -> bool:
+    """A directory holding at least one text file (by suffix) and no bag metadata / storage files."""
+    path = Path(path)
+    if not path.is_dir() or (path / "metadata.yaml").exists():
+        return False
+    files = _text_files(path)
+    return bool(files) and not any(p.suffix in {".db3", ".mcap", ".bag"} for p in path.iterdir())
+
+
+def open_text(path: str | Path) -> TextLogReader:
+    """Open a directory of delimited text files (a CSV trial) or a single text file."""
+    return TextLogReader(path)
+
+
+def _text_files(directory: Path) -> list[Path]:
+    return sorted(p for p in directory.rglob("*") if p.is_file() and not any(
+        part.startswith(".") for part in p.relative_to(directory).parts) and p.name.lower().endswith(TEXT_SUFFIXES))
+
+
+class TextLogReader:
+    """LogReader over a CSV trial directory (or one file). Topics are file names relative to the directory."""
+
+    format = "csv"
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(self.path)
+        if self.path.is_dir():
+            self._base = self.path
+            self._files = {p.relative_to(self.path).as_posix(): p for p in _text_files(self.path)}
+        else:
+            self._base = self.path.parent
+            self._files = {self.path.name: self.path}
+        if not self._files:
+            raise IngestError("no delimited text files (.csv, .tsv, .txt, .dat, .gz) in directory", file=self.path)
+        self._options: dict[str, CsvOptions] = {}
+
+    # -- LogReader protocol -------------------------------------------------------------------------------
+    def __enter__(self) -> TextLogReader:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Nothing stays open between calls."""
+
+    def configure(self, csv_options: dict[str, CsvOptions]) -> None:
+        """Set the parsing options per file (topic name); unknown names raise IngestError listing the files."""
+        for name in csv_options:
+            self._file(name)
+        self._options.update(csv_options)
+
+    def topics(self) -> dict[str, TopicInfo]:
+        """Files of the trial; ``count`` is the number of data lines (non-blank, after preamble and header)."""
+        out = {}
+        for name in self._files:
+            count = self._count_data_lines(name)
+            out[name] = TopicInfo(topic=name, msgtype="csv", count=count, first_ns=None, last_ns=None,
+                                  has_header=False)
+        return out
+
+    def fields(self, topic: str) -> list[str]:
+        """Column names of a file (stripped of surrounding spaces)."""
+        return list(self._header(topic)[1])
+
+    def read(self, requests: dict[str, list[str]],
+             csv_options: dict[str, CsvOptions] | None = None) -> ReadResult:
+        """Read the requested columns of each requested file as float64, stamped by the time column."""
+        if csv_options:
+            self.configure(csv_options)
+        topics: dict[str, TopicData] = {}
+        for name, columns in requests.items():
+            topics[name] = self._read_file(name, columns)
+        return ReadResult(topics=topics, failed={}, salvage=None)
+
+    # -- internals ----------------------------------------------------------------------------------------
+    def _file(self, name: str) -> Path:
+        try:
+            return self._files[name]
+        except KeyError:
+            raise IngestError(f"no file {name!r} in CSV trial; available: {sorted(self._files)}",
+                              file=self.path, topic=name) from None
+
+    def _opts(self, name: str) -> CsvOptions | None:
+        return self._options.get(name)
+
+    def _text_head(self, name: str, n_lines: int) -> list[str]:
+        path = self._file(name)
+        opts = self._opts(name)
+        encoding = opts.encoding if opts else "utf-8"
+        opener = gzip.open if is_gzip(path) else open
+        lines: list[str] = []
+        try:
+            with opener(path, "rt", encoding=encoding, errors="strict", newline="") as handle:  # type: ignore[operator]
+                for line in handle:
+                    lines.append(line.rstrip("\r\n"))
+                    if len(lines) >= n_lines:
+                        break
+        except (UnicodeDecodeError, OSError, EOFError) as err:
+            raise IngestError(f"cannot read as {encoding} text: {err}", file=path) from err
+        return lines
+
+    def _count_data_lines(self, name: str) -> int:
+        path = self._file(name)
+        opts = self._opts(name)
+        opener = gzip.open if is_gzip(path) else open
+        skip = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0)
+        count = 0
+        try:
+            with opener(path, "rb") as handle:  # type: ignore[operator]
+                for i, line in enumerate(handle):
+                    if i >= skip and line.strip():
+                        count += 1
+        except (OSError, EOFError) as err:
+            raise IngestError(f"cannot read: {err}", file=path) from err
+        return count
+
+    def _delimiter(self, name: str) -> str:
+        opts = self._opts(name)
+        if opts is not None and opts.delimiter is not None:
+            return _WHITESPACE if opts.delimiter.strip() == "" and opts.delimiter not in ("\t",) else opts.delimiter
+        skip = opts.skip_rows if opts else 0
+        lines = [ln for ln in self._text_head(name, skip + _SNIFF_LINES)[skip:] if ln.strip()]
+        if not lines:
+            raise IngestError("empty file (no header or data lines)", file=self._file(name))
+        return sniff_delimiter(lines)
+
+    def _read_kwargs(self, name: str) -> dict[str, object]:
+        opts = self._opts(name)
+        path = self._file(name)
+        sep = self._delimiter(name)
+        kwargs: dict[str, object] = {
+            "sep": sep,
+            "skiprows": opts.skip_rows if opts else 0,
+            "compression": "gzip" if is_gzip(path) else None,
+            "encoding": opts.encoding if opts else "utf-8",
+            "skip_blank_lines": False,
+            "engine": "c",
+        }
+        if sep != _WHITESPACE:
+            kwargs["skipinitialspace"] = True
+        if opts is not None and not opts.header:
+            kwargs["header"] = None
+            kwargs["names"] = list(opts.columns or [])
+        return kwargs
+
+    def _header(self, name: str) -> tuple[list[str], list[str]]:
+        """(raw names as pandas sees them, stripped names)."""
+        path = self._file(name)
+        kwargs = self._read_kwargs(name)
+        try:
+            frame = pd.read_csv(path, nrows=0, **kwargs)  # type: ignore[call-overload]
+        except pd.errors.EmptyDataError as err:
+            raise IngestError("empty file (no header or data lines)", file=path) from err
+        except (ValueError, UnicodeDecodeError, OSError, EOFError) as err:
+            raise IngestError(f"cannot parse as delimited text: {err}", file=path) from err
+        raw = [str(c) for c in frame.columns]
+        return raw, [c.strip() for c in raw]
+
+    def _read_file(self, name: str, columns: list[str]) -> CsvTopicData:
+        path = self._file(name)
+        opts = self._opts(name)
+        raw, stripped = self._header(name)
+        by_name = dict(zip(stripped, raw, strict=True))
+        wanted = list(dict.fromkeys([*(c.strip() for c in columns), *([opts.time_column.strip()] if opts else [])]))
+        for col in wanted:
+            if col not in by_name:
+                raise IngestError(f"no column {col!r}; available: {stripped}", file=path, topic=name, field=col)
+        kwargs = self._read_kwargs(name)
+        use = [by_name[c] for c in wanted]
+        dtype = {by_name[opts.time_column.strip()]: str} if opts else None
+        try:
+            frame = pd.read_csv(path, usecols=use, dtype=dtype, **kwargs)  # type: ignore[call-overload]
+        except (ValueError, UnicodeDecodeError, OSError, EOFError, pd.errors.ParserError) as err:
+            raise IngestError(f"cannot parse as delimited text: {err}", file=path, topic=name) from err
+        frame.columns = [str(c).strip() for c in frame.columns]
+        first_line = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0) + 1
+        lines = np.arange(len(frame), dtype=np.int64) + first_line
+        blank = frame.isna().all(axis=1).to_numpy()
+        if blank.any():
+            frame = frame.loc[~blank].reset_index(drop=True)
+            lines = lines[~blank]
+        expected = len(frame)
+
+        if opts is not None:
+            log_ns = time_to_ns(frame[opts.time_column.strip()], opts, path=path, topic=name, lines=lines)
+        else:
+            log_ns = np.arange(len(frame), dtype=np.int64)
+
+        values: dict[str, np.ndarray] = {}
+        bad = np.zeros(len(frame), dtype=bool)
+        for col in dict.fromkeys(c.strip() for c in columns):
+            series = frame[col]
+            if series.dtype == object or pd.api.types.is_string_dtype(series.dtype):
+                text = series.astype("string").str.strip()
+                numeric = pd.to_numeric(text, errors="coerce")
+                bad |= (numeric.isna() & text.notna() & (text != "")).to_numpy()
+                values[col] = numeric.to_numpy(dtype=np.float64, na_value=np.nan)
+            else:
+                values[col] = series.to_numpy(dtype=np.float64, na_value=np.nan)
+        dropped: list[int] = []
+        if bad.any():
+            dropped = lines[bad].tolist()
+            log.warning("%s: dropped %d row(s) with unparseable numbers at line(s) %s", path, len(dropped),
+                        dropped[:10])
+            keep = ~bad
+            log_ns = log_ns[keep]
+            values = {k: v[keep] for k, v in values.items()}
+        return CsvTopicData(topic=name, msgtype="csv", log_ns=log_ns, header_ns=None, columns=values,
+                            path="csv", read=len(log_ns), expected=expected,
+                            dropped_lines=dropped[:_MAX_REPORTED_LINES], dropped_count=len(dropped))
+
+
+def sniff_delimiter(lines: list[str]) -> str:
+    """Comma, tab or semicolon if every line has the same nonzero count of it; else whitespace."""
+    for cand in _CANDIDATE_DELIMITERS:
+        counts = {ln.count(cand) for ln in lines}
+        if len(counts) == 1 and counts.pop() > 0:
+            return cand
+    widths = {len(ln.split()) for ln in lines}
+    if len(widths) == 1 and widths.pop() > 1:
+        return _WHITESPACE
+    # ragged lines: the candidate present on the most lines, else whitespace
+    best = max(_CANDIDATE_DELIMITERS, key=lambda c: sum(c in ln for ln in lines))
+    return best if any(best in ln for ln in lines) else _WHITESPACE
+
+
+def _epoch_ns(epoch_s: float) -> int:
+    return int((Decimal(repr(epoch_s)) * 1_000_000_000).to_integral_value())
+
+
+def time_to_ns(raw: pd.Series, opts: CsvOptions, *, path: Path | str, topic: str,
+               lines: np.ndarray) -> np.ndarray:
+    """Exact decimal text -> int64 ns in the configured unit and origin; bad stamps raise IngestError."""
+    unit_ns = TIME_UNITS_NS[opts.time_unit]
+    digits = len(str(unit_ns)) - 1
+    text = raw.astype("string").str.strip().fillna("")
+    parts = text.str.extract(_DECIMAL)
+    ok = parts[1].fillna("").ne("") | parts[2].fillna("").ne("")
+    ok &= text.ne("")
+    ns = np.zeros(len(text), dtype=np.int64)
+    okv = ok.to_numpy(dtype=bool)
+    if okv.any():
+        sign = np.where(parts[0][ok].fillna("").to_numpy(dtype=object) == "-", -1, 1).astype(np.int64)
+        whole = parts[1][ok].fillna("").replace("", "0").astype("int64").to_numpy(dtype=np.int64)
+        frac = parts[2][ok].fillna("").str.ljust(digits + 1, "0").str.slice(0, digits + 1)
+        frac_int = frac.astype("int64").to_numpy(dtype=np.int64)
+        frac_ns = (frac_int + 5) // 10  # round half up at the nanosecond
+        ns[okv] = sign * (whole * unit_ns + frac_ns)
+    rest = ~okv
+    if rest.any():  # exponent notation and the like: through float, then check
+        floats = pd.to_numeric(text[rest], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+        bad = ~np.isfinite(floats)
+        if bad.any():
+            bad_lines = lines[rest][bad].tolist()
+            raise IngestError(f"unparseable or empty time stamp at line(s) {bad_lines[:_MAX_REPORTED_LINES]} "
+                              f"({len(bad_lines)} in all)", file=path, topic=topic, field=opts.time_column)
+        ns[rest] = np.round(floats * unit_ns).astype(np.int64)
+    if opts.time_origin == "relative":
+        ns = ns + _epoch_ns(opts.epoch_s)
+    return ns
