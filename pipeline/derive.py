@@ -1,0 +1,86 @@
+"""Forces from the kinematics table: thrust per thruster, generalized forces and the damping target.
+
+``derive(kin, vehicle)`` is pure. It adds to the kinematics table (rows and columns kept):
+
+- ``T_<thruster>_N``: thrust of each thruster (config order) from its ``speed_signal`` (rpm), by
+  :func:`pipeline.physics.thrusts` (``k n|n|`` or the interpolated thrust table);
+- ``tau_*``: generalized forces tau = B T (allocation matrix B);
+- ``Mnudot_*`` = M nu_dot, ``Cnu_*`` = C(nu) nu, ``g_*`` = g(eta) from roll and pitch;
+- ``d_*`` = tau - M nu_dot - C(nu) nu - g(eta), the damping target.
+
+Which nu: the accelerations come from smoothed data, so C(nu) nu uses the **smoothed** velocities
+(``u_smooth_mps`` ...) as well: the terms of d then belong to the same filtered signal, and C(nu) nu, being
+quadratic in nu, gets no noise-squared bias. The measured velocities stay in the table for the models.
+
+All vectors are 6-DOF. DOFs the vehicle does not measure (rates not configured, see
+:mod:`pipeline.kinematics`) carry zeros in nu and nu_dot, so their terms reduce to what tau and g give;
+models choose the DOFs they use. Columns are named ``<prefix>_<dof>_<N|Nm>``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pandas as pd
+
+from pipeline import physics
+from pipeline.config.vehicle import Vehicle
+from pipeline.errors import SchemaError
+from pipeline.kinematics import ACCELERATION, SMOOTH
+
+log = logging.getLogger(__name__)
+
+TERMS = ("tau", "Mnudot", "Cnu", "g", "d")
+
+
+def thrust_column(thruster_name: str) -> str:
+    return f"T_{thruster_name}_N"
+
+
+def derived_columns(vehicle: Vehicle) -> list[str]:
+    """The columns :func:`derive` adds, in order."""
+    cols = [thrust_column(t.name) for t in vehicle.thrusters]
+    for prefix in TERMS:
+        cols += physics.force_columns(prefix)
+    return cols
+
+
+def _need(kin: pd.DataFrame, columns: list[str], what: str) -> np.ndarray:
+    missing = [c for c in columns if c not in kin.columns]
+    if missing:
+        raise SchemaError(f"{what}: column(s) {missing} missing from the kinematics table; "
+                          f"found {list(kin.columns)}", field=missing[0])
+    return kin[columns].to_numpy(dtype=float)
+
+
+def derive(kin: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
+    """The derived table: kinematics plus thrust, tau, M nu_dot, C(nu) nu, g(eta) and d."""
+    speeds = np.empty((len(kin), len(vehicle.thrusters)))
+    for i, thr in enumerate(vehicle.thrusters):
+        if thr.speed_signal not in kin.columns:
+            raise SchemaError(f"thrusters[{i}] ({thr.name}).speed_signal {thr.speed_signal!r} is not a column of "
+                              f"the kinematics table; found {list(kin.columns)}", field=thr.speed_signal)
+        speeds[:, i] = kin[thr.speed_signal].to_numpy(dtype=float)
+    nudot = _need(kin, ACCELERATION, "accelerations")
+    nu = _need(kin, SMOOTH, "smoothed velocities")
+    attitude = _need(kin, ["roll_rad", "pitch_rad"], "attitude for g(eta)")
+
+    M = physics.mass_matrix(vehicle)
+    T = physics.thrusts(vehicle, speeds)
+    tau = T @ physics.allocation_matrix(vehicle).T
+    m_nudot = nudot @ M.T
+    c_nu = physics.coriolis_force(M, nu)
+    g = physics.restoring_force(vehicle, attitude[:, 0], attitude[:, 1])
+    d = physics.damping_target(M, tau, nudot, nu, g)
+
+    out = kin.copy()
+    new: dict[str, np.ndarray] = {thrust_column(t.name): T[:, i] for i, t in enumerate(vehicle.thrusters)}
+    for prefix, values in zip(TERMS, (tau, m_nudot, c_nu, g, d), strict=True):
+        for j, col in enumerate(physics.force_columns(prefix)):
+            new[col] = values[:, j]
+    clash = [c for c in new if c in out.columns]
+    if clash:
+        log.warning("kinematics table already has %s; overwritten", clash)
+        out = out.drop(columns=clash)
+    return pd.concat([out, pd.DataFrame(new, index=out.index)], axis=1)
