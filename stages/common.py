@@ -2,7 +2,17 @@
 
 A stage module defines ``run(root, vehicle, params, **kw) -> StageResult`` (reads inputs, calls the
 library, writes outputs) and ``main(argv) = stage_main(NAME, run, argv)``. Exit codes: 0 done, 1 done
-with quarantined inputs, 2 usage or config error.
+with quarantined inputs, 2 usage or config error, 3 a stage failed (PipelineError).
+
+The registry of stages (``STAGE_ORDER``, ``load_stage``) and the DAG runner without DVC (``run_stages``) live
+here too: the ``auvid`` CLI, ``auvid retrain`` and the tests (with fake stages) all go through them.
+
+**Progress**: a stage whose ``run`` accepts ``progress`` gets a callable (or None) and calls it as
+``progress(done, total, desc)``: ``done`` units finished so far (absolute, not an increment), ``total``
+the number expected (or None), ``desc`` an optional short label (the file or fold being worked on);
+``progress("label")`` alone means one more unit done. The CLI turns it into a tqdm bar, quiet when stdout is
+not a terminal; the callable also has ``.update(n)`` (increment). Library code never imports tqdm.
+A stage whose ``run`` accepts ``n_jobs`` gets ``pipeline.parallel.n_jobs()`` from the runner.
 """
 
 from __future__ import annotations
@@ -24,7 +34,7 @@ from pipeline.parallel import backend
 
 log = logging.getLogger(__name__)
 
-EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 
 #: The DAG in execution order (``auvid run`` and ``dvc.yaml`` follow it).
 STAGE_ORDER: tuple[str, ...] = ("ingest", "sync", "differentiate", "derive", "features", "tune", "train",
@@ -83,7 +93,7 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
         return EXIT_USAGE
     except PipelineError as err:
         print(f"{name} failed: {err}", file=sys.stderr)
-        return EXIT_USAGE
+        return EXIT_FAILED
     print(f"{name}: {len(result.outputs)} output(s), {len(result.quarantined)} quarantined")
     for entry in result.quarantined:
         print(f"  quarantined {entry.get('file')}: {entry.get('reason')}", file=sys.stderr)
@@ -145,3 +155,79 @@ def discover_trials(root: Path) -> list[str]:
     if not base.is_dir():
         return []
     return sorted(p.name for p in base.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+def trials_for(name: str, root: Path) -> list[str]:
+    """The trials a per-trial stage has input for: what its predecessor wrote."""
+    from pipeline import layout
+
+    root = Path(root)
+    if name == "sync":
+        return discover_trials(root)
+    source = {"differentiate": layout.SYNCED, "derive": layout.KINEMATICS}.get(name)
+    if source is None:
+        return []
+    base = root / source
+    return sorted(p.stem for p in base.glob("*.parquet")) if base.is_dir() else []
+
+
+def _run_trial(job: tuple[str, Path, Vehicle, Params, str]) -> StageResult:
+    name, root, vehicle, params, trial = job
+    return call_stage(name, root, vehicle, params, trial=trial)
+
+
+def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: list[Path] | None = None,
+              progress: Callable[..., Any] | None = None, fan_out: bool = True) -> StageResult:
+    """Run one stage of the DAG; per-trial stages fan out over trials through joblib (the active backend)."""
+    from pipeline.parallel import n_jobs, pmap
+
+    root = Path(root)
+    module = load_stage(name)
+    kwargs: dict[str, Any] = {"progress": progress, "n_jobs": n_jobs()}
+    if name == "ingest" and logs is not None:
+        kwargs["logs"] = list(logs)
+    if fan_out and name in PER_TRIAL and "trial" in accepted_kwargs(module.run, {"trial": None}):
+        trials = trials_for(name, root)
+        if not trials:
+            log.warning("stage %s: no trial has input yet", name)
+        results = pmap(_run_trial, [(name, root, vehicle, params, t) for t in trials])
+        return merge_results(name, results)
+    return call_stage(name, root, vehicle, params, **kwargs)
+
+
+def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] | tuple[str, ...] = STAGE_ORDER,
+               *, logs: list[Path] | None = None,
+               progress_factory: Callable[[str], Callable[..., Any] | None] | None = None,
+               on_stage: Callable[[str, StageResult | None, float], None] | None = None) -> list[StageResult]:
+    """Run ``stages`` in DAG order without DVC. Checks that every stage exists before running any.
+
+    ``progress_factory(stage)`` gives the progress callback for a stage (or None); ``on_stage(stage, result,
+    seconds)`` is called before (result None) and after each stage. A PipelineError stops the run.
+    """
+    import time
+
+    ordered = [s for s in STAGE_ORDER if s in set(stages)]
+    missing = []
+    for name in ordered:
+        try:
+            load_stage(name)
+        except MissingStageError as err:
+            missing.append(f"{name} ({err.reason})")
+    if missing:
+        raise MissingStageError("cannot run the DAG, missing stage(s): " + "; ".join(missing))
+    results = []
+    for name in ordered:
+        if on_stage is not None:
+            on_stage(name, None, 0.0)
+        start = time.perf_counter()
+        progress = progress_factory(name) if progress_factory is not None else None
+        try:
+            result = run_stage(name, root, vehicle, params, logs=logs, progress=progress)
+        finally:
+            close = getattr(progress, "close", None)
+            if callable(close):
+                close()
+        results.append(result)
+        if on_stage is not None:
+            on_stage(name, result, time.perf_counter() - start)
+    return results

@@ -1,0 +1,328 @@
+"""The ``auvid`` command: the only place that prints, shows progress bars and chooses exit codes.
+
+Exit codes: 0 done; 1 done, but some inputs were quarantined (see the report); 2 usage or config error;
+3 a stage failed (nothing half-written: every output is written atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from pipeline import __version__
+from pipeline.errors import ConfigError, PipelineError
+
+EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
+
+STAGE_HELP = {
+    "ingest": "read trial logs (MCAP, ROS 1/2 bags, CSV) into per-stream Parquet at native rate",
+    "sync": "put each trial's streams on one uniform grid with validity masks and segments",
+    "differentiate": "smooth velocities and differentiate them (Gaussian / Savitzky-Golay), trim edges",
+    "derive": "thrust per thruster, generalized forces tau, damping target d",
+    "features": "write the Parquet feature store with tuning / train-test / test split labels",
+    "tune": "hyperparameter search for the coupled models on the tuning split",
+    "train": "fit and cross-validate the coupled models (SVR variants, Gertler-Hagen, McFarland-Whitcomb)",
+    "decoupled": "fit and cross-validate the decoupled damping models (LS, MLP, KRR, SVR, GP)",
+    "simulate": "free-run rollouts on the test trial, DVL-outage bridging",
+    "report": "one self-contained HTML report + reports/metrics.json",
+}
+
+EPILOG = """\
+examples:
+  auvid demo                                   # simulated example, whole DAG, prints where the report is
+  auvid inspect trial01.mcap                   # topics, types, rates, gaps: start a vehicle config from it
+  auvid run --root runs/basin --vehicle dagon.yaml data/raw/*.mcap
+  auvid sync --root runs/basin --vehicle dagon.yaml --trial trial01
+  auvid report --root runs/basin --vehicle dagon.yaml
+  auvid retrain --root /srv/auvid --inbox /srv/incoming --vehicle dagon.yaml
+  AUVID_SCHEDULER=tcp://scheduler:8786 auvid run ...   # fan-out on a Dask cluster (or --scheduler)
+
+exit codes: 0 done, 1 done with quarantined inputs, 2 usage or config error, 3 a stage failed.
+DVC: `dvc repro` runs the same stages from dvc.yaml (pip install -e '.[dvc]'). See docs/user-guide.md.
+"""
+
+
+# ----------------------------------------------------------------------------------------------- progress
+
+class Progress:
+    """A stage progress callback drawn as a tqdm bar; silent when stdout is not a terminal.
+
+    Called as ``progress(done, total=None, desc=None)`` (absolute position), ``progress("label")`` (one more
+    unit done) or ``progress.update(n)``.
+    """
+
+    def __init__(self, label: str, enabled: bool | None = None) -> None:
+        self.label = label
+        self.enabled = sys.stdout.isatty() if enabled is None else enabled
+        self._bar: Any = None
+        self.done = 0
+        self.total: int | None = None
+
+    def _ensure(self) -> Any:
+        if self._bar is None and self.enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=self.total, desc=self.label, unit="", leave=False, file=sys.stdout)
+        return self._bar
+
+    def __call__(self, done: int | float | str, total: int | float | None = None, desc: str | None = None) -> None:
+        if isinstance(done, str):
+            done, desc = self.done + 1, done
+        self.done = int(done)
+        if total is not None:
+            self.total = int(total)
+        bar = self._ensure()
+        if bar is not None:
+            if total is not None and bar.total != self.total:
+                bar.total = self.total
+            if desc:
+                bar.set_postfix_str(str(desc)[-40:], refresh=False)
+            bar.n = self.done
+            bar.refresh()
+
+    def update(self, n: int = 1) -> None:
+        self(self.done + n, self.total)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+def _progress_factory(args: argparse.Namespace) -> Callable[[str], Progress]:
+    enabled = sys.stdout.isatty() and not getattr(args, "quiet", False)
+    return lambda stage: Progress(stage, enabled)
+
+
+# ---------------------------------------------------------------------------------------------- arguments
+
+def _add_config(p: argparse.ArgumentParser, vehicle_required: bool = False) -> None:
+    p.add_argument("--root", type=Path, default=Path("."), help="run directory holding data/ and reports/ "
+                   "(default: .)")
+    p.add_argument("--vehicle", type=Path, default=Path("vehicle.yaml"),
+                   help="vehicle config YAML (default: vehicle.yaml)")
+    p.add_argument("--params", type=Path, default=None,
+                   help="params YAML (default: <root>/params.yaml if present, else built-in defaults)")
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler (tcp://host:8786) for per-trial and CV/search fan-out "
+                        "(default: $AUVID_SCHEDULER, else local processes)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="auvid", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
+        description="From underwater-vehicle trial logs to identified, validated motion models.\n\n"
+                    "The DAG: ingest -> sync -> differentiate -> derive -> features -> tune -> train -> "
+                    "decoupled -> simulate -> report.\nEach stage has its own subcommand; `run` does them all.")
+    parser.add_argument("--version", action="version", version=f"auvid {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    demo = sub.add_parser("demo", help="simulate an example vehicle, run the whole DAG on it, print the report "
+                          "path", formatter_class=argparse.RawDescriptionHelpFormatter,
+                          epilog="example:\n  auvid demo --out /tmp/auvid-demo\n")
+    demo.add_argument("--out", type=Path, default=Path("auvid-demo"), help="output directory (default: "
+                      "./auvid-demo)")
+    demo.add_argument("--duration-s", type=float, default=None, help="length of each simulated trial")
+    _add_run_options(demo)
+
+    run = sub.add_parser("run", help="run every stage in DAG order (without DVC)",
+                         formatter_class=argparse.RawDescriptionHelpFormatter,
+                         epilog="examples:\n  auvid run --root runs/basin --vehicle dagon.yaml data/raw/*.mcap\n"
+                                "  auvid run --root runs/basin --vehicle dagon.yaml --from features\n")
+    _add_config(run)
+    run.add_argument("logs", nargs="*", type=Path, help="logs to ingest (default: everything under data/raw/)")
+    run.add_argument("--from", dest="first", choices=_stage_names(), help="start at this stage")
+    run.add_argument("--to", dest="last", choices=_stage_names(), help="stop after this stage")
+    _add_run_options(run)
+
+    for name in _stage_names():
+        p = sub.add_parser(name, help=STAGE_HELP[name], description=STAGE_HELP[name],
+                           formatter_class=argparse.RawDescriptionHelpFormatter,
+                           epilog=f"example:\n  auvid {name} --root runs/basin --vehicle dagon.yaml"
+                                  + (" data/raw/trial01.mcap" if name == "ingest" else "")
+                                  + (" --trial trial01" if name in ("sync", "differentiate", "derive") else "")
+                                  + "\n")
+        _add_config(p)
+        if name == "ingest":
+            p.add_argument("logs", nargs="*", type=Path, help="logs to ingest (default: everything under "
+                           "data/raw/)")
+        if name in ("sync", "differentiate", "derive"):
+            p.add_argument("--trial", default=None, help="one trial (default: every trial with input)")
+        _add_run_options(p)
+
+    insp = sub.add_parser("inspect", help="list a log's topics, message types, counts, rates and gaps",
+                          formatter_class=argparse.RawDescriptionHelpFormatter,
+                          epilog="examples:\n  auvid inspect trial01.mcap\n  auvid inspect rosbag2_dir/ --json\n"
+                                 "Use its output to write the `streams:` of a vehicle config "
+                                 "(docs/user-guide.md).\n")
+    insp.add_argument("log", type=Path, help="an MCAP file, ROS 1 bag, ROS 2 bag directory or CSV directory")
+    insp.add_argument("--json", action="store_true", help="machine-readable output")
+    insp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+    rt = sub.add_parser("retrain", help="ingest new logs from an inbox, retrain, promote only if better "
+                        "(cron-safe)", formatter_class=argparse.RawDescriptionHelpFormatter,
+                        epilog="example (cron, every night at 02:30):\n"
+                               "  30 2 * * * auvid retrain --root /srv/auvid --inbox /srv/incoming "
+                               "--vehicle /srv/auvid/dagon.yaml -q\n"
+                               "A second run while one holds the lock exits 0 with a message. "
+                               "See docs/retraining.md.\n")
+    rt.add_argument("--root", type=Path, required=True, help="retraining home: registry.json, store, models")
+    rt.add_argument("--inbox", type=Path, required=True, help="directory where new trial logs arrive")
+    rt.add_argument("--vehicle", type=Path, default=None,
+                    help="vehicle config (default: <root>/vehicle.yaml)")
+    rt.add_argument("--params", type=Path, default=None, help="params YAML (default: <root>/params.yaml)")
+    _add_run_options(rt)
+    return parser
+
+
+def _stage_names() -> list[str]:
+    return list(STAGE_HELP)
+
+
+# ----------------------------------------------------------------------------------------------- commands
+
+def _load(args: argparse.Namespace) -> tuple[Any, Any]:
+    from stages.common import load_configs
+
+    return load_configs(args.root, args.vehicle, args.params)
+
+
+def _print_stage(stage: str, result: Any, seconds: float) -> None:
+    if result is None:
+        print(f"[{stage}] ...", flush=True)
+        return
+    line = f"[{stage}] {len(result.outputs)} output(s) in {seconds:.1f} s"
+    if result.quarantined:
+        line += f", {len(result.quarantined)} quarantined"
+    print(line, flush=True)
+    for entry in result.quarantined:
+        print(f"  quarantined {entry.get('file')}: {entry.get('reason')}", file=sys.stderr)
+
+
+def _exit_code(results: list[Any]) -> int:
+    return EXIT_QUARANTINED if any(r.quarantined for r in results) else EXIT_OK
+
+
+def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
+    from stages.common import run_stages
+
+    vehicle, params = _load(args)
+    logs = list(getattr(args, "logs", None) or []) or None
+    if getattr(args, "trial", None):
+        from stages.common import call_stage
+
+        start = time.perf_counter()
+        result = call_stage(stages[0], args.root, vehicle, params, trial=args.trial)
+        _print_stage(stages[0], result, time.perf_counter() - start)
+        return _exit_code([result])
+    results = run_stages(args.root, vehicle, params, stages, logs=logs, progress_factory=_progress_factory(args),
+                         on_stage=_print_stage)
+    report = Path(args.root) / "reports" / "report.html"
+    if "report" in stages and report.exists():
+        print(f"report: {report.resolve()}")
+    return _exit_code(results)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from stages.common import STAGE_ORDER
+
+    order = list(STAGE_ORDER)
+    first = order.index(args.first) if args.first else 0
+    last = order.index(args.last) if args.last else len(order) - 1
+    if first > last:
+        raise ConfigError(f"--from {args.first} comes after --to {args.last} in the DAG")
+    return cmd_stages(args, order[first:last + 1])
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from pipeline import demo
+    from stages.common import STAGE_ORDER, load_configs, run_stages
+
+    out = args.out.resolve()
+    start = time.perf_counter()
+    print(f"auvid demo: simulating the example vehicle into {out}", flush=True)
+    setup = demo.prepare(out, duration_s=args.duration_s)
+    print(f"  {len(setup.logs)} trial log(s): {', '.join(p.name for p in setup.logs)}")
+    print(f"  vehicle config: {setup.vehicle_path}\n  params: {setup.params_path}", flush=True)
+    vehicle, params = load_configs(out, setup.vehicle_path, setup.params_path)
+    results = run_stages(out, vehicle, params, STAGE_ORDER, logs=setup.logs,
+                         progress_factory=_progress_factory(args), on_stage=_print_stage)
+    report = out / "reports" / "report.html"
+    print(f"demo finished in {time.perf_counter() - start:.0f} s")
+    print(f"report: {report}")
+    return _exit_code(results)
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    try:
+        from pipeline.io.inspect import format_inspect, inspect_log
+    except ImportError as err:
+        raise PipelineError(f"`auvid inspect` is not available in this build: {err}") from None
+    info = inspect_log(args.log)
+    if args.json:
+        print(json.dumps(info, indent=2, sort_keys=True, default=str))
+    else:
+        print(format_inspect(info))
+    return EXIT_OK
+
+
+def cmd_retrain(args: argparse.Namespace) -> int:
+    from pipeline.retrain import RetrainOptions, retrain
+
+    root = args.root.resolve()
+    options = RetrainOptions(root=root, inbox=args.inbox.resolve(),
+                             vehicle_path=(args.vehicle or root / "vehicle.yaml").resolve(),
+                             params_path=args.params.resolve() if args.params else None,
+                             progress_factory=_progress_factory(args), on_stage=_print_stage)
+    outcome = retrain(options)
+    print(f"retrain: {outcome.message}")
+    return EXIT_QUARANTINED if outcome.quarantined else EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    scheduler = getattr(args, "scheduler", None)
+    try:
+        from pipeline.parallel import backend
+
+        with backend(scheduler):
+            if args.command == "demo":
+                return cmd_demo(args)
+            if args.command == "run":
+                return cmd_run(args)
+            if args.command == "inspect":
+                return cmd_inspect(args)
+            if args.command == "retrain":
+                return cmd_retrain(args)
+            return cmd_stages(args, [args.command])
+    except ConfigError as err:
+        print(f"auvid: config error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except PipelineError as err:
+        print(f"auvid: {args.command} failed: {err}", file=sys.stderr)
+        return EXIT_FAILED
+    except FileNotFoundError as err:
+        print(f"auvid: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("auvid: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
+

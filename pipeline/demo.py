@@ -1,0 +1,116 @@
+"""The embedded example: a DAGON-like vehicle simulated by ``pipeline.sim``, laid out as a run directory.
+
+``prepare(out)`` writes ``out/data/raw/<trial>.mcap`` (the simulated trial logs), ``out/vehicle.yaml`` (the
+vehicle config the simulator wrote for its logs) and ``out/params.yaml`` (small, fast settings that still
+exercise every stage), and returns where they are. ``auvid demo`` then runs the DAG on it; ``dvc.yaml``'s
+``example`` stage calls the same function for the repository's own run directory.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from pipeline import layout
+from pipeline.config import Params, parse
+from pipeline.errors import PipelineError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_DURATION_S = 240.0
+LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+
+
+@dataclass(frozen=True)
+class DemoSetup:
+    root: Path
+    logs: list[Path]
+    vehicle_path: Path
+    params_path: Path
+    trials: list[str]
+
+
+def demo_params(trials: list[str]) -> dict[str, Any]:
+    """Params for the example: every stage, every model, sized to finish in minutes on two cores."""
+    test = [trials[-1]] if len(trials) >= 2 else []
+    params = {
+        "ingest": {"salvage": True},
+        "sync": {"rate_hz": 10.0, "min_segment_s": 5.0},
+        "differentiate": {"method": "gaussian", "sigma_s": 0.25, "edge_sigmas": 3.0},
+        "features": {"tuning_fraction": 0.2, "test_trials": test},
+        "coupled": {"folds": 5, "search": "fast", "max_samples": 600, "seed": 0},
+        "decoupled": {"folds": 5, "search": "fast", "gp_max_samples": 300, "seed": 0},
+        "simulate": {"horizons_s": [1.0, 5.0, 10.0], "outage_windows_s": [10.0, 30.0]},
+    }
+    parse(Params, params, "demo params")  # fail here, not three stages later
+    return params
+
+
+def _find_logs(directory: Path) -> list[Path]:
+    found: list[Path] = []
+    for path in sorted(directory.rglob("*")):
+        if any(parent in found for parent in path.parents):
+            continue
+        if path.is_file() and path.suffix in LOG_SUFFIXES and not (path.parent / "metadata.yaml").exists():
+            found.append(path)
+        elif path.is_dir() and (path / "metadata.yaml").exists():
+            found.append(path)
+    return found
+
+
+def _simulate(target: Path, duration_s: float, seed: int) -> None:
+    try:
+        from pipeline.sim import example
+    except ImportError as err:
+        raise PipelineError(f"the example simulator is not available (pipeline.sim.example): {err}") from None
+    example(target, fmt="mcap", duration_s=duration_s, seed=seed)
+
+
+def prepare(out: str | Path, *, duration_s: float | None = None, seed: int = 0) -> DemoSetup:
+    """Simulate the example trials and lay out ``out`` as a run directory (see the module docstring)."""
+    from pipeline.ingest import trial_id
+
+    out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    gen = out / ".example"
+    if gen.exists():
+        shutil.rmtree(gen)
+    _simulate(gen, duration_s or DEFAULT_DURATION_S, seed)
+    vehicles = sorted(gen.rglob("vehicle.yaml")) or sorted(gen.rglob("*.yaml"))
+    if not vehicles:
+        raise PipelineError("the example simulator wrote no vehicle.yaml", file=gen)
+    logs = _find_logs(gen)
+    if not logs:
+        raise PipelineError("the example simulator wrote no trial logs", file=gen)
+    raw = out / layout.RAW
+    if raw.exists():
+        shutil.rmtree(raw)
+    raw.mkdir(parents=True)
+    moved = []
+    for path in logs:
+        target = raw / path.name
+        os.replace(path, target)
+        moved.append(target)
+    # The vehicle config and anything it refers to (thrust tables) stay together, next to params.yaml.
+    vehicle_src = vehicles[0]
+    for item in vehicle_src.parent.iterdir():
+        if item.is_file():
+            shutil.copy2(item, out / item.name)
+    vehicle_path = out / vehicle_src.name
+    if vehicle_path.name != "vehicle.yaml":
+        os.replace(vehicle_path, out / "vehicle.yaml")
+        vehicle_path = out / "vehicle.yaml"
+    shutil.rmtree(gen, ignore_errors=True)
+    trials = sorted(trial_id(p) for p in moved)
+    params_path = out / "params.yaml"
+    params_path.write_text("# auvid demo params (auvid demo writes this file; see pipeline/config/params.py)\n"
+                           + yaml.safe_dump(demo_params(trials), sort_keys=False))
+    log.info("demo: %d trial(s) %s in %s", len(trials), trials, out)
+    return DemoSetup(root=out, logs=sorted(moved), vehicle_path=vehicle_path, params_path=params_path,
+                     trials=trials)
