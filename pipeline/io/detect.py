@@ -1,0 +1,66 @@
+"""``open_log(path)``: choose the reader by content (magic bytes), never by extension."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from pipeline.errors import IngestError
+from pipeline.io.base import LogReader
+from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
+from pipeline.io.rosbag1 import MAGIC as ROS1_MAGIC
+from pipeline.io.rosbag2 import SQLITE_MAGIC, ZSTD_MAGIC, storage_files
+
+log = logging.getLogger(__name__)
+
+EXPECTED = (f"expected one of the magic bytes {MCAP_MAGIC!r} (MCAP), {ROS1_MAGIC!r} (ROS 1 bag), "
+            f"{SQLITE_MAGIC!r} (ROS 2 sqlite3), {ZSTD_MAGIC!r} (zstd-compressed ROS 2 storage), "
+            "or a directory (ROS 2 bag or CSV files)")
+TEXT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".csv.gz", ".tsv.gz", ".txt.gz")
+
+
+def sniff(path: Path) -> str:
+    """The kind of log at ``path``: mcap, ros1, ros2-dir, ros2-file, csv-dir; IngestError if none."""
+    if not path.exists():
+        raise IngestError(f"no such file or directory; {EXPECTED}", file=path)
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file() or storage_files(path):
+            return "ros2-dir"
+        if any(p.is_file() and p.name.lower().endswith(TEXT_SUFFIXES) for p in path.iterdir()):
+            return "csv-dir"
+        found = sorted(p.name for p in path.iterdir())[:20]
+        raise IngestError(f"directory holds nothing readable (found {found}); {EXPECTED}", file=path)
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if not head:
+        raise IngestError(f"empty file (0 bytes); {EXPECTED}", file=path)
+    if head.startswith(MCAP_MAGIC):
+        return "mcap"
+    if head.startswith(ROS1_MAGIC):
+        return "ros1"
+    if head.startswith(SQLITE_MAGIC) or head.startswith(ZSTD_MAGIC):
+        return "ros2-file"
+    raise IngestError(f"unknown format: the file starts with {head[:16]!r}; {EXPECTED}", file=path)
+
+
+def open_log(path: str | Path) -> LogReader:
+    """Open any supported log; the reader lists topics and reads requested fields (:mod:`pipeline.io.base`)."""
+    path = Path(path)
+    kind = sniff(path)
+    if kind == "mcap":
+        from pipeline.io.mcap_reader import McapReader
+
+        return McapReader(path)
+    if kind == "ros1":
+        from pipeline.io.rosbag1 import Rosbag1Reader
+
+        return Rosbag1Reader(path)
+    if kind == "csv-dir":
+        from pipeline.io.text import open_text
+
+        return open_text(path)
+    from pipeline.io.rosbag2 import Rosbag2Reader
+
+    if kind == "ros2-file":
+        return Rosbag2Reader.from_files([path])
+    return Rosbag2Reader(path)

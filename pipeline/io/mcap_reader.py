@@ -1,0 +1,285 @@
+"""MCAP files: a small record walker over a memory map, in file order, with a tolerant mode for salvage.
+
+The walker never sorts (the mcap library's default ``log_time_order=True`` sorts a whole stream in memory):
+messages come in storage order, chunks are decompressed once each, and only the payloads of requested channels
+are kept. A file cut short or damaged raises :class:`Damaged` in strict mode; in tolerant mode the walk stops
+at the first damaged record and reports where (:mod:`pipeline.io.salvage`).
+"""
+
+from __future__ import annotations
+
+import logging
+import mmap
+import struct
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pipeline.errors import IngestError
+from pipeline.io.base import RawReader, RawTopic, SalvageInfo, TopicInfo
+from pipeline.io.fields import TypeRegistry, normalize_msgtype
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_STATISTICS, OP_DATA_END = 0x0B, 0x0F
+_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
+_REC = struct.Struct("<BQ")
+_MSG = struct.Struct("<HIQQ")
+
+
+class Damaged(Exception):
+    """The file is damaged at byte ``at``."""
+
+    def __init__(self, reason: str, at: int) -> None:
+        super().__init__(f"{reason} at byte {at}")
+        self.reason = reason
+        self.at = at
+
+
+@dataclass
+class Channel:
+    id: int
+    topic: str
+    encoding: str
+    schema_id: int
+
+
+@dataclass
+class Walk:
+    """What a walk over one MCAP file found."""
+
+    schemas: dict[int, tuple[str, str, str]] = field(default_factory=dict)  # id -> (name, encoding, text)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    counts: dict[int, int] = field(default_factory=dict)
+    first: dict[int, int] = field(default_factory=dict)
+    last: dict[int, int] = field(default_factory=dict)
+    stats_counts: dict[int, int] | None = None
+    damage: Damaged | None = None
+    kept: int = 0
+
+
+def _string(buf: bytes | mmap.mmap, pos: int) -> tuple[str, int]:
+    (n,) = _U32.unpack_from(buf, pos)
+    return bytes(buf[pos + 4:pos + 4 + n]).decode("utf-8", "replace"), pos + 4 + n
+
+
+def _decompress(compression: str, data: bytes, size: int, *, partial: bool) -> bytes:
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+
+        if partial:
+            return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=max(size, 1))
+    if compression == "lz4":
+        import lz4.frame
+
+        if partial:
+            return lz4.frame.LZ4FrameDecompressor().decompress(data)
+        return lz4.frame.decompress(data)
+    raise Damaged(f"unknown chunk compression {compression!r}", 0)
+
+
+def walk(
+    path: Path, on_message: Callable[[int, int, bytes | None], None] | None = None,
+    wanted: set[int] | None = None, *, tolerant: bool = False,
+) -> Walk:
+    """Walk every record of ``path`` in file order; call ``on_message(channel, log_ns, payload)``.
+
+    ``payload`` is None for channels not in ``wanted`` (so unwanted payloads are never copied).
+    """
+    out = Walk()
+    with open(path, "rb") as fh:
+        size = fh.seek(0, 2)
+        if size < len(MAGIC) or fh.seek(0) != 0 or fh.read(8) != MAGIC:
+            raise IngestError(f"not an MCAP file: expected magic {MAGIC!r}", file=path)
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            try:
+                _walk_records(mm, 8, size, out, on_message, wanted, tolerant=tolerant, origin=0)
+                if not tolerant and (size < 16 or mm[size - 8:size] != MAGIC):
+                    raise Damaged("no MCAP magic at the end (file cut short?)", size)
+            except Damaged as dmg:
+                if not tolerant:
+                    raise
+                out.damage = dmg
+            except (struct.error, UnicodeDecodeError, IndexError) as err:
+                dmg = Damaged(f"malformed record ({err})", -1)
+                if not tolerant:
+                    raise dmg from err
+                out.damage = dmg
+    return out
+
+
+def _walk_records(
+    buf: bytes | mmap.mmap, pos: int, end: int, out: Walk,
+    on_message: Callable[[int, int, bytes | None], None] | None, wanted: set[int] | None, *, tolerant: bool,
+    origin: int, in_chunk: bool = False,
+) -> None:
+    while pos < end:
+        if pos + 9 > end:
+            raise Damaged("record header cut short", origin + pos)
+        op, length = _REC.unpack_from(buf, pos)
+        body = pos + 9
+        stop = body + length
+        if stop > end:
+            if op == OP_CHUNK and tolerant and not in_chunk:
+                _partial_chunk(buf, body, end, out, on_message, wanted, origin + pos)
+            raise Damaged(f"record (opcode 0x{op:02x}, {length} bytes) cut short", origin + pos)
+        if op == OP_MESSAGE:
+            ch, _seq, log_ns, _pub = _MSG.unpack_from(buf, body)
+            if ch not in out.channels:
+                raise Damaged(f"message on unknown channel {ch}", origin + pos)
+            out.counts[ch] = out.counts.get(ch, 0) + 1
+            out.first.setdefault(ch, log_ns)
+            out.last[ch] = log_ns
+            out.kept += 1
+            if on_message is not None:
+                keep = wanted is None or ch in wanted
+                on_message(ch, log_ns, bytes(buf[body + 22:stop]) if keep else None)
+        elif op == OP_CHUNK:
+            _chunk(buf, body, stop, out, on_message, wanted, tolerant=tolerant, origin=origin + pos)
+        elif op == OP_SCHEMA:
+            (sid,) = _U16.unpack_from(buf, body)
+            name, p = _string(buf, body + 2)
+            enc, p = _string(buf, p)
+            (n,) = _U32.unpack_from(buf, p)
+            out.schemas[sid] = (name, enc, bytes(buf[p + 4:p + 4 + n]).decode("utf-8", "replace"))
+        elif op == OP_CHANNEL:
+            cid, sid = struct.unpack_from("<HH", buf, body)
+            topic, p = _string(buf, body + 4)
+            enc, p = _string(buf, p)
+            out.channels.setdefault(cid, Channel(cid, topic, enc, sid))
+        elif op == OP_STATISTICS:
+            (n,) = _U32.unpack_from(buf, body + 42)
+            counts = {}
+            for q in range(body + 46, body + 46 + n, 10):
+                cid, cnt = struct.unpack_from("<HQ", buf, q)
+                counts[cid] = cnt
+            out.stats_counts = counts
+        elif op == OP_FOOTER:
+            return
+        elif op == 0 or op > 0x0F and op < 0x80:
+            raise Damaged(f"unknown record opcode 0x{op:02x}", origin + pos)
+        pos = stop
+
+
+def _chunk_head(buf: bytes | mmap.mmap, body: int) -> tuple[int, int, str, int, int]:
+    _start, _end, usize, crc = struct.unpack_from("<QQQI", buf, body)
+    compression, p = _string(buf, body + 28)
+    (rlen,) = _U64.unpack_from(buf, p)
+    return usize, crc, compression, p + 8, rlen
+
+
+def _chunk(
+    buf: bytes | mmap.mmap, body: int, stop: int, out: Walk,
+    on_message: Callable[[int, int, bytes | None], None] | None, wanted: set[int] | None, *, tolerant: bool,
+    origin: int,
+) -> None:
+    usize, crc, compression, rstart, rlen = _chunk_head(buf, body)
+    if rstart + rlen > stop:
+        raise Damaged("chunk records overrun the chunk", origin)
+    try:
+        data = _decompress(compression, bytes(buf[rstart:rstart + rlen]), usize, partial=False)
+    except Damaged as dmg:
+        raise Damaged(dmg.reason, origin) from None
+    except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types
+        raise Damaged(f"chunk does not decompress ({err})", origin) from err
+    if len(data) != usize or (crc and zlib.crc32(data) != crc):
+        raise Damaged("chunk CRC or size mismatch (corrupt bytes)", origin)
+    # Validate the whole chunk before delivering any of it: a corrupt chunk is dropped as a unit.
+    if on_message is not None:
+        staged: list[tuple[int, int, bytes | None]] = []
+        _walk_records(data, 0, len(data), out, lambda c, t, p: staged.append((c, t, p)), wanted,
+                      tolerant=tolerant, origin=origin, in_chunk=True)
+        for item in staged:
+            on_message(*item)
+    else:
+        _walk_records(data, 0, len(data), out, None, wanted, tolerant=tolerant, origin=origin, in_chunk=True)
+
+
+def _partial_chunk(
+    buf: bytes | mmap.mmap, body: int, end: int, out: Walk,
+    on_message: Callable[[int, int, bytes | None], None] | None, wanted: set[int] | None, origin: int,
+) -> None:
+    """Keep the complete messages of a chunk that the file's end cut through."""
+    try:
+        usize, _crc, compression, rstart, rlen = _chunk_head(buf, body)
+        data = _decompress(compression, bytes(buf[rstart:min(end, rstart + rlen)]), usize, partial=True)
+    except Exception:  # noqa: BLE001 - nothing recoverable in this chunk
+        return
+    try:
+        _walk_records(data, 0, len(data), out, on_message, wanted, tolerant=True, origin=origin, in_chunk=True)
+    except (Damaged, struct.error):
+        pass
+
+
+class McapReader(RawReader):
+    """A plain MCAP file (ROS 2 CDR or ROS 1 encoded messages)."""
+
+    format = "mcap"
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__(path)
+        self._walk: Walk | None = None
+        self._tolerant = False
+
+    def _do_walk(self, on_message: Callable[[int, int, bytes | None], None] | None = None,
+                 wanted: set[int] | None = None) -> Walk:
+        if not self._tolerant:
+            try:
+                return walk(self.path, on_message, wanted)
+            except Damaged as dmg:
+                log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
+                self._tolerant = True
+                if on_message is not None:
+                    raise
+        result = walk(self.path, on_message, wanted, tolerant=True)
+        dmg = result.damage
+        self.salvage = SalvageInfo(
+            kept=result.kept, stopped_at_byte=None if dmg is None or dmg.at < 0 else dmg.at,
+            reason=dmg.reason if dmg else "no damage found")
+        return result
+
+    def _scan(self) -> None:
+        w = self._do_walk()
+        self._walk = w
+        self._types = TypeRegistry(ros1=all(c.encoding == "ros1" for c in w.channels.values()) and
+                                   bool(w.channels))
+        infos: dict[str, TopicInfo] = {}
+        for cid, ch in sorted(w.channels.items()):
+            name, enc, text = w.schemas.get(ch.schema_id, ("", "", ""))
+            msgtype = normalize_msgtype(name) if name else ""
+            if name:
+                self._types.add(msgtype, enc, text)
+            count = w.counts.get(cid, 0)
+            if w.stats_counts is not None and self.salvage is None:
+                count = w.stats_counts.get(cid, count)
+            prev = infos.get(ch.topic)
+            first, last = w.first.get(cid), w.last.get(cid)
+            if prev is not None:
+                count += prev.count
+                first = min(x for x in (first, prev.first_ns) if x is not None) if (first or prev.first_ns) else None
+                last = max(x for x in (last, prev.last_ns) if x is not None) if (last or prev.last_ns) else None
+            infos[ch.topic] = TopicInfo(ch.topic, prev.msgtype if prev else msgtype, count, first, last,
+                                        self._types.has_header(prev.msgtype if prev else msgtype))
+            self._encoding.setdefault(ch.topic, ch.encoding)
+        self._infos = infos
+
+    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:
+        assert self._walk is not None
+        by_channel = {cid: ch.topic for cid, ch in self._walk.channels.items() if ch.topic in topics}
+        out = {t: RawTopic() for t in topics}
+
+        def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
+            if payload is not None:
+                rt = out[by_channel[cid]]
+                rt.log_ns.append(log_ns)
+                rt.payloads.append(payload)
+
+        self._do_walk(on_message, set(by_channel))
+        return out
+

@@ -1,0 +1,289 @@
+"""ROS 1 bags (format 2.0): uncompressed, bz2 or lz4 chunks; indexed or never indexed (index position 0).
+
+Records are walked in file order. An indexed bag lists its topics, counts and time range from its index
+(connection, chunk-info and index-data records) without decompressing a chunk; a bag whose index was never
+written is scanned. A bag cut short raises :class:`Damaged` in strict mode; in tolerant mode the walk keeps
+every complete message before the damage and reports where it stopped (:mod:`pipeline.io.salvage`).
+"""
+
+from __future__ import annotations
+
+import bz2
+import logging
+import mmap
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pipeline.errors import IngestError
+from pipeline.io.base import RawReader, RawTopic, SalvageInfo, TopicInfo
+from pipeline.io.fields import TypeRegistry, normalize_msgtype
+from pipeline.io.mcap_reader import Damaged
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"#ROSBAG V2.0\n"
+OP_MSG, OP_BAG_HEADER, OP_INDEX, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
+_U32 = struct.Struct("<I")
+
+
+@dataclass
+class Connection:
+    id: int
+    topic: str
+    msgtype: str
+    definition: str
+
+
+@dataclass
+class BagWalk:
+    connections: dict[int, Connection] = field(default_factory=dict)
+    counts: dict[int, int] = field(default_factory=dict)
+    first: dict[int, int] = field(default_factory=dict)
+    last: dict[int, int] = field(default_factory=dict)
+    index_pos: int = 0
+    damage: Damaged | None = None
+    kept: int = 0
+
+
+def _header(buf: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
+    fields: dict[str, bytes] = {}
+    while pos < end:
+        (n,) = _U32.unpack_from(buf, pos)
+        if pos + 4 + n > end:
+            raise struct.error("header field overruns its header")
+        raw = bytes(buf[pos + 4:pos + 4 + n])
+        key, sep, value = raw.partition(b"=")
+        if not sep:
+            raise struct.error("header field without '='")
+        fields[key.decode("ascii", "replace")] = value
+        pos += 4 + n
+    return fields
+
+
+def _time(value: bytes) -> int:
+    sec, nsec = struct.unpack("<II", value)
+    return sec * 1_000_000_000 + nsec
+
+
+def _decompress(compression: str, data: bytes, *, partial: bool) -> bytes:
+    if compression == "none":
+        return data
+    if compression == "bz2":
+        return bz2.BZ2Decompressor().decompress(data) if partial else bz2.decompress(data)
+    if compression == "lz4":
+        import lz4.frame
+
+        return lz4.frame.LZ4FrameDecompressor().decompress(data) if partial else lz4.frame.decompress(data)
+    raise Damaged(f"unknown chunk compression {compression!r}", 0)
+
+
+def _connection(out: BagWalk, hdr: dict[str, bytes], buf: bytes | mmap.mmap, dpos: int, dend: int) -> None:
+    cid = _U32.unpack(hdr["conn"])[0]
+    if cid in out.connections:
+        return
+    data = _header(buf, dpos, dend)
+    out.connections[cid] = Connection(
+        cid, hdr["topic"].decode(), normalize_msgtype(data.get("type", b"").decode()),
+        data.get("message_definition", b"").decode("utf-8", "replace"))
+
+
+def walk_records(
+    buf: bytes | mmap.mmap, pos: int, end: int, out: BagWalk, on_message: Callable[[int, int, bytes], None] | None,
+    wanted: set[int] | None, *, tolerant: bool, origin: int | None = None, stop_at: int = 0,
+) -> None:
+    """Walk records from ``pos``; ``origin`` is the file offset of a chunk's data (None: top level)."""
+    while pos < end:
+        if stop_at and origin is None and pos >= stop_at:
+            return
+        at = pos if origin is None else origin
+        if pos + 4 > end:
+            raise Damaged("record header length cut short", at)
+        (hlen,) = _U32.unpack_from(buf, pos)
+        if pos + 8 + hlen > end:
+            if tolerant and origin is None and hlen < end:
+                _partial_chunk(buf, pos, end, out, on_message, wanted)
+            raise Damaged("record cut short", at)
+        try:
+            hdr = _header(buf, pos + 4, pos + 4 + hlen)
+        except struct.error as err:
+            raise Damaged(f"malformed record header ({err})", at) from err
+        (dlen,) = _U32.unpack_from(buf, pos + 4 + hlen)
+        dpos = pos + 8 + hlen
+        dend = dpos + dlen
+        if dend > end:
+            if tolerant and origin is None and hdr.get("op") == bytes([OP_CHUNK]):
+                _partial_chunk(buf, pos, end, out, on_message, wanted)
+            raise Damaged("record data cut short", at)
+        op = hdr.get("op", b"\x00")[0]
+        if op == OP_MSG:
+            cid = _U32.unpack(hdr["conn"])[0]
+            if cid not in out.connections:
+                raise Damaged(f"message on unknown connection {cid}", at)
+            t = _time(hdr["time"])
+            out.counts[cid] = out.counts.get(cid, 0) + 1
+            out.first.setdefault(cid, t)
+            out.last[cid] = t
+            out.kept += 1
+            if on_message is not None and (wanted is None or cid in wanted):
+                on_message(cid, t, bytes(buf[dpos:dend]))
+        elif op == OP_CONNECTION:
+            _connection(out, hdr, buf, dpos, dend)
+        elif op == OP_CHUNK:
+            comp = hdr.get("compression", b"none").decode()
+            try:
+                data = _decompress(comp, bytes(buf[dpos:dend]), partial=False)
+            except Damaged:
+                raise Damaged(f"unknown chunk compression {comp!r}", at) from None
+            except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
+                raise Damaged(f"chunk does not decompress ({err})", at) from err
+            if len(data) != _U32.unpack(hdr["size"])[0]:
+                raise Damaged("chunk size mismatch (corrupt bytes)", at)
+            staged: list[tuple[int, int, bytes]] = []
+            walk_records(data, 0, len(data), out, _stager(staged), wanted, tolerant=tolerant, origin=at)
+            if on_message is not None:
+                for item in staged:
+                    on_message(*item)
+        elif op == OP_BAG_HEADER:
+            out.index_pos = struct.unpack("<Q", hdr["index_pos"])[0]
+        elif op not in (OP_INDEX, OP_CHUNK_INFO):
+            raise Damaged(f"unknown record op 0x{op:02x}", at)
+        pos = dend
+
+
+def _stager(staged: list[tuple[int, int, bytes]]) -> Callable[[int, int, bytes], None]:
+    def stage(cid: int, t: int, payload: bytes) -> None:
+        staged.append((cid, t, payload))
+    return stage
+
+
+def _partial_chunk(
+    buf: bytes | mmap.mmap, pos: int, end: int, out: BagWalk, on_message: Callable[[int, int, bytes], None] | None,
+    wanted: set[int] | None,
+) -> None:
+    """Keep the complete messages of a chunk that the file's end cut through."""
+    try:
+        (hlen,) = _U32.unpack_from(buf, pos)
+        hdr = _header(buf, pos + 4, pos + 4 + hlen)
+        if hdr.get("op") != bytes([OP_CHUNK]):
+            return
+        data = _decompress(hdr.get("compression", b"none").decode(), bytes(buf[pos + 8 + hlen:end]), partial=True)
+    except Exception:  # noqa: BLE001 - nothing recoverable
+        return
+    try:
+        walk_records(data, 0, len(data), out, on_message, wanted, tolerant=True, origin=pos)
+    except (Damaged, struct.error, KeyError):
+        pass
+
+
+def walk(
+    path: Path, on_message: Callable[[int, int, bytes], None] | None = None, wanted: set[int] | None = None, *,
+    tolerant: bool = False,
+) -> BagWalk:
+    out = BagWalk()
+    with open(path, "rb") as fh:
+        if fh.read(len(MAGIC)) != MAGIC:
+            raise IngestError(f"not a ROS 1 bag: expected magic {MAGIC!r}", file=path)
+        size = fh.seek(0, 2)
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            try:
+                walk_records(mm, len(MAGIC), size, out, None, None, tolerant=tolerant, stop_at=len(MAGIC) + 1)
+                if out.index_pos > size:
+                    raise Damaged(f"index position {out.index_pos} beyond the end of the file (cut short?)", size)
+                out.counts.clear()
+                walk_records(mm, len(MAGIC), size, out, on_message, wanted, tolerant=tolerant,
+                             stop_at=out.index_pos)
+            except Damaged as dmg:
+                if not tolerant:
+                    raise
+                out.damage = dmg
+            except (struct.error, KeyError, UnicodeDecodeError) as err:
+                dmg = Damaged(f"malformed record ({err!r})", -1)
+                if not tolerant:
+                    raise dmg from err
+                out.damage = dmg
+    return out
+
+
+def index_counts(path: Path) -> dict[int, int] | None:
+    """Message counts per connection from the bag's own index (chunk-info records), None when unindexed."""
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        probe = BagWalk()
+        walk_records(mm, len(MAGIC), len(mm), probe, None, None, tolerant=False, stop_at=len(MAGIC) + 1)
+        if not probe.index_pos or probe.index_pos >= len(mm):
+            return None
+        counts: dict[int, int] = {}
+        pos = probe.index_pos
+        while pos + 4 <= len(mm):
+            (hlen,) = _U32.unpack_from(mm, pos)
+            hdr = _header(mm, pos + 4, pos + 4 + hlen)
+            (dlen,) = _U32.unpack_from(mm, pos + 4 + hlen)
+            dpos = pos + 8 + hlen
+            if hdr.get("op") == bytes([OP_CHUNK_INFO]):
+                for q in range(dpos, dpos + dlen, 8):
+                    cid, n = struct.unpack_from("<II", mm, q)
+                    counts[cid] = counts.get(cid, 0) + n
+            pos = dpos + dlen
+        return counts
+
+
+class Rosbag1Reader(RawReader):
+    format = "ros1"
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__(path)
+        self._walk: BagWalk | None = None
+
+    def _do_walk(self, on_message: Callable[[int, int, bytes], None] | None = None,
+                 wanted: set[int] | None = None) -> BagWalk:
+        if self.salvage is None:
+            try:
+                return walk(self.path, on_message, wanted)
+            except Damaged as dmg:
+                if on_message is not None:
+                    raise IngestError(f"bag changed while reading: {dmg}", file=self.path) from dmg
+                log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
+        result = walk(self.path, on_message, wanted, tolerant=True)
+        dmg = result.damage
+        self.salvage = SalvageInfo(result.kept, None if dmg is None or dmg.at < 0 else dmg.at,
+                                   dmg.reason if dmg else "no damage found")
+        return result
+
+    def _scan(self) -> None:
+        w = self._do_walk()
+        self._walk = w
+        stored = None
+        if self.salvage is None:
+            try:
+                stored = index_counts(self.path)
+            except (struct.error, KeyError, Damaged) as err:
+                log.warning("%s: bag index unreadable (%s); counting by scanning", self.path, err)
+        self._types = TypeRegistry(ros1=True)
+        infos: dict[str, TopicInfo] = {}
+        for cid, conn in sorted(w.connections.items()):
+            self._types.add(conn.msgtype, "ros1msg", conn.definition)
+            count = (stored or {}).get(cid, w.counts.get(cid, 0)) if stored is not None else w.counts.get(cid, 0)
+            first, last = w.first.get(cid), w.last.get(cid)
+            prev = infos.get(conn.topic)
+            if prev is not None:
+                count += prev.count
+                first = min(x for x in (first, prev.first_ns) if x is not None) if first or prev.first_ns else None
+                last = max(x for x in (last, prev.last_ns) if x is not None) if last or prev.last_ns else None
+            msgtype = prev.msgtype if prev else conn.msgtype
+            infos[conn.topic] = TopicInfo(conn.topic, msgtype, count, first, last, self._types.has_header(msgtype))
+            self._encoding[conn.topic] = "ros1"
+        self._infos = infos
+
+    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:
+        assert self._walk is not None
+        by_conn = {cid: c.topic for cid, c in self._walk.connections.items() if c.topic in topics}
+        out = {t: RawTopic() for t in topics}
+
+        def on_message(cid: int, log_ns: int, payload: bytes) -> None:
+            rt = out[by_conn[cid]]
+            rt.log_ns.append(log_ns)
+            rt.payloads.append(payload)
+
+        self._do_walk(on_message, set(by_conn))
+        return out

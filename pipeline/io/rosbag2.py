@@ -1,0 +1,233 @@
+"""ROS 2 bags: a directory of sqlite3 or MCAP storage files, with or without ``metadata.yaml``.
+
+Storage is read directly (sqlite rows fetched in bulk; MCAP records walked by :mod:`pipeline.io.mcap_reader`),
+so the counts come from the storage itself (``COUNT(*)`` per topic, MCAP records) and a split bag is one
+recording. Per-file compression (``*.db3.zstd``, ``*.mcap.zstd``) is undone into a temporary directory that
+:meth:`Rosbag2Reader.close` removes; per-message compression is undone per payload.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import sqlite3
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from pipeline.errors import IngestError
+from pipeline.io.base import RawReader, RawTopic, SalvageInfo, TopicInfo
+from pipeline.io.fields import TypeRegistry, normalize_msgtype
+from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
+from pipeline.io.mcap_reader import Damaged, walk
+
+log = logging.getLogger(__name__)
+
+SQLITE_MAGIC = b"SQLite format 3\x00"
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+_STORAGE = re.compile(r"\.(db3|mcap)(\.zstd)?$")
+
+
+def _natural(path: Path) -> list[Any]:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
+
+
+def storage_files(directory: Path) -> list[Path]:
+    """Storage files of a bag directory without metadata: ``*.db3``/``*.mcap`` (maybe ``.zstd``), natural order."""
+    return sorted((p for p in directory.iterdir() if p.is_file() and _STORAGE.search(p.name)), key=_natural)
+
+
+def _magic(path: Path) -> bytes:
+    with open(path, "rb") as fh:
+        return fh.read(16)
+
+
+class Rosbag2Reader(RawReader):
+    """A ROS 2 bag directory (``format`` is ``ros2-sqlite3`` or ``ros2-mcap``)."""
+
+    def __init__(self, path: str | Path, files: list[Path] | None = None) -> None:
+        super().__init__(path)
+        self.metadata: dict[str, Any] = {}
+        meta = self.path / "metadata.yaml"
+        if files is not None:
+            pass
+        elif meta.is_file():
+            try:
+                doc = yaml.safe_load(meta.read_text(encoding="utf-8")) or {}
+                self.metadata = doc["rosbag2_bagfile_information"]
+            except (yaml.YAMLError, KeyError, TypeError) as err:
+                raise IngestError(f"metadata.yaml is not a rosbag2 metadata file: {err}", file=meta) from err
+            files = [self._locate(p) for p in self.metadata.get("relative_file_paths") or []]
+        else:
+            files = storage_files(self.path)
+        self.compression_mode = str(self.metadata.get("compression_mode") or "").upper()
+        self.compression_format = str(self.metadata.get("compression_format") or "")
+        if not files:
+            raise IngestError(
+                "no storage files: expected metadata.yaml or *.db3 / *.mcap (optionally .zstd) files", file=self.path)
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self.files = [self._plain(p) for p in files]
+        kinds = {("mcap" if _magic(p).startswith(MCAP_MAGIC) else "sqlite3") for p in self.files}
+        if len(kinds) != 1:
+            raise IngestError(f"storage files of mixed formats: {sorted(kinds)}", file=self.path)
+        self.storage = kinds.pop()
+        self.format = f"ros2-{self.storage}"
+        self._ids: list[dict[int, str]] = []     # per file: topic id / channel id -> topic
+
+    @classmethod
+    def from_files(cls, files: list[Path]) -> Rosbag2Reader:
+        """A single storage file (``.db3``, ``.db3.zstd``) read as a bag of one file."""
+        return cls(files[0], files=list(files))
+
+    def _locate(self, rel: str) -> Path:
+        path = self.path / rel
+        for cand in (path, path.with_name(path.name + ".zstd"), path.with_name(path.name.removesuffix(".zstd"))):
+            if cand.is_file():
+                return cand
+        raise IngestError(f"storage file {rel!r} listed in metadata.yaml is missing", file=self.path)
+
+    def _plain(self, path: Path) -> Path:
+        """Undo per-file compression (zstd) into a temporary directory."""
+        if _magic(path)[:4] != ZSTD_MAGIC:
+            return path
+        import zstandard
+
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="auvid-ros2-")
+        out = Path(self._tmp.name) / path.name.removesuffix(".zstd")
+        try:
+            with open(path, "rb") as src, open(out, "wb") as dst:
+                zstandard.ZstdDecompressor().copy_stream(src, dst)
+        except zstandard.ZstdError as err:
+            raise IngestError(f"zstd file compression does not decompress: {err}", file=path) from err
+        return out
+
+    def close(self) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def _decompress(self, payload: bytes) -> bytes:
+        if self.compression_mode == "MESSAGE" and self.compression_format == "zstd":
+            import zstandard
+
+            return zstandard.ZstdDecompressor().decompress(payload, max_output_size=1 << 31)
+        return payload
+
+    # -- scanning -------------------------------------------------------------------------------------------
+    def _scan(self) -> None:
+        self._types = TypeRegistry(ros1=False)
+        totals: dict[str, list[Any]] = {}   # topic -> [msgtype, count, first, last, encoding]
+
+        def add(topic: str, msgtype: str, enc: str, count: int, first: int | None, last: int | None) -> None:
+            cur = totals.setdefault(topic, [msgtype, 0, None, None, enc])
+            cur[1] += count
+            if first is not None:
+                cur[2] = first if cur[2] is None else min(cur[2], first)
+            if last is not None:
+                cur[3] = last if cur[3] is None else max(cur[3], last)
+
+        for path in self.files:
+            ids: dict[int, str] = {}
+            if self.storage == "sqlite3":
+                self._scan_sqlite(path, ids, add)
+            else:
+                self._scan_mcap(path, ids, add)
+            self._ids.append(ids)
+        self._infos = {}
+        for topic, (msgtype, count, first, last, enc) in totals.items():
+            self._infos[topic] = TopicInfo(topic, msgtype, count, first, last, self._types.has_header(msgtype))
+            self._encoding[topic] = "cdr" if enc.lower() == "cdr" else enc
+        self._check_metadata()
+
+    def _check_metadata(self) -> None:
+        assert self._infos is not None
+        for entry in self.metadata.get("topics_with_message_count") or []:
+            meta = entry.get("topic_metadata", {})
+            name, want = meta.get("name"), entry.get("message_count")
+            have = self._infos[name].count if name in self._infos else 0
+            if want is not None and want != have:
+                log.warning("%s: metadata.yaml says topic %s has %s messages; the storage holds %s",
+                            self.path, name, want, have)
+
+    def _connect(self, path: Path) -> sqlite3.Connection:
+        try:
+            return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
+        except sqlite3.Error as err:
+            raise IngestError(f"cannot open sqlite storage: {err}", file=path) from err
+
+    def _scan_sqlite(self, path: Path, ids: dict[int, str], add: Any) -> None:
+        con = self._connect(path)
+        try:
+            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+            if "message_definitions" in tables:
+                for typ, enc, text in con.execute(
+                        "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"):
+                    self._types.add(normalize_msgtype(typ), enc, text)  # type: ignore[union-attr]
+            stats = {tid: (n, lo, hi) for tid, n, lo, hi in con.execute(
+                "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")}
+            for tid, name, typ, fmt in con.execute("SELECT id, name, type, serialization_format FROM topics"):
+                ids[tid] = name
+                n, lo, hi = stats.get(tid, (0, None, None))
+                add(name, normalize_msgtype(typ), fmt, n, lo, hi)
+        except sqlite3.DatabaseError as err:
+            raise IngestError(f"not a readable rosbag2 sqlite3 storage file: {err}", file=path) from err
+        finally:
+            con.close()
+
+    def _walk_mcap(self, path: Path, on_message: Any = None, wanted: set[int] | None = None) -> Any:
+        try:
+            return walk(path, on_message, wanted, tolerant=self.salvage is not None)
+        except Damaged as dmg:
+            if on_message is not None:
+                raise IngestError(f"storage file changed while reading: {dmg}", file=path) from dmg
+            log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
+            w = walk(path, None, None, tolerant=True)
+            self.salvage = SalvageInfo(w.kept, None if dmg.at < 0 else dmg.at, f"{path.name}: {dmg.reason}")
+            return w
+
+    def _scan_mcap(self, path: Path, ids: dict[int, str], add: Any) -> None:
+        w = self._walk_mcap(path)
+        for cid, ch in sorted(w.channels.items()):
+            name, enc, text = w.schemas.get(ch.schema_id, ("", "", ""))
+            msgtype = normalize_msgtype(name)
+            if name:
+                self._types.add(msgtype, enc, text)  # type: ignore[union-attr]
+            ids[cid] = ch.topic
+            count = w.counts.get(cid, 0)
+            if w.stats_counts is not None and self.salvage is None:
+                count = w.stats_counts.get(cid, count)
+            add(ch.topic, msgtype, ch.encoding, count, w.first.get(cid), w.last.get(cid))
+
+    # -- reading --------------------------------------------------------------------------------------------
+    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:
+        out = {t: RawTopic() for t in topics}
+        for path, ids in zip(self.files, self._ids, strict=True):
+            wanted = {i: t for i, t in ids.items() if t in out}
+            if not wanted:
+                continue
+            if self.storage == "sqlite3":
+                con = self._connect(path)
+                try:
+                    marks = ",".join("?" * len(wanted))
+                    rows = con.execute(
+                        f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) ORDER BY id",
+                        list(wanted))
+                    for tid, stamp, data in rows:
+                        rt = out[wanted[tid]]
+                        rt.log_ns.append(int(stamp))
+                        rt.payloads.append(self._decompress(bytes(data)))
+                finally:
+                    con.close()
+            else:
+                def on_message(cid: int, log_ns: int, payload: bytes | None, wanted: dict[int, str] = wanted) -> None:
+                    if payload is not None:
+                        rt = out[wanted[cid]]
+                        rt.log_ns.append(log_ns)
+                        rt.payloads.append(self._decompress(payload))
+
+                self._walk_mcap(path, on_message, set(wanted))
+        return out
+
