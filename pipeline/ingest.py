@@ -87,14 +87,9 @@ def column_plans(stream: StreamSource) -> list[ColumnPlan]:
 
 
 def _open(path: Path) -> Any:
-    from pipeline.io import text
+    """The reader for ``path``, chosen by content (:func:`pipeline.io.open_log`); a CSV directory -> text."""
+    from pipeline.io import open_log
 
-    try:
-        from pipeline.io import open_log
-    except ImportError:  # binary readers not present: only CSV trials can be read
-        if path.is_dir() or text.looks_like_text_dir(path):
-            return text.open_text(path)
-        raise IngestError("no reader for this file (pipeline.io.open_log unavailable)", file=path) from None
     return open_log(path)
 
 
