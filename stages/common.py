@@ -177,8 +177,10 @@ def _run_trial(job: tuple[str, Path, Vehicle, Params, str]) -> StageResult:
 
 
 def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: list[Path] | None = None,
-              progress: Callable[..., Any] | None = None, fan_out: bool = True) -> StageResult:
-    """Run one stage of the DAG; per-trial stages fan out over trials through joblib (the active backend)."""
+              progress: Callable[..., Any] | None = None, fan_out: bool = True,
+              trials: list[str] | None = None) -> StageResult:
+    """Run one stage of the DAG; per-trial stages fan out over ``trials`` (default: every trial with input)
+    through joblib, in the active backend (local processes or a Dask cluster)."""
     from pipeline.parallel import n_jobs, pmap
 
     root = Path(root)
@@ -187,7 +189,7 @@ def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: 
     if name == "ingest" and logs is not None:
         kwargs["logs"] = list(logs)
     if fan_out and name in PER_TRIAL and "trial" in accepted_kwargs(module.run, {"trial": None}):
-        trials = trials_for(name, root)
+        trials = trials_for(name, root) if trials is None else trials
         if not trials:
             log.warning("stage %s: no trial has input yet", name)
         results = pmap(_run_trial, [(name, root, vehicle, params, t) for t in trials])
@@ -231,3 +233,11 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
         if on_stage is not None:
             on_stage(name, result, time.perf_counter() - start)
     return results
+
+
+def trial_output(name: str, root: Path, trial: str) -> Path:
+    """The file a per-trial stage writes for ``trial``."""
+    from pipeline import layout
+
+    return {"sync": layout.synced_path, "differentiate": layout.kinematics_path,
+            "derive": layout.derived_path}[name](Path(root), trial)
