@@ -1,0 +1,242 @@
+"""Decoupled damping models d_i(nu_i) (paper 001): LS on [nu, nu|nu|], MLP, kernel ridge, SVR and GP.
+
+Every model is a scikit-learn estimator. Two are written here and pass ``parametrize_with_checks``:
+
+- :class:`LinearQuadraticDamping`: closed-form least squares on ``[x, x|x|]`` per input column, no intercept
+  (paper eq. 6-7).
+- :class:`DampingGP`: GP regression with ``C * RBF + WhiteKernel`` on standardized inputs and targets, kernel
+  hyperparameters by marginal likelihood, trained on at most ``max_samples`` points chosen evenly in the
+  first input (equal-width bins, water-filled), because scikit-learn's GP is O(n^3) (see ``bench/gp.py``).
+  ``predict(X, return_std=True)`` returns the std of the *latent* function (the white noise excluded), which is
+  the band that should cover the true damping; :meth:`DampingGP.sample_functions` draws posterior functions.
+
+The other three are compositions of scikit-learn built-ins (:func:`make_estimator`), inputs standardized:
+MLP (one hidden layer, tanh, lbfgs; targets standardized too), kernel ridge (RBF) and SVR (RBF). Their grids use
+the paper's names (:data:`PAPER_GRIDS`); :func:`param_grid` maps them onto the composed estimators' keys.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, Literal
+
+import numpy as np
+from scipy.linalg import solve_triangular
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.compose import TransformedTargetRegressor
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+from sklearn.kernel_ridge import KernelRidge
+from sklearn.neural_network import MLPRegressor
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVR
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+log = logging.getLogger(__name__)
+
+MODEL_NAMES = ("ls", "mlp", "krr", "svr", "gp")
+
+#: The grids of paper 001, section IV, in the paper's names.
+PAPER_GRIDS: dict[str, dict[str, list[Any]]] = {
+    "svr": {"gamma": [1, 5, 10, 20, 30], "epsilon": [1e-3, 1e-2, 1e-1, 1e0, 1e1],
+            "C": [1e0, 1e1, 1e2, 1e3, 1e4]},
+    "krr": {"alpha": [1e-3, 1e-2, 1e-1, 1e0], "gamma": [1e-3, 1e-2, 1e-1, 1e0, 1e1, 1e2]},
+    "mlp": {"nodes": [1, 5, 10, 20, 50], "alpha": [1e-3, 1e-2, 1e-1, 1e0]},
+}
+
+#: The default ("fast") grids: subsets of the paper grids around where the paper's optima fell (Table I).
+FAST_GRIDS: dict[str, dict[str, list[Any]]] = {
+    "svr": {"gamma": [1, 10, 30], "epsilon": [1e-2, 1e-1, 1e0], "C": [1e1, 1e3]},
+    "krr": {"alpha": [1e-3, 1e-2, 1e-1], "gamma": [1e-1, 1e0, 1e1]},
+    "mlp": {"nodes": [5, 20], "alpha": [1e-3, 1e-1]},
+}
+
+_KEYS = {
+    "svr": {"gamma": "svr__gamma", "epsilon": "svr__epsilon", "C": "svr__C"},
+    "krr": {"alpha": "krr__alpha", "gamma": "krr__gamma"},
+    "mlp": {"nodes": "regressor__mlp__hidden_layer_sizes", "alpha": "regressor__mlp__alpha"},
+}
+
+
+def even_subsample(x: np.ndarray, max_samples: int, n_bins: int = 64) -> np.ndarray:
+    """Indices (sorted) of at most ``max_samples`` rows chosen evenly over the range of ``x``.
+
+    ``x`` is cut into ``n_bins`` equal-width bins; every bin keeps up to ``k`` samples, with ``k`` the largest
+    cap such that the total stays within ``max_samples`` (water-filling), so sparse extremes are all kept and
+    the dense middle is thinned. Within a bin the kept samples are evenly spaced in time order. Deterministic.
+    """
+    x = np.asarray(x, dtype=float).ravel()
+    n = x.size
+    if n <= max_samples:
+        return np.arange(n)
+    lo, hi = float(np.min(x)), float(np.max(x))
+    if hi <= lo:
+        return np.linspace(0, n - 1, max_samples).round().astype(int)
+    bins = np.minimum(((x - lo) / (hi - lo) * n_bins).astype(int), n_bins - 1)
+    members = [np.flatnonzero(bins == b) for b in range(n_bins)]
+    counts = np.array([m.size for m in members])
+    lo_cap, hi_cap = 0, int(counts.max())
+    while lo_cap < hi_cap:  # largest cap k with sum(min(counts, k)) <= max_samples
+        mid = (lo_cap + hi_cap + 1) // 2
+        if np.minimum(counts, mid).sum() <= max_samples:
+            lo_cap = mid
+        else:
+            hi_cap = mid - 1
+    keep = []
+    for m in members:
+        if m.size <= lo_cap:
+            keep.append(m)
+        elif lo_cap > 0:
+            keep.append(m[np.linspace(0, m.size - 1, lo_cap).round().astype(int)])
+    return np.sort(np.concatenate(keep)) if keep else np.arange(0)
+
+
+class LinearQuadraticDamping(RegressorMixin, BaseEstimator):
+    """Least squares on ``[x, x|x|]`` for each input column (paper eq. 6-7): ``d = d_l x + d_q x|x|``.
+
+    ``coef_`` holds ``[d_l, d_q]`` per input column (shape ``(2 * n_features,)`` or ``(n_outputs, 2 * n)``).
+    """
+
+    def __init__(self, fit_intercept: bool = False) -> None:
+        self.fit_intercept = fit_intercept
+
+    def _design(self, X: np.ndarray) -> np.ndarray:
+        cols = [X, X * np.abs(X)]
+        if self.fit_intercept:
+            cols.append(np.ones((X.shape[0], 1)))
+        return np.hstack(cols)
+
+    def fit(self, X: Any, y: Any) -> LinearQuadraticDamping:
+        X, y = validate_data(self, X, y, y_numeric=True, multi_output=True)
+        theta, *_ = np.linalg.lstsq(self._design(X), y, rcond=None)
+        n = 2 * X.shape[1]
+        self.coef_ = theta[:n].T
+        self.intercept_ = theta[n] if self.fit_intercept else np.zeros(y.shape[1:]) if y.ndim > 1 else 0.0
+        return self
+
+    def predict(self, X: Any) -> np.ndarray:
+        check_is_fitted(self)
+        X = validate_data(self, X, reset=False)
+        return self._design(X)[:, : 2 * X.shape[1]] @ self.coef_.T + self.intercept_
+
+
+class DampingGP(RegressorMixin, BaseEstimator):
+    """GP regression, ``C * RBF + WhiteKernel``, hyperparameters by marginal likelihood, on standardized data.
+
+    At most ``max_samples`` training points are used, chosen evenly in the first input column
+    (:func:`even_subsample`). ``length_scale_`` (input units) and ``noise_std_`` (target units) are the learned
+    hyperparameters; ``predict(X, return_std=True)`` gives the latent function's std (noise excluded), or with
+    ``include_noise=True`` the std of a new observation.
+    """
+
+    def __init__(self, length_scale: float = 1.0, noise_level: float = 0.1, max_samples: int = 2000,
+                 n_bins: int = 64, n_restarts_optimizer: int = 0, random_state: int = 0) -> None:
+        self.length_scale = length_scale
+        self.noise_level = noise_level
+        self.max_samples = max_samples
+        self.n_bins = n_bins
+        self.n_restarts_optimizer = n_restarts_optimizer
+        self.random_state = random_state
+
+    def fit(self, X: Any, y: Any) -> DampingGP:
+        X, y = validate_data(self, X, y, y_numeric=True)
+        idx = even_subsample(X[:, 0], self.max_samples, self.n_bins)
+        X, y = X[idx], y[idx]
+        self.x_mean_, self.x_scale_ = X.mean(axis=0), X.std(axis=0)
+        self.x_scale_[self.x_scale_ == 0] = 1.0
+        self.y_mean_, self.y_scale_ = float(y.mean()), float(y.std()) or 1.0
+        kernel = (ConstantKernel(1.0, (1e-3, 1e3)) * RBF(self.length_scale, (1e-3, 1e3))
+                  + WhiteKernel(self.noise_level, (1e-8, 1e1)))
+        self.gp_ = GaussianProcessRegressor(kernel, n_restarts_optimizer=self.n_restarts_optimizer,
+                                            random_state=self.random_state)
+        self.gp_.fit((X - self.x_mean_) / self.x_scale_, (y - self.y_mean_) / self.y_scale_)
+        k = self.gp_.kernel_
+        self.length_scale_ = np.atleast_1d(k.k1.k2.length_scale) * self.x_scale_
+        self.noise_std_ = float(np.sqrt(k.k2.noise_level)) * self.y_scale_
+        self.n_train_ = int(len(idx))
+        return self
+
+    def _latent(self, X: Any, full_cov: bool) -> tuple[np.ndarray, np.ndarray]:
+        check_is_fitted(self)
+        X = validate_data(self, X, reset=False)
+        Z = (X - self.x_mean_) / self.x_scale_
+        signal = self.gp_.kernel_.k1
+        k_trans = signal(Z, self.gp_.X_train_)
+        mean = k_trans @ self.gp_.alpha_
+        v = solve_triangular(self.gp_.L_, k_trans.T, lower=True, check_finite=False)
+        cov = signal(Z) - v.T @ v if full_cov else np.clip(signal.diag(Z) - np.einsum("ij,ij->j", v, v), 0, None)
+        return mean * self.y_scale_ + self.y_mean_, cov * self.y_scale_**2
+
+    def predict(self, X: Any, return_std: bool = False, include_noise: bool = False) -> Any:
+        mean, var = self._latent(X, full_cov=False)
+        if not return_std:
+            return mean
+        if include_noise:
+            var = var + self.noise_std_**2
+        return mean, np.sqrt(var)
+
+    def sample_functions(self, X: Any, n_samples: int, random_state: int = 0) -> np.ndarray:
+        """Posterior samples of the latent function at ``X``: shape ``(n_samples, len(X))``."""
+        mean, cov = self._latent(X, full_cov=True)
+        cov = 0.5 * (cov + cov.T) + 1e-10 * self.y_scale_**2 * np.eye(len(mean))
+        w, vecs = np.linalg.eigh(cov)
+        root = vecs * np.sqrt(np.clip(w, 0, None))
+        z = np.random.default_rng(random_state).standard_normal((n_samples, len(mean)))
+        return mean + z @ root.T
+
+
+def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000) -> BaseEstimator:
+    """A fresh, unfitted estimator for one of :data:`MODEL_NAMES` (paper-default hyperparameters)."""
+    if name == "ls":
+        return LinearQuadraticDamping()
+    if name == "mlp":
+        mlp = MLPRegressor(hidden_layer_sizes=(5,), activation="tanh", solver="lbfgs", alpha=1e-3,
+                           max_iter=2000, random_state=seed)
+        return TransformedTargetRegressor(regressor=Pipeline([("scale", StandardScaler()), ("mlp", mlp)]),
+                                          transformer=StandardScaler())
+    if name == "krr":
+        return Pipeline([("scale", StandardScaler()), ("krr", KernelRidge(kernel="rbf", alpha=1e-2, gamma=1.0))])
+    if name == "svr":
+        return Pipeline([("scale", StandardScaler()), ("svr", SVR(kernel="rbf", gamma=10, epsilon=0.1, C=1e3,
+                                                                  cache_size=500))])
+    if name == "gp":
+        return DampingGP(max_samples=gp_max_samples, random_state=seed)
+    raise ValueError(f"unknown decoupled model {name!r}; expected one of {MODEL_NAMES}")
+
+
+def param_grid(name: str, search: Literal["paper_grid", "fast"] | dict[str, list[Any]] = "fast"
+               ) -> dict[str, list[Any]]:
+    """The search grid of ``name`` in the keys of :func:`make_estimator`'s estimator ({} for ls and gp).
+
+    ``search`` is ``"paper_grid"``, ``"fast"`` or an explicit grid in the paper's names.
+    """
+    if name not in _KEYS:
+        return {}
+    grid = search if isinstance(search, dict) else (PAPER_GRIDS if search == "paper_grid" else FAST_GRIDS)[name]
+    out = {}
+    for key, values in grid.items():
+        values = [(int(v),) for v in values] if key == "nodes" else list(values)
+        out[_KEYS[name][key]] = values
+    return out
+
+
+def paper_names(name: str, best_params: dict[str, Any]) -> dict[str, Any]:
+    """Translate a fitted search's ``best_params_`` back into the paper's names."""
+    inverse = {v: k for k, v in _KEYS.get(name, {}).items()}
+    out = {}
+    for key, value in best_params.items():
+        paper_key = inverse.get(key, key)
+        out[paper_key] = value[0] if paper_key == "nodes" else value
+    return out
+
+
+def describe(name: str, estimator: BaseEstimator) -> dict[str, Any]:
+    """The hyperparameters / learned constants worth reporting for a fitted model."""
+    if name == "ls":
+        return {"d_l": float(np.ravel(estimator.coef_)[0]), "d_q": float(np.ravel(estimator.coef_)[1])}
+    if name == "gp":
+        return {"length_scale": float(estimator.length_scale_[0]), "noise_std": estimator.noise_std_,
+                "n_train": estimator.n_train_, "kernel": str(estimator.gp_.kernel_)}
+    params = estimator.get_params()
+    return paper_names(name, {k: params[k] for k in _KEYS.get(name, {}).values()})
