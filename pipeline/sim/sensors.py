@@ -1,0 +1,172 @@
+"""Sensor models: each stream samples the truth at its own rate, adds noise, and stamps its messages.
+
+Sample times are the nominal times ``k / rate_hz`` snapped to the integration grid, so a noise-free stream
+equals the truth at those rows exactly. Every message has a log time (``t + latency_s``) and a header stamp
+(``t + clock_offset_s``, the sensor's own clock); the vehicle config's ``offset_s`` undoes the one its
+``clock`` uses. Streams hold the messages' fields as arrays keyed by field path.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pipeline.sim.vehicle import euler_rotation
+
+# NED <- ENU axis swap and FRD <- FLU sign flip (both their own inverses)
+_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_FRD_FLU = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class StreamSpec:
+    rate_hz: float
+    latency_s: float = 0.0          # log time - sample time
+    clock_offset_s: float = 0.0     # header stamp - sample time
+    noise: float = 0.0              # std of the additive noise, in the message's unit
+
+
+@dataclass(frozen=True)
+class SensorOptions:
+    """Rates, stamps, noise and mounting of the simulated sensors (defaults: DAGON's, TABLE I of the paper)."""
+
+    ahrs: StreamSpec = StreamSpec(120.0, 0.003, 0.010, math.radians(0.1))   # noise: angles (rad)
+    ahrs_rate_noise_radps: float = 0.002
+    ahrs_convention: str = "frd_ned"                                        # or "flu_enu"
+    fog: StreamSpec = StreamSpec(100.0, 0.002, 0.0, 2e-4)
+    depth: StreamSpec = StreamSpec(10.0, 0.005, 0.0, 0.01)
+    dvl: StreamSpec = StreamSpec(4.0, 0.020, -0.05, 0.005)
+    thrusters: StreamSpec = StreamSpec(20.0, 0.001, 0.0, 5.0)               # noise in rpm
+    thruster_unit: str = "rad/s"                                            # or "rpm"
+    bottom_depth_m: float = 10.0
+    dropout_bursts_per_min: float = 1.0
+    dropout_duration_s: tuple[float, float] = (2.0, 8.0)
+    noise: bool = True
+    dropouts: bool = True
+
+
+@dataclass
+class Stream:
+    """One topic's messages: log and header times (int64 ns) and field arrays keyed by field path."""
+
+    name: str
+    topic: str
+    msgtype: str
+    log_ns: np.ndarray
+    header_ns: np.ndarray
+    fields: dict[str, np.ndarray]
+    frame_id: str = ""
+    joint_names: tuple[str, ...] = field(default_factory=tuple)
+    index: np.ndarray | None = None  # truth rows sampled
+
+    def __len__(self) -> int:
+        return int(self.log_ns.size)
+
+
+def sample_rows(n_rows: int, grid_hz: float, rate_hz: float) -> np.ndarray:
+    """Truth rows nearest to the nominal sample times k / rate_hz."""
+    count = int(math.floor((n_rows - 1) / grid_hz * rate_hz + 1e-9)) + 1
+    return np.minimum(np.rint(np.arange(count) * (grid_hz / rate_hz)).astype(np.int64), n_rows - 1)
+
+
+def _stamps(t_ns: np.ndarray, spec: StreamSpec) -> tuple[np.ndarray, np.ndarray]:
+    return t_ns + int(round(spec.latency_s * 1e9)), t_ns + int(round(spec.clock_offset_s * 1e9))
+
+
+def ahrs_quaternion(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, convention: str) -> np.ndarray:
+    """Attitude quaternions (x, y, z, w), w >= 0: body FRD -> NED, or ROS body FLU -> ENU."""
+    R = euler_rotation(roll, pitch, yaw)
+    if convention == "flu_enu":
+        R = _NED_ENU @ R @ _FRD_FLU
+    elif convention != "frd_ned":
+        raise ValueError(f"AHRS convention must be 'frd_ned' or 'flu_enu', not {convention!r}")
+    q = Rotation.from_matrix(R).as_quat()
+    return np.where(q[:, 3:4] < 0, -q, q)
+
+
+def dvl_rotation(rpy_deg: tuple[float, float, float]) -> np.ndarray:
+    """DVL frame -> body frame rotation from the mount's roll-pitch-yaw (degrees)."""
+    r, p, y = np.radians(rpy_deg)
+    return euler_rotation(np.array(r), np.array(p), np.array(y))
+
+
+def dvl_measurement(nu: np.ndarray, position_m: np.ndarray, rot_dvl_to_body: np.ndarray) -> np.ndarray:
+    """Noise-free DVL velocity in its own frame: R^T (v + omega x r_dvl); nu (n, 6) -> (n, 3)."""
+    v_body = nu[:, :3] + np.cross(nu[:, 3:], np.asarray(position_m, dtype=float))
+    return v_body @ rot_dvl_to_body  # rows: (R^T v)^T = v^T R
+
+
+def dropout_mask(t_s: np.ndarray, duration_s: float, opts: SensorOptions, rng: np.random.Generator) -> np.ndarray:
+    """True where the DVL has bottom lock; bursts of lost lock at random times."""
+    lock = np.ones(t_s.size, dtype=bool)
+    if not opts.dropouts or opts.dropout_bursts_per_min <= 0:
+        return lock
+    n_bursts = rng.poisson(opts.dropout_bursts_per_min * duration_s / 60.0)
+    starts = np.sort(rng.uniform(0.0, duration_s, size=n_bursts))
+    lengths = rng.uniform(*opts.dropout_duration_s, size=n_bursts)
+    for start, length in zip(starts, lengths, strict=True):
+        lock[(t_s >= start) & (t_s < start + length)] = False
+    return lock
+
+
+def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: SensorOptions,
+                 rng: np.random.Generator) -> dict[str, Stream]:
+    """All sensor streams from the truth arrays (t_ns, t_s, eta, nu, n; grid_hz) and the DVL mount."""
+    t_ns, eta, nu, n_rpm = truth["t_ns"], truth["eta"], truth["nu"], truth["n"]
+    grid_hz, rows = float(truth["grid_hz"]), t_ns.size
+    duration_s = float(truth["t_s"][-1])
+    scale = 1.0 if opts.noise else 0.0
+    out: dict[str, Stream] = {}
+
+    i = sample_rows(rows, grid_hz, opts.ahrs.rate_hz)
+    ang = eta[i, 3:] + scale * opts.ahrs.noise * rng.standard_normal((i.size, 3))
+    q = ahrs_quaternion(ang[:, 0], ang[:, 1], ang[:, 2], opts.ahrs_convention)
+    w = nu[i, 3:] + scale * opts.ahrs_rate_noise_radps * rng.standard_normal((i.size, 3))
+    if opts.ahrs_convention == "flu_enu":
+        w = w @ _FRD_FLU
+    fields = {f"orientation.{a}": q[:, j] for j, a in enumerate("xyzw")}
+    fields.update({f"angular_velocity.{a}": w[:, j] for j, a in enumerate("xyz")})
+    fields.update({f"linear_acceleration.{a}": np.zeros(i.size) for a in "xyz"})
+    log_ns, hdr_ns = _stamps(t_ns[i], opts.ahrs)
+    frame = "ahrs_link_frd" if opts.ahrs_convention == "frd_ned" else "ahrs_link"
+    out["ahrs"] = Stream("ahrs", "/ahrs/imu", "sensor_msgs/msg/Imu", log_ns, hdr_ns, fields, frame, index=i)
+
+    i = sample_rows(rows, grid_hz, opts.fog.rate_hz)
+    rate = nu[i, 5] + scale * opts.fog.noise * rng.standard_normal(i.size)
+    log_ns, hdr_ns = _stamps(t_ns[i], opts.fog)
+    out["fog"] = Stream("fog", "/fog/rate", "geometry_msgs/msg/Vector3Stamped", log_ns, hdr_ns,
+                        {"vector.x": np.zeros(i.size), "vector.y": np.zeros(i.size), "vector.z": rate}, "fog",
+                        index=i)
+
+    i = sample_rows(rows, grid_hz, opts.depth.rate_hz)
+    depth = eta[i, 2] + scale * opts.depth.noise * rng.standard_normal(i.size)
+    log_ns, hdr_ns = _stamps(t_ns[i], opts.depth)
+    out["depth"] = Stream("depth", "/pressure/depth", "geometry_msgs/msg/PointStamped", log_ns, hdr_ns,
+                          {"point.x": np.zeros(i.size), "point.y": np.zeros(i.size), "point.z": depth},
+                          "pressure", index=i)
+
+    i = sample_rows(rows, grid_hz, opts.dvl.rate_hz)
+    vel = dvl_measurement(nu[i], vehicle_mount["position_m"], vehicle_mount["rotation"])
+    vel = vel + scale * opts.dvl.noise * rng.standard_normal(vel.shape)
+    lock = dropout_mask(truth["t_s"][i], duration_s, opts, rng)
+    vel[~lock] = 0.0
+    altitude = np.where(lock, opts.bottom_depth_m - eta[i, 2], 0.0)
+    log_ns, hdr_ns = _stamps(t_ns[i], opts.dvl)
+    out["dvl"] = Stream("dvl", "/dvl/data", "auv_msgs/msg/DVL", log_ns, hdr_ns,
+                        {"velocity.x": vel[:, 0], "velocity.y": vel[:, 1], "velocity.z": vel[:, 2],
+                         "bottom_lock": lock, "altitude": altitude.astype(np.float32)}, "dvl", index=i)
+
+    i = sample_rows(rows, grid_hz, opts.thrusters.rate_hz)
+    speed = n_rpm[i] + scale * opts.thrusters.noise * rng.standard_normal(n_rpm[i].shape)
+    if opts.thruster_unit == "rad/s":
+        speed = speed * (2 * np.pi / 60.0)
+    elif opts.thruster_unit != "rpm":
+        raise ValueError(f"thruster_unit must be 'rad/s' or 'rpm', not {opts.thruster_unit!r}")
+    log_ns, hdr_ns = _stamps(t_ns[i], opts.thrusters)
+    names = tuple(vehicle_mount["joint_names"])
+    out["thrusters"] = Stream("thrusters", "/thrusters/joint_states", "sensor_msgs/msg/JointState", log_ns, hdr_ns,
+                              {"velocity": speed}, "", names, index=i)
+    return out

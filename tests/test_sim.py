@@ -1,0 +1,175 @@
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline import physics
+from pipeline.config.vehicle import Vehicle
+from pipeline.sim import (
+    Controls,
+    SensorOptions,
+    SimTrial,
+    SimTruth,
+    load_example_vehicle,
+    simulate_trial,
+    true_damping,
+)
+from pipeline.sim.sensors import dvl_rotation
+from pipeline.sim.vehicle import Dynamics, scalar_rhs
+
+QUIET = SensorOptions(noise=False, dropouts=False)
+
+
+@pytest.fixture(scope="module")
+def vehicle() -> Vehicle:
+    return load_example_vehicle()
+
+
+@pytest.fixture(scope="module")
+def trial(vehicle: Vehicle) -> SimTrial:
+    return simulate_trial(vehicle, duration_s=20.0, seed=7, sensors=QUIET)
+
+
+def nu_of(table: pd.DataFrame) -> np.ndarray:
+    return table[["u_mps", "v_mps", "w_mps", "p_radps", "q_radps", "r_radps"]].to_numpy()
+
+
+def test_truth_columns_follow_contracts(trial: SimTrial) -> None:
+    t = trial.truth
+    assert t["t_ns"].dtype == np.int64 and np.all(np.diff(t["t_ns"]) == 5_000_000)
+    for col in ("udot_mps2", "rdot_radps2", "roll_rad", "yaw_rad", "x_m", "n1_rpm", "n5_rpm", "T_th3_N",
+                "tau_u_N", "tau_r_Nm", "d_v_N", "d_r_Nm", "g_w_N", "Cnu_u_N", "Mnudot_r_Nm"):
+        assert col in t.columns, col
+    assert len(t) == 20 * 200 + 1
+
+
+def test_damping_target_on_truth_is_true_damping(trial: SimTrial, vehicle: Vehicle) -> None:
+    t = trial.truth
+    M = physics.mass_matrix(vehicle)
+    speeds = t[[thr.speed_signal for thr in vehicle.thrusters]].to_numpy()
+    tau = physics.generalized_forces(vehicle, speeds)
+    g = physics.restoring_force(vehicle, t["roll_rad"].to_numpy(), t["pitch_rad"].to_numpy())
+    nudot = t[["udot_mps2", "vdot_mps2", "wdot_mps2", "pdot_radps2", "qdot_radps2", "rdot_radps2"]].to_numpy()
+    d = physics.damping_target(M, tau, nudot, nu_of(t), g)
+    np.testing.assert_allclose(d, true_damping(nu_of(t)), atol=1e-9)
+    np.testing.assert_allclose(d, t[physics.force_columns("d")].to_numpy(), atol=1e-9)
+    assert np.abs(t["d_r_Nm"]).max() > 0.5  # the trial excites yaw
+
+
+def test_accelerations_match_velocity_derivative(trial: SimTrial) -> None:
+    t, dt = trial.truth, 0.005
+    for vel, acc in (("u_mps", "udot_mps2"), ("v_mps", "vdot_mps2"), ("r_radps", "rdot_radps2")):
+        x = t[vel].to_numpy()
+        fd = (x[2:] - x[:-2]) / (2 * dt)
+        np.testing.assert_allclose(fd, t[acc].to_numpy()[1:-1], atol=2e-4)
+
+
+def test_scalar_and_vector_rhs_agree(vehicle: Vehicle) -> None:
+    dyn = Dynamics(vehicle, simulate_trial.__globals__["load_truth"]())
+    rng = np.random.default_rng(0)
+    y = np.concatenate([rng.normal(size=6) * 0.3, rng.normal(size=6) * 0.5, rng.normal(size=5) * 2000])
+    cmd = rng.normal(size=5) * 2000
+    fast = np.array(scalar_rhs(dyn)(y.tolist(), cmd.tolist()))
+    np.testing.assert_allclose(fast[:6], dyn.eta_dot(y[None, :6], y[None, 6:12])[0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(fast[6:12], dyn.nu_dot(y[None, :6], y[None, 6:12], y[None, 12:])[0], rtol=1e-12,
+                               atol=1e-12)
+    np.testing.assert_allclose(fast[12:], (cmd - y[12:]) / 0.1, rtol=1e-12)
+
+
+def test_energy_conserved_without_forces(vehicle: Vehicle) -> None:
+    rb = vehicle.rigid_body.model_copy(update={"cg_m": (0.0, 0.0, 0.0), "buoyancy_N": None})
+    free = vehicle.model_copy(update={"rigid_body": rb})
+    nu0 = np.array([0.5, -0.2, 0.1, 0.3, -0.2, 0.4])
+    trial = simulate_trial(free, duration_s=5.0, seed=0, truth=SimTruth(),
+                           controls=Controls(commands="none", depth_control=False), nu0=nu0, sensors=QUIET)
+    M = physics.mass_matrix(free)
+    nu = nu_of(trial.truth)
+    energy = 0.5 * np.einsum("ni,ij,nj->n", nu, M, nu)
+    assert np.abs(energy - energy[0]).max() < 1e-8 * energy[0]
+    assert np.abs(nu - nu0).max() > 0.01  # the motion is not trivial: Coriolis exchanges energy between DOFs
+
+
+def test_coupled_and_cubic_damping_present() -> None:
+    nu = np.zeros((2, 6))
+    nu[0, [1, 5]] = 0.4, 0.3  # sway + yaw
+    nu[1, 0] = 1.0
+    d = true_damping(nu)
+    truth = SimTruth.from_dict({"linear": [10.0, 25.0, 30.0, 6.0, 10.0, 10.0],
+                                "quadratic": [30.0, 80.0, 90.0, 4.0, 12.0, 20.0],
+                                "cubic": [8.0, 20.0, 0.0, 0.0, 0.0, 4.0]})
+    assert d[1, 0] == pytest.approx(10 + 30 + 8)
+    assert abs(d[0, 5] - truth.damping(nu)[0, 5]) > 0.3  # coupled |v| r, |r| v terms matter in yaw
+
+
+def test_determinism_same_seed(vehicle: Vehicle) -> None:
+    a = simulate_trial(vehicle, duration_s=3.0, seed=3)
+    b = simulate_trial(vehicle, duration_s=3.0, seed=3)
+    c = simulate_trial(vehicle, duration_s=3.0, seed=4)
+    pd.testing.assert_frame_equal(a.truth, b.truth)
+    for name in a.streams:
+        np.testing.assert_array_equal(a.streams[name].log_ns, b.streams[name].log_ns)
+        for key in a.streams[name].fields:
+            np.testing.assert_array_equal(a.streams[name].fields[key], b.streams[name].fields[key])
+    assert not a.truth["u_mps"].equals(c.truth["u_mps"])
+
+
+def test_stream_rates_and_stamps(trial: SimTrial) -> None:
+    counts = {name: len(s) for name, s in trial.streams.items()}
+    assert counts == {"ahrs": 20 * 120 + 1, "fog": 20 * 100 + 1, "depth": 20 * 10 + 1, "dvl": 20 * 4 + 1,
+                      "thrusters": 20 * 20 + 1}
+    t_ns = trial.truth["t_ns"].to_numpy()
+    dvl = trial.streams["dvl"]
+    np.testing.assert_array_equal(dvl.header_ns - t_ns[dvl.index], -50_000_000)
+    np.testing.assert_array_equal(dvl.log_ns - t_ns[dvl.index], 20_000_000)
+
+
+def test_dvl_lever_arm_measurement(trial: SimTrial, vehicle: Vehicle) -> None:
+    dvl = trial.streams["dvl"]
+    nu = nu_of(trial.truth)[dvl.index]
+    r = np.array(vehicle.sensors.dvl.position_m)
+    R = dvl_rotation(vehicle.sensors.dvl.rotation_rpy_deg)
+    expected = np.array([R.T @ (n[:3] + np.cross(n[3:], r)) for n in nu])
+    got = np.stack([dvl.fields[f"velocity.{a}"] for a in "xyz"], axis=1)
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    # and back: v_ref = R v_dvl - omega x r
+    back = got @ R.T - np.cross(nu[:, 3:], r)
+    np.testing.assert_allclose(back, nu[:, :3], atol=1e-12)
+
+
+def test_dvl_dropout_bursts(vehicle: Vehicle) -> None:
+    opts = SensorOptions(dropout_bursts_per_min=6.0, dropout_duration_s=(2.0, 3.0))
+    trial = simulate_trial(vehicle, duration_s=30.0, seed=11, sensors=opts)
+    dvl = trial.streams["dvl"]
+    lock = dvl.fields["bottom_lock"]
+    assert 0 < lock.sum() < lock.size
+    lost = ~lock
+    for a in "xyz":
+        assert np.all(dvl.fields[f"velocity.{a}"][lost] == 0.0)
+        assert np.all(dvl.fields[f"velocity.{a}"][lock] != 0.0)
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, lost.astype(int), 0])))[::2]
+    assert runs.min() >= 4  # bursts of >= 2 s at 4 Hz, not isolated samples
+
+
+def test_ahrs_quaternion_conventions(trial: SimTrial, vehicle: Vehicle) -> None:
+    from scipy.spatial.transform import Rotation
+
+    ahrs = trial.streams["ahrs"]
+    q = np.stack([ahrs.fields[f"orientation.{a}"] for a in "xyzw"], axis=1)
+    ypr = Rotation.from_quat(q).as_euler("ZYX")
+    t = trial.truth.iloc[ahrs.index]
+    np.testing.assert_allclose(ypr[:, 2], t["roll_rad"], atol=1e-12)
+    np.testing.assert_allclose(ypr[:, 1], t["pitch_rad"], atol=1e-12)
+    np.testing.assert_allclose(np.unwrap(ypr[:, 0]) - t["yaw_rad"].to_numpy(),
+                               np.round((np.unwrap(ypr[:, 0]) - t["yaw_rad"].to_numpy()) / (2 * np.pi)) * 2 * np.pi,
+                               atol=1e-9)
+    ros = simulate_trial(vehicle, duration_s=2.0, seed=7, sensors=SensorOptions(noise=False,
+                                                                               ahrs_convention="flu_enu"))
+    qe = np.stack([ros.streams["ahrs"].fields[f"orientation.{a}"] for a in "xyzw"], axis=1)
+    t = ros.truth.iloc[ros.streams["ahrs"].index]
+    # ENU yaw = pi/2 - NED yaw; FLU roll = FRD roll, FLU pitch = -FRD pitch
+    ypr = Rotation.from_quat(qe).as_euler("ZYX")
+    np.testing.assert_allclose(np.angle(np.exp(1j * (ypr[:, 0] - (np.pi / 2 - t["yaw_rad"].to_numpy())))), 0.0,
+                               atol=1e-9)
+    np.testing.assert_allclose(ypr[:, 1], -t["pitch_rad"], atol=1e-9)
+    np.testing.assert_allclose(ypr[:, 2], t["roll_rad"], atol=1e-9)
