@@ -297,3 +297,82 @@ def test_main_cli_with_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert code == 0
     assert "1 quarantined" not in capsys.readouterr().out
     assert layout.stream_path(root, "trial02", "fog").exists() and not layout.signals_dir(root, "trial01").exists()
+
+
+# -- end to end through open_log on real logs written by rosbags / mcap (tests/io_helpers.py) ----------------------
+LOG_STREAMS = {
+    "dvl": {"topic": "/dvl/data", "clock": "header", "offset_s": 0.5,
+            "signals": {"u_dvl_mps": {"field": "velocity.x"}, "alt_m": {"field": "altitude", "unit": "cm"},
+                        "dvl_lock_flag": {"field": "bottom_lock"}}},
+    "imu": {"topic": "/ahrs/imu", "clock": "log", "offset_s": -0.001,
+            "signals": {"att_quat": {"field": "orientation"}, "r_radps": {"field": "angular_velocity.z",
+                                                                           "unit": "deg/s"}}},
+    "thr": {"topic": "/thrusters/joint_states", "clock": "header",
+            "signals": {"n1_rpm": {"field": "velocity[name=th1]", "unit": "rad/s"},
+                        "n3_rpm": {"field": "velocity[name=th3]", "unit": "rev/s"}}},
+}
+
+
+def _write_log(kind: str, directory: Path) -> Path:
+    from tests import io_helpers as h
+
+    msgs = h.trial(n=12)
+    if kind == "mcap":
+        return h.write_mcap(directory / "trial5.mcap", msgs)
+    if kind == "ros2-sqlite3":
+        return h.write_rosbag2(directory / "trial5", msgs, storage="sqlite3")
+    return h.write_rosbag1(directory / "trial5.bag", msgs)
+
+
+@pytest.mark.parametrize("kind", ["mcap", "ros2-sqlite3", "ros1"])
+def test_real_logs_clocks_offsets_units_exact(tmp_path: Path, kind: str) -> None:
+    from tests import io_helpers as h
+
+    exp = h.expected(h.trial(n=12))
+    out = ingest_log(_write_log(kind, tmp_path), make_vehicle(LOG_STREAMS))
+    assert out.trial == "trial5" and not out.quarantine
+    dvl, imu, thr = out.tables["dvl"], out.tables["imu"], out.tables["thr"]
+    e = exp["/dvl/data"]
+    np.testing.assert_array_equal(dvl["t_ns"].to_numpy(), e["header_ns"] + 500_000_000)
+    np.testing.assert_array_equal(dvl["u_dvl_mps"].to_numpy(), e["velocity.x"])
+    np.testing.assert_array_equal(dvl["alt_m"].to_numpy(), e["altitude"] * 1e-2)
+    np.testing.assert_array_equal(dvl["dvl_lock_flag"].to_numpy(), e["bottom_lock"])
+    e = exp["/ahrs/imu"]
+    np.testing.assert_array_equal(imu["t_ns"].to_numpy(), e["log_ns"] - 1_000_000)
+    np.testing.assert_array_equal(imu["att_quat_w"].to_numpy(), e["orientation.w"])
+    np.testing.assert_array_equal(imu["att_quat_x"].to_numpy(), np.zeros(12))
+    np.testing.assert_array_equal(imu["r_radps"].to_numpy(), e["angular_velocity.z"] * (math.pi / 180.0))
+    e = exp["/thrusters/joint_states"]
+    np.testing.assert_array_equal(thr["t_ns"].to_numpy(), e["header_ns"])
+    np.testing.assert_array_equal(thr["n1_rpm"].to_numpy(), e["velocity[name=th1]"] * (60.0 / (2.0 * math.pi)))
+    np.testing.assert_array_equal(thr["n3_rpm"].to_numpy(), e["velocity[name=th3]"] * 60.0)
+    report = out.report["topics"]["/dvl/data"]
+    assert report["messages_read"] == report["messages_in_storage"] == 12
+    assert out.provenance["thr"]["message_type"].endswith("JointState")
+
+
+def test_real_log_missing_field_and_topic_name_them(tmp_path: Path) -> None:
+    path = _write_log("mcap", tmp_path)
+    streams = json.loads(json.dumps(LOG_STREAMS))
+    streams["dvl"]["signals"]["u_dvl_mps"]["field"] = "velocity.q"
+    with pytest.raises(IngestError) as info:
+        ingest_log(path, make_vehicle(streams))
+    assert info.value.topic == "/dvl/data" and "velocity.q" in str(info.value) and "trial5.mcap" in str(info.value)
+    streams = json.loads(json.dumps(LOG_STREAMS))
+    streams["dvl"]["topic"] = "/dvl"
+    with pytest.raises(IngestError, match=r"'/dvl' not in trial5.mcap; available: \['/ahrs/imu', '/dvl/data'"):
+        ingest_log(path, make_vehicle(streams))
+
+
+def test_stage_quarantines_garbage_and_empty_logs_among_good_ones(tmp_path: Path) -> None:
+    root = tmp_path / "run"
+    raw = root / layout.RAW
+    raw.mkdir(parents=True)
+    _write_log("mcap", raw)
+    (raw / "garbage.mcap").write_bytes(b"this is not a log at all")
+    (raw / "empty.bag").write_bytes(b"")
+    result = stage.run(root, make_vehicle(LOG_STREAMS), Params())
+    assert sorted(e["trial"] for e in result.quarantined) == ["empty", "garbage"]
+    assert all(e["error"] == "IngestError" and e["file"].startswith("data/raw/") for e in result.quarantined)
+    assert sorted(p.name for p in layout.signals_dir(root, "trial5").iterdir()) == [
+        "dvl.parquet", "imu.parquet", "ingest_report.json", "thr.parquet"]
