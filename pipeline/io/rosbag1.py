@@ -43,6 +43,7 @@ class BagWalk:
     first: dict[int, int] = field(default_factory=dict)
     last: dict[int, int] = field(default_factory=dict)
     index_pos: int = 0
+    has_bag_header: bool = False
     damage: Damaged | None = None
     kept: int = 0
 
@@ -147,6 +148,7 @@ def walk_records(
                     on_message(*item)
         elif op == OP_BAG_HEADER:
             out.index_pos = struct.unpack("<Q", hdr["index_pos"])[0]
+            out.has_bag_header = True
         elif op not in (OP_INDEX, OP_CHUNK_INFO):
             raise Damaged(f"unknown record op 0x{op:02x}", at)
         pos = dend
@@ -189,11 +191,19 @@ def walk(
         with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
             try:
                 walk_records(mm, len(MAGIC), size, out, None, None, tolerant=tolerant, stop_at=len(MAGIC) + 1)
-                if out.index_pos > size:
-                    raise Damaged(f"index position {out.index_pos} beyond the end of the file (cut short?)", size)
+                stop_at = out.index_pos
+                if stop_at > size:
+                    if not tolerant:
+                        raise Damaged(f"index position {stop_at} beyond the end of the file (cut short?)", size)
+                    stop_at = 0
                 out.counts.clear()
-                walk_records(mm, len(MAGIC), size, out, on_message, wanted, tolerant=tolerant,
-                             stop_at=out.index_pos)
+                walk_records(mm, len(MAGIC), size, out, on_message, wanted, tolerant=tolerant, stop_at=stop_at)
+                if not out.has_bag_header:
+                    raise Damaged("no bag header record after the magic", len(MAGIC))
+                if out.index_pos > size:
+                    raise Damaged("file ends before its index (cut short at a record boundary)", size)
+                if out.index_pos:
+                    _check_index(mm, out.index_pos, size)
             except Damaged as dmg:
                 if not tolerant:
                     raise
@@ -204,6 +214,20 @@ def walk(
                     raise dmg from err
                 out.damage = dmg
     return out
+
+
+def _check_index(buf: mmap.mmap, pos: int, end: int) -> None:
+    """The index section must consist of whole connection / chunk-info records."""
+    while pos < end:
+        if pos + 4 > end:
+            raise Damaged("index record cut short", pos)
+        (hlen,) = _U32.unpack_from(buf, pos)
+        if pos + 8 + hlen > end:
+            raise Damaged("index record cut short", pos)
+        (dlen,) = _U32.unpack_from(buf, pos + 4 + hlen)
+        if pos + 8 + hlen + dlen > end:
+            raise Damaged("index record cut short", pos)
+        pos += 8 + hlen + dlen
 
 
 def index_counts(path: Path) -> dict[int, int] | None:
