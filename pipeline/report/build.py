@@ -1,0 +1,223 @@
+"""Collect what the stages wrote under a run directory and assemble the report, metrics and plot data.
+
+Only the paths of ``docs/contracts.md`` are assumed: ``data/signals/<trial>/ingest_report.json``,
+``data/signals/quarantine.json``, ``data/synced/<trial>.parquet``, and whatever JSON / Markdown / CSV / PNG
+files the model stages put under ``data/evaluation/`` and ``data/simulation/`` (discovered, not named).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from pipeline import __version__, layout
+from pipeline.config import Params, Vehicle, config_hash
+from pipeline.report import figures
+from pipeline.report import html as H
+
+log = logging.getLogger(__name__)
+
+METRIC_KEY = re.compile(r"(r2|mae|rmse|nrmse|mse|score|error|_time|time_s|fit_s|predict_s|diverged|horizon)",
+                        re.IGNORECASE)
+MAX_METRICS_PER_FILE = 150
+MAX_CSV_ROWS = 40
+
+
+@dataclass
+class Report:
+    html: str
+    metrics: dict[str, Any]
+    plots: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    figures: dict[str, bytes] = field(default_factory=dict)
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        log.warning("report: cannot read %s: %s", path, err)
+        return None
+
+
+def _trials(root: Path) -> list[str]:
+    names: set[str] = set()
+    sig = root / layout.SIGNALS
+    if sig.is_dir():
+        names |= {p.name for p in sig.iterdir() if p.is_dir() and not p.name.startswith(".")}
+    syn = root / layout.SYNCED
+    if syn.is_dir():
+        names |= {p.stem for p in syn.glob("*.parquet")}
+    return sorted(names)
+
+
+def _flatten_numbers(obj: Any, prefix: str, out: dict[str, float], depth: int = 0) -> None:
+    if isinstance(obj, dict) and depth < 6:
+        for k, v in sorted(obj.items(), key=lambda kv: str(kv[0])):
+            _flatten_numbers(v, f"{prefix}.{k}" if prefix else str(k), out, depth + 1)
+    elif isinstance(obj, (int, float)) and not isinstance(obj, bool) and math.isfinite(float(obj)):
+        if METRIC_KEY.search(prefix):
+            out[prefix] = round(float(obj), 6)
+
+
+# ------------------------------------------------------------------------------------------------ sections
+
+def _ingest_section(root: Path, trials: list[str], metrics: dict[str, Any],
+                    plots: dict[str, list[dict[str, Any]]], figs: dict[str, bytes]) -> str:
+    parts, rows_rates = [], []
+    for trial in trials:
+        rep = _read_json(layout.ingest_report_path(root, trial))
+        if not rep:
+            continue
+        streams = rep.get("streams", {})
+        parts.append(f"<h3>{H.esc(trial)}</h3><p class='muted'>{H.esc(rep.get('source_file'))} "
+                     f"({H.esc(rep.get('format'))}), sha256 {H.esc(str(rep.get('source_sha256'))[:16])}…</p>")
+        rows = []
+        for name, s in streams.items():
+            row = {"stream": name, "source": s.get("topic") or s.get("file"), "clock": s.get("clock"),
+                   "offset_s": s.get("offset_s"), "messages": s.get("count"), "span_s": s.get("span_s"),
+                   "mean_rate_hz": s.get("mean_rate_hz"), "largest_gap_s": s.get("largest_gap_s"),
+                   "steps_back": s.get("steps_back")}
+            rows.append(row)
+            rows_rates.append({"trial": trial, **row})
+        parts.append(H.table(rows))
+        png = figures.stream_rates(streams, trial)
+        if png:
+            figs[f"rates_{trial}"] = png
+            parts.append(H.image(png, f"sensor rates and gaps of {trial}"))
+        if rep.get("salvage"):
+            parts.append("<p class='warn'>salvaged (file cut short)</p>" + H.kv_table(rep["salvage"]))
+        if rep.get("failed_topics"):
+            parts.append("<p class='warn'>topics that failed to decode</p>" + H.kv_table(rep["failed_topics"]))
+        topics = rep.get("topics", {})
+        if topics:
+            parts.append("<details><summary>all topics read</summary>"
+                         + H.table([{"topic": t, **{k: v for k, v in d.items() if not isinstance(v, (dict, list))}}
+                                    for t, d in topics.items()]) + "</details>")
+    plots["ingest_rates"] = [{"trial": r["trial"], "stream": r["stream"], "mean_rate_hz": r["mean_rate_hz"],
+                              "largest_gap_s": r["largest_gap_s"]} for r in rows_rates]
+    quarantine = _read_json(root / layout.SIGNALS / "quarantine.json") or {}
+    entries = quarantine.get("quarantined", []) if isinstance(quarantine, dict) else []
+    metrics["ingest"] = {"trials": len(trials), "quarantined": len(entries)}
+    qhtml = "<h3>Quarantine</h3>"
+    if entries:
+        qhtml += H.table([{k: e.get(k) for k in ("trial", "file", "error", "reason", "topic", "field")}
+                          for e in entries])
+    else:
+        qhtml += "<p>No input was quarantined.</p>"
+    return qhtml + "".join(parts)
+
+
+def _signals_section(root: Path, trials: list[str], metrics: dict[str, Any],
+                     plots: dict[str, list[dict[str, Any]]], figs: dict[str, bytes]) -> str:
+    parts, valid_rows = [], []
+    for trial in trials:
+        path = layout.synced_path(root, trial)
+        if not path.exists():
+            continue
+        frame = pd.read_parquet(path)
+        fractions = figures.validity_fractions(frame)
+        for signal, frac in fractions.items():
+            valid_rows.append({"trial": trial, "signal": signal, "valid_fraction": round(frac, 6)})
+        metrics.setdefault("signals", {})[trial] = {"samples": len(frame),
+                                                    "usable_fraction": round(fractions.get("segment", 0.0), 6)}
+        parts.append(f"<h3>{H.esc(trial)}</h3>")
+        png = figures.signal_validity(frame, trial)
+        if png:
+            figs[f"signals_{trial}"] = png
+            parts.append(H.image(png, f"signals and validity of {trial}"))
+        segs = frame["segment"] if "segment" in frame.columns else None
+        nseg = int(segs[segs >= 0].nunique()) if segs is not None else 0
+        parts.append(H.table([{"signal": s, "valid fraction": f} for s, f in fractions.items()])
+                     + f"<p class='muted'>{len(frame)} grid samples, {nseg} usable segment(s)</p>")
+    plots["valid_fraction"] = valid_rows
+    return "".join(parts) or "<p class='warn'>No synced trial found (data/synced/).</p>"
+
+
+def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict[str, bytes]) -> str:
+    """Everything a model stage wrote under ``base``: PNGs, JSON (as tables), Markdown tables, CSV heads."""
+    directory = root / base
+    if not directory.is_dir():
+        return f"<p class='warn'>Nothing under {H.esc(base)}/ (stage not run?).</p>"
+    parts = []
+    files = sorted(p for p in directory.rglob("*") if p.is_file() and not p.name.startswith("."))
+    for path in files:
+        rel = path.relative_to(directory).as_posix()
+        suffix = path.suffix.lower()
+        if suffix == ".png":
+            data = path.read_bytes()
+            figs[f"{base.split('/')[-1]}_{rel}"] = data
+            parts.append(f"<h4>{H.esc(rel)}</h4>" + H.image(data, rel))
+        elif suffix == ".json":
+            doc = _read_json(path)
+            if doc is None:
+                continue
+            found: dict[str, float] = {}
+            _flatten_numbers(doc, "", found)
+            if found:
+                key = f"{base.split('/')[-1]}/{rel[: -len('.json')]}"
+                metrics[key] = dict(list(found.items())[:MAX_METRICS_PER_FILE])
+            parts.append(f"<h4>{H.esc(rel)}</h4>" + "".join(H.json_tables(doc)))
+        elif suffix == ".md":
+            tables = H.markdown_tables(path.read_text(encoding="utf-8", errors="replace"))
+            if tables:
+                parts.append(f"<h4>{H.esc(rel)}</h4>" + "".join(tables))
+        elif suffix == ".csv":
+            try:
+                frame = pd.read_csv(path, nrows=MAX_CSV_ROWS)
+            except (ValueError, OSError):
+                continue
+            parts.append(f"<h4>{H.esc(rel)} <span class='muted'>(first {MAX_CSV_ROWS} rows)</span></h4>"
+                         + H.table(frame.to_dict("records")))
+    return "".join(parts) or f"<p class='muted'>No readable file under {H.esc(base)}/.</p>"
+
+
+def _provenance_section(root: Path, vehicle: Vehicle, params: Params, trials: list[str]) -> str:
+    inputs = []
+    for trial in trials:
+        rep = _read_json(layout.ingest_report_path(root, trial)) or {}
+        if rep:
+            inputs.append({"trial": trial, "file": rep.get("source_file"), "sha256": rep.get("source_sha256")})
+    info = {"auvid version": __version__, "vehicle": vehicle.name, "vehicle config hash": config_hash(vehicle),
+            "params hash": config_hash(params)}
+    return (H.kv_table(info) + "<h3>Inputs</h3>" + H.table(inputs, ["trial", "file", "sha256"])
+            + "<h3>Params</h3><pre>" + H.esc(json.dumps(params.model_dump(mode="json"), indent=2, sort_keys=True))
+            + "</pre>")
+
+
+def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
+    """The report of the run in ``root``: HTML, metrics (for ``dvc metrics``), plot data, figures."""
+    root = Path(root)
+    trials = _trials(root)
+    metrics: dict[str, Any] = {"package_version": __version__}
+    plots: dict[str, list[dict[str, Any]]] = {}
+    figs: dict[str, bytes] = {}
+    sections = [
+        ("ingest", "Ingest, sensor rates and quarantine", _ingest_section(root, trials, metrics, plots, figs)),
+        ("signals", "Signals and validity", _signals_section(root, trials, metrics, plots, figs)),
+        ("coupled", "Coupled models (acceleration, SVR vs explicit)",
+         _artifact_section(root, f"{layout.EVALUATION}/coupled", metrics, figs)),
+        ("decoupled", "Decoupled damping models",
+         _artifact_section(root, f"{layout.EVALUATION}/decoupled", metrics, figs)),
+        ("simulation", "Free-run rollouts and DVL-outage bridging",
+         _artifact_section(root, layout.SIMULATION, metrics, figs)),
+        ("provenance", "Provenance", _provenance_section(root, vehicle, params, trials)),
+    ]
+    other = root / layout.EVALUATION
+    if other.is_dir():
+        for sub in sorted(p for p in other.iterdir() if p.is_dir() and p.name not in ("coupled", "decoupled")):
+            sections.insert(-1, (sub.name, f"Evaluation: {sub.name}",
+                                 _artifact_section(root, f"{layout.EVALUATION}/{sub.name}", metrics, figs)))
+    summary = H.kv_table({"trials": len(trials), "quarantined inputs": metrics["ingest"]["quarantined"],
+                          "figures": len(figs)})
+    sections.insert(0, ("summary", "Summary", summary))
+    text = H.page(f"auvid report: {vehicle.name}", sections,
+                  subtitle=f"auvid {__version__} · config {config_hash(vehicle)[:12]} · params "
+                           f"{config_hash(params)[:12]}")
+    return Report(html=text, metrics=metrics, plots=plots, figures=figs)

@@ -1,0 +1,102 @@
+"""Figures of the report, as PNG bytes (matplotlib, Agg backend, no timestamps in the file)."""
+
+from __future__ import annotations
+
+import io
+import logging
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+log = logging.getLogger(__name__)
+
+MAX_POINTS = 4000  # per signal line; longer trials are decimated for the picture only
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def png_bytes(fig: Any) -> bytes:
+    """Render and close a figure; deterministic bytes (no Software/date metadata)."""
+    plt = _pyplot()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight", metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Start/stop indices (stop exclusive) of the True runs of a boolean array."""
+    if mask.size == 0:
+        return []
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def signal_validity(frame: pd.DataFrame, trial: str, max_signals: int = 16) -> bytes | None:
+    """Fig. 3-like: each synced signal over time, invalid stretches shaded red, segments shaded green."""
+    if "t_ns" not in frame.columns or frame.empty:
+        return None
+    signals = [c for c in frame.columns if f"{c}__valid" in frame.columns][:max_signals]
+    if not signals:
+        signals = [c for c in frame.columns if c not in ("t_ns", "segment") and not c.endswith("__valid")
+                   and pd.api.types.is_numeric_dtype(frame[c])][:max_signals]
+    if not signals:
+        return None
+    plt = _pyplot()
+    t = (frame["t_ns"].to_numpy(np.int64) - int(frame["t_ns"].iloc[0])) / 1e9
+    step = max(1, len(t) // MAX_POINTS)
+    fig, axes = plt.subplots(len(signals), 1, figsize=(10, 1.1 * len(signals) + 0.8), sharex=True, squeeze=False)
+    segment = frame["segment"].to_numpy() if "segment" in frame.columns else None
+    for ax, name in zip(axes[:, 0], signals, strict=True):
+        y = frame[name].to_numpy(dtype=float)
+        ax.plot(t[::step], y[::step], lw=0.7, color="#1f4e79")
+        valid_col = f"{name}__valid"
+        if valid_col in frame.columns:
+            for a, b in _runs(~frame[valid_col].to_numpy(dtype=bool)):
+                ax.axvspan(t[a], t[min(b, len(t) - 1)], color="#d62728", alpha=0.25, lw=0)
+        if segment is not None:
+            for a, b in _runs(segment >= 0):
+                ax.axvspan(t[a], t[min(b, len(t) - 1)], color="#2ca02c", alpha=0.06, lw=0)
+        ax.set_ylabel(name, rotation=0, ha="right", va="center", fontsize=7)
+        ax.tick_params(labelsize=7)
+    axes[-1, 0].set_xlabel("time since start [s]")
+    axes[0, 0].set_title(f"{trial}: synced signals (red: invalid, green: usable segments)", fontsize=9)
+    return png_bytes(fig)
+
+
+def stream_rates(streams: dict[str, dict[str, Any]], trial: str) -> bytes | None:
+    """Mean rate and largest gap per stream, from an ingest report."""
+    names = [n for n, s in streams.items() if s.get("mean_rate_hz")]
+    if not names:
+        return None
+    plt = _pyplot()
+    rates = [float(streams[n]["mean_rate_hz"]) for n in names]
+    gaps = [float(streams[n].get("largest_gap_s") or 0.0) for n in names]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 0.35 * len(names) + 1.2))
+    a.barh(names, rates, color="#1f4e79")
+    a.set_xscale("log")
+    a.set_xlabel("mean rate [Hz]")
+    b.barh(names, gaps, color="#d62728")
+    b.set_xlabel("largest gap [s]")
+    b.set_yticklabels([])
+    for ax in (a, b):
+        ax.tick_params(labelsize=7)
+    fig.suptitle(f"{trial}: sensor rates and gaps", fontsize=9)
+    return png_bytes(fig)
+
+
+def validity_fractions(frame: pd.DataFrame) -> dict[str, float]:
+    """Fraction of grid samples valid per signal, plus ``segment`` (fraction in a usable segment)."""
+    out = {c[: -len("__valid")]: float(frame[c].mean()) for c in frame.columns if c.endswith("__valid")}
+    if "segment" in frame.columns and len(frame):
+        out["segment"] = float((frame["segment"].to_numpy() >= 0).mean())
+    return out

@@ -1,0 +1,127 @@
+"""A tiny, dependency-free HTML writer for the self-contained report: inline CSS, images as base64 PNG."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:0;color:#1b1b1b;background:#fafafa}
+header{background:#1f4e79;color:#fff;padding:1.2em 2em}header h1{margin:0;font-size:1.5em}
+main{padding:1em 2em;max-width:1200px}nav a{margin-right:1em;color:#cfe3f5}
+h2{border-bottom:2px solid #1f4e79;padding-bottom:.2em;margin-top:2em}h3{margin-top:1.4em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.85em;background:#fff}
+th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right;vertical-align:top}
+th{background:#e8eef5}td.k,th.k{text-align:left}
+img{max-width:100%;border:1px solid #ddd;background:#fff;margin:.4em 0}
+.warn{color:#a40000}.muted{color:#666;font-size:.85em}pre{background:#f0f0f0;padding:.6em;overflow:auto}
+figure{margin:.6em 0}figcaption{font-size:.8em;color:#555}
+"""
+
+
+def esc(value: Any) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def fmt(value: Any) -> str:
+    """A cell: numbers with 4 significant digits, None as an em dash, lists and dicts as compact JSON."""
+    if value is None:
+        return "—"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "NaN"
+        return f"{value:.4g}"
+    if isinstance(value, (list, dict)):
+        text = json.dumps(value, default=str, sort_keys=True)
+        return text if len(text) <= 120 else text[:117] + "..."
+    return str(value)
+
+
+def table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None, caption: str | None = None) -> str:
+    """An HTML table from records; the first column is left-aligned (a key)."""
+    if not rows:
+        return '<p class="muted">(empty)</p>'
+    if columns is None:
+        columns = list(dict.fromkeys(k for row in rows for k in row))
+    head = "".join(f'<th class="{"k" if i == 0 else ""}">{esc(c)}</th>' for i, c in enumerate(columns))
+    body = []
+    for row in rows:
+        cells = "".join(f'<td class="{"k" if i == 0 else ""}">{esc(fmt(row.get(c)))}</td>'
+                        for i, c in enumerate(columns))
+        body.append(f"<tr>{cells}</tr>")
+    cap = f"<caption>{esc(caption)}</caption>" if caption else ""
+    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def kv_table(mapping: dict[str, Any], key: str = "key", value: str = "value") -> str:
+    return table([{key: k, value: v} for k, v in mapping.items()], [key, value])
+
+
+def image(png: bytes, alt: str, caption: str | None = None) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    cap = f"<figcaption>{esc(caption)}</figcaption>" if caption else ""
+    return f'<figure><img alt="{esc(alt)}" src="data:image/png;base64,{data}">{cap}</figure>'
+
+
+def markdown_tables(text: str) -> list[str]:
+    """Pipe tables of a Markdown file as HTML tables (other Markdown goes in a <pre>)."""
+    out, block = [], []
+    for line in [*text.splitlines(), ""]:
+        if line.strip().startswith("|"):
+            block.append(line.strip())
+            continue
+        if len(block) >= 2:
+            cells = [[c.strip() for c in row.strip("|").split("|")] for row in block]
+            header, rows = cells[0], [r for r in cells[1:] if not all(set(c) <= set("-: ") for c in r)]
+            out.append(table([dict(zip(header, r, strict=False)) for r in rows], header))
+        block = []
+    return out
+
+
+def json_tables(doc: Any, max_rows: int = 60) -> list[str]:
+    """Readable tables of a JSON document: a dict of dicts becomes one row per key, scalars a key/value table."""
+    if isinstance(doc, list) and doc and all(isinstance(r, dict) for r in doc):
+        return [table([_flat(r) for r in doc[:max_rows]])]
+    if not isinstance(doc, dict):
+        return [f"<pre>{esc(json.dumps(doc, indent=1, default=str)[:4000])}</pre>"]
+    scalars = {k: v for k, v in doc.items() if not isinstance(v, (dict, list))}
+    nested = {k: v for k, v in doc.items() if isinstance(v, dict)}
+    lists = {k: v for k, v in doc.items() if isinstance(v, list)}
+    parts = [kv_table(scalars)] if scalars else []
+    if nested:
+        rows = [{"": k, **_flat(v)} for k, v in list(nested.items())[:max_rows]]
+        parts.append(table(rows))
+    for k, v in lists.items():
+        if v and all(isinstance(r, dict) for r in v):
+            parts.append(f"<h4>{esc(k)}</h4>" + table([_flat(r) for r in v[:max_rows]]))
+        elif v:
+            parts.append(kv_table({k: v}))
+    return parts
+
+
+def _flat(obj: dict[str, Any], prefix: str = "", depth: int = 0) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in obj.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and depth < 2:
+            out.update(_flat(v, f"{key}.", depth + 1))
+        else:
+            out[key] = v
+    return out
+
+
+def page(title: str, sections: Iterable[tuple[str, str, str]], subtitle: str = "") -> str:
+    """The whole document. ``sections``: (anchor id, heading, html body)."""
+    sections = list(sections)
+    nav = "".join(f'<a href="#{esc(a)}">{esc(h)}</a>' for a, h, _ in sections)
+    body = "".join(f'<section id="{esc(a)}"><h2>{esc(h)}</h2>{b}</section>' for a, h, b in sections)
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>'
+            f'<meta name="viewport" content="width=device-width, initial-scale=1"><style>{CSS}</style></head>'
+            f"<body><header><h1>{esc(title)}</h1><div>{esc(subtitle)}</div><nav>{nav}</nav></header>"
+            f"<main>{body}</main></body></html>\n")
