@@ -1,0 +1,48 @@
+"""Derive stage: data/kinematics/<trial>.parquet -> data/derived/<trial>.parquet (thrust, tau, damping target)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from pipeline import layout
+from pipeline.config import Params, Vehicle
+from pipeline.derive import derive
+from pipeline.errors import SchemaError, SyncError
+from pipeline.tableio import read_parquet, write_parquet
+from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, to_arrow, trials_in
+from stages.common import StageResult, stage_main
+
+NAME = "derive"
+log = logging.getLogger(__name__)
+
+
+def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) -> StageResult:
+    """Per-thruster thrust, generalized forces, M nu_dot, C(nu) nu, g(eta) and the damping target."""
+    root = Path(root)
+    result = StageResult(stage=NAME)
+    for name in trials_in(root / layout.KINEMATICS, trial):
+        source = layout.kinematics_path(root, name)
+        target = layout.derived_path(root, name)
+        try:
+            if not source.exists():
+                raise SyncError("no kinematics table (run the differentiate stage)", file=shown(source, root))
+            frame = derive(read_parquet(source)[0].to_pandas(), vehicle)
+        except (SyncError, SchemaError) as err:
+            result.quarantined.append(quarantine(err, name, shown(source, root)))
+            drop_stale(target)
+            continue
+        # derive uses the vehicle (mass, thrusters) and no params section: the config hash covers it
+        write_parquet(to_arrow(frame), target, provenance(root, NAME, name, [source], vehicle, None))
+        result.outputs.append(target)
+        result.summary[name] = {"samples": len(frame)}
+        log.info("derive %s: %d samples", name, len(frame))
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    return stage_main(NAME, run, argv, extra=add_trial_argument)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

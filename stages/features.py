@@ -1,0 +1,50 @@
+"""Features stage: data/derived/*.parquet -> the feature store data/features/vehicle=<v>/trial=<t>/part-0.parquet."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from pipeline import layout, store
+from pipeline.config import Params, Vehicle
+from pipeline.errors import SchemaError
+from pipeline.tableio import read_parquet
+from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, trials_in
+from stages.common import StageResult, stage_main
+
+NAME = "features"
+log = logging.getLogger(__name__)
+
+
+def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) -> StageResult:
+    """Label splits and write every derived table into the hive-partitioned feature store."""
+    root = Path(root)
+    result = StageResult(stage=NAME)
+    written: list[str] = []
+    for name in trials_in(root / layout.DERIVED, trial):
+        source = layout.derived_path(root, name)
+        target = store.partition_dir(root, vehicle.name, name) / store.PART_FILE
+        try:
+            if not source.exists():
+                raise SchemaError("no derived table (run the derive stage)", file=shown(source, root))
+            frame = read_parquet(source)[0].to_pandas()
+            prov = provenance(root, NAME, name, [source], vehicle, params.features)
+            result.outputs.append(store.write_trial(root, vehicle.name, name, frame, params.features, prov))
+        except SchemaError as err:
+            result.quarantined.append(quarantine(err, name, shown(source, root)))
+            drop_stale(target)
+            continue
+        written.append(name)
+        result.summary[name] = {"rows": len(frame)}
+    if trial is None:  # a full run: partitions of trials that are gone (or quarantined now) are removed
+        for path in store.prune(root, vehicle.name, written):
+            log.info("features: removed stale partition %s", shown(path, root))
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    return stage_main(NAME, run, argv, extra=add_trial_argument)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
