@@ -173,3 +173,116 @@ def test_ahrs_quaternion_conventions(trial: SimTrial, vehicle: Vehicle) -> None:
                                atol=1e-9)
     np.testing.assert_allclose(ypr[:, 1], -t["pitch_rad"], atol=1e-9)
     np.testing.assert_allclose(ypr[:, 2], t["roll_rad"], atol=1e-9)
+
+
+# ---------------------------------------------------------------- writers
+
+FORMAT_PATHS = {"mcap": "t.mcap", "ros1": "t.bag", "ros2-sqlite3": "t_db3", "ros2-mcap": "t_mcap", "csv": "t_csv"}
+
+
+@pytest.fixture(scope="module")
+def short_trial(vehicle: Vehicle) -> SimTrial:
+    return simulate_trial(vehicle, duration_s=4.0, seed=5)
+
+
+def expected_counts(duration_s: float) -> dict[str, int]:
+    rates = {"/ahrs/imu": 120, "/fog/rate": 100, "/pressure/depth": 10, "/dvl/data": 4, "/thrusters/joint_states": 20}
+    return {topic: int(duration_s * rate) + 1 for topic, rate in rates.items()}
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "ros1", "ros2-sqlite3", "ros2-mcap"])
+def test_written_logs_open_with_anyreader(fmt: str, short_trial: SimTrial, tmp_path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    from pipeline.sim import write_trial
+
+    path = write_trial(short_trial, fmt, tmp_path / FORMAT_PATHS[fmt])
+    with AnyReader([path]) as reader:
+        counts: dict[str, int] = {}
+        for conn, _, _ in reader.messages():
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+        assert counts == expected_counts(4.0)
+        dvl_conn = [c for c in reader.connections if c.topic == "/dvl/data"]
+        assert dvl_conn[0].msgtype == "auv_msgs/msg/DVL"
+        stream = short_trial.streams["dvl"]
+        for i, (conn, t_ns, raw) in enumerate(reader.messages(connections=dvl_conn)):
+            msg = reader.deserialize(raw, conn.msgtype)
+            assert t_ns == stream.log_ns[i]
+            assert msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == stream.header_ns[i]
+            assert msg.velocity.x == stream.fields["velocity.x"][i]
+            assert msg.bottom_lock == stream.fields["bottom_lock"][i]
+        js = [c for c in reader.connections if c.topic == "/thrusters/joint_states"]
+        conn, _, raw = next(iter(reader.messages(connections=js)))
+        msg = reader.deserialize(raw, conn.msgtype)
+        assert list(msg.name) == ["th1", "th2", "th3", "th4", "th5"]
+        np.testing.assert_array_equal(msg.velocity, short_trial.streams["thrusters"].fields["velocity"][0])
+
+
+def test_mcap_readable_by_mcap_ros2_decoder(short_trial: SimTrial, tmp_path) -> None:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from pipeline.sim import write_trial
+
+    path = write_trial(short_trial, "mcap", tmp_path / "t.mcap")
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == sum(expected_counts(4.0).values())
+        schemas = {s.name: s.data.decode() for s in summary.schemas.values()}
+        assert "bool bottom_lock" in schemas["auv_msgs/msg/DVL"]
+        decoded = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/dvl/data"])]
+    assert len(decoded) == 17
+    assert decoded[3].velocity.y == short_trial.streams["dvl"].fields["velocity.y"][3]
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "ros1", "ros2-sqlite3", "ros2-mcap"])
+def test_written_bytes_deterministic(fmt: str, vehicle: Vehicle, tmp_path) -> None:
+    from pipeline.sim import write_trial
+
+    a = write_trial(simulate_trial(vehicle, duration_s=1.0, seed=2), fmt, tmp_path / "a" / FORMAT_PATHS[fmt])
+    b = write_trial(simulate_trial(vehicle, duration_s=1.0, seed=2), fmt, tmp_path / "b" / FORMAT_PATHS[fmt])
+    files_a = sorted(p.relative_to(a) for p in a.rglob("*")) if a.is_dir() else [None]
+    files_b = sorted(p.relative_to(b) for p in b.rglob("*")) if b.is_dir() else [None]
+    assert files_a == files_b
+    if a.is_file():
+        assert a.read_bytes() == b.read_bytes()
+    else:
+        for pa_, pb_ in zip(sorted(a.rglob("*")), sorted(b.rglob("*")), strict=True):
+            if pa_.suffix in (".mcap", ".db3"):
+                assert pa_.read_bytes() == pb_.read_bytes(), pa_.name
+
+
+def test_csv_layout_matches_csv_vehicle(short_trial: SimTrial, tmp_path) -> None:
+    from pipeline.sim import write_trial
+
+    path = write_trial(short_trial, "csv", tmp_path / "t_csv")
+    csv_vehicle = load_example_vehicle("csv")
+    assert csv_vehicle.sensors.attitude.yaw == "yaw_rad"
+    for name, source in csv_vehicle.streams.items():
+        frame = pd.read_csv(path / source.file)
+        assert source.csv is not None and source.csv.time_column in frame.columns
+        for signal in source.signals.values():
+            assert signal.field in frame.columns, (name, signal.field)
+        assert len(frame) == len(short_trial.streams[name])
+    ahrs = pd.read_csv(path / "ahrs.csv")
+    t = short_trial.truth.iloc[short_trial.streams["ahrs"].index]
+    assert np.abs(np.radians(ahrs["pitch"].to_numpy()) - t["pitch_rad"].to_numpy()).max() < 0.01
+    dvl = pd.read_csv(path / "dvl.csv")
+    np.testing.assert_array_equal(dvl["stamp_ns"].to_numpy(), short_trial.streams["dvl"].header_ns)
+    np.testing.assert_array_equal(dvl["velocity.x"].to_numpy(), short_trial.streams["dvl"].fields["velocity.x"])
+
+
+def test_example_writes_trials_and_vehicle(tmp_path) -> None:
+    from pipeline.config import load_vehicle
+    from pipeline.sim import example
+
+    paths = example(tmp_path, fmt="mcap", duration_s=2.0, n_trials=2)
+    assert [p.name for p in paths.trials] == ["trial01.mcap", "trial02.mcap"]
+    vehicle = load_vehicle(paths.vehicle)
+    assert vehicle.model_dump() == load_example_vehicle().model_dump()
+    assert all(p.exists() for p in paths.truth)
+    csv_paths = example(tmp_path / "csv", fmt="csv", duration_s=2.0, n_trials=1)
+    assert load_vehicle(csv_paths.vehicle).streams["dvl"].file == "dvl.csv"
+    assert (csv_paths.trials[0] / "dvl.csv").exists()
