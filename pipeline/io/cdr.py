@@ -148,6 +148,12 @@ def fast_columns(
     """Columns of one topic without decoding messages; raises :class:`Bail` when it cannot."""
     col = Columnar(payloads, ros1=ros1, defs=registry.defs)
     n = len(payloads)
+    # The definition must describe every payload exactly (as rosbags checks per message): a type that differs
+    # from what was recorded (e.g. a standard type that changed between ROS distributions) is not read.
+    end = col.skip((Nodetype.NAME, msgtype), np.zeros(n, dtype=np.int64))
+    slack = col.room - end
+    if n and ((slack < 0).any() or (slack != 0 if ros1 else slack > 3).any()):
+        raise Bail("payload sizes do not match the definition")
     out = {fp.text: _as_float(col.column(msgtype, fp.steps, n), fp.leaf) for fp in plans}
     stamps = None
     if has_header:
