@@ -143,10 +143,10 @@ def test_noisy_accelerations_and_damping_within_noise(noisy, vehicle: Vehicle) -
     err = out[ACCELERATION].to_numpy() - ref
     # DVL noise (isotropic, so the 45 deg mount rotation keeps it per axis) through interpolation + derivative
     sigma_lin = opts.dvl.noise * _dvl_derivative_noise_gain(vehicle, opts.dvl.rate_hz)
-    # rms over ~800 correlated samples (kernel ~1.5 s wide: ~25 independent): within 30 % of the prediction,
-    # plus the noise-free interpolation error (< 1 % of the signal, test above)
+    # an rms over ~350 samples correlated over the ~1.5 s kernel (~12 independent windows) estimates sigma_lin
+    # within ~20 % (1/sqrt(2*12)): allow 1.5x (2.5 of those), plus the noise-free interpolation error (< 1 %)
     for j in (0, 1, 2):
-        assert _rms(err[:, j]) < 1.3 * sigma_lin + 0.01 * _rms(ref[:, j]), ACCELERATION[j]
+        assert _rms(err[:, j]) < 1.5 * sigma_lin + 0.01 * _rms(ref[:, j]), ACCELERATION[j]
     assert _rms(err[:, j]) > 0.5 * sigma_lin  # the prediction is not vacuous
     # damping target: its noise is M times the acceleration noise (tau is noise-free up to rpm noise)
     M = physics.mass_matrix(vehicle)
@@ -155,7 +155,7 @@ def test_noisy_accelerations_and_damping_within_noise(noisy, vehicle: Vehicle) -
     d_err = out[physics.force_columns("d")].to_numpy() - d_true
     for j in (0, 1):
         sigma_d = sigma_lin * np.linalg.norm(M[j, :3])
-        assert _rms(d_err[:, j]) < 1.3 * sigma_d + 1.2 * _rms(bias[:, j]) + 0.02 * _rms(d_true[:, j])
+        assert _rms(d_err[:, j]) < 1.5 * sigma_d + 1.2 * _rms(bias[:, j]) + 0.02 * _rms(d_true[:, j])
 
 
 # ---- the stage shells -------------------------------------------------------------------------------------
