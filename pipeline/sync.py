@@ -33,7 +33,7 @@ import pyarrow as pa
 
 from pipeline.config.params import SyncParams
 from pipeline.config.vehicle import Vehicle
-from pipeline.errors import SchemaError, SyncError
+from pipeline.errors import ConfigError, SchemaError, SyncError
 
 log = logging.getLogger(__name__)
 
@@ -221,9 +221,20 @@ def _dvl_sample_ok(vehicle: Vehicle, signals: dict[str, _Signal],
     return out
 
 
+def check_params(vehicle: Vehicle, params: SyncParams) -> None:
+    """Per-signal settings must name configured signals (a typo would silently fall back to the default)."""
+    known = set(vehicle.signal_names())
+    for key, mapping in (("interpolation", params.interpolation), ("max_gap_s", params.max_gap_s)):
+        for name in mapping:
+            if name != "default" and name not in known:
+                raise ConfigError(f"sync.{key} names {name!r}, which is not a signal of vehicle "
+                                  f"{vehicle.name!r}; known: {sorted(known)}", field=f"sync.{key}.{name}")
+
+
 def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle,
                 params: SyncParams) -> pd.DataFrame:
     """Resample the streams of one trial onto one grid; see the module docstring for the rules."""
+    check_params(vehicle, params)
     arrays = {name: _as_arrays(name, table) for name, table in streams.items()}
     signals = _find_signals(arrays)
     required = required_signals(vehicle)

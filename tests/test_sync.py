@@ -6,7 +6,7 @@ import pytest
 from helpers_motion import PERIOD_NS, constant_streams, make_vehicle, stream
 
 from pipeline.config.params import SyncParams
-from pipeline.errors import SchemaError, SyncError
+from pipeline.errors import ConfigError, SchemaError, SyncError
 from pipeline.sync import required_signals, resample, segments, synchronize
 
 T0 = 1_700_000_000_000_000_000
@@ -151,3 +151,9 @@ def test_required_signals_follow_the_sensor_config() -> None:
                                          "q_gyro_radps", "r_fog_radps", "n1_rpm", "n2_rpm", "n3_rpm"]
     three_dof = make_vehicle(rates={"r": "r_fog_radps"})
     assert "p_gyro_radps" not in required_signals(three_dof)
+
+
+def test_per_signal_params_must_name_configured_signals() -> None:
+    with pytest.raises(ConfigError, match="n9_rpm") as info:
+        synchronize(constant_streams(5.0), VEHICLE, SyncParams(interpolation={"n9_rpm": "zoh"}))
+    assert info.value.field == "sync.interpolation.n9_rpm"
