@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -78,6 +79,7 @@ class Dynamics:
         rb = vehicle.rigid_body
         self.W, self.Bf = physics.weight_buoyancy_N(rb)
         self.cg, self.cb = np.asarray(rb.cg_m), np.asarray(rb.cb_m)
+        self._cg, self._cb = tuple(map(float, rb.cg_m)), tuple(map(float, rb.cb_m))
 
     def thrust(self, n: np.ndarray) -> np.ndarray:
         """Per-thruster thrust in N, (m, n_thr)."""
@@ -86,9 +88,16 @@ class Dynamics:
         return np.stack([physics.thrust_N(t, n[:, i], self._base) for i, t in enumerate(self.vehicle.thrusters)],
                         axis=1)
 
-    def restoring(self, roll: np.ndarray, pitch: np.ndarray) -> np.ndarray:
+    def restoring(self, roll: np.ndarray | float, pitch: np.ndarray | float) -> Any:
+        """g(eta) (Fossen 4.6): (m, 6) for arrays, a list of 6 floats for one state."""
         w, b = self.W, self.Bf
-        (xg, yg, zg), (xb, yb, zb) = self.cg, self.cb
+        (xg, yg, zg), (xb, yb, zb) = self._cg, self._cb
+        if isinstance(roll, float):  # one state (the controller): plain floats are 10x cheaper than arrays
+            sf, cf, st, ct = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+            return [(w - b) * st, -(w - b) * ct * sf, -(w - b) * ct * cf,
+                    -(yg * w - yb * b) * ct * cf + (zg * w - zb * b) * ct * sf,
+                    (zg * w - zb * b) * st + (xg * w - xb * b) * ct * cf,
+                    -(xg * w - xb * b) * ct * sf - (yg * w - yb * b) * st]
         sf, cf, st, ct = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch)
         return np.stack([
             (w - b) * st,
@@ -149,7 +158,7 @@ class Commander:
         elif self.c.commands != "none":
             raise ValueError(f"commands must be 'sines' or 'none', not {self.c.commands!r}")
         if self.c.depth_control and self._alloc_pinv is not None:
-            g = self.dyn.restoring(eta[3:4], eta[4:5])[0]
+            g = self.dyn.restoring(float(eta[3]), float(eta[4]))
             f_w = g[2] + self.c.kp_depth * (self.c.depth_ref_m - eta[2]) - self.c.kd_depth * nu[2]
             m_q = g[4] - self.c.kp_pitch * eta[4] - self.c.kd_pitch * nu[4]
             thrust = self._alloc_pinv @ np.array([f_w, m_q])
@@ -162,9 +171,13 @@ def scalar_rhs(dyn: Dynamics):
     ~1 ms per call in array overhead for a 17-element state; this one ~30 us. Same equations as
     :meth:`Dynamics.nu_dot` / :meth:`Dynamics.eta_dot` (the tests compare them)."""
     ms = 0.5 * (dyn.M + dyn.M.T)
-    m11, m12, m21, m22 = (ms[:3, :3].tolist(), ms[:3, 3:].tolist(), ms[3:, :3].tolist(), ms[3:, 3:].tolist())
-    minv = dyn.M_inv.tolist()
-    bmat = dyn.B.tolist()
+
+    def sparse_rows(matrix: np.ndarray) -> list[list[tuple[int, float]]]:
+        return [[(j, float(val)) for j, val in enumerate(row) if val != 0.0] for row in matrix]
+
+    m_top, m_bot = sparse_rows(ms[:3]), sparse_rows(ms[3:])  # a = [M11 M12] nu, c = [M21 M22] nu
+    minv = sparse_rows(dyn.M_inv)
+    bmat = sparse_rows(dyn.B)
     n_thr = dyn.B.shape[1]
     lin, quad, cub = list(dyn.truth.linear), list(dyn.truth.quadratic), list(dyn.truth.cubic)
     coupled = [(DOF_INDEX[t.dof], t.coef, [(DOF_INDEX[f.strip("|")], f.startswith("|")) for f in t.factors])
@@ -185,8 +198,13 @@ def scalar_rhs(dyn: Dynamics):
             thrust = dyn.thrust(np.array([n]))[0].tolist()
         nu = (u, v, ww, p, q, r)
         v1, v2 = nu[:3], nu[3:]
-        a = [sum(m11[i][j] * v1[j] + m12[i][j] * v2[j] for j in r3) for i in r3]
-        c = [sum(m21[i][j] * v1[j] + m22[i][j] * v2[j] for j in r3) for i in r3]
+        a = [0.0, 0.0, 0.0]
+        c = [0.0, 0.0, 0.0]
+        for i in r3:
+            for j, val in m_top[i]:
+                a[i] += val * nu[j]
+            for j, val in m_bot[i]:
+                c[i] += val * nu[j]
         cor = [
             v2[1] * a[2] - v2[2] * a[1], v2[2] * a[0] - v2[0] * a[2], v2[0] * a[1] - v2[1] * a[0],
             v1[1] * a[2] - v1[2] * a[1] + v2[1] * c[2] - v2[2] * c[1],
@@ -203,8 +221,14 @@ def scalar_rhs(dyn: Dynamics):
         sp, cp = math.sin(psi), math.cos(psi)
         g = [wb * st, -wb * ct * sf, -wb * ct * cf, -yw * ct * cf + zw * ct * sf, zw * st + xw * ct * cf,
              -xw * ct * sf - yw * st]
-        rhs6 = [sum(bmat[i][j] * thrust[j] for j in range(n_thr)) - cor[i] - damp[i] - g[i] for i in range(6)]
-        nudot = [sum(minv[i][j] * rhs6[j] for j in range(6)) for i in range(6)]
+        rhs6 = [-cor[i] - damp[i] - g[i] for i in range(6)]
+        for i in range(6):
+            for j, val in bmat[i]:
+                rhs6[i] += val * thrust[j]
+        nudot = [0.0] * 6
+        for i in range(6):
+            for j, val in minv[i]:
+                nudot[i] += val * rhs6[j]
         tt = st / ct
         deta = [
             cp * ct * u + (-sp * cf + cp * st * sf) * v + (sp * sf + cp * cf * st) * ww,
