@@ -48,6 +48,9 @@ class CoupledParams(Frozen):
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
     seed: int = 0
+    tuning_folds: int = Field(3, ge=2, description="Blocked CV folds inside the tuning block (search score).")
+    max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
+    n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
 
 
 class DecoupledParams(Frozen):
@@ -55,14 +58,23 @@ class DecoupledParams(Frozen):
     models: list[str] = Field(default_factory=lambda: ["ls", "mlp", "krr", "svr", "gp"])
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
-    gp_max_samples: int = Field(2000, ge=50)
+    gp_max_samples: int = Field(
+        500, ge=50, description="GP training points, chosen evenly in velocity (O(n^3); bench/gp.py: ~0.5 s at 500, "
+        "~2 s at 1000, ~18 s at 2000 per fit on 2 cores, with no gain in accuracy from 500 to 1000).")
     seed: int = 0
+    max_samples: int | None = Field(
+        3000, ge=50, description="Each split thinned to this many rows by an even time stride (None: all rows).")
+    curve_points: int = Field(5, ge=2, description="Training sizes on each learning curve.")
 
 
 class SimulateParams(Frozen):
     horizons_s: list[float] = Field(default_factory=lambda: [1.0, 5.0, 10.0])
     outage_windows_s: list[float] = Field(default_factory=lambda: [10.0, 30.0, 60.0])
     divergence_factor: float = Field(10.0, gt=1, description="A rollout beyond this many times the measured range diverged.")
+    method: Literal["rk4", "euler"] = Field("rk4", description="Fixed-step integrator at the grid rate (ZOH inputs).")
+    band_samples: int = Field(32, ge=0, description="GP posterior functions rolled out for the 2-sigma band (0: none).")
+    models: list[str] | None = Field(None, description="Decoupled models to simulate (None: every fitted one).")
+    seed: int = 0
 
 
 class Params(Frozen):

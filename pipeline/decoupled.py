@@ -1,0 +1,285 @@
+"""The decoupled damping study of paper 001: per DOF, d_i(nu_i) learned by LS, MLP, KRR, SVR and GP.
+
+Protocol (DESIGN.md, "Models and evaluation"): hyperparameters are searched on the *tuning* split only
+(``GridSearchCV`` over the paper's grid or the fast grid, ``KFold(folds, shuffle=False)``, scored on MAE); the GP
+learns its kernel by marginal likelihood instead, and LS has nothing to tune (their "search score" is the same CV
+on the tuning split). The *train_test* split is then scored by unshuffled k-fold CV (MAE and R^2, train and test,
+mean and SD), learning curves (``learning_curve`` with the same KFold), and fit / predict times per fold (Fig. 3).
+The final model of each (DOF, model) is fitted on the whole train_test split.
+
+Kernel methods and the MLP are O(n^2)-O(n^3) in the samples; a full trial at 20 Hz holds far more samples than the
+1-D damping curve needs, and neighbouring samples are strongly correlated (smoothed derivatives), so each split
+is thinned to at most ``max_samples`` rows by an even stride in time (``None``: keep all). The GP additionally
+keeps at most ``gp_max_samples`` points evenly spread in velocity (see ``bench/gp.py`` for the time-vs-n table).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from sklearn.base import BaseEstimator, clone
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.model_selection import GridSearchCV, KFold, cross_validate, learning_curve
+
+from pipeline.errors import ModelError
+from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
+from pipeline.simulate import DAMPING_COLUMNS, VELOCITY_COLUMNS
+
+log = logging.getLogger(__name__)
+
+SCORING = {"mae": "neg_mean_absolute_error", "r2": "r2"}
+
+
+def dof_columns(dof: str) -> tuple[str, str]:
+    """(velocity column, damping target column) of a DOF, e.g. ``("v_mps", "d_v_N")``."""
+    if dof not in VELOCITY_COLUMNS:
+        raise ModelError(f"unknown DOF {dof!r}; expected one of {list(VELOCITY_COLUMNS)}")
+    return VELOCITY_COLUMNS[dof], DAMPING_COLUMNS[dof]
+
+
+def dof_data(df: pd.DataFrame, dof: str, max_samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``X (n, 1)`` and ``y (n,)`` of a DOF, finite rows only, in table order, thinned by an even stride."""
+    x_col, y_col = dof_columns(dof)
+    missing = [c for c in (x_col, y_col) if c not in df.columns]
+    if missing:
+        raise ModelError(f"columns {missing} missing for DOF {dof!r}; have {sorted(df.columns)[:20]}...")
+    x = df[x_col].to_numpy(dtype=float)
+    y = df[y_col].to_numpy(dtype=float)
+    ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
+    if max_samples is not None and ok.size > max_samples:
+        ok = ok[np.linspace(0, ok.size - 1, max_samples).round().astype(int)]
+    return x[ok, None], y[ok]
+
+
+@dataclass
+class ModelResult:
+    """Everything the study learned about one (DOF, model)."""
+
+    dof: str
+    model: str
+    best_params: dict[str, Any]
+    search_mae: float
+    cv: dict[str, float]
+    learning_curve: dict[str, list[float]]
+    fit_time_s: float
+    predict_time_s: float
+    estimator: BaseEstimator | None = field(default=None, repr=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"dof": self.dof, "model": self.model, "best_params": self.best_params,
+                "search_mae": self.search_mae, "cv": self.cv, "learning_curve": self.learning_curve,
+                "learned": describe(self.model, self.estimator) if self.estimator is not None else {}}
+
+
+@dataclass
+class StudyResult:
+    results: list[ModelResult]
+
+    def get(self, dof: str, model: str) -> ModelResult:
+        for r in self.results:
+            if r.dof == dof and r.model == model:
+                return r
+        raise KeyError((dof, model))
+
+    def metrics(self) -> dict[str, Any]:
+        """Deterministic metrics (no timings): per DOF and model."""
+        out: dict[str, Any] = {}
+        for r in self.results:
+            out.setdefault(r.dof, {})[r.model] = r.as_dict()
+        return out
+
+    def timings(self) -> dict[str, Any]:
+        return {f"{r.dof}/{r.model}": {"fit_time_s": r.fit_time_s, "predict_time_s": r.predict_time_s}
+                for r in self.results}
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """Silence convergence warnings (MLP lbfgs, GP bounds) inside searches and CV; they are expected."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        yield
+
+
+def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, list[Any]] = "fast", folds: int = 5,
+         seed: int = 0, gp_max_samples: int = 500) -> tuple[BaseEstimator, dict[str, Any], float]:
+    """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE)``."""
+    estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples)
+    grid = param_grid(name, search)
+    cv = KFold(n_splits=folds, shuffle=False)
+    if len(y) < 2 * folds:
+        raise ModelError(f"{len(y)} tuning samples are too few for {folds}-fold CV of {name!r}")
+    with _quiet():
+        if not grid:
+            scores = cross_validate(estimator, X, y, cv=cv, scoring="neg_mean_absolute_error")["test_score"]
+            return estimator, {}, float(-scores.mean())
+        gs = GridSearchCV(estimator, grid, scoring="neg_mean_absolute_error", cv=cv, refit=False, n_jobs=1)
+        gs.fit(X, y)
+    return clone(estimator).set_params(**gs.best_params_), paper_names(name, gs.best_params_), float(-gs.best_score_)
+
+
+def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: int = 5,
+             curve_points: int = 5) -> tuple[dict[str, float], dict[str, list[float]], float, float]:
+    """Unshuffled k-fold CV (MAE, R^2, train and test, mean and SD), learning curve, mean fit / predict time."""
+    cv = KFold(n_splits=folds, shuffle=False)
+    with _quiet():
+        res = cross_validate(estimator, X, y, cv=cv, scoring=SCORING, return_train_score=True)
+        sizes, train, test = learning_curve(estimator, X, y, cv=cv, train_sizes=np.linspace(0.1, 1.0, curve_points),
+                                            scoring="neg_mean_absolute_error", shuffle=False)
+    metrics: dict[str, float] = {}
+    for split in ("train", "test"):
+        for key in SCORING:
+            vals = res[f"{split}_{key}"] * (-1 if key == "mae" else 1)
+            metrics[f"{split}_{key}_mean"] = float(vals.mean())
+            metrics[f"{split}_{key}_sd"] = float(vals.std())
+    curve = {"train_sizes": [int(s) for s in sizes],
+             "train_mae_mean": (-train.mean(axis=1)).tolist(), "train_mae_sd": train.std(axis=1).tolist(),
+             "test_mae_mean": (-test.mean(axis=1)).tolist(), "test_mae_sd": test.std(axis=1).tolist()}
+    return metrics, curve, float(res["fit_time"].mean()), float(res["score_time"].mean())
+
+
+def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[str] = ("u", "v", "r"),
+              models: Sequence[str] = ("ls", "mlp", "krr", "svr", "gp"), folds: int = 5,
+              search: str | dict[str, dict[str, list[Any]]] = "fast", gp_max_samples: int = 500,
+              max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0) -> StudyResult:
+    """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names."""
+    results = []
+    for dof in dofs:
+        X_tune, y_tune = dof_data(tuning, dof, max_samples)
+        X, y = dof_data(train_test, dof, max_samples)
+        if len(y) < 2 * folds:
+            raise ModelError(f"{len(y)} train_test samples are too few for {folds}-fold CV", field=dof)
+        for name in models:
+            model_search = search.get(name, "fast") if isinstance(search, dict) else search
+            t0 = time.perf_counter()
+            est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
+                                    gp_max_samples=gp_max_samples)
+            cv, curve, fit_s, pred_s = evaluate(est, X, y, folds=folds, curve_points=curve_points)
+            with _quiet():
+                final = clone(est).fit(X, y)
+            log.info("%s/%s: search MAE %.3f, CV test MAE %.3f (%.1f s)", dof, name, score, cv["test_mae_mean"],
+                     time.perf_counter() - t0)
+            results.append(ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final))
+    return StudyResult(results)
+
+
+def damping_curves(study: StudyResult, ranges: dict[str, tuple[float, float]], n_points: int = 101
+                   ) -> dict[str, Any]:
+    """Each final model's d_i(nu_i) on a grid over ``ranges[dof]`` (GP: with its latent sd)."""
+    out: dict[str, Any] = {}
+    for r in study.results:
+        if r.estimator is None or r.dof not in ranges:
+            continue
+        grid = np.linspace(*ranges[r.dof], n_points)
+        entry: dict[str, Any] = {"nu": grid.tolist()}
+        if r.model == "gp":
+            mean, std = r.estimator.predict(grid[:, None], return_std=True)
+            entry.update(d=mean.tolist(), sd=std.tolist())
+        else:
+            entry["d"] = np.asarray(r.estimator.predict(grid[:, None])).tolist()
+        out.setdefault(r.dof, {})[r.model] = entry
+    return out
+
+
+def table_markdown(study: StudyResult) -> str:
+    """Table I of the paper (search result) next to the CV scores on the train_test split."""
+    lines = ["| DOF | model | best params | search MAE | CV test MAE (sd) | CV test R² (sd) | CV train MAE |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
+    for r in study.results:
+        params = ", ".join(f"{k}: {v:g}" if isinstance(v, float) else f"{k}: {v}" for k, v in r.best_params.items())
+        if r.model == "gp" and r.estimator is not None:
+            params = f"l-s: {r.estimator.length_scale_[0]:.3g}, n-l: {r.estimator.noise_std_:.3g}"
+        c = r.cv
+        lines.append(f"| {r.dof} | {r.model} | {params or 'N/A'} | {r.search_mae:.3f} | "
+                     f"{c['test_mae_mean']:.3f} ({c['test_mae_sd']:.3f}) | {c['test_r2_mean']:.3f} "
+                     f"({c['test_r2_sd']:.3f}) | {c['train_mae_mean']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _save(fig: Any, target: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    from pipeline.tableio import atomic_path
+
+    fig.tight_layout()
+    with atomic_path(target) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
+    plt.close(fig)
+    return Path(target)
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_learning_curves(study: StudyResult, target: Path) -> Path:
+    """Fig. 2: training (dashed) and validation (solid) MAE vs training size, one panel per DOF."""
+    plt = _plt()
+    dofs = list(dict.fromkeys(r.dof for r in study.results))
+    fig, axes = plt.subplots(1, len(dofs), figsize=(5 * len(dofs), 4), squeeze=False)
+    for ax, dof in zip(axes[0], dofs, strict=True):
+        for r in (r for r in study.results if r.dof == dof):
+            lc = r.learning_curve
+            line, = ax.plot(lc["train_sizes"], lc["test_mae_mean"], "o-", label=f"{r.model} validation")
+            ax.plot(lc["train_sizes"], lc["train_mae_mean"], "--", color=line.get_color(), label=f"{r.model} training")
+        ax.set_title(f"DOF {dof}")
+        ax.set_xlabel("training samples")
+        ax.set_ylabel("MAE")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    return _save(fig, target)
+
+
+def plot_timings(timings: dict[str, Any], target: Path) -> Path:
+    """Fig. 3: mean fit and predict time per fold, per (DOF, model), log scale."""
+    plt = _plt()
+    keys = list(timings)
+    x = np.arange(len(keys))
+    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(keys)), 4))
+    ax.bar(x - 0.2, [timings[k]["fit_time_s"] for k in keys], 0.4, label="fit")
+    ax.bar(x + 0.2, [timings[k]["predict_time_s"] for k in keys], 0.4, label="predict")
+    ax.set_xticks(x, keys, rotation=60, ha="right", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("time per fold (s)")
+    ax.legend()
+    return _save(fig, target)
+
+
+def plot_damping(study: StudyResult, data: pd.DataFrame, target: Path,
+                 truth: Callable[[str, np.ndarray], np.ndarray] | None = None) -> Path:
+    """The learned d_i(nu_i) over the data (and the truth where known), GP with its 2-sigma band."""
+    plt = _plt()
+    dofs = list(dict.fromkeys(r.dof for r in study.results))
+    fig, axes = plt.subplots(1, len(dofs), figsize=(5 * len(dofs), 4), squeeze=False)
+    for ax, dof in zip(axes[0], dofs, strict=True):
+        X, y = dof_data(data, dof, 2000)
+        ax.plot(X[:, 0], y, ".", ms=2, color="0.7", label="data")
+        grid = np.linspace(X.min(), X.max(), 200)
+        if truth is not None:
+            ax.plot(grid, truth(dof, grid), "k--", lw=1.5, label="truth")
+        for r in (r for r in study.results if r.dof == dof and r.estimator is not None):
+            if r.model == "gp":
+                mean, std = r.estimator.predict(grid[:, None], return_std=True)
+                line, = ax.plot(grid, mean, label="gp")
+                ax.fill_between(grid, mean - 2 * std, mean + 2 * std, color=line.get_color(), alpha=0.25, lw=0)
+            else:
+                ax.plot(grid, r.estimator.predict(grid[:, None]), label=r.model)
+        ax.set_xlabel(dof_columns(dof)[0])
+        ax.set_ylabel(dof_columns(dof)[1])
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    return _save(fig, target)
