@@ -211,3 +211,20 @@ def test_stage_main_with_trial_and_exit_codes(tmp_path: Path, noisy, vehicle: Ve
     assert sync_stage.main(common) == 1
     assert not (tmp_path / "data/synced/01.parquet").exists()
     assert SyncParams(min_segment_s=1000).min_segment_s == 1000
+
+
+def test_reads_what_the_real_ingest_writes(tmp_path: Path, noisy, vehicle: Vehicle) -> None:
+    """Contract check with the ingest stage: a simulated MCAP log through ingest, then the four stages."""
+    from pipeline.sim import write_trial
+    from stages import ingest as ingest_stage
+
+    (tmp_path / "data/raw").mkdir(parents=True)
+    write_trial(noisy, "mcap", tmp_path / "data/raw/trial7.mcap")
+    params = Params()
+    assert ingest_stage.run(tmp_path, vehicle, params).quarantined == []
+    results = _run_all(tmp_path, vehicle, params)
+    assert all(not r.quarantined and len(r.outputs) == 1 for r in results.values())
+    frame = store.load(tmp_path, trials="trial7")
+    direct = _pipeline(noisy, vehicle)  # the same signals, assembled in this test
+    assert frame["t_ns"].tolist() == direct["t_ns"].tolist()
+    assert frame["udot_mps2"].to_numpy() == pytest.approx(direct["udot_mps2"].to_numpy(), abs=1e-12)
