@@ -286,3 +286,26 @@ def test_example_writes_trials_and_vehicle(tmp_path) -> None:
     csv_paths = example(tmp_path / "csv", fmt="csv", duration_s=2.0, n_trials=1)
     assert load_vehicle(csv_paths.vehicle).streams["dvl"].file == "dvl.csv"
     assert (csv_paths.trials[0] / "dvl.csv").exists()
+
+
+def test_simulate_with_thrust_table(vehicle: Vehicle, tmp_path) -> None:
+    import shutil
+
+    import yaml
+
+    from pipeline.config import load_vehicle
+    from pipeline.sim import example_vehicle_path
+
+    shutil.copy("/work/shared/fixtures/csv/bluerobotics_t200_performance_10-20V.csv", tmp_path / "t200.csv")
+    data = yaml.safe_load(example_vehicle_path().read_text())
+    for thr in data["thrusters"]:
+        thr["thrust"] = {"table": "t200.csv", "table_speed_column": "RPM", "table_thrust_column": "Force (Kg f)",
+                         "table_thrust_unit": "kgf"}
+    (tmp_path / "v.yaml").write_text(yaml.safe_dump(data))
+    tabled = load_vehicle(tmp_path / "v.yaml")
+    trial = simulate_trial(tabled, duration_s=3.0, seed=1, sensors=QUIET)
+    t = trial.truth
+    speeds = t[[thr.speed_signal for thr in tabled.thrusters]].to_numpy()
+    np.testing.assert_allclose(t[[f"T_{thr.name}_N" for thr in tabled.thrusters]].to_numpy(),
+                               physics.thrusts(tabled, speeds), atol=1e-12)
+    assert np.abs(t["T_th1_N"]).max() > 0.1
