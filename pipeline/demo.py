@@ -23,7 +23,7 @@ from pipeline.errors import PipelineError
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DURATION_S = 240.0
+DEFAULT_DURATION_S = 150.0
 LOG_SUFFIXES = (".mcap", ".bag", ".db3")
 
 
@@ -45,9 +45,13 @@ def demo_params(trials: list[str]) -> dict[str, Any]:
         "differentiate": {"method": "gaussian", "sigma_s": 0.25, "edge_sigmas": 3.0},
         "features": {"tuning_fraction": 0.2, "test_trials": test},
         "coupled": {"folds": 5, "search": "fast", "max_samples": 600, "seed": 0},
-        "decoupled": {"folds": 5, "search": "fast", "gp_max_samples": 300, "seed": 0},
-        "simulate": {"horizons_s": [1.0, 5.0, 10.0], "outage_windows_s": [10.0, 30.0]},
+        "decoupled": {"folds": 5, "search": "fast", "gp_max_samples": 300, "max_samples": 1500, "seed": 0},
+        "simulate": {"horizons_s": [1.0, 5.0, 10.0], "outage_windows_s": [10.0, 30.0], "band_samples": 8},
     }
+    # Keys another version of the params model does not know are left out (the model evolves per stage).
+    for section, values in params.items():
+        known = Params.model_fields[section].annotation.model_fields  # type: ignore[union-attr]
+        params[section] = {k: v for k, v in values.items() if k in known}
     parse(Params, params, "demo params")  # fail here, not three stages later
     return params
 
@@ -64,12 +68,12 @@ def _find_logs(directory: Path) -> list[Path]:
     return found
 
 
-def _simulate(target: Path, duration_s: float, seed: int) -> None:
+def _simulate(target: Path, duration_s: float, seed: int) -> Any:
     try:
         from pipeline.sim import example
     except ImportError as err:
         raise PipelineError(f"the example simulator is not available (pipeline.sim.example): {err}") from None
-    example(target, fmt="mcap", duration_s=duration_s, seed=seed)
+    return example(target, fmt="mcap", duration_s=duration_s, seed=seed)
 
 
 def prepare(out: str | Path, *, duration_s: float | None = None, seed: int = 0) -> DemoSetup:
@@ -81,11 +85,11 @@ def prepare(out: str | Path, *, duration_s: float | None = None, seed: int = 0) 
     gen = out / ".example"
     if gen.exists():
         shutil.rmtree(gen)
-    _simulate(gen, duration_s or DEFAULT_DURATION_S, seed)
-    vehicles = sorted(gen.rglob("vehicle.yaml")) or sorted(gen.rglob("*.yaml"))
+    written = _simulate(gen, duration_s or DEFAULT_DURATION_S, seed)
+    vehicles = [Path(written.vehicle)] if getattr(written, "vehicle", None) else sorted(gen.rglob("vehicle.yaml"))
     if not vehicles:
         raise PipelineError("the example simulator wrote no vehicle.yaml", file=gen)
-    logs = _find_logs(gen)
+    logs = [Path(p) for p in getattr(written, "trials", [])] or _find_logs(gen)
     if not logs:
         raise PipelineError("the example simulator wrote no trial logs", file=gen)
     raw = out / layout.RAW
@@ -100,7 +104,7 @@ def prepare(out: str | Path, *, duration_s: float | None = None, seed: int = 0) 
     # The vehicle config and anything it refers to (thrust tables) stay together, next to params.yaml.
     vehicle_src = vehicles[0]
     for item in vehicle_src.parent.iterdir():
-        if item.is_file():
+        if item.is_file() and item.suffix not in LOG_SUFFIXES:
             shutil.copy2(item, out / item.name)
     vehicle_path = out / vehicle_src.name
     if vehicle_path.name != "vehicle.yaml":

@@ -33,6 +33,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     outputs = []
     with atomic_path(out / "report.html") as tmp:
         tmp.write_text(report.html, encoding="utf-8")
+        tmp.chmod(0o644)  # a report is for reading (mkstemp makes 0600)
     outputs.append(out / "report.html")
     outputs.append(write_json(report.metrics, out / "metrics.json"))
     for name, rows in sorted(report.plots.items()):
@@ -47,6 +48,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
         target = figdir / (_safe(name) + ("" if name.endswith(".png") else ".png"))
         with atomic_path(target) as tmp:
             tmp.write_bytes(png)
+            tmp.chmod(0o644)
         outputs.append(target)
     log.info("report: %s", out / "report.html")
     return StageResult(stage=NAME, outputs=outputs, summary={"report": str(out / "report.html"),
