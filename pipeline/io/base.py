@@ -10,10 +10,11 @@ the number of messages read against the number the storage says it holds.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -82,11 +83,63 @@ class LogReader(Protocol):
 
 
 @dataclass
-class RawTopic:
-    """Raw payloads of one topic gathered by a container reader."""
+class Rows:
+    """Where the payloads of one topic lie in a batch's buffer, in storage order, with their log times."""
 
-    log_ns: list[int] = field(default_factory=list)
-    payloads: list[bytes] = field(default_factory=list)
+    starts: np.ndarray
+    lengths: np.ndarray
+    log_ns: np.ndarray
+
+
+@dataclass
+class Batch:
+    """A buffer of payload bytes (decompressed chunks, sqlite rows) and the rows of each requested topic in it."""
+
+    buf: np.ndarray
+    rows: dict[str, Rows]
+
+
+class Restart(Exception):
+    """The reader found damage while reading and switched to its salvage path; read again from the start."""
+
+
+BATCH_BYTES = 16 << 20
+
+
+class Batcher:
+    """Collects payloads one by one (sqlite rows, a record walk) and hands them on as batches of ~16 MB."""
+
+    def __init__(self, limit: int = BATCH_BYTES) -> None:
+        self.limit = limit
+        self._parts: list[bytes] = []
+        self._topics: list[str] = []
+        self._log_ns: list[int] = []
+        self._size = 0
+
+    def add(self, topic: str, log_ns: int, payload: bytes) -> Batch | None:
+        self._parts.append(payload)
+        self._topics.append(topic)
+        self._log_ns.append(log_ns)
+        self._size += len(payload)
+        return self.flush() if self._size >= self.limit else None
+
+    def flush(self) -> Batch | None:
+        if not self._parts:
+            return None
+        parts, topics, stamps = self._parts, self._topics, self._log_ns
+        self._parts, self._topics, self._log_ns, self._size = [], [], [], 0
+        lengths = np.fromiter(map(len, parts), dtype=np.int64, count=len(parts))
+        starts = np.zeros(len(parts), dtype=np.int64)
+        np.cumsum(lengths[:-1], out=starts[1:])
+        buf = np.frombuffer(b"".join(parts), dtype=np.uint8)
+        del parts
+        log_ns = np.asarray(stamps, dtype=np.int64)
+        names = np.asarray(topics, dtype=object)
+        rows = {}
+        for topic in dict.fromkeys(topics):
+            m = names == topic
+            rows[topic] = Rows(starts[m], lengths[m], log_ns[m])
+        return Batch(buf, rows)
 
 
 class RawReader:
@@ -94,7 +147,8 @@ class RawReader:
 
     ``_scan()`` fills ``self._infos`` (topic -> TopicInfo), ``self._types`` (the TypeRegistry of the file's
     types) and ``self._encoding`` (topic -> "cdr" | "ros1" | other, unsupported).
-    ``_raw(topics)`` returns topic -> RawTopic for the requested topics, in storage order.
+    ``_batches(topics)`` yields :class:`Batch` es holding the payloads of the requested topics, in storage order;
+    it may raise :class:`Restart` after switching to the salvage path.
     """
 
     format = "?"
@@ -115,7 +169,7 @@ class RawReader:
         return dict(self._infos)
 
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
-        from pipeline.io import cdr, fields
+        from pipeline.io import fields
 
         infos = self.topics()
         missing = [t for t in requests if t not in infos]
@@ -133,25 +187,42 @@ class RawReader:
                 continue
             msgtype = infos[topic].msgtype
             plans[topic] = [fields.resolve(self._types, msgtype, p, file=self.path, topic=topic) for p in paths]
-        raw = self._raw(list(plans)) if plans else {}
-        result = ReadResult(topics={}, failed=failed, salvage=self.salvage)
-        for topic, fplans in plans.items():
-            info = infos[topic]
-            rt = raw.get(topic, RawTopic())
-            expected = info.count
-            if self.salvage is None and len(rt.payloads) != expected:
-                raise IngestError(
-                    f"read {len(rt.payloads)} messages but the storage holds {expected}", file=self.path,
-                    topic=topic)
-            ros1 = self._encoding[topic] == "ros1"
+        for attempt in range(2):
             try:
-                data = cdr.decode_topic(self._types, info, rt, fplans, ros1=ros1, allow_fast=self.allow_fast)
-            except Exception as err:  # noqa: BLE001 - a payload the definition does not describe
-                log.warning("%s: topic %s failed to decode: %s", self.path, topic, err)
-                result.failed[topic] = f"decoding failed: {type(err).__name__}: {err}"
+                return self._decode(plans, failed, infos)
+            except Restart:
+                if attempt:
+                    raise
+                infos = self.topics()
+        raise AssertionError("unreachable")
+
+    def _decode(self, plans: dict[str, list[Any]], failed: dict[str, str], infos: dict[str, TopicInfo]) -> ReadResult:
+        from pipeline.io import cdr
+
+        assert self._types is not None
+        decoders = {t: cdr.TopicDecoder(self._types, infos[t], fplans, ros1=self._encoding[t] == "ros1",
+                                        allow_fast=self.allow_fast) for t, fplans in plans.items()}
+        result = ReadResult(topics={}, failed=dict(failed))
+        broken: dict[str, str] = {}
+        for batch in (self._batches(list(plans)) if plans else ()):
+            for topic, rows in batch.rows.items():
+                if topic in broken or topic not in decoders:
+                    continue
+                try:
+                    decoders[topic].feed(batch.buf, rows)
+                except Exception as err:  # noqa: BLE001 - a payload the definition does not describe
+                    log.warning("%s: topic %s failed to decode: %s", self.path, topic, err)
+                    broken[topic] = f"decoding failed: {type(err).__name__}: {err}"
+        result.salvage = self.salvage
+        for topic, dec in decoders.items():
+            expected = infos[topic].count
+            if topic in broken:
+                result.failed[topic] = broken[topic]
                 continue
-            data.expected = expected if self.salvage is None else len(rt.payloads)
-            result.topics[topic] = data
+            if self.salvage is None and dec.read != expected:
+                raise IngestError(f"read {dec.read} messages but the storage holds {expected}", file=self.path,
+                                  topic=topic)
+            result.topics[topic] = dec.result(expected if self.salvage is None else dec.read)
         return result
 
     def close(self) -> None:
@@ -176,5 +247,5 @@ class RawReader:
     def _scan(self) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:  # pragma: no cover - abstract
+    def _batches(self, topics: list[str]) -> Iterator[Batch]:  # pragma: no cover - abstract
         raise NotImplementedError

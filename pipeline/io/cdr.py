@@ -1,13 +1,16 @@
 """Decode one topic into columns: the fast columnar path, with a per-message fallback.
 
-The fast path never builds a Python object per message. All payloads of a topic are concatenated into one
-buffer; for each requested field the byte offset is computed from the message definition, as a numpy array over
-the messages, so that strings and sequences before the field (whose lengths vary per message) are skipped with
-vectorized reads of their length prefixes. CDR aligns each primitive to its size, relative to the end of the
-4-byte encapsulation header; ROS 1 has no alignment and no header. Whole columns are then gathered with one
-fancy-indexing read. Whatever the fast path cannot describe (a selection by name, a sequence of varying length
-of strings or structs, big-endian CDR, a payload shorter than its definition) is decoded per message by rosbags,
-and :attr:`TopicData.path` says which path was taken. Both paths give bit-identical values.
+The fast path never builds a Python object per message. A container reader hands over batches: one byte buffer
+(decompressed chunks) and, per topic, the start and length of each payload in it. For each requested field the
+byte offset is computed from the message definition, as a numpy array over the messages, so that strings and
+sequences before the field (whose lengths vary per message) are skipped with vectorized reads of their length
+prefixes; a sequence of structs whose length varies is skipped group by group (messages with the same length
+together). CDR aligns each primitive to its size, relative to the end of the 4-byte encapsulation header, in the
+byte order that header names; ROS 1 has no alignment and no header. Whole columns are then gathered with one
+vectorized read per byte. A selection by name (``velocity[name=th1]``) compares the strings of the key list
+column-wise. Whatever the fast path cannot describe (a payload shorter or longer than its definition, mixed byte
+orders, an unknown type) is decoded per message by rosbags, batch by batch, and :attr:`TopicData.path` says which
+path was taken. Both paths give bit-identical values.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys.base import Nodetype
 
-from pipeline.io.base import RawTopic, TopicData, TopicInfo
+from pipeline.io.base import Rows, TopicData, TopicInfo
 from pipeline.io.fields import FieldPath, Step, TypeRegistry, extract, header_ns
 
 log = logging.getLogger(__name__)
@@ -28,111 +31,209 @@ SIZES = {
     "int64": 8, "uint64": 8, "float32": 4, "float64": 8,
 }
 DTYPES = {
-    "bool": "u1", "byte": "u1", "char": "u1", "int8": "i1", "uint8": "u1", "int16": "<i2", "uint16": "<u2",
-    "int32": "<i4", "uint32": "<u4", "int64": "<i8", "uint64": "<u8", "float32": "<f4", "float64": "<f8",
+    "bool": "u1", "byte": "u1", "char": "u1", "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2",
+    "int32": "i4", "uint32": "u4", "int64": "i8", "uint64": "u8", "float32": "f4", "float64": "f8",
 }
 _HEADER_STEPS = {
     "sec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="sec")),
     "nanosec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="nanosec")),
 }
+_ROS1_HEADER_STEPS = {
+    "sec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="sec")),
+    "nanosec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="nanosec")),
+}
+MAX_GROUPS = 64  # distinct lengths of one struct sequence in one batch before giving up
 
 
 class Bail(Exception):
-    """The fast path cannot describe this topic; decode it per message."""
+    """The fast path cannot describe this batch; decode it per message."""
 
 
 class Columnar:
-    """Concatenated payloads of one topic and vectorized reads into them."""
+    """Payloads of one topic in a shared buffer, and vectorized reads into them.
 
-    def __init__(self, payloads: list[bytes], *, ros1: bool, defs: dict[str, Any]) -> None:
+    Positions are relative to the start of each message's body (after the CDR header); every method takes the
+    message indices ``rows`` that its positions ``pos`` belong to.
+    """
+
+    def __init__(self, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray, *, ros1: bool,
+                 defs: dict[str, Any]) -> None:
         self.ros1 = ros1
         self.defs = defs
-        lengths = np.fromiter((len(p) for p in payloads), dtype=np.int64, count=len(payloads))
-        starts = np.zeros(len(payloads), dtype=np.int64)
-        if len(payloads) > 1:
-            np.cumsum(lengths[:-1], out=starts[1:])
-        self.buf = np.frombuffer(b"".join(payloads), dtype=np.uint8)
+        self.buf = buf
         head = 0 if ros1 else 4
         self.base = starts + head
         self.room = lengths - head
-        if not ros1 and len(payloads):
-            if (lengths < 4).any() or (self.buf[starts + 1] != 1).any() or (self.buf[starts] != 0).any():
-                raise Bail("not little-endian plain CDR")
+        self.order = "<"
+        if not ros1 and len(starts):
+            if (lengths < 4).any() or (buf[starts] != 0).any():
+                raise Bail("not plain CDR")
+            flags = buf[starts + 1]
+            if (flags > 1).any() or (len(flags) > 1 and (flags != flags[0]).any()):
+                raise Bail("mixed or unknown CDR byte orders")
+            self.order = "<" if flags[0] == 1 else ">"
 
     def _align(self, pos: np.ndarray, size: int) -> np.ndarray:
         if self.ros1 or size <= 1:
             return pos
         return (pos + (size - 1)) // size * size
 
-    def gather(self, pos: np.ndarray, base_type: str) -> np.ndarray:
+    def gather(self, rows: np.ndarray, pos: np.ndarray, base_type: str) -> np.ndarray:
         size = SIZES[base_type]
         pos = self._align(pos, size)
-        if len(pos) and ((pos + size) > self.room).any():
+        if len(pos) and ((pos + size) > self.room[rows]).any():
             raise Bail("payload shorter than its definition")
-        idx = (self.base + pos)[:, None] + np.arange(size, dtype=np.int64)
-        return np.ascontiguousarray(self.buf[idx]).view(DTYPES[base_type]).ravel()
+        at = self.base[rows] + pos
+        if size == 1:
+            raw = self.buf[at]
+        else:
+            raw = np.empty((len(at), size), dtype=np.uint8)
+            for k in range(size):
+                raw[:, k] = self.buf[at + k]
+        dtype = DTYPES[base_type] if size == 1 else self.order + DTYPES[base_type]
+        return raw.view(dtype).ravel()
 
-    def _u32(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _u32(self, rows: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pos = self._align(pos, 4)
-        return self.gather(pos, "uint32").astype(np.int64), pos + 4
+        return self.gather(rows, pos, "uint32").astype(np.int64), pos + 4
 
-    def skip(self, node: tuple[int, Any], pos: np.ndarray) -> np.ndarray:
+    def skip(self, node: tuple[int, Any], rows: np.ndarray, pos: np.ndarray) -> np.ndarray:
         kind, detail = node
         if kind == Nodetype.BASE:
             name = detail[0]
             if name == "string":
-                length, pos = self._u32(pos)
-                return pos + length
+                length, pos = self._u32(rows, pos)
+                end = pos + length
+                if len(end) and (end > self.room[rows]).any():
+                    raise Bail("string beyond the payload")
+                return end
             if name not in SIZES:
                 raise Bail(f"type {name}")
             return self._align(pos, SIZES[name]) + SIZES[name]
         if kind == Nodetype.NAME:
             for _, sub in self.defs[detail][1]:
-                pos = self.skip(sub, pos)
+                pos = self.skip(sub, rows, pos)
             return pos
         sub, n = detail
         if kind == Nodetype.SEQUENCE:
-            n, pos = self._u32(pos)
-        return self.skip_elements(sub, n, pos)
+            n, pos = self._u32(rows, pos)
+            if len(n) and (n > self.room[rows]).any():
+                raise Bail("sequence length beyond the payload")
+        return self.skip_elements(sub, n, rows, pos)
 
-    def skip_elements(self, sub: tuple[int, Any], n: int | np.ndarray, pos: np.ndarray) -> np.ndarray:
+    def skip_elements(self, sub: tuple[int, Any], n: int | np.ndarray, rows: np.ndarray,
+                      pos: np.ndarray) -> np.ndarray:
         if sub[0] == Nodetype.BASE and sub[1][0] in SIZES:
             size = SIZES[sub[1][0]]
             if isinstance(n, np.ndarray):
                 return np.where(n > 0, self._align(pos, size) + n * size, pos)
             return self._align(pos, size) + n * size if n else pos
         if isinstance(n, np.ndarray):
-            if len(n) and (n != n[0]).any():
-                raise Bail("sequence of varying length of strings or structs")
-            n = int(n[0]) if len(n) else 0
+            if not len(n):
+                return pos
+            if (n == n[0]).all():
+                n = int(n[0])
+            else:
+                values = np.unique(n)
+                if len(values) > MAX_GROUPS:
+                    raise Bail("too many distinct lengths of a sequence of strings or structs")
+                out = np.empty_like(pos)
+                for v in values.tolist():
+                    m = n == v
+                    out[m] = self.skip_elements(sub, int(v), rows[m], pos[m])
+                return out
         for _ in range(n):
-            pos = self.skip(sub, pos)
+            pos = self.skip(sub, rows, pos)
         return pos
 
-    def column(self, top: str, steps: tuple[Step, ...], n: int) -> np.ndarray:
+    def _string_equal(self, rows: np.ndarray, pos: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
+        """Whether the string at ``pos`` equals ``key`` (as rosbags decodes it), and the position after it."""
+        length, pos = self._u32(rows, pos)
+        end = pos + length
+        if len(end) and (end > self.room[rows]).any():
+            raise Bail("string beyond the payload")
+        text = length - (0 if self.ros1 else 1)  # CDR strings carry a terminating NUL that rosbags drops
+        eq = text == len(key)
+        for k, byte in enumerate(key):
+            cand = np.nonzero(eq)[0]
+            if not len(cand):
+                break
+            eq[cand] = self.buf[self.base[rows[cand]] + pos[cand] + k] == byte
+        return eq, end
+
+    def _select_index(self, rows: np.ndarray, pos: np.ndarray, key: bytes) -> np.ndarray:
+        """Index of the first string equal to ``key`` in the string sequence at ``pos``; -1 where absent."""
+        n, pos = self._u32(rows, pos)
+        if len(n) and (n > self.room[rows]).any():
+            raise Bail("sequence length beyond the payload")
+        idx = np.full(len(rows), -1, dtype=np.int64)
+        top = int(n.max()) if len(n) else 0
+        live = np.arange(len(rows))
+        for j in range(top):
+            live = live[n[live] > j]
+            if not len(live):
+                break
+            eq, pos[live] = self._string_equal(rows[live], pos[live], key)
+            hit = live[eq & (idx[live] < 0)]
+            idx[hit] = j
+        return idx
+
+    def column(self, top: str, steps: tuple[Step, ...], n: int) -> tuple[np.ndarray, str]:
+        """Values of one field path for all ``n`` messages (NaN where an index or name is absent)."""
+        rows = np.arange(n, dtype=np.int64)
         pos = np.zeros(n, dtype=np.int64)
         cur = top
         node: tuple[int, Any] = (Nodetype.NAME, top)
-        for step in steps:
+        starts: dict[str, np.ndarray] = {}
+        for i, step in enumerate(steps):
             if step.kind == "attr":
-                for name, sub in self.defs[cur][1]:
-                    if name == step.name:
-                        node = sub
+                fields = self.defs[cur][1]
+                names = [f for f, _ in fields]
+                want = {step.name}
+                if i + 1 < len(steps) and steps[i + 1].kind == "select":
+                    want.add(steps[i + 1].name)
+                starts = {}
+                p = pos
+                for name, sub in fields:
+                    starts[name] = p
+                    if want <= set(starts):
                         break
-                    pos = self.skip(sub, pos)
-            elif step.kind == "index":
-                kind, (sub, length) = node
-                if kind == Nodetype.SEQUENCE:
-                    length, pos = self._u32(pos)
-                    if len(length) and (length <= step.index).any():
-                        raise Bail("index beyond the sequence in some messages")
-                pos = self.skip_elements(sub, step.index, pos)
-                node = sub
+                    p = self.skip(sub, rows, p)
+                node = fields[names.index(step.name)][1]
+                pos = starts[step.name]
             else:
-                raise Bail("selection by name")
+                kind, (sub, length) = node
+                if step.kind == "index":
+                    at: np.ndarray | int = step.index
+                else:
+                    key = step.value.encode("utf-8")
+                    at = self._select_index(rows, starts[step.name].copy(), key)
+                if kind == Nodetype.SEQUENCE:
+                    length, pos = self._u32(rows, pos)
+                    if len(length) and (length > self.room[rows]).any():
+                        raise Bail("sequence length beyond the payload")
+                    keep = length > at
+                else:
+                    keep = np.full(len(rows), True) if isinstance(at, np.ndarray) else None
+                    if isinstance(at, np.ndarray):
+                        keep &= at < length
+                if isinstance(at, np.ndarray):
+                    keep &= at >= 0
+                if keep is not None and not keep.all():
+                    rows, pos = rows[keep], pos[keep]
+                    if isinstance(at, np.ndarray):
+                        at = at[keep]
+                pos = self.skip_elements(sub, at, rows, pos)
+                node = sub
             if node[0] == Nodetype.NAME:
                 cur = node[1]
-        return self.gather(pos, node[1][0])
+        leaf = node[1][0]
+        values = self.gather(rows, pos, leaf)
+        if len(rows) == n:
+            return values, leaf
+        out = np.full(n, np.nan)
+        out[rows] = _as_float(values, leaf)
+        return out, "float64"
 
 
 def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
@@ -142,23 +243,28 @@ def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
 
 
 def fast_columns(
-    registry: TypeRegistry, msgtype: str, payloads: list[bytes], plans: list[FieldPath], *, ros1: bool,
+    registry: TypeRegistry, msgtype: str, buf: np.ndarray, rows: Rows, plans: list[FieldPath], *, ros1: bool,
     has_header: bool,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
-    """Columns of one topic without decoding messages; raises :class:`Bail` when it cannot."""
-    col = Columnar(payloads, ros1=ros1, defs=registry.defs)
-    n = len(payloads)
+    """Columns of one batch of one topic without decoding messages; raises :class:`Bail` when it cannot."""
+    col = Columnar(buf, rows.starts, rows.lengths, ros1=ros1, defs=registry.defs)
+    n = len(rows.starts)
+    every = np.arange(n, dtype=np.int64)
     # The definition must describe every payload exactly (as rosbags checks per message): a type that differs
     # from what was recorded (e.g. a standard type that changed between ROS distributions) is not read.
-    end = col.skip((Nodetype.NAME, msgtype), np.zeros(n, dtype=np.int64))
+    end = col.skip((Nodetype.NAME, msgtype), every, np.zeros(n, dtype=np.int64))
     slack = col.room - end
     if n and ((slack < 0).any() or (slack != 0 if ros1 else slack > 3).any()):
         raise Bail("payload sizes do not match the definition")
-    out = {fp.text: _as_float(col.column(msgtype, fp.steps, n), fp.leaf) for fp in plans}
+    out = {}
+    for fp in plans:
+        values, leaf = col.column(msgtype, fp.steps, n)
+        out[fp.text] = _as_float(values, leaf)
     stamps = None
     if has_header:
-        sec = col.column(msgtype, _HEADER_STEPS["sec"], n).astype(np.int64)
-        nsec = col.column(msgtype, _HEADER_STEPS["nanosec"], n).astype(np.int64)
+        steps = _ROS1_HEADER_STEPS if ros1 else _HEADER_STEPS
+        sec = col.column(msgtype, steps["sec"], n)[0].astype(np.int64)
+        nsec = col.column(msgtype, steps["nanosec"], n)[0].astype(np.int64)
         stamps = sec * 1_000_000_000 + nsec
     return out, stamps
 
@@ -182,23 +288,59 @@ def slow_columns(
     return out, stamps
 
 
-def decode_topic(
-    registry: TypeRegistry, info: TopicInfo, raw: RawTopic, plans: list[FieldPath], *, ros1: bool,
-    allow_fast: bool = True,
-) -> TopicData:
-    """Decode the requested fields of one topic, by the fast path when it can describe them."""
-    path = "fast"
-    columns: dict[str, np.ndarray]
-    try:
-        if not allow_fast:
-            raise Bail("fast path disabled")
-        columns, stamps = fast_columns(registry, info.msgtype, raw.payloads, plans, ros1=ros1,
-                                       has_header=info.has_header)
-    except Bail as why:
-        log.debug("topic %s: per-message decoding (%s)", info.topic, why)
-        path = "per-message"
-        columns, stamps = slow_columns(registry, info.msgtype, raw.payloads, plans, ros1=ros1,
-                                       has_header=info.has_header)
-    return TopicData(
-        topic=info.topic, msgtype=info.msgtype, log_ns=np.asarray(raw.log_ns, dtype=np.int64), header_ns=stamps,
-        columns=columns, path=path, read=len(raw.payloads), expected=info.count)
+class TopicDecoder:
+    """Decodes one topic batch by batch, by the fast path where it can, and joins the pieces at the end."""
+
+    def __init__(self, registry: TypeRegistry, info: TopicInfo, plans: list[FieldPath], *, ros1: bool,
+                 allow_fast: bool = True) -> None:
+        self.registry = registry
+        self.info = info
+        self.plans = plans
+        self.ros1 = ros1
+        self.allow_fast = allow_fast
+        self.pieces: list[tuple[dict[str, np.ndarray], np.ndarray | None, np.ndarray]] = []
+        self.paths: set[str] = set()
+        self.read = 0
+
+    def feed(self, buf: np.ndarray, rows: Rows) -> None:
+        """Decode one batch (raises what rosbags raises on a payload the definition does not describe)."""
+        n = len(rows.starts)
+        if not n:
+            return
+        info = self.info
+        try:
+            if not self.allow_fast:
+                raise Bail("fast path disabled")
+            columns, stamps = fast_columns(self.registry, info.msgtype, buf, rows, self.plans, ros1=self.ros1,
+                                           has_header=info.has_header)
+            self.paths.add("fast")
+        except Bail as why:
+            if "fast" in self.paths or not self.paths:
+                log.debug("topic %s: per-message decoding of %d messages (%s)", info.topic, n, why)
+            payloads = [buf[s:s + ln].tobytes() for s, ln in zip(rows.starts.tolist(), rows.lengths.tolist(),
+                                                                  strict=True)]
+            columns, stamps = slow_columns(self.registry, info.msgtype, payloads, self.plans, ros1=self.ros1,
+                                           has_header=info.has_header)
+            self.paths.add("per-message")
+        self.pieces.append((columns, stamps, np.asarray(rows.log_ns, dtype=np.int64)))
+        self.read += n
+
+    def result(self, expected: int) -> TopicData:
+        pieces, self.pieces = self.pieces, []
+        columns = {fp.text: _join([p[0][fp.text] for p in pieces], np.float64) for fp in self.plans}
+        stamps = _join([p[1] for p in pieces], np.int64) if self.info.has_header else None  # type: ignore[misc]
+        log_ns = _join([p[2] for p in pieces], np.int64)
+        path = "fast" if self.paths <= {"fast"} and self.paths else \
+            "per-message" if self.paths <= {"per-message"} else "mixed"
+        if not self.paths:
+            path = "fast" if self.allow_fast else "per-message"
+        return TopicData(topic=self.info.topic, msgtype=self.info.msgtype, log_ns=log_ns, header_ns=stamps,
+                         columns=columns, path=path, read=self.read, expected=expected)
+
+
+def _join(parts: list[np.ndarray], dtype: type) -> np.ndarray:
+    if not parts:
+        return np.empty(0, dtype=dtype)
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate(parts)

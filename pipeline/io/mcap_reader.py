@@ -12,12 +12,12 @@ import logging
 import mmap
 import struct
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.errors import IngestError
-from pipeline.io.base import RawReader, RawTopic, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, SalvageInfo, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 
 log = logging.getLogger(__name__)
@@ -269,17 +269,18 @@ class McapReader(RawReader):
             self._encoding.setdefault(ch.topic, ch.encoding)
         self._infos = infos
 
-    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:
+    def _batches(self, topics: list[str]) -> Iterator[Batch]:
         assert self._walk is not None
         by_channel = {cid: ch.topic for cid, ch in self._walk.channels.items() if ch.topic in topics}
-        out = {t: RawTopic() for t in topics}
+        batcher = Batcher()
+        done: list[Batch] = []
 
         def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
             if payload is not None:
-                rt = out[by_channel[cid]]
-                rt.log_ns.append(log_ns)
-                rt.payloads.append(payload)
+                batch = batcher.add(by_channel[cid], log_ns, payload)
+                if batch is not None:
+                    done.append(batch)
 
         self._do_walk(on_message, set(by_channel))
-        return out
-
+        last = batcher.flush()
+        yield from done + ([last] if last is not None else [])

@@ -12,12 +12,12 @@ import bz2
 import logging
 import mmap
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.errors import IngestError
-from pipeline.io.base import RawReader, RawTopic, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, SalvageInfo, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import Damaged
 
@@ -299,15 +299,17 @@ class Rosbag1Reader(RawReader):
             self._encoding[conn.topic] = "ros1"
         self._infos = infos
 
-    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:
+    def _batches(self, topics: list[str]) -> Iterator[Batch]:
         assert self._walk is not None
         by_conn = {cid: c.topic for cid, c in self._walk.connections.items() if c.topic in topics}
-        out = {t: RawTopic() for t in topics}
+        batcher = Batcher()
+        done: list[Batch] = []
 
         def on_message(cid: int, log_ns: int, payload: bytes) -> None:
-            rt = out[by_conn[cid]]
-            rt.log_ns.append(log_ns)
-            rt.payloads.append(payload)
+            batch = batcher.add(by_conn[cid], log_ns, payload)
+            if batch is not None:
+                done.append(batch)
 
         self._do_walk(on_message, set(by_conn))
-        return out
+        last = batcher.flush()
+        yield from done + ([last] if last is not None else [])

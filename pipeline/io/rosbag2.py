@@ -12,13 +12,15 @@ import logging
 import re
 import sqlite3
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from pipeline.errors import IngestError
-from pipeline.io.base import RawReader, RawTopic, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, Rows, SalvageInfo, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, walk
@@ -202,32 +204,69 @@ class Rosbag2Reader(RawReader):
             add(ch.topic, msgtype, ch.encoding, count, w.first.get(cid), w.last.get(cid))
 
     # -- reading --------------------------------------------------------------------------------------------
-    def _raw(self, topics: list[str]) -> dict[str, RawTopic]:
-        out = {t: RawTopic() for t in topics}
+    def _batches(self, topics: list[str]) -> Iterator[Batch]:
+        wanted_topics = set(topics)
         for path, ids in zip(self.files, self._ids, strict=True):
-            wanted = {i: t for i, t in ids.items() if t in out}
+            wanted = {i: t for i, t in ids.items() if t in wanted_topics}
             if not wanted:
                 continue
             if self.storage == "sqlite3":
-                con = self._connect(path)
-                try:
-                    marks = ",".join("?" * len(wanted))
-                    rows = con.execute(
-                        f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) ORDER BY id",
-                        list(wanted))
-                    for tid, stamp, data in rows:
-                        rt = out[wanted[tid]]
-                        rt.log_ns.append(int(stamp))
-                        rt.payloads.append(self._decompress(bytes(data)))
-                finally:
-                    con.close()
-            else:
-                def on_message(cid: int, log_ns: int, payload: bytes | None, wanted: dict[int, str] = wanted) -> None:
-                    if payload is not None:
-                        rt = out[wanted[cid]]
-                        rt.log_ns.append(log_ns)
-                        rt.payloads.append(self._decompress(payload))
+                yield from self._sqlite_batches(path, wanted)
+                continue
+            batcher = Batcher()
+            done: list[Batch] = []
 
-                self._walk_mcap(path, on_message, set(wanted))
-        return out
+            def on_message(cid: int, log_ns: int, payload: bytes | None, wanted: dict[int, str] = wanted,
+                           batcher: Batcher = batcher, done: list[Batch] = done) -> None:
+                if payload is not None:
+                    batch = batcher.add(wanted[cid], log_ns, self._decompress(payload))
+                    if batch is not None:
+                        done.append(batch)
 
+            self._walk_mcap(path, on_message, set(wanted))
+            last = batcher.flush()
+            yield from done + ([last] if last is not None else [])
+
+    def _sqlite_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
+        """Rows fetched in bulk, ~16 MB of payloads at a time, joined into one buffer per batch."""
+        con = self._connect(path)
+        try:
+            marks = ",".join("?" * len(wanted))
+            cur = con.execute(
+                f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) ORDER BY id", list(wanted))
+            per_message = self.compression_mode == "MESSAGE"
+            while True:
+                rows = cur.fetchmany(BATCH_ROWS)
+                if not rows:
+                    break
+                tids, stamps, datas = zip(*rows, strict=True)
+                del rows
+                if per_message:
+                    datas = tuple(self._decompress(bytes(d)) for d in datas)
+                yield _batch(wanted, tids, stamps, datas)
+        finally:
+            con.close()
+
+
+BATCH_ROWS = 65536
+
+
+def _batch(wanted: dict[int, str], tids: tuple[int, ...], stamps: tuple[int, ...], datas: tuple[bytes, ...]) -> Batch:
+    lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+    starts = np.zeros(len(datas), dtype=np.int64)
+    np.cumsum(lengths[:-1], out=starts[1:])
+    buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
+    tid = np.fromiter(tids, dtype=np.int64, count=len(tids))
+    log_ns = np.fromiter(stamps, dtype=np.int64, count=len(stamps))
+    out = {}
+    for i, topic in wanted.items():
+        m = tid == i
+        if m.any():
+            rows = Rows(starts[m], lengths[m], log_ns[m])
+            if topic in out:  # two ids of one topic (split bags renumber; one file may repeat)
+                prev = out[topic]
+                order = np.argsort(np.concatenate([prev.starts, rows.starts]), kind="stable")
+                rows = Rows(*(np.concatenate([a, b])[order] for a, b in
+                              ((prev.starts, rows.starts), (prev.lengths, rows.lengths), (prev.log_ns, rows.log_ns))))
+            out[topic] = rows
+    return Batch(buf, out)
