@@ -146,6 +146,22 @@ class CoupledDynamics:
         return out.reshape(nu.shape)
 
 
+def damping_tables(models: Mapping[str, Any], ranges: Mapping[str, tuple[float, float]], n_points: int = 2001
+                   ) -> dict[str, Table1D]:
+    """A :class:`Table1D` of each DOF's fitted damping model over ``ranges[dof]`` (see :func:`table_range`)."""
+    return {d: Table1D.from_model(m, *ranges[d], n_points=n_points) for d, m in models.items()}
+
+
+def band_tables(models: Mapping[str, Any], ranges: Mapping[str, tuple[float, float]], n_samples: int, seed: int = 0,
+                n_points: int = 401) -> dict[str, Table1D]:
+    """Per DOF, ``n_samples`` posterior functions of a GP-like model (``sample_functions``) as batch tables."""
+    out = {}
+    for j, (d, m) in enumerate(models.items()):
+        grid = np.linspace(*ranges[d], n_points)
+        out[d] = Table1D(*ranges[d], m.sample_functions(grid[:, None], n_samples, random_state=seed + j))
+    return out
+
+
 def rollout(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, dt_s: float, *, bound: np.ndarray | None = None,
             clamp: np.ndarray | None = None, clamp_mask: np.ndarray | None = None,
             method: str = "rk4") -> tuple[np.ndarray, np.ndarray]:

@@ -101,6 +101,11 @@ class LinearQuadraticDamping(RegressorMixin, BaseEstimator):
     def __init__(self, fit_intercept: bool = False) -> None:
         self.fit_intercept = fit_intercept
 
+    def __sklearn_tags__(self) -> Any:
+        tags = super().__sklearn_tags__()
+        tags.target_tags.multi_output = True
+        return tags
+
     def _design(self, X: np.ndarray) -> np.ndarray:
         cols = [X, X * np.abs(X)]
         if self.fit_intercept:
@@ -192,7 +197,7 @@ def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000) -> Base
         return LinearQuadraticDamping()
     if name == "mlp":
         mlp = MLPRegressor(hidden_layer_sizes=(5,), activation="tanh", solver="lbfgs", alpha=1e-3,
-                           max_iter=2000, random_state=seed)
+                           max_iter=500, random_state=seed)
         return TransformedTargetRegressor(regressor=Pipeline([("scale", StandardScaler()), ("mlp", mlp)]),
                                           transformer=StandardScaler())
     if name == "krr":

@@ -1,0 +1,109 @@
+"""Decoupled damping stage (paper 001): feature store -> data/models/decoupled/ + data/evaluation/decoupled/.
+
+Reads the ``tuning`` split (hyperparameter search only) and the ``train_test`` split (unshuffled k-fold CV,
+learning curves, timings, final fit). Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card
+``<dof>_<model>.json`` (lineage, hyperparameters, scores, versions), and ``metrics.json`` (deterministic),
+``timings.json`` (wall-clock, varies run to run), ``curves.json``, ``table.md``, ``learning_curves.png``,
+``timings.png``, ``damping.png``.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+from pathlib import Path
+from typing import Any
+
+import joblib
+import numpy as np
+import sklearn
+
+from pipeline import __version__, layout, store
+from pipeline.config import Params, Vehicle, config_hash
+from pipeline.decoupled import (
+    StudyResult,
+    damping_curves,
+    dof_columns,
+    plot_damping,
+    plot_learning_curves,
+    plot_timings,
+    run_study,
+    table_markdown,
+)
+from pipeline.errors import ModelError
+from pipeline.models.decoupled import describe
+from pipeline.tableio import atomic_path, write_json
+from stages.common import StageResult, stage_main
+
+NAME = "decoupled"
+log = logging.getLogger(__name__)
+
+
+def models_dir(root: Path) -> Path:
+    return Path(root) / layout.MODELS / "decoupled"
+
+
+def evaluation_dir(root: Path) -> Path:
+    return Path(root) / layout.EVALUATION / "decoupled"
+
+
+def versions() -> dict[str, str]:
+    return {"auvid": __version__, "scikit-learn": sklearn.__version__, "numpy": np.__version__,
+            "joblib": joblib.__version__, "python": platform.python_version()}
+
+
+def write_models(study: StudyResult, root: Path, lineage: dict[str, Any]) -> list[Path]:
+    """One joblib file and one card per (DOF, model); the card names the file's inputs and output."""
+    out = []
+    for r in study.results:
+        stem = models_dir(root) / f"{r.dof}_{r.model}"
+        with atomic_path(stem.with_suffix(".joblib")) as tmp:
+            joblib.dump(r.estimator, tmp)
+        x_col, y_col = dof_columns(r.dof)
+        card = {"kind": "decoupled_damping", "dof": r.dof, "model": r.model, "inputs": [x_col], "output": y_col,
+                "estimator": type(r.estimator).__name__, "hyperparameters": r.best_params,
+                "learned": describe(r.model, r.estimator), "search_mae": r.search_mae, "scores": r.cv,
+                "lineage": lineage, "versions": versions()}
+        out += [stem.with_suffix(".joblib"), write_json(card, stem.with_suffix(".json"))]
+    return out
+
+
+def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
+    """Learn d_i(nu_i) per DOF with LS, MLP, KRR, SVR and GP; score, time and save them."""
+    root = Path(root)
+    p = params.decoupled
+    columns = ["t_ns", "segment", "split"] + [c for d in p.dofs for c in dof_columns(d)]
+    tuning = store.load(root, vehicle=vehicle.name, split="tuning", columns=columns)
+    train_test = store.load(root, vehicle=vehicle.name, split="train_test", columns=columns)
+    if train_test.empty or tuning.empty:
+        raise ModelError(f"the feature store has {len(tuning)} tuning and {len(train_test)} train_test rows for "
+                         f"vehicle {vehicle.name!r}; both are needed", file=layout.features_dir(root))
+    study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
+                      gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
+                      seed=p.seed)
+    lineage = {"vehicle": vehicle.name, "vehicle_hash": config_hash(vehicle), "params_hash": config_hash(p),
+               "params": p.model_dump(), "trials": sorted(set(tuning["trial"]) | set(train_test["trial"])),
+               "rows": {"tuning": len(tuning), "train_test": len(train_test)}}
+    outputs = write_models(study, root, lineage)
+    ev = evaluation_dir(root)
+    ranges = {d: (float(train_test[dof_columns(d)[0]].min()), float(train_test[dof_columns(d)[0]].max()))
+              for d in p.dofs}
+    outputs.append(write_json({"lineage": lineage, "results": study.metrics()}, ev / "metrics.json"))
+    outputs.append(write_json(study.timings(), ev / "timings.json"))
+    outputs.append(write_json(damping_curves(study, ranges), ev / "curves.json"))
+    with atomic_path(ev / "table.md") as tmp:
+        tmp.write_text(table_markdown(study))
+    outputs.append(ev / "table.md")
+    outputs.append(plot_learning_curves(study, ev / "learning_curves.png"))
+    outputs.append(plot_timings(study.timings(), ev / "timings.png"))
+    outputs.append(plot_damping(study, train_test, ev / "damping.png"))
+    summary = {f"{r.dof}/{r.model}": round(r.cv["test_mae_mean"], 4) for r in study.results}
+    return StageResult(stage=NAME, outputs=outputs, summary={"cv_test_mae": summary})
+
+
+def main(argv: list[str] | None = None) -> int:
+    return stage_main(NAME, run, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

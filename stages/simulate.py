@@ -1,0 +1,166 @@
+"""Simulate stage: fitted models + the test split -> data/simulation/ (free runs, horizons, DVL-outage bridging).
+
+For every test trial: each decoupled model set (``data/models/decoupled/<dof>_<model>.joblib`` for all of
+``decoupled.dofs``) becomes ``M nudot = tau - C(nu) nu - d(nu)`` with M and C from ``pipeline.physics`` and tau
+from the measured thruster speeds (``physics.generalized_forces``; minus ``physics.restoring_force`` when roll and
+pitch are in the store); each coupled model with a card (``data/models/coupled/<name>.json`` naming ``inputs``:
+the velocity columns of those DOFs first, then thruster speeds or ``tau_*`` columns) is rolled out as
+``nudot = F(nu, inputs)``. Writes ``data/simulation/<trial>/``: ``free_run.json|png``, ``horizons.json``,
+``bridging.json|md|png``, and ``data/simulation/metrics.json`` (all trials, deterministic).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import joblib
+import numpy as np
+import pandas as pd
+
+from pipeline import layout, physics, store
+from pipeline.config import Params, Vehicle
+from pipeline.errors import ModelError
+from pipeline.simulate import (
+    DOFS,
+    TAU_COLUMNS,
+    VELOCITY_COLUMNS,
+    CoupledDynamics,
+    DecoupledDynamics,
+    band_tables,
+    bridge_outages,
+    bridging_markdown,
+    damping_tables,
+    free_run,
+    horizon_errors,
+    plot_bridging,
+    plot_free_runs,
+    table_range,
+)
+from pipeline.tableio import atomic_path, write_json
+from stages.common import StageResult, stage_main
+
+NAME = "simulate"
+log = logging.getLogger(__name__)
+
+
+def decoupled_models(root: Path, dofs: list[str], wanted: list[str] | None) -> dict[str, dict[str, Any]]:
+    """``{model: {dof: estimator}}`` for every model fitted for all ``dofs``."""
+    base = Path(root) / layout.MODELS / "decoupled"
+    names = sorted({p.stem.split("_", 1)[1] for p in base.glob("*_*.joblib")}) if base.exists() else []
+    out = {}
+    for name in names if wanted is None else wanted:
+        paths = {d: base / f"{d}_{name}.joblib" for d in dofs}
+        if all(p.exists() for p in paths.values()):
+            out[name] = {d: joblib.load(p) for d, p in paths.items()}
+        else:
+            log.warning("decoupled model %r lacks DOF(s) %s; skipped", name, [d for d, p in paths.items()
+                                                                            if not p.exists()])
+    return out
+
+
+def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str]]]:
+    """``{name: (estimator, extra input columns)}`` for coupled models whose card fits the simulated DOFs."""
+    base = Path(root) / layout.MODELS / "coupled"
+    states = [VELOCITY_COLUMNS[d] for d in dofs]
+    out = {}
+    for card_path in sorted(base.glob("*.json")) if base.exists() else []:
+        model_path = card_path.with_suffix(".joblib")
+        try:
+            card = json.loads(card_path.read_text())
+        except json.JSONDecodeError:
+            continue
+        inputs = card.get("inputs") if isinstance(card, dict) else None
+        if not model_path.exists() or not isinstance(inputs, list) or inputs[: len(states)] != states:
+            continue
+        out[f"coupled_{card_path.stem}"] = (joblib.load(model_path), inputs[len(states):])
+    return out
+
+
+def trial_inputs(frame: pd.DataFrame, vehicle: Vehicle, dofs: list[str]) -> np.ndarray:
+    """Generalized forces of the simulated DOFs from the measured thruster speeds, minus restoring forces."""
+    speeds = frame[[t.speed_signal for t in vehicle.thrusters]].to_numpy(float)
+    tau = physics.generalized_forces(vehicle, speeds)
+    if {"roll_rad", "pitch_rad"} <= set(frame.columns):
+        tau = tau - physics.restoring_force(vehicle, frame["roll_rad"].to_numpy(float),
+                                            frame["pitch_rad"].to_numpy(float))
+    return tau[:, [DOFS.index(d) for d in dofs]]
+
+
+def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupled: dict[str, dict[str, Any]],
+                   coupled: dict[str, tuple[Any, list[str]]], out_dir: Path) -> tuple[dict[str, Any], list[Path]]:
+    p, dofs = params.simulate, list(params.decoupled.dofs)
+    t_ns = frame["t_ns"].to_numpy(np.int64)
+    seg = frame["segment"].to_numpy(int) if "segment" in frame else None
+    nu = frame[[VELOCITY_COLUMNS[d] for d in dofs]].to_numpy(float)
+    tau = trial_inputs(frame, vehicle, dofs)
+    M = physics.mass_matrix(vehicle)
+    ranges = {d: table_range(nu[:, j]) for j, d in enumerate(dofs)}
+    dynamics: dict[str, tuple[Any, np.ndarray]] = {}
+    bands: dict[str, Any] = {}
+    for name, models in decoupled.items():
+        dynamics[name] = (DecoupledDynamics(M, dofs, damping_tables(models, ranges), physics.coriolis_force), tau)
+        if p.band_samples > 0 and all(hasattr(m, "sample_functions") for m in models.values()):
+            bands[name] = DecoupledDynamics(M, dofs, band_tables(models, ranges, p.band_samples, p.seed),
+                                            physics.coriolis_force)
+    for name, (est, extra) in coupled.items():
+        cols = [c for c in extra if c not in frame.columns and c not in TAU_COLUMNS.values()]
+        if cols:
+            log.warning("%s needs columns %s absent from the test trial; skipped", name, cols)
+            continue
+        dynamics[name] = (CoupledDynamics(est), frame[extra].to_numpy(float))
+    runs, horizons = [], {}
+    for name, (f, inputs) in dynamics.items():
+        runs.append(free_run(name, f, t_ns, nu, inputs, dofs, segment=seg, divergence_factor=p.divergence_factor,
+                             method=p.method, band_f=bands.get(name), band_members=p.band_samples))
+        horizons[name] = horizon_errors(f, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
+                                        divergence_factor=p.divergence_factor, method=p.method)
+    outputs = [write_json([r.summary() for r in runs], out_dir / "free_run.json"),
+               write_json(horizons, out_dir / "horizons.json")]
+    if runs:
+        outputs.append(plot_free_runs(runs, out_dir / "free_run.png", title=str(frame["trial"].iloc[0])))
+    summary: dict[str, Any] = {"free_run": [r.summary() for r in runs], "horizons": horizons}
+    if {"u", "v"} <= set(dofs) and "yaw_rad" in frame:
+        decoupled_f = {n: f for n, (f, inputs) in dynamics.items() if inputs is tau}
+        rows = bridge_outages(decoupled_f, t_ns, nu, tau, frame["yaw_rad"].to_numpy(float), dofs,
+                              p.outage_windows_s, segment=seg, divergence_factor=p.divergence_factor, method=p.method)
+        outputs.append(write_json(rows, out_dir / "bridging.json"))
+        with atomic_path(out_dir / "bridging.md") as tmp:
+            tmp.write_text(bridging_markdown(rows))
+        outputs += [out_dir / "bridging.md", plot_bridging(rows, out_dir / "bridging.png")]
+        summary["bridging"] = rows
+    return summary, outputs
+
+
+def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
+    """Free-run the fitted models on each test trial; horizons; DVL-outage bridging."""
+    root = Path(root)
+    dofs = list(params.decoupled.dofs)
+    test = store.load(root, vehicle=vehicle.name, split="test")
+    if test.empty:
+        raise ModelError(f"no test-split rows for vehicle {vehicle.name!r} (set features.test_trials)",
+                         file=layout.features_dir(root))
+    decoupled = decoupled_models(root, dofs, params.simulate.models)
+    coupled = coupled_models(root, dofs)
+    if not decoupled and not coupled:
+        raise ModelError("no fitted models (run the decoupled or coupled stage first)", file=Path(layout.MODELS))
+    outputs: list[Path] = []
+    metrics = {}
+    for trial, frame in test.groupby("trial", sort=True):
+        summary, paths = simulate_trial(frame.reset_index(drop=True), vehicle, params, decoupled, coupled,
+                                        root / layout.SIMULATION / str(trial))
+        metrics[str(trial)] = summary
+        outputs += paths
+    outputs.append(write_json(metrics, root / layout.SIMULATION / "metrics.json"))
+    status = {f"{t}/{r['model']}": r["status"] for t, s in metrics.items() for r in s["free_run"]}
+    return StageResult(stage=NAME, outputs=outputs, summary={"status": status})
+
+
+def main(argv: list[str] | None = None) -> int:
+    return stage_main(NAME, run, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,102 @@
+"""Decoupled damping: estimator contract, known-answer fits, the study protocol on synthetic damping data."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pandas as pd
+import pytest
+from sklearn.utils.estimator_checks import parametrize_with_checks
+
+from pipeline.decoupled import dof_data, run_study, table_markdown
+from pipeline.models.decoupled import (
+    PAPER_GRIDS,
+    DampingGP,
+    LinearQuadraticDamping,
+    even_subsample,
+    make_estimator,
+    param_grid,
+)
+
+NOISE_N = 2.0
+SMALL = {"mlp": {"nodes": [5], "alpha": [1e-3]}, "krr": {"alpha": [1e-2, 1e-1], "gamma": [1.0, 10.0]},
+         "svr": {"gamma": [1, 10], "epsilon": [1.0], "C": [1e3]}}
+
+
+def truth(v: np.ndarray) -> np.ndarray:
+    """Linear + quadratic + cubic: LS on [v, v|v|] cannot represent the cubic term."""
+    return 20.0 * v + 60.0 * v * np.abs(v) + 120.0 * v**3
+
+
+@pytest.fixture(scope="module")
+def data() -> pd.DataFrame:
+    rng = np.random.default_rng(3)
+    n = 600
+    t = np.arange(n) / 20.0
+    v = 0.8 * np.sin(2 * np.pi * t / 9.0) * np.cos(2 * np.pi * t / 31.0) + 0.01 * rng.standard_normal(n)
+    return pd.DataFrame({"t_ns": (t * 1e9).astype(np.int64), "v_mps": v,
+                         "d_v_N": truth(v) + NOISE_N * rng.standard_normal(n)})
+
+
+@pytest.fixture(scope="module")
+def study(data: pd.DataFrame):
+    return run_study(data.iloc[:200], data.iloc[200:], dofs=["v"], search=SMALL, gp_max_samples=150,
+                     max_samples=600, curve_points=2)
+
+
+@parametrize_with_checks([LinearQuadraticDamping(), DampingGP(max_samples=60)])
+def test_sklearn_contract(estimator, check) -> None:
+    check(estimator)
+
+
+def test_ls_recovers_coefficients_exactly() -> None:
+    x = np.linspace(-1, 1, 50)[:, None]
+    ls = LinearQuadraticDamping().fit(x, 3.0 * x[:, 0] + 7.0 * x[:, 0] * np.abs(x[:, 0]))
+    assert ls.coef_ == pytest.approx([3.0, 7.0])
+
+
+def test_even_subsample_keeps_the_extremes_and_the_cap() -> None:
+    x = np.r_[np.random.default_rng(0).normal(0, 0.05, 5000), [-1.0, 1.0]]
+    idx = even_subsample(x, 200)
+    assert len(idx) <= 200 and {len(x) - 2, len(x) - 1} <= set(idx.tolist())
+    assert np.all(np.diff(idx) > 0)
+
+
+def test_paper_grids_are_the_papers() -> None:
+    assert PAPER_GRIDS["svr"]["gamma"] == [1, 5, 10, 20, 30]
+    assert len(param_grid("svr", "paper_grid")["svr__C"]) == 5
+    assert param_grid("mlp", "paper_grid")["regressor__mlp__hidden_layer_sizes"][-1] == (50,)
+    for name in ("mlp", "krr", "svr"):
+        make_estimator(name).set_params(**{k: v[0] for k, v in param_grid(name, "paper_grid").items()})
+
+
+def test_learned_curves_match_truth_within_noise_and_kernels_beat_ls(study) -> None:
+    grid = np.linspace(-0.6, 0.6, 121)
+    err = {r.model: float(np.mean(np.abs(r.estimator.predict(grid[:, None]) - truth(grid)))) for r in study.results}
+    assert all(e < NOISE_N for e in err.values()), err
+    for name in ("krr", "svr", "gp"):
+        assert err[name] < 0.7 * err["ls"], err
+        assert study.get("v", name).cv["test_mae_mean"] < study.get("v", "ls").cv["test_mae_mean"]
+
+
+def test_gp_band_covers_the_truth(study) -> None:
+    gp = study.get("v", "gp").estimator
+    grid = np.linspace(-0.6, 0.6, 121)
+    mean, sd = gp.predict(grid[:, None], return_std=True)
+    coverage = float(np.mean(np.abs(mean - truth(grid)) <= 2 * sd))
+    assert 0.88 <= coverage <= 0.995 or coverage == 1.0 and sd.mean() < NOISE_N, (coverage, sd.mean())
+    assert gp.noise_std_ == pytest.approx(NOISE_N, rel=0.25)
+
+
+def test_study_protocol_outputs(study, data: pd.DataFrame) -> None:
+    assert [r.model for r in study.results] == ["ls", "mlp", "krr", "svr", "gp"]
+    krr = study.get("v", "krr")
+    assert set(krr.best_params) == {"alpha", "gamma"}
+    assert len(krr.learning_curve["train_sizes"]) == 2 and krr.fit_time_s > 0
+    assert {"train_mae_mean", "test_r2_sd"} <= set(krr.cv)
+    md = table_markdown(study)
+    assert md.count("\n") == 7 and "l-s:" in md
+    for r in study.results:  # picklable, same predictions after a round trip
+        X, _ = dof_data(data, "v")
+        np.testing.assert_allclose(pickle.loads(pickle.dumps(r.estimator)).predict(X[:20]), r.estimator.predict(X[:20]))
