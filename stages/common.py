@@ -188,6 +188,10 @@ def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: 
     kwargs: dict[str, Any] = {"progress": progress, "n_jobs": n_jobs()}
     if name == "ingest" and logs is not None:
         kwargs["logs"] = list(logs)
+    if name == "ingest" and progress is not None:  # ingest reports one call per log: tell the bar the total
+        count = len(logs) if logs else len(getattr(module, "discover_logs", lambda _root: [])(root))
+        if count:
+            progress(0, count)
     if fan_out and name in PER_TRIAL and "trial" in accepted_kwargs(module.run, {"trial": None}):
         trials = trials_for(name, root) if trials is None else trials
         if not trials:
@@ -195,6 +199,18 @@ def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: 
         results = pmap(_run_trial, [(name, root, vehicle, params, t) for t in trials])
         return merge_results(name, results)
     return call_stage(name, root, vehicle, params, **kwargs)
+
+
+def require_stages(names: list[str] | tuple[str, ...]) -> None:
+    """Raise one MissingStageError naming every stage of ``names`` that cannot be loaded."""
+    missing = []
+    for name in names:
+        try:
+            load_stage(name)
+        except MissingStageError as err:
+            missing.append(f"{name} ({err.reason})")
+    if missing:
+        raise MissingStageError("cannot run the DAG, missing stage(s): " + "; ".join(missing))
 
 
 def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] | tuple[str, ...] = STAGE_ORDER,
@@ -209,14 +225,7 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
     import time
 
     ordered = [s for s in STAGE_ORDER if s in set(stages)]
-    missing = []
-    for name in ordered:
-        try:
-            load_stage(name)
-        except MissingStageError as err:
-            missing.append(f"{name} ({err.reason})")
-    if missing:
-        raise MissingStageError("cannot run the DAG, missing stage(s): " + "; ".join(missing))
+    require_stages(ordered)
     results = []
     for name in ordered:
         if on_stage is not None:
