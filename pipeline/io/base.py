@@ -169,6 +169,12 @@ class RawReader:
         return dict(self._infos)
 
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
+        try:
+            return self._read(requests)
+        except Restart:  # damage found while reading: the reader now reads by its salvage path
+            return self._read(requests)
+
+    def _read(self, requests: dict[str, list[str]]) -> ReadResult:
         from pipeline.io import fields
 
         infos = self.topics()
@@ -187,14 +193,7 @@ class RawReader:
                 continue
             msgtype = infos[topic].msgtype
             plans[topic] = [fields.resolve(self._types, msgtype, p, file=self.path, topic=topic) for p in paths]
-        for attempt in range(2):
-            try:
-                return self._decode(plans, failed, infos)
-            except Restart:
-                if attempt:
-                    raise
-                infos = self.topics()
-        raise AssertionError("unreachable")
+        return self._decode(plans, failed, infos)
 
     def _decode(self, plans: dict[str, list[Any]], failed: dict[str, str], infos: dict[str, TopicInfo]) -> ReadResult:
         from pipeline.io import cdr

@@ -15,10 +15,14 @@ import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, Restart, SalvageInfo, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
+
+if TYPE_CHECKING:
+    from pipeline.io.mcap_index import IndexedFile
 
 log = logging.getLogger(__name__)
 
@@ -226,6 +230,7 @@ class McapReader(RawReader):
         super().__init__(path)
         self._walk: Walk | None = None
         self._tolerant = False
+        self._index: IndexedFile | None = None
 
     def _do_walk(self, on_message: Callable[[int, int, bytes | None], None] | None = None,
                  wanted: set[int] | None = None) -> Walk:
@@ -245,7 +250,10 @@ class McapReader(RawReader):
         return result
 
     def _scan(self) -> None:
-        w = self._do_walk()
+        from pipeline.io.mcap_index import index_walk
+
+        self._index = None if self._tolerant else index_walk(self.path)
+        w = self._index.walk if self._index is not None else self._do_walk()
         self._walk = w
         self._types = TypeRegistry(ros1=all(c.encoding == "ros1" for c in w.channels.values()) and
                                    bool(w.channels))
@@ -272,6 +280,18 @@ class McapReader(RawReader):
     def _batches(self, topics: list[str]) -> Iterator[Batch]:
         assert self._walk is not None
         by_channel = {cid: ch.topic for cid, ch in self._walk.channels.items() if ch.topic in topics}
+        if self._index is not None:
+            from pipeline.io.mcap_index import chunk_batches
+
+            try:
+                yield from chunk_batches(self.path, self._index, by_channel)
+            except Damaged as dmg:
+                log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
+                self._tolerant = True
+                self._infos = self._index = None
+                self._encoding = {}
+                raise Restart from dmg
+            return
         batcher = Batcher()
         done: list[Batch] = []
 

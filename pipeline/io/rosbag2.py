@@ -14,16 +14,19 @@ import sqlite3
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, Rows, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, Restart, Rows, SalvageInfo, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, walk
+
+if TYPE_CHECKING:
+    from pipeline.io.mcap_index import IndexedFile
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +80,8 @@ class Rosbag2Reader(RawReader):
         self.storage = kinds.pop()
         self.format = f"ros2-{self.storage}"
         self._ids: list[dict[int, str]] = []     # per file: topic id / channel id -> topic
+        self._indexes: list[IndexedFile | None] = []  # per MCAP file: its chunk indexes, when intact and indexed
+        self._no_index = False
 
     @classmethod
     def from_files(cls, files: list[Path]) -> Rosbag2Reader:
@@ -131,6 +136,7 @@ class Rosbag2Reader(RawReader):
             if last is not None:
                 cur[3] = last if cur[3] is None else max(cur[3], last)
 
+        self._ids, self._indexes = [], []
         for path in self.files:
             ids: dict[int, str] = {}
             if self.storage == "sqlite3":
@@ -191,7 +197,11 @@ class Rosbag2Reader(RawReader):
             return w
 
     def _scan_mcap(self, path: Path, ids: dict[int, str], add: Any) -> None:
-        w = self._walk_mcap(path)
+        from pipeline.io.mcap_index import index_walk
+
+        index = None if self._no_index or self.salvage is not None else index_walk(path)
+        self._indexes.append(index)
+        w = index.walk if index is not None else self._walk_mcap(path)
         for cid, ch in sorted(w.channels.items()):
             name, enc, text = w.schemas.get(ch.schema_id, ("", "", ""))
             msgtype = normalize_msgtype(name)
@@ -212,6 +222,19 @@ class Rosbag2Reader(RawReader):
                 continue
             if self.storage == "sqlite3":
                 yield from self._sqlite_batches(path, wanted)
+                continue
+            index = self._indexes[self.files.index(path)]
+            if index is not None and self.compression_mode != "MESSAGE":
+                from pipeline.io.mcap_index import chunk_batches
+
+                try:
+                    yield from chunk_batches(path, index, wanted)
+                except Damaged as dmg:
+                    log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
+                    self._no_index = True
+                    self._infos = None
+                    self._encoding = {}
+                    raise Restart from dmg
                 continue
             batcher = Batcher()
             done: list[Batch] = []

@@ -1,0 +1,242 @@
+"""The fast way through an intact, indexed MCAP file: chunk headers and message-index records only.
+
+:func:`index_walk` reads the top-level records with positioned reads (no memory map, so resident memory stays
+flat however large the file): schemas, channels, statistics, and for each chunk its header and the
+message-index records that follow it. Counts and first/last log times per channel come from those indexes
+without decompressing anything. It returns None whenever the file is not of that shape (messages outside
+chunks, a chunk without message indexes, an unknown record, counts that disagree with the statistics), and
+the caller walks the file record by record instead (:func:`pipeline.io.mcap_reader.walk`).
+
+:func:`chunk_batches` then decompresses each chunk once, checks its size and CRC, locates the message records
+of the wanted channels from the chunk's message indexes (checking each record's opcode, channel and length with
+vectorized reads), and hands over batches of ~16 MB of decompressed chunks with the payload positions of each
+topic in storage (file) order. A damaged chunk raises :class:`Damaged`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import struct
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.io.base import BATCH_BYTES, Batch, Rows
+from pipeline.io.mcap_reader import (
+    MAGIC,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_DATA_END,
+    OP_FOOTER,
+    OP_SCHEMA,
+    OP_STATISTICS,
+    Channel,
+    Damaged,
+    Walk,
+    _decompress,
+)
+
+log = logging.getLogger(__name__)
+
+OP_MESSAGE_INDEX = 0x07
+_SKIPPABLE = {0x01, 0x08, 0x09, 0x0A, 0x0C, 0x0D, 0x0E, OP_DATA_END}  # header, chunk index, attachments, metadata...
+_ENTRY = np.dtype([("t", "<u8"), ("o", "<u8")])
+
+
+@dataclass
+class ChunkRef:
+    body: int                    # file offset of the chunk's records (compressed)
+    length: int                  # compressed length
+    usize: int
+    crc: int
+    compression: str
+    at: int                      # file offset of the chunk record (for damage reports)
+    index: dict[int, np.ndarray] = field(default_factory=dict)  # channel -> message offsets in the chunk
+
+
+@dataclass
+class IndexedFile:
+    walk: Walk
+    chunks: list[ChunkRef]
+
+
+def _str(buf: bytes, pos: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from("<I", buf, pos)
+    return buf[pos + 4:pos + 4 + n].decode("utf-8"), pos + 4 + n
+
+
+def index_walk(path: Path) -> IndexedFile | None:
+    """Schemas, channels, counts and chunk positions from the top-level records; None if not indexed."""
+    try:
+        return _index_walk(path)
+    except (struct.error, UnicodeDecodeError, ValueError) as err:
+        log.debug("%s: no index walk (%s)", path, err)
+        return None
+
+
+def _index_walk(path: Path) -> IndexedFile | None:
+    out = Walk()
+    chunks: list[ChunkRef] = []
+    times: dict[int, list[np.ndarray]] = {}
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        size = os.fstat(fd).st_size
+        if size < 16 or os.pread(fd, 8, 0) != MAGIC or os.pread(fd, 8, size - 8) != MAGIC:
+            return None
+        pos = 8
+        while True:
+            if pos + 9 > size - 8:
+                return None
+            op, length = struct.unpack("<BQ", os.pread(fd, 9, pos))
+            body, stop = pos + 9, pos + 9 + length
+            if stop > size - 8:
+                return None
+            if op == OP_CHUNK:
+                head = os.pread(fd, min(length, 4096), body)
+                _s, _e, usize, crc = struct.unpack_from("<QQQI", head, 0)
+                compression, p = _str(head, 28)
+                (rlen,) = struct.unpack_from("<Q", head, p)
+                if p + 8 + rlen > length:
+                    return None
+                chunks.append(ChunkRef(body + p + 8, rlen, usize, crc, compression, pos))
+            elif op == OP_MESSAGE_INDEX:
+                if not chunks:
+                    return None
+                raw = os.pread(fd, length, body)
+                cid, n = struct.unpack_from("<HI", raw, 0)
+                if n % 16 or 6 + n > length:
+                    return None
+                entries = np.frombuffer(raw, dtype=_ENTRY, count=n // 16, offset=6)
+                chunks[-1].index[cid] = entries["o"].astype(np.int64)
+                times.setdefault(cid, []).append(entries["t"].astype(np.int64))
+            elif op in (OP_SCHEMA, OP_CHANNEL, OP_STATISTICS):
+                raw = os.pread(fd, length, body)
+                _record(op, raw, out)
+            elif op == OP_FOOTER:
+                break
+            elif op not in _SKIPPABLE and op < 0x80:
+                return None  # messages outside chunks, or a record this walk does not know
+            pos = stop
+    finally:
+        os.close(fd)
+    for chunk in chunks:
+        if chunk.usize and not chunk.index:
+            return None  # a chunk without message indexes: walk it
+    for cid, parts in times.items():
+        t = np.concatenate(parts)
+        if len(t):
+            out.counts[cid] = len(t)
+            out.first[cid] = int(t.min())
+            out.last[cid] = int(t.max())
+    if any(cid not in out.channels for cid in out.counts):
+        return None
+    if out.stats_counts is not None:
+        for cid in out.channels:
+            if out.stats_counts.get(cid, 0) != out.counts.get(cid, 0):
+                return None
+    out.kept = sum(out.counts.values())
+    return IndexedFile(out, chunks)
+
+
+def _record(op: int, raw: bytes, out: Walk) -> None:
+    if op == OP_SCHEMA:
+        (sid,) = struct.unpack_from("<H", raw, 0)
+        name, p = _str(raw, 2)
+        enc, p = _str(raw, p)
+        (n,) = struct.unpack_from("<I", raw, p)
+        out.schemas.setdefault(sid, (name, enc, raw[p + 4:p + 4 + n].decode("utf-8", "replace")))
+    elif op == OP_CHANNEL:
+        cid, sid = struct.unpack_from("<HH", raw, 0)
+        topic, p = _str(raw, 4)
+        enc, p = _str(raw, p)
+        out.channels.setdefault(cid, Channel(cid, topic, enc, sid))
+    else:
+        (n,) = struct.unpack_from("<I", raw, 42)
+        counts = {}
+        for q in range(46, 46 + n, 10):
+            cid, cnt = struct.unpack_from("<HQ", raw, q)
+            counts[cid] = cnt
+        out.stats_counts = counts
+
+
+def _u(buf: np.ndarray, at: np.ndarray, size: int) -> np.ndarray:
+    raw = np.empty((len(at), size), dtype=np.uint8)
+    for k in range(size):
+        raw[:, k] = buf[at + k]
+    return raw.view(f"<u{size}").ravel().astype(np.int64)
+
+
+def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
+                  limit: int = BATCH_BYTES) -> Iterator[Batch]:
+    """Batches of decompressed chunks holding the wanted channels (channel -> topic), in file order."""
+    parts: list[np.ndarray] = []
+    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    size = 0
+
+    def flush() -> Batch:
+        buf = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        rows = {}
+        for topic, got in pieces.items():
+            starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
+            rows[topic] = Rows(starts, lengths, stamps)
+        return Batch(buf, rows)
+
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        for chunk in indexed.chunks:
+            mine = {cid: offs for cid, offs in chunk.index.items() if cid in wanted and len(offs)}
+            if not mine:
+                continue
+            data = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)
+            by_topic: dict[str, list[np.ndarray]] = {}
+            for cid, offs in mine.items():
+                by_topic.setdefault(wanted[cid], []).append(offs)
+            for topic, offs_list in by_topic.items():
+                offs = np.sort(np.concatenate(offs_list)) if len(offs_list) > 1 else np.sort(offs_list[0])
+                starts, lengths, stamps = _locate(data, offs, {c for c in mine if wanted[c] == topic}, chunk.at)
+                pieces.setdefault(topic, []).append((starts + size, lengths, stamps))
+            parts.append(data)
+            size += len(data)
+            if size >= limit:
+                yield flush()
+                parts, pieces, size = [], {}, 0
+        if parts:
+            yield flush()
+    finally:
+        os.close(fd)
+
+
+def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
+    raw = os.pread(fd, chunk.length, chunk.body)
+    if len(raw) != chunk.length:
+        raise Damaged("chunk cut short", chunk.at)
+    try:
+        data = _decompress(chunk.compression, raw, chunk.usize, partial=False)
+    except Damaged as dmg:
+        raise Damaged(dmg.reason, chunk.at) from None
+    except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types
+        raise Damaged(f"chunk does not decompress ({err})", chunk.at) from err
+    if len(data) != chunk.usize or (chunk.crc and zlib.crc32(data) != chunk.crc):
+        raise Damaged("chunk CRC or size mismatch (corrupt bytes)", chunk.at)
+    return data
+
+
+def _locate(data: np.ndarray, offs: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
+    """Payload starts, lengths and log times of the message records at ``offs``, checked against the chunk."""
+    end = len(data)
+    if len(offs) and (offs.max() + 31 > end or offs.min() < 0):
+        raise Damaged("message index points outside its chunk", at)
+    if (data[offs] != 0x05).any():
+        raise Damaged("message index points at a record that is not a message", at)
+    length = _u(data, offs + 1, 8)
+    cid = _u(data, offs + 9, 2)
+    if not np.isin(cid, list(channels)).all():
+        raise Damaged("message index points at a message of another channel", at)
+    if (length < 22).any() or (offs + 9 + length > end).any():
+        raise Damaged("message record overruns its chunk", at)
+    stamps = _u(data, offs + 15, 8)
+    return offs + 31, length - 22, stamps
