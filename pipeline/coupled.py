@@ -1,0 +1,227 @@
+"""The coupled 3-DOF motion-model study (paper 000): tune -> blocked CV -> final check -> tables and figures.
+
+Pure functions over DataFrames (feature-store rows); the stage shells ``stages/tune.py`` and ``stages/train.py``
+read and write. Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``[u v r n1 n2 n3]``, one SVR per
+output with its own hyperparameters) and ``gertler_hagen``, ``mcfarland_whitcomb`` (inputs ``[u v r tau_u tau_v
+tau_r]``, all outputs at once, TLS). Outputs ``[udot vdot rdot]``.
+
+:func:`synthetic_frame` generates feature-store-like data from a known coupled model with damping terms beyond
+the Gertler–Hagen / McFarland–Whitcomb structures (for tests and benchmarks).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pipeline.config.params import CoupledParams
+from pipeline.errors import ModelError
+from pipeline.evaluate import check_no_leakage, cross_validate_blocked, score_holdout, split_blocks, summarize_folds
+from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
+from pipeline.models.search import SVR_MODELS, make_svr, search
+from pipeline.models.svr import PerOutputRegressor
+
+log = logging.getLogger(__name__)
+
+__all__ = ["EXPLICIT_MODELS", "MODEL_LABELS", "synthetic_frame", "tune", "build_model", "model_inputs",
+           "evaluate_models"]
+
+EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb")
+MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
+                "gertler_hagen": "Gertler-Hagen", "mcfarland_whitcomb": "McFarland-Whitcomb"}
+
+
+# -- synthetic data ---------------------------------------------------------------------------------------
+
+_M = np.array([[110.0, 0.0, 0.0], [0.0, 160.0, 8.0], [0.0, 8.0, 25.0]])
+_K_THRUST = 2.0e-5  # N / rpm^2
+_K_ADVANCE = 0.01  # N / (rpm m/s): thrust lost to inflow, NOT in the static tau the feature store carries
+_B = np.array([[1.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-0.3, 0.3, 0.5]])
+
+
+def _coriolis(nu: np.ndarray) -> np.ndarray:
+    u, v, r = nu.T
+    a_x = _M[0, 0] * u + _M[0, 1] * v + _M[0, 2] * r
+    a_y = _M[1, 0] * u + _M[1, 1] * v + _M[1, 2] * r
+    return np.column_stack([-r * a_y, r * a_x, u * a_y - v * a_x])
+
+
+def _damping(nu: np.ndarray) -> np.ndarray:
+    u, v, r = nu.T
+    return np.column_stack([
+        8 * u + 30 * u * np.abs(u) + 40 * u * r**2 + 15 * v * r,
+        15 * v + 80 * v * np.abs(v) + 30 * u * r + 60 * v * u**2,
+        3 * r + 10 * r * np.abs(r) + 6 * u * v + 4 * np.tanh(8 * v) * np.abs(u) + 5 * r * u**2])
+
+
+def _accel(nu: np.ndarray, n_rpm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    thrust_static = _K_THRUST * n_rpm * np.abs(n_rpm)
+    inflow = np.column_stack([nu[:, 0], nu[:, 0], nu[:, 1] + 0.5 * nu[:, 2]])
+    thrust = thrust_static - _K_ADVANCE * np.abs(n_rpm) * inflow
+    tau_eff = thrust @ _B.T
+    rhs = tau_eff - _coriolis(nu) - _damping(nu)
+    return np.linalg.solve(_M, rhs.T).T, thrust_static @ _B.T
+
+
+def synthetic_frame(n_samples: int = 1500, *, rate_hz: float = 2.0, seed: int = 0, trial: str = "syn01",
+                    split: str | None = None, tuning_fraction: float = 0.2, noise: float = 0.02,
+                    vehicle: str = "synthetic") -> pd.DataFrame:
+    """A feature-store-like table of one simulated trial (RK4, step + sine thruster commands, noisy signals).
+
+    ``split=None``: first ``tuning_fraction`` of the rows are ``tuning``, the rest ``train_test``; otherwise every
+    row gets ``split``. ``noise`` is the measurement noise SD as a fraction of each signal's SD.
+    """
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / rate_hz
+    t = np.arange(n_samples) * dt
+    amp = np.array([1400.0, 1400.0, 1200.0])
+    n_rpm = np.zeros((n_samples, 3))
+    for i in range(3):  # random steps held 2-10 s, through a first-order thruster lag (1 s), plus a sine
+        level, hold, state = 0.0, 0.0, 0.0
+        phase, freq = rng.uniform(0, 2 * np.pi), rng.uniform(0.02, 0.1)
+        for k in range(n_samples):
+            if hold <= 0:
+                level, hold = rng.uniform(-1.0, 1.0), rng.uniform(2.0, 10.0)
+            hold -= dt
+            state += (level - state) * min(dt / 1.0, 1.0)
+            n_rpm[k, i] = amp[i] * np.clip(0.8 * state + 0.2 * np.sin(2 * np.pi * freq * t[k] + phase), -1, 1)
+    nu = np.zeros((n_samples, 3))
+    x = np.zeros((1, 3))
+    for k in range(n_samples):
+        nu[k] = x[0]
+        nk = n_rpm[k:k + 1]
+        k1, _ = _accel(x, nk)
+        k2, _ = _accel(x + 0.5 * dt * k1, nk)
+        k3, _ = _accel(x + 0.5 * dt * k2, nk)
+        k4, _ = _accel(x + dt * k3, nk)
+        x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    nudot, tau = _accel(nu, n_rpm)
+    noisy = [a + noise * a.std(axis=0) * rng.normal(size=a.shape) for a in (nu, nudot)]
+    frame = pd.DataFrame({
+        "vehicle": vehicle, "trial": trial,
+        "t_ns": (np.round(t * 1e9)).astype(np.int64) + 1_700_000_000 * 10**9,
+        "segment": np.zeros(n_samples, dtype=np.int32),
+        "u_mps": noisy[0][:, 0], "v_mps": noisy[0][:, 1], "r_radps": noisy[0][:, 2],
+        "n1_rpm": n_rpm[:, 0], "n2_rpm": n_rpm[:, 1], "n3_rpm": n_rpm[:, 2],
+        "tau_u_N": tau[:, 0], "tau_v_N": tau[:, 1], "tau_r_Nm": tau[:, 2],
+        "udot_mps2": noisy[1][:, 0], "vdot_mps2": noisy[1][:, 1], "rdot_radps2": noisy[1][:, 2],
+    })
+    if split is None:
+        n_tune = int(round(tuning_fraction * n_samples))
+        frame["split"] = np.where(np.arange(n_samples) < n_tune, "tuning", "train_test")
+    else:
+        frame["split"] = split
+    return frame
+
+
+# -- models -----------------------------------------------------------------------------------------------
+
+def model_inputs(model: str, params: CoupledParams) -> list[str]:
+    """The feature columns a model takes: the SVRs ``params.inputs``, the explicit models ν and τ."""
+    return list(EXPLICIT_INPUTS) if model in EXPLICIT_MODELS else list(params.inputs)
+
+
+def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams) -> Any:
+    """An unfitted estimator predicting all outputs; ``hyper`` maps output -> SVR hyperparameters."""
+    if model == "gertler_hagen":
+        return GertlerHagen(solver="tls")
+    if model == "mcfarland_whitcomb":
+        return McFarlandWhitcomb(solver="tls")
+    if model not in SVR_MODELS:
+        raise ModelError(f"unknown model {model!r}; expected {list(SVR_MODELS) + list(EXPLICIT_MODELS)}")
+    if not hyper or any(out not in hyper for out in params.outputs):
+        raise ModelError(f"no tuned hyperparameters for {model!r} and every output {params.outputs}")
+    n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
+    return PerOutputRegressor([make_svr(model, hyper[out], n_velocity) for out in params.outputs])
+
+
+def _check_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise ModelError(f"{what}: feature table lacks columns {missing}")
+
+
+def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:
+    if max_samples is None or len(frame) <= max_samples:
+        return frame
+    idx = np.unique(np.linspace(0, len(frame) - 1, max_samples).round().astype(int))
+    return frame.iloc[idx]
+
+
+def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
+         ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
+    """Search hyperparameters of every SVR model and output on the tuning block only.
+
+    Returns ``(hyper, trace)``: ``hyper[model][output]`` = flat hyperparameters, ``trace[model][output]`` =
+    the :class:`SearchResult` as a dict.
+    """
+    if len(tuning) == 0:
+        raise ModelError("tuning block is empty")
+    if "split" in tuning.columns and set(tuning["split"].unique()) != {"tuning"}:
+        raise ModelError(f"tune() got rows of split(s) {sorted(set(tuning['split']) - {'tuning'})}")
+    _check_columns(tuning, [*params.inputs, *params.outputs], "tune")
+    data = _subsample(tuning, params.max_samples)
+    X = data[params.inputs].to_numpy(float)
+    n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
+    hyper: dict[str, dict[str, dict[str, Any]]] = {}
+    trace: dict[str, Any] = {}
+    # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum
+    order = [m for m in SVR_MODELS if m in params.models]
+    for model in order:
+        hyper[model], trace[model] = {}, {}
+        simpler = next((m for m in reversed(order[:order.index(model)]) if m in hyper), None)
+        for out in params.outputs:
+            kw: dict[str, Any] = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
+            if params.search == "fast":
+                kw.update(max_evals=params.max_evals, seed=params.seed,
+                          warm_start=hyper[simpler][out] if simpler else None)
+            res = search(model, X, data[out].to_numpy(float), params.search, **kw)
+            log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
+            hyper[model][out] = res.best_params
+            trace[model][out] = res.to_dict()
+    return hyper, trace
+
+
+def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[str, dict[str, Any]],
+                    params: CoupledParams, *, tuning_keys: pd.DataFrame | None = None, n_jobs: int | None = 1
+                    ) -> dict[str, Any]:
+    """Blocked CV on the train_test block and the final check on the test trial(s), per model.
+
+    Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted}}``; the
+    final estimator is fitted on the whole train_test block.
+    """
+    _check_columns(train_test, [*params.outputs, "trial", "t_ns"], "evaluate")
+    keys = train_test[["trial", "t_ns"]]
+    if len(test):
+        check_no_leakage(train_test[["trial", "t_ns"]], test[["trial", "t_ns"]], tuning_keys)
+    y = train_test[params.outputs].to_numpy(float)
+    results: dict[str, Any] = {}
+    for model in params.models:
+        est = build_model(model, hyper.get(model), params)
+        cols = model_inputs(model, params)
+        _check_columns(train_test, cols, model)
+        X = train_test[cols].to_numpy(float)
+        folds = cross_validate_blocked(est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
+                                       outputs=params.outputs, n_jobs=n_jobs)
+        final_est = est.fit(X, y)
+        final = None
+        if len(test):
+            final = score_holdout(final_est, test[cols].to_numpy(float), test[params.outputs].to_numpy(float),
+                                  params.outputs)
+        results[model] = {"folds": folds, "summary": summarize_folds(folds), "final": final, "estimator": final_est}
+        log.info("%s: CV test R2 %s", model, {o: round(s["test_r2"]["mean"], 4)
+                                             for o, s in results[model]["summary"].items()})
+    return results
+
+
+def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1) -> dict[str, Any]:
+    """Everything on one table with a ``split`` column: tune, CV, final check (no files)."""
+    blocks = split_blocks(frame)
+    hyper, trace = tune(blocks["tuning"], params, n_jobs=n_jobs)
+    results = evaluate_models(blocks["train_test"], blocks["test"], hyper, params,
+                              tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs)
+    return {"hyper": hyper, "trace": trace, "results": results}
