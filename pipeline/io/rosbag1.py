@@ -15,11 +15,15 @@ import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, Restart, SalvageInfo, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import Damaged
+
+if TYPE_CHECKING:
+    from pipeline.io.rosbag1_index import IndexedBag
 
 log = logging.getLogger(__name__)
 
@@ -258,6 +262,8 @@ class Rosbag1Reader(RawReader):
     def __init__(self, path: str | Path) -> None:
         super().__init__(path)
         self._walk: BagWalk | None = None
+        self._index: IndexedBag | None = None
+        self._no_index = False
 
     def _do_walk(self, on_message: Callable[[int, int, bytes], None] | None = None,
                  wanted: set[int] | None = None) -> BagWalk:
@@ -275,10 +281,15 @@ class Rosbag1Reader(RawReader):
         return result
 
     def _scan(self) -> None:
-        w = self._do_walk()
+        from pipeline.io.rosbag1_index import index_walk
+
+        self._index = None if self._no_index or self.salvage is not None else index_walk(self.path)
+        w = self._index.walk if self._index is not None else self._do_walk()
         self._walk = w
         stored = None
-        if self.salvage is None:
+        if self._index is not None:
+            stored = dict(w.counts)
+        elif self.salvage is None:
             try:
                 stored = index_counts(self.path)
             except (struct.error, KeyError, Damaged) as err:
@@ -302,6 +313,17 @@ class Rosbag1Reader(RawReader):
     def _batches(self, topics: list[str]) -> Iterator[Batch]:
         assert self._walk is not None
         by_conn = {cid: c.topic for cid, c in self._walk.connections.items() if c.topic in topics}
+        if self._index is not None:
+            from pipeline.io.rosbag1_index import chunk_batches
+
+            try:
+                yield from chunk_batches(self.path, self._index, by_conn)
+            except Damaged as dmg:
+                log.warning("%s: %s; reading it record by record", self.path, dmg)
+                self._no_index = True
+                self._infos = self._index = None
+                raise Restart from dmg
+            return
         batcher = Batcher()
         done: list[Batch] = []
 
