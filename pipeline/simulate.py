@@ -459,7 +459,7 @@ def plot_bridging(rows: Sequence[Mapping[str, Any]], target: Any) -> Any:
         pts = [(r["window_s"], r["mean_error_m"]) for r in rows if r["model"] == name and r["mean_error_m"] is not None]
         if pts:
             x, y = zip(*pts, strict=True)
-            ax.plot(x, y, "o-", label=name, ls="--" if name == "hold_last" else "-")
+            ax.plot(x, y, marker="o", label=name, ls="--" if name == "hold_last" else "-")
     ax.set_xlabel("DVL outage (s)")
     ax.set_ylabel("mean position error at end (m)")
     ax.set_yscale("log")
