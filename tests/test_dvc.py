@@ -128,3 +128,11 @@ def test_foreach_trials_match_the_example(trial: str) -> None:
     for stage in ("sync", "differentiate", "derive"):
         assert f"{stage}@{trial}" in names
     assert params.features.test_trials == ["trial03"]
+
+
+def test_train_outs_cover_every_coupled_model() -> None:
+    params = load_params(REPO / "params.yaml")
+    stages = {full: s for _, full, s in expanded_stages()}
+    outs = set(_entries(stages["train"]["outs"]))
+    for model in params.coupled.models:
+        assert f"data/models/coupled/{model}.joblib" in outs and f"data/models/coupled/{model}.json" in outs
