@@ -31,7 +31,7 @@ SIZES = {
     "int64": 8, "uint64": 8, "float32": 4, "float64": 8,
 }
 DTYPES = {
-    "bool": "u1", "byte": "u1", "char": "u1", "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2",
+    "bool": "u1", "byte": "i1", "char": "u1", "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2",
     "int32": "i4", "uint32": "u4", "int64": "i8", "uint64": "u8", "float32": "f4", "float64": "f8",
 }
 _HEADER_STEPS = {
