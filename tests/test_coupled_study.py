@@ -1,0 +1,73 @@
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.config.params import CoupledParams
+from pipeline.coupled import run_study, synthetic_frame, table2, table3
+from pipeline.errors import ModelError
+from pipeline.models.card import load_model, save_model
+from pipeline.models.search import fast_search, grid_search, paper_grid
+
+
+@pytest.fixture(scope="module")
+def study():
+    frame = pd.concat([synthetic_frame(1500, seed=0, tuning_fraction=0.4),
+                       synthetic_frame(500, seed=1, trial="syn02", split="test")], ignore_index=True)
+    params = CoupledParams(max_evals=12)
+    return params, run_study(frame, params)
+
+
+def test_wdse_beats_rbf_and_explicit_models_on_test_trial(study):
+    params, out = study
+    res = out["results"]
+    for o in params.outputs:
+        wdse = res["wdse_svr"]["final"][o]["r2"]
+        for other in ("rbf_svr", "gertler_hagen", "mcfarland_whitcomb"):
+            assert wdse > res[other]["final"][o]["r2"], (o, other)
+        assert res["wdse_svr"]["summary"][o]["test_r2"]["mean"] > res["rbf_svr"]["summary"][o]["test_r2"]["mean"] - 0.01
+    md, doc = table3(res, params.outputs)
+    assert "WDSE-SVR" in md and set(doc) == set(params.models)
+    assert "gamma_v_mps" in table2(out["hyper"], params.outputs, params.inputs)
+
+
+def test_study_is_deterministic_in_its_scores(study):
+    params, out = study
+    frame = pd.concat([synthetic_frame(600, seed=0), synthetic_frame(200, seed=1, trial="syn02", split="test")],
+                      ignore_index=True)
+    small = CoupledParams(models=["gertler_hagen", "mcfarland_whitcomb"])
+    a, b = run_study(frame, small), run_study(frame, small)
+    assert a["results"]["gertler_hagen"]["summary"] == b["results"]["gertler_hagen"]["summary"]
+
+
+def test_fast_search_reproducible_and_grid_is_the_paper_grid():
+    frame = synthetic_frame(200, seed=2, split="tuning")
+    X, y = frame[["u_mps", "v_mps", "r_radps"]].to_numpy(), frame["rdot_radps2"].to_numpy()
+    a = fast_search("wdse_svr", X, y, max_evals=6)
+    b = fast_search("wdse_svr", X, y, max_evals=6)
+    assert a.best_params == b.best_params and a.n_fits <= 18
+    grid = paper_grid("wdse_svr", 6, 1.0)
+    assert len(grid) == 8 and all(len(v) == 5 for v in grid.values())
+    assert np.prod([len(v) for v in grid.values()]) == 390_625
+    small = grid_search("rbf_svr", X, y, grid={"gamma": [0.1, 1.0], "C": [1.0], "epsilon": [0.01]})
+    assert small.n_candidates == 2 and small.n_fits == 6
+
+
+def test_tune_refuses_non_tuning_rows():
+    from pipeline.coupled import tune
+    frame = synthetic_frame(100, seed=0)
+    with pytest.raises(ModelError, match="split"):
+        tune(frame, CoupledParams())
+
+
+def test_card_roundtrip(tmp_path, study):
+    _, out = study
+    est = out["results"]["mcfarland_whitcomb"]["estimator"]
+    path, card = save_model(est, tmp_path / "mw.joblib", {"model": "mcfarland_whitcomb", "seed": 0})
+    loaded, meta = load_model(path)
+    assert meta["versions"]["scikit-learn"] and meta["model"] == "mcfarland_whitcomb"
+    np.testing.assert_array_equal(loaded.coef_, est.coef_)
+    card.unlink()
+    with pytest.raises(ModelError, match="card"):
+        load_model(path)
