@@ -44,8 +44,9 @@ def demo_params(trials: list[str]) -> dict[str, Any]:
         "sync": {"rate_hz": 10.0, "min_segment_s": 5.0},
         "differentiate": {"method": "gaussian", "sigma_s": 0.25, "edge_sigmas": 3.0},
         "features": {"tuning_fraction": 0.2, "test_trials": test},
-        "coupled": {"folds": 5, "search": "fast", "max_samples": 600, "seed": 0},
-        "decoupled": {"folds": 5, "search": "fast", "gp_max_samples": 300, "max_samples": 1500, "seed": 0},
+        "coupled": {"folds": 3, "search": "fast", "max_samples": 600, "seed": 0},
+        "decoupled": {"folds": 3, "search": "fast", "gp_max_samples": 200, "max_samples": 600, "curve_points": 3,
+                      "seed": 0},
         "simulate": {"horizons_s": [1.0, 5.0, 10.0], "outage_windows_s": [10.0, 30.0], "band_samples": 8},
     }
     # Keys another version of the params model does not know are left out (the model evolves per stage).
