@@ -247,8 +247,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from pipeline import demo
-    from stages.common import STAGE_ORDER, load_configs, run_stages
+    from stages.common import STAGE_ORDER, load_configs, require_stages, run_stages
 
+    require_stages(STAGE_ORDER)  # before minutes of simulation
     out = args.out.resolve()
     start = time.perf_counter()
     print(f"auvid demo: simulating the example vehicle into {out}", flush=True)
