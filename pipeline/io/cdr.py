@@ -38,10 +38,6 @@ _HEADER_STEPS = {
     "sec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="sec")),
     "nanosec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="nanosec")),
 }
-_ROS1_HEADER_STEPS = {
-    "sec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="sec")),
-    "nanosec": (Step("attr", name="header"), Step("attr", name="stamp"), Step("attr", name="nanosec")),
-}
 MAX_GROUPS = 64  # distinct lengths of one struct sequence in one batch before giving up
 
 
@@ -65,6 +61,8 @@ class Columnar:
         self.base = starts + head
         self.room = lengths - head
         self.order = "<"
+        self._views: dict[int, np.ndarray] = {}
+        self._cache: dict[tuple[Step, ...], tuple[Any, ...]] = {}
         if not ros1 and len(starts):
             if (lengths < 4).any() or (buf[starts] != 0).any():
                 raise Bail("not plain CDR")
@@ -76,7 +74,7 @@ class Columnar:
     def _align(self, pos: np.ndarray, size: int) -> np.ndarray:
         if self.ros1 or size <= 1:
             return pos
-        return (pos + (size - 1)) // size * size
+        return (pos + (size - 1)) & ~(size - 1)
 
     def gather(self, rows: np.ndarray, pos: np.ndarray, base_type: str) -> np.ndarray:
         size = SIZES[base_type]
@@ -84,14 +82,15 @@ class Columnar:
         if len(pos) and ((pos + size) > self.room[rows]).any():
             raise Bail("payload shorter than its definition")
         at = self.base[rows] + pos
-        if size == 1:
-            raw = self.buf[at]
-        else:
-            raw = np.empty((len(at), size), dtype=np.uint8)
-            for k in range(size):
-                raw[:, k] = self.buf[at + k]
+        raw = self.buf[at] if size == 1 else self._windows(size)[at]
         dtype = DTYPES[base_type] if size == 1 else self.order + DTYPES[base_type]
         return raw.view(dtype).ravel()
+
+    def _windows(self, size: int) -> np.ndarray:
+        """A (len - size + 1, size) view of the buffer: row ``i`` is the ``size`` bytes at ``i`` (no copy)."""
+        if size not in self._views:
+            self._views[size] = np.lib.stride_tricks.sliding_window_view(self.buf, size)
+        return self._views[size]
 
     def _u32(self, rows: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pos = self._align(pos, 4)
@@ -180,12 +179,60 @@ class Columnar:
 
     def column(self, top: str, steps: tuple[Step, ...], n: int) -> tuple[np.ndarray, str]:
         """Values of one field path for all ``n`` messages (NaN where an index or name is absent)."""
+        rows, pos, leaf = self.locate(top, steps, n)
+        return self.values(rows, pos, leaf, n)
+
+    def values(self, rows: np.ndarray, pos: np.ndarray, leaf: str, n: int) -> tuple[np.ndarray, str]:
+        values = self.gather(rows, pos, leaf)
+        if len(rows) == n:
+            return values, leaf
+        out = np.full(n, np.nan)
+        out[rows] = _as_float(values, leaf)
+        return out, "float64"
+
+    def gather_many(self, pos: list[np.ndarray], leaves: list[str]) -> list[np.ndarray] | None:
+        """Fields of all messages at a constant distance from the first, read with one gather; None if not."""
+        sizes = [SIZES[leaf] for leaf in leaves]
+        pos = [self._align(p, z) for p, z in zip(pos, sizes, strict=True)]
+        first = pos[0]
+        if not len(first):
+            return None
+        deltas = []
+        for p in pos:
+            d = p[0] - first[0]
+            if d < 0 or d > 256 or (p - first != d).any():
+                return None
+            deltas.append(int(d))
+        width = max(d + z for d, z in zip(deltas, sizes, strict=True))
+        at = self.base + first
+        if (at + width > len(self.buf)).any():
+            return None
+        for d, z in zip(deltas, sizes, strict=True):
+            if (first + d + z > self.room).any():
+                raise Bail("payload shorter than its definition")
+        win = np.lib.stride_tricks.sliding_window_view(self.buf, width)[at]
+        out = []
+        for d, z, leaf in zip(deltas, sizes, leaves, strict=True):
+            dtype = DTYPES[leaf] if z == 1 else self.order + DTYPES[leaf]
+            out.append(np.ascontiguousarray(win[:, d:d + z]).view(dtype).ravel())
+        return out
+
+    def locate(self, top: str, steps: tuple[Step, ...], n: int) -> tuple[np.ndarray, np.ndarray, str]:
+        """Messages that hold the field (all but those where an index or name is absent), its positions, type."""
         rows = np.arange(n, dtype=np.int64)
         pos = np.zeros(n, dtype=np.int64)
         cur = top
         node: tuple[int, Any] = (Nodetype.NAME, top)
         starts: dict[str, np.ndarray] = {}
+        first = 0
+        for k in range(len(steps), 0, -1):
+            if steps[:k] in self._cache:
+                rows, pos, cur, node, starts = self._cache[steps[:k]]
+                first = k
+                break
         for i, step in enumerate(steps):
+            if i < first:
+                continue
             if step.kind == "attr":
                 fields = self.defs[cur][1]
                 names = [f for f, _ in fields]
@@ -227,13 +274,8 @@ class Columnar:
                 node = sub
             if node[0] == Nodetype.NAME:
                 cur = node[1]
-        leaf = node[1][0]
-        values = self.gather(rows, pos, leaf)
-        if len(rows) == n:
-            return values, leaf
-        out = np.full(n, np.nan)
-        out[rows] = _as_float(values, leaf)
-        return out, "float64"
+            self._cache[steps[:i + 1]] = (rows, pos, cur, node, starts)
+        return rows, pos, node[1][0]
 
 
 def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
@@ -256,16 +298,34 @@ def fast_columns(
     slack = col.room - end
     if n and ((slack < 0).any() or (slack != 0 if ros1 else slack > 3).any()):
         raise Bail("payload sizes do not match the definition")
-    out = {}
-    for fp in plans:
-        values, leaf = col.column(msgtype, fp.steps, n)
-        out[fp.text] = _as_float(values, leaf)
+    wanted = [(fp.text, fp.steps) for fp in plans]
+    if has_header:
+        wanted += [("\0sec", _HEADER_STEPS["sec"]), ("\0nanosec", _HEADER_STEPS["nanosec"])]
+    located = {text: col.locate(msgtype, steps, n) for text, steps in wanted}
+    raw: dict[str, tuple[np.ndarray, str]] = {}
+    # Fields at a constant distance from each other (a quaternion, a stamp) are read with one gather each group.
+    groups: list[list[str]] = []
+    for text, (r, p, _leaf) in located.items():
+        if len(r) != n:
+            continue
+        for g in groups:
+            d = p[:1] - located[g[0]][1][:1]
+            if len(d) and 0 <= d[0] <= 64:
+                g.append(text)
+                break
+        else:
+            groups.append([text])
+    for g in groups:
+        got = col.gather_many([located[t][1] for t in g], [located[t][2] for t in g]) if len(g) > 1 else None
+        if got is not None:
+            raw.update({t: (v, located[t][2]) for t, v in zip(g, got, strict=True)})
+    for text, (r, p, leaf) in located.items():
+        if text not in raw:
+            raw[text] = col.values(r, p, leaf, n)
+    out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
     stamps = None
     if has_header:
-        steps = _ROS1_HEADER_STEPS if ros1 else _HEADER_STEPS
-        sec = col.column(msgtype, steps["sec"], n)[0].astype(np.int64)
-        nsec = col.column(msgtype, steps["nanosec"], n)[0].astype(np.int64)
-        stamps = sec * 1_000_000_000 + nsec
+        stamps = raw["\0sec"][0].astype(np.int64) * 1_000_000_000 + raw["\0nanosec"][0].astype(np.int64)
     return out, stamps
 
 

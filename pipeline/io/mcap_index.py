@@ -164,50 +164,68 @@ def _record(op: int, raw: bytes, out: Walk) -> None:
 
 
 def _u(buf: np.ndarray, at: np.ndarray, size: int) -> np.ndarray:
-    raw = np.empty((len(at), size), dtype=np.uint8)
-    for k in range(size):
-        raw[:, k] = buf[at + k]
-    return raw.view(f"<u{size}").ravel().astype(np.int64)
+    return np.lib.stride_tricks.sliding_window_view(buf, size)[at].view(f"<u{size}").ravel().astype(np.int64)
 
 
 def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
                   limit: int = BATCH_BYTES) -> Iterator[Batch]:
-    """Batches of decompressed chunks holding the wanted channels (channel -> topic), in file order."""
-    parts: list[np.ndarray] = []
-    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    """Batches of decompressed chunks holding the wanted channels (channel -> topic), in file order.
+
+    Uncompressed chunks that follow each other are read with one positioned read and used in place.
+    """
+    group: list[ChunkRef] = []
     size = 0
-
-    def flush() -> Batch:
-        buf = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        rows = {}
-        for topic, got in pieces.items():
-            starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
-            rows[topic] = Rows(starts, lengths, stamps)
-        return Batch(buf, rows)
-
     fd = os.open(path, os.O_RDONLY)
     try:
         for chunk in indexed.chunks:
-            mine = {cid: offs for cid, offs in chunk.index.items() if cid in wanted and len(offs)}
-            if not mine:
+            if not any(cid in wanted and len(offs) for cid, offs in chunk.index.items()):
                 continue
-            data = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)
-            by_topic: dict[str, list[np.ndarray]] = {}
-            for cid, offs in mine.items():
-                by_topic.setdefault(wanted[cid], []).append(offs)
-            for topic, offs_list in by_topic.items():
-                offs = np.sort(np.concatenate(offs_list)) if len(offs_list) > 1 else np.sort(offs_list[0])
-                starts, lengths, stamps = _locate(data, offs, {c for c in mine if wanted[c] == topic}, chunk.at)
-                pieces.setdefault(topic, []).append((starts + size, lengths, stamps))
-            parts.append(data)
-            size += len(data)
+            group.append(chunk)
+            size += chunk.usize
             if size >= limit:
-                yield flush()
-                parts, pieces, size = [], {}, 0
-        if parts:
-            yield flush()
+                yield _batch(fd, group, wanted)
+                group, size = [], 0
+        if group:
+            yield _batch(fd, group, wanted)
     finally:
         os.close(fd)
+
+
+def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str]) -> Batch:
+    if all(c.compression == "" for c in group):
+        lo, hi = group[0].body, group[-1].body + group[-1].length
+        raw = os.pread(fd, hi - lo, lo)
+        if len(raw) != hi - lo:
+            raise Damaged("chunk cut short", group[0].at)
+        buf = np.frombuffer(raw, dtype=np.uint8)
+        where = [(c, c.body - lo) for c in group]
+        for chunk, at in where:
+            if chunk.length != chunk.usize or (chunk.crc and zlib.crc32(raw[at:at + chunk.length]) != chunk.crc):
+                raise Damaged("chunk CRC or size mismatch (corrupt bytes)", chunk.at)
+    else:
+        buf = np.empty(sum(c.usize for c in group), dtype=np.uint8)
+        where, at = [], 0
+        for chunk in group:
+            buf[at:at + chunk.usize] = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)
+            where.append((chunk, at))
+            at += chunk.usize
+    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for chunk, at in where:
+        data = buf[at:at + chunk.usize]
+        by_topic: dict[str, list[np.ndarray]] = {}
+        for cid, offs in chunk.index.items():
+            if cid in wanted and len(offs):
+                by_topic.setdefault(wanted[cid], []).append(offs)
+        for topic, offs_list in by_topic.items():
+            offs = np.sort(np.concatenate(offs_list)) if len(offs_list) > 1 else np.sort(offs_list[0])
+            channels = {c for c in chunk.index if wanted.get(c) == topic}
+            starts, lengths, stamps = _locate(data, offs, channels, chunk.at)
+            pieces.setdefault(topic, []).append((starts + at, lengths, stamps))
+    rows = {}
+    for topic, got in pieces.items():
+        starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
+        rows[topic] = Rows(starts, lengths, stamps)
+    return Batch(buf, rows)
 
 
 def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:

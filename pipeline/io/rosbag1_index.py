@@ -147,10 +147,7 @@ def _index_walk(path: Path) -> IndexedBag | None:
 
 
 def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    raw = np.empty((len(at), 4), dtype=np.uint8)
-    for k in range(4):
-        raw[:, k] = buf[at + k]
-    return raw.view("<u4").ravel().astype(np.int64)
+    return np.lib.stride_tricks.sliding_window_view(buf, 4)[at].view("<u4").ravel().astype(np.int64)
 
 
 def _layout(data: np.ndarray, off: int) -> tuple[int, int, int, int]:
