@@ -24,9 +24,12 @@ from pipeline.report import html as H
 
 log = logging.getLogger(__name__)
 
-METRIC_KEY = re.compile(r"(r2|mae|rmse|nrmse|mse|score|error|_time|time_s|fit_s|predict_s|diverged|horizon)",
-                        re.IGNORECASE)
-MAX_METRICS_PER_FILE = 150
+METRIC_KEY = re.compile(r"(r2|mae|rmse|mse|score|error|diverged)", re.IGNORECASE)
+# Wall-clock timings vary run to run: they stay in the report's tables, never in metrics.json (DVC would see a
+# change on every run). Train scores stay in the tables too: metrics.json carries the scores that decide.
+NOT_METRIC = re.compile(r"(time|fit_s|predict_s|train_|train\.|trace)", re.IGNORECASE)
+ID_KEYS = ("window_s", "horizon_s", "fold", "dof", "output")
+MAX_METRICS_PER_FILE = 300
 MAX_CSV_ROWS = 40
 
 
@@ -57,12 +60,25 @@ def _trials(root: Path) -> list[str]:
     return sorted(names)
 
 
+def _item_label(item: dict[str, Any], index: int) -> str:
+    parts = [str(v) for k, v in item.items() if isinstance(v, str)]
+    parts += [f"{k}={v}" for k, v in item.items() if k in ID_KEYS and not isinstance(v, str)]
+    return "@".join(parts) if parts else str(index)
+
+
 def _flatten_numbers(obj: Any, prefix: str, out: dict[str, float], depth: int = 0) -> None:
+    """Numeric leaves whose key path names a score; list items of records are labelled by their string
+    fields (``model``) and id fields (``window_s``), e.g. ``trial03.bridging.gp@window_s=10.0.mean_error_m``."""
     if isinstance(obj, dict) and depth < 6:
         for k, v in sorted(obj.items(), key=lambda kv: str(kv[0])):
             _flatten_numbers(v, f"{prefix}.{k}" if prefix else str(k), out, depth + 1)
+    elif isinstance(obj, list) and depth < 6 and obj and all(isinstance(i, dict) for i in obj):
+        for index, item in enumerate(obj):
+            label = _item_label(item, index)
+            rest = {k: v for k, v in item.items() if not isinstance(v, str) and k not in ID_KEYS}
+            _flatten_numbers(rest, f"{prefix}.{label}" if prefix else label, out, depth + 1)
     elif isinstance(obj, (int, float)) and not isinstance(obj, bool) and math.isfinite(float(obj)):
-        if METRIC_KEY.search(prefix):
+        if METRIC_KEY.search(prefix) and not NOT_METRIC.search(prefix):
             out[prefix] = round(float(obj), 6)
 
 
@@ -159,7 +175,8 @@ def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict
             if doc is None:
                 continue
             found: dict[str, float] = {}
-            _flatten_numbers(doc, "", found)
+            if "timing" not in path.name:
+                _flatten_numbers(doc, "", found)
             if found:
                 key = f"{base.split('/')[-1]}/{rel[: -len('.json')]}"
                 metrics[key] = dict(list(found.items())[:MAX_METRICS_PER_FILE])
