@@ -47,7 +47,7 @@ _PARTIAL = (".part", ".tmp", ".partial", ".crdownload", ".lock")
 _LINKED = (layout.RAW, layout.SIGNALS, layout.SYNCED, layout.KINEMATICS, layout.DERIVED)
 _ARTIFACTS = (layout.MODELS, layout.EVALUATION, layout.SIMULATION, layout.REPORTS, "params.yaml")
 
-Scorer = Callable[[Path, list[str]], dict[str, float]]
+Scorer = Callable[[Path, list[str]], dict[str, Any]]
 
 
 @dataclass
@@ -70,7 +70,7 @@ class RetrainOutcome:
     message: str
     version: str | None = None
     quarantined: list[dict[str, Any]] = field(default_factory=list)
-    metrics: dict[str, float] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
 
 
 class LockBusy(Exception):
@@ -143,27 +143,53 @@ def _numeric_leaves(obj: Any, path: tuple[str, ...] = ()) -> Iterator[tuple[tupl
         yield path, float(obj)
 
 
-def holdout_score(run_root: Path, holdout: list[str]) -> dict[str, float]:
-    """Score of a built run on the holdout trials: mean of the R² values the evaluation reports for the test
-    (holdout) data. Reads the JSON files under ``data/evaluation/`` and ``data/simulation/`` (no internals)."""
-    import json
+def _mean(values: list[float]) -> float | None:
     import math
 
-    values: list[float] = []
-    for base in (layout.EVALUATION, layout.SIMULATION):
-        for path in sorted((run_root / base).rglob("*.json")):
-            try:
-                doc = json.loads(path.read_text())
-            except (OSError, ValueError):
+    values = [v for v in values if v is not None and math.isfinite(v)]
+    return sum(values) / len(values) if values else None
+
+
+def holdout_score(run_root: Path, holdout: list[str]) -> dict[str, Any]:
+    """Score of a built run on the holdout: the coupled model that the blocked CV ranks best (mean CV test R²
+    over the outputs) and its mean R² on the final check, i.e. on the holdout trial(s) no stage has seen.
+
+    Reads ``data/evaluation/coupled/metrics.json`` (``{model: {output: {cv_test_r2, final_r2}}}``, written by
+    the train stage). Without a holdout (``final_r2`` null) the CV score stands in. Other layouts: the mean of
+    every ``*r2*`` leaf under a ``test``/``holdout``/``final`` key in ``data/evaluation/**.json``.
+    """
+    import json
+
+    path = run_root / layout.EVALUATION / "coupled" / "metrics.json"
+    if path.exists():
+        doc = json.loads(path.read_text())
+        ranked = []
+        for model, outputs in sorted(doc.items()):
+            if not isinstance(outputs, dict):
                 continue
-            for keys, value in _numeric_leaves(doc):
-                joined = "/".join((*path.relative_to(run_root).parts, *keys)).lower()
-                if "r2" in keys[-1] and ("test" in joined or "holdout" in joined) and "train" not in keys[-1] \
-                        and "std" not in keys[-1] and "sd" != keys[-1] and math.isfinite(value):
-                    values.append(value)
-    if not values:
-        raise PipelineError("no holdout R² found under data/evaluation or data/simulation", file=run_root)
-    return {"holdout_r2": sum(values) / len(values), "holdout_r2_n": float(len(values))}
+            cv = _mean([o.get("cv_test_r2") for o in outputs.values() if isinstance(o, dict)])
+            final = _mean([o.get("final_r2") for o in outputs.values() if isinstance(o, dict)])
+            if cv is not None:
+                ranked.append((cv, model, final))
+        if ranked:
+            cv, model, final = max(ranked)
+            return {"holdout_r2": final if final is not None else cv, "cv_test_r2": cv, "model": model,
+                    "scored_on": "holdout" if final is not None else "cv"}
+    values = []
+    for json_path in sorted((run_root / layout.EVALUATION).rglob("*.json")):
+        try:
+            doc = json.loads(json_path.read_text())
+        except (OSError, ValueError):
+            continue
+        for keys, value in _numeric_leaves(doc):
+            last = keys[-1] if keys else ""
+            if "r2" in last and not any(w in last for w in ("train", "sd", "std")) \
+                    and any(w in k for k in keys for w in ("test", "holdout", "final")):
+                values.append(value)
+    score = _mean(values)
+    if score is None:
+        raise PipelineError("no holdout R² found under data/evaluation", file=run_root)
+    return {"holdout_r2": score, "scored_on": "generic"}
 
 
 # -------------------------------------------------------------------------------------------------- the run

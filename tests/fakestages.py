@@ -89,9 +89,10 @@ class FakeDag:
                     trials = sorted(p.stem for p in (root / "data/derived").glob("*.parquet"))
                     out.parent.mkdir(parents=True, exist_ok=True)
                     out.write_text(json.dumps({"trials": trials}))
-                    ev = root / "data/evaluation/coupled/summary.json"
+                    ev = root / "data/evaluation/coupled/metrics.json"  # the train stage's shape
                     ev.parent.mkdir(parents=True, exist_ok=True)
-                    ev.write_text(json.dumps({"test": {"r2_mean": dag.score}}))
+                    ev.write_text(json.dumps({"fake_svr": {"udot_mps2": {"cv_test_r2": dag.score, "cv_test_r2_sd": 0.0,
+                                                                         "final_r2": dag.score}}}))
                     return StageResult(stage=name, outputs=[out, ev])
                 out.parent.mkdir(parents=True, exist_ok=True)
                 out.write_text("{}")

@@ -150,12 +150,23 @@ def test_quarantined_new_log_exit_1_and_not_retried(tmp_path: Path, monkeypatch:
     assert retrain(_opts(root, inbox)).status == "nothing_new"
 
 
-def test_holdout_score_reads_test_r2(tmp_path: Path) -> None:
+def test_holdout_score_picks_the_cv_best_coupled_model(tmp_path: Path) -> None:
     ev = tmp_path / "data/evaluation/coupled"
     ev.mkdir(parents=True)
-    (ev / "metrics.json").write_text(json.dumps({"wdse_svr": {"test": {"r2": 0.8, "r2_std": 0.1},
-                                                              "train": {"r2": 0.99}}}))
-    sim = tmp_path / "data/simulation"
-    sim.mkdir(parents=True)
-    (sim / "holdout.json").write_text(json.dumps({"trial03": {"r2": 0.6, "mae": 0.1}}))
-    assert holdout_score(tmp_path, ["trial03"])["holdout_r2"] == pytest.approx(0.7)
+    (ev / "metrics.json").write_text(json.dumps({
+        "wdse_svr": {"udot": {"cv_test_r2": 0.9, "cv_test_r2_sd": 0.1, "final_r2": 0.7},
+                     "vdot": {"cv_test_r2": 0.8, "cv_test_r2_sd": 0.1, "final_r2": 0.5}},
+        "rbf_svr": {"udot": {"cv_test_r2": 0.6, "cv_test_r2_sd": 0.1, "final_r2": 0.99}}}))
+    score = holdout_score(tmp_path, ["trial03"])
+    assert score["model"] == "wdse_svr" and score["holdout_r2"] == pytest.approx(0.6)
+    assert score["scored_on"] == "holdout"
+
+
+def test_holdout_score_generic_fallback(tmp_path: Path) -> None:
+    ev = tmp_path / "data/evaluation/other"
+    ev.mkdir(parents=True)
+    (ev / "summary.json").write_text(json.dumps({"m": {"test": {"r2": 0.8, "r2_sd": 0.1}, "train": {"r2": 1.0}},
+                                                 "n": {"holdout": {"r2": 0.6}}}))
+    assert holdout_score(tmp_path, [])["holdout_r2"] == pytest.approx(0.7)
+    with pytest.raises(Exception, match="no holdout"):
+        holdout_score(tmp_path / "nothing", [])
