@@ -57,3 +57,27 @@ def test_bad_jobs_env(monkeypatch: pytest.MonkeyPatch) -> None:
         parallel.n_jobs()
     monkeypatch.setenv(parallel.ENV_JOBS, "3")
     assert parallel.n_jobs() == 3
+
+
+def test_auvid_run_fans_trials_out_on_the_cluster(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from fakestages import FakeDag, make_run_dir
+
+    from pipeline import cli
+
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path, ("trial01", "trial02", "trial03"))
+    seen_backends = []
+    original = parallel.pmap
+
+    def spy(fn, items, *, jobs=None):  # noqa: ANN001, ANN202
+        seen_backends.append(parallel.active_scheduler())
+        return original(fn, items, jobs=jobs)
+
+    monkeypatch.setattr(parallel, "pmap", spy)
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        code = cli.main(["run", "--root", str(root), "--vehicle", str(root / "vehicle.yaml"), "-q",
+                         "--scheduler", cluster.scheduler_address, "--to", "derive"])
+    assert code == 0
+    assert seen_backends == [cluster.scheduler_address] * 3  # sync, differentiate, derive
+    assert sorted(t for s, t in dag.calls if s == "derive") == ["trial01", "trial02", "trial03"]
+    assert sorted(p.name for p in (root / "data/derived").iterdir()) == [f"trial0{i}.parquet" for i in (1, 2, 3)]
