@@ -209,22 +209,27 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str]) -> Batch:
             buf[at:at + chunk.usize] = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)
             where.append((chunk, at))
             at += chunk.usize
-    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    # Message offsets of each topic over the whole batch (chunk by chunk, each chunk's in file order).
+    offsets: dict[str, list[np.ndarray]] = {}
+    limits: dict[str, list[np.ndarray]] = {}
+    channels: dict[str, set[int]] = {}
     for chunk, at in where:
-        data = buf[at:at + chunk.usize]
         by_topic: dict[str, list[np.ndarray]] = {}
         for cid, offs in chunk.index.items():
             if cid in wanted and len(offs):
                 by_topic.setdefault(wanted[cid], []).append(offs)
+                channels.setdefault(wanted[cid], set()).add(cid)
         for topic, offs_list in by_topic.items():
             offs = np.sort(np.concatenate(offs_list)) if len(offs_list) > 1 else np.sort(offs_list[0])
-            channels = {c for c in chunk.index if wanted.get(c) == topic}
-            starts, lengths, stamps = _locate(data, offs, channels, chunk.at)
-            pieces.setdefault(topic, []).append((starts + at, lengths, stamps))
+            if offs[0] < 0 or offs[-1] + 31 > chunk.usize:
+                raise Damaged("message index points outside its chunk", chunk.at)
+            offsets.setdefault(topic, []).append(offs + at)
+            limits.setdefault(topic, []).append(np.full(len(offs), at + chunk.usize, dtype=np.int64))
     rows = {}
-    for topic, got in pieces.items():
-        starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
-        rows[topic] = Rows(starts, lengths, stamps)
+    for topic, offs_list in offsets.items():
+        offs = np.concatenate(offs_list) if len(offs_list) > 1 else offs_list[0]
+        end = np.concatenate(limits[topic]) if len(offs_list) > 1 else limits[topic][0]
+        rows[topic] = Rows(*_locate(buf, offs, end, channels[topic], where[0][0].at))
     return Batch(buf, rows)
 
 
@@ -243,18 +248,20 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
     return data
 
 
-def _locate(data: np.ndarray, offs: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
-    """Payload starts, lengths and log times of the message records at ``offs``, checked against the chunk."""
-    end = len(data)
-    if len(offs) and (offs.max() + 31 > end or offs.min() < 0):
-        raise Damaged("message index points outside its chunk", at)
-    if (data[offs] != 0x05).any():
+def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
+    """Payload starts, lengths and log times of the message records at ``offs``, checked against their chunks."""
+    head = np.lib.stride_tricks.sliding_window_view(data, 23)[offs]  # opcode, length, channel, sequence, log time
+    if (head[:, 0] != 0x05).any():
         raise Damaged("message index points at a record that is not a message", at)
-    length = _u(data, offs + 1, 8)
-    cid = _u(data, offs + 9, 2)
-    if not np.isin(cid, list(channels)).all():
+    length = np.ascontiguousarray(head[:, 1:9]).view("<u8").ravel().astype(np.int64)
+    cid = np.ascontiguousarray(head[:, 9:11]).view("<u2").ravel()
+    if len(channels) == 1:
+        bad = (cid != next(iter(channels))).any()
+    else:
+        bad = not np.isin(cid, list(channels)).all()
+    if bad:
         raise Damaged("message index points at a message of another channel", at)
     if (length < 22).any() or (offs + 9 + length > end).any():
         raise Damaged("message record overruns its chunk", at)
-    stamps = _u(data, offs + 15, 8)
+    stamps = np.ascontiguousarray(head[:, 15:23]).view("<u8").ravel().astype(np.int64)
     return offs + 31, length - 22, stamps
