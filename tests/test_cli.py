@@ -142,3 +142,40 @@ def test_inspect_json(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: p
     assert json.loads(capsys.readouterr().out)["topics"][0]["topic"] == "/dvl"
     assert cli.main(["inspect", str(tmp_path / "x.mcap")]) == 0
     assert "1 topic(s)" in capsys.readouterr().out
+
+
+def test_demo_lays_out_a_run_and_prints_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    import types
+
+    from fakestages import VEHICLE_YAML
+
+    from pipeline import demo
+
+    def fake_example(target: Path, duration_s: float, seed: int) -> types.SimpleNamespace:
+        target.mkdir(parents=True)
+        (target / "vehicle.yaml").write_text(VEHICLE_YAML)
+        logs = []
+        for name in ("trial01", "trial02", "trial03"):
+            (target / f"{name}.mcap").write_text(f"log {name}")
+            logs.append(target / f"{name}.mcap")
+        return types.SimpleNamespace(vehicle=target / "vehicle.yaml", trials=logs)
+
+    dag = FakeDag().install(monkeypatch)
+    monkeypatch.setattr(demo, "_simulate", fake_example)
+
+    def report(root: Path, vehicle: object, params: object) -> common.StageResult:
+        out = Path(root) / "reports/report.html"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text("<html></html>")
+        return common.StageResult("report", outputs=[out])
+
+    dag.modules["report"].run = report
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(out), "-q"]) == 0
+    assert sorted(p.name for p in (out / "data/raw").iterdir()) == ["trial01.mcap", "trial02.mcap", "trial03.mcap"]
+    assert (out / "vehicle.yaml").exists() and not (out / ".example").exists()
+    params = (out / "params.yaml").read_text()
+    assert "trial03" in params  # the last trial is held out as the unseen test trial
+    assert f"report: {out / 'reports/report.html'}" in capsys.readouterr().out
+    assert [n for n, _ in dag.calls][:2] == ["ingest", "sync"]
