@@ -61,7 +61,10 @@ class Columnar:
         self.base = starts + head
         self.room = lengths - head
         self.order = "<"
+        self.mat: np.ndarray | None = None
+        self.n = len(starts)
         self._views: dict[int, np.ndarray] = {}
+        self._strs: dict[int, tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]] = {}
         self._cache: dict[tuple[Step, ...], tuple[Any, ...]] = {}
         if not ros1 and len(starts):
             if (lengths < 4).any() or (buf[starts] != 0).any():
@@ -81,10 +84,28 @@ class Columnar:
         pos = self._align(pos, size)
         if len(pos) and ((pos + size) > self.room[rows]).any():
             raise Bail("payload shorter than its definition")
-        at = self.base[rows] + pos
-        raw = self.buf[at] if size == 1 else self._windows(size)[at]
+        if self.mat is not None and len(rows) == self.n and len(pos) and (pos == pos[0]).all():
+            a = int(pos[0]) + (0 if self.ros1 else 4)  # the same offset in every message: one strided copy
+            raw = np.ascontiguousarray(self.mat[:, a:a + size])
+        else:
+            at = self.base[rows] + pos
+            raw = self.buf[at] if size == 1 else self._windows(size)[at]
         dtype = DTYPES[base_type] if size == 1 else self.order + DTYPES[base_type]
         return raw.view(dtype).ravel()
+
+    def densify(self, limit: int = 1 << 16) -> None:
+        """Copy the payloads into one (messages x length) matrix when all have the same length."""
+        lengths = self.room + (0 if self.ros1 else 4)
+        if not self.n or (lengths != lengths[0]).any():
+            return
+        width = int(lengths[0])
+        starts = self.base - (0 if self.ros1 else 4)
+        if width > limit or width < 1 or int(starts[-1]) + width > len(self.buf):
+            return
+        self.mat = np.lib.stride_tricks.sliding_window_view(self.buf, width)[starts]
+        self.buf = self.mat.reshape(-1)
+        self.base = np.arange(self.n, dtype=np.int64) * width + (0 if self.ros1 else 4)
+        self._views, self._strs = {}, {}
 
     def _windows(self, size: int) -> np.ndarray:
         """A (len - size + 1, size) view of the buffer: row ``i`` is the ``size`` bytes at ``i`` (no copy)."""
@@ -145,36 +166,41 @@ class Columnar:
             pos = self.skip(sub, rows, pos)
         return pos
 
-    def _string_equal(self, rows: np.ndarray, pos: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
-        """Whether the string at ``pos`` equals ``key`` (as rosbags decodes it), and the position after it."""
-        length, pos = self._u32(rows, pos)
-        end = pos + length
-        if len(end) and (end > self.room[rows]).any():
-            raise Bail("string beyond the payload")
-        text = length - (0 if self.ros1 else 1)  # CDR strings carry a terminating NUL that rosbags drops
-        eq = text == len(key)
-        for k, byte in enumerate(key):
-            cand = np.nonzero(eq)[0]
-            if not len(cand):
-                break
-            eq[cand] = self.buf[self.base[rows[cand]] + pos[cand] + k] == byte
-        return eq, end
+    def _strings(self, rows: np.ndarray, pos: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """For each element ``j`` of the string sequence at ``pos``: the messages that have it, where its text
+        starts and how long the text is (as rosbags decodes it: CDR's terminating NUL dropped). Cached."""
+        key = id(pos)
+        if key in self._strs:
+            return self._strs[key][1]
+        n, p = self._u32(rows, pos)
+        if len(n) and (n > self.room[rows]).any():
+            raise Bail("sequence length beyond the payload")
+        out = []
+        live = np.arange(len(rows))
+        for j in range(int(n.max()) if len(n) else 0):
+            live = live[n[live] > j]
+            length, start = self._u32(rows[live], p[live])
+            end = start + length
+            if len(end) and (end > self.room[rows[live]]).any():
+                raise Bail("string beyond the payload")
+            p = p.copy()
+            p[live] = end
+            out.append((live, start, length - (0 if self.ros1 else 1)))
+        self._strs[key] = (pos, out)
+        return out
 
     def _select_index(self, rows: np.ndarray, pos: np.ndarray, key: bytes) -> np.ndarray:
         """Index of the first string equal to ``key`` in the string sequence at ``pos``; -1 where absent."""
-        n, pos = self._u32(rows, pos)
-        if len(n) and (n > self.room[rows]).any():
-            raise Bail("sequence length beyond the payload")
         idx = np.full(len(rows), -1, dtype=np.int64)
-        top = int(n.max()) if len(n) else 0
-        live = np.arange(len(rows))
-        for j in range(top):
-            live = live[n[live] > j]
-            if not len(live):
-                break
-            eq, pos[live] = self._string_equal(rows[live], pos[live], key)
-            hit = live[eq & (idx[live] < 0)]
-            idx[hit] = j
+        want = np.frombuffer(key, dtype=np.uint8)
+        for j, (live, start, length) in enumerate(self._strings(rows, pos)):
+            cand = live[(length == len(key)) & (idx[live] < 0)]
+            if not len(cand) or not len(key):
+                idx[cand] = j
+                continue
+            at = self.base[rows[cand]] + start[np.searchsorted(live, cand)]
+            eq = (self._windows(len(key))[at] == want).all(axis=1)
+            idx[cand[eq]] = j
         return idx
 
     def column(self, top: str, steps: tuple[Step, ...], n: int) -> tuple[np.ndarray, str]:
@@ -254,7 +280,7 @@ class Columnar:
                     at: np.ndarray | int = step.index
                 else:
                     key = step.value.encode("utf-8")
-                    at = self._select_index(rows, starts[step.name].copy(), key)
+                    at = self._select_index(rows, starts[step.name], key)
                 if kind == Nodetype.SEQUENCE:
                     length, pos = self._u32(rows, pos)
                     if len(length) and (length > self.room[rows]).any():
@@ -291,6 +317,7 @@ def fast_columns(
     """Columns of one batch of one topic without decoding messages; raises :class:`Bail` when it cannot."""
     col = Columnar(buf, rows.starts, rows.lengths, ros1=ros1, defs=registry.defs)
     n = len(rows.starts)
+    col.densify()
     every = np.arange(n, dtype=np.int64)
     # The definition must describe every payload exactly (as rosbags checks per message): a type that differs
     # from what was recorded (e.g. a standard type that changed between ROS distributions) is not read.
@@ -315,7 +342,7 @@ def fast_columns(
                 break
         else:
             groups.append([text])
-    for g in groups:
+    for g in groups if col.mat is None else ():
         got = col.gather_many([located[t][1] for t in g], [located[t][2] for t in g]) if len(g) > 1 else None
         if got is not None:
             raw.update({t: (v, located[t][2]) for t, v in zip(g, got, strict=True)})

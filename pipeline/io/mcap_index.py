@@ -163,10 +163,6 @@ def _record(op: int, raw: bytes, out: Walk) -> None:
         out.stats_counts = counts
 
 
-def _u(buf: np.ndarray, at: np.ndarray, size: int) -> np.ndarray:
-    return np.lib.stride_tricks.sliding_window_view(buf, size)[at].view(f"<u{size}").ravel().astype(np.int64)
-
-
 def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
                   limit: int = BATCH_BYTES) -> Iterator[Batch]:
     """Batches of decompressed chunks holding the wanted channels (channel -> topic), in file order.
@@ -175,6 +171,7 @@ def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
     """
     group: list[ChunkRef] = []
     size = 0
+    scratch = [np.empty(0, dtype=np.uint8)]  # reused batch after batch (fresh pages cost more than the copy)
     fd = os.open(path, os.O_RDONLY)
     try:
         for chunk in indexed.chunks:
@@ -183,27 +180,32 @@ def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
             group.append(chunk)
             size += chunk.usize
             if size >= limit:
-                yield _batch(fd, group, wanted)
+                yield _batch(fd, group, wanted, scratch)
                 group, size = [], 0
         if group:
-            yield _batch(fd, group, wanted)
+            yield _batch(fd, group, wanted, scratch)
     finally:
         os.close(fd)
 
 
-def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str]) -> Batch:
+def _scratch(scratch: list[np.ndarray], size: int) -> np.ndarray:
+    if len(scratch[0]) < size:
+        scratch[0] = np.empty(size + (size >> 3), dtype=np.uint8)
+    return scratch[0][:size]
+
+
+def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list[np.ndarray]) -> Batch:
     if all(c.compression == "" for c in group):
         lo, hi = group[0].body, group[-1].body + group[-1].length
-        raw = os.pread(fd, hi - lo, lo)
-        if len(raw) != hi - lo:
+        buf = _scratch(scratch, hi - lo)
+        if os.preadv(fd, [buf], lo) != hi - lo:
             raise Damaged("chunk cut short", group[0].at)
-        buf = np.frombuffer(raw, dtype=np.uint8)
         where = [(c, c.body - lo) for c in group]
         for chunk, at in where:
-            if chunk.length != chunk.usize or (chunk.crc and zlib.crc32(raw[at:at + chunk.length]) != chunk.crc):
+            if chunk.length != chunk.usize or (chunk.crc and zlib.crc32(buf[at:at + chunk.length]) != chunk.crc):
                 raise Damaged("chunk CRC or size mismatch (corrupt bytes)", chunk.at)
     else:
-        buf = np.empty(sum(c.usize for c in group), dtype=np.uint8)
+        buf = _scratch(scratch, sum(c.usize for c in group))
         where, at = [], 0
         for chunk in group:
             buf[at:at + chunk.usize] = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)
