@@ -62,6 +62,7 @@ class Columnar:
         self.room = lengths - head
         self.order = "<"
         self.mat: np.ndarray | None = None
+        self.probe: list[tuple[int, int]] | None = None  # byte ranges that decide the layout (one-message probe)
         self.n = len(starts)
         self._views: dict[int, np.ndarray] = {}
         self._strs: dict[int, tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]] = {}
@@ -115,6 +116,8 @@ class Columnar:
 
     def _u32(self, rows: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pos = self._align(pos, 4)
+        if self.probe is not None and len(pos):
+            self.probe.append((int(pos[0]), 4))
         return self.gather(rows, pos, "uint32").astype(np.int64), pos + 4
 
     def skip(self, node: tuple[int, Any], rows: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -186,6 +189,8 @@ class Columnar:
             p = p.copy()
             p[live] = end
             out.append((live, start, length - (0 if self.ros1 else 1)))
+            if self.probe is not None and len(live):
+                self.probe.append((int(start[0]), int(length[0])))
         self._strs[key] = (pos, out)
         return out
 
@@ -307,7 +312,7 @@ class Columnar:
 def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
     if base_type == "bool":
         return (values != 0).astype(np.float64)
-    return values.astype(np.float64)
+    return values.astype(np.float64, copy=False)
 
 
 def fast_columns(
@@ -318,6 +323,10 @@ def fast_columns(
     col = Columnar(buf, rows.starts, rows.lengths, ros1=ros1, defs=registry.defs)
     n = len(rows.starts)
     col.densify()
+    if col.mat is not None and n > 1:
+        got = _uniform_columns(col, registry, msgtype, plans, ros1=ros1, has_header=has_header)
+        if got is not None:
+            return got
     every = np.arange(n, dtype=np.int64)
     # The definition must describe every payload exactly (as rosbags checks per message): a type that differs
     # from what was recorded (e.g. a standard type that changed between ROS distributions) is not read.
@@ -349,6 +358,52 @@ def fast_columns(
     for text, (r, p, leaf) in located.items():
         if text not in raw:
             raw[text] = col.values(r, p, leaf, n)
+    out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
+    stamps = None
+    if has_header:
+        stamps = raw["\0sec"][0].astype(np.int64) * 1_000_000_000 + raw["\0nanosec"][0].astype(np.int64)
+    return out, stamps
+
+
+def _uniform_columns(
+    col: Columnar, registry: TypeRegistry, msgtype: str, plans: list[FieldPath], *, ros1: bool, has_header: bool,
+) -> tuple[dict[str, np.ndarray], np.ndarray | None] | None:
+    """Columns when every message has the first one's layout: equal lengths and equal bytes in every length
+    prefix (and in the key strings of selections), so that each field lies at one offset in all of them.
+
+    The layout is worked out on the first message alone, recording the byte ranges it depended on; one vectorized
+    comparison then checks those ranges in all messages, and each field is one strided copy. None when the
+    messages differ in those bytes (the general path then handles them).
+    """
+    mat = col.mat
+    assert mat is not None
+    n, width = mat.shape
+    head = 0 if ros1 else 4
+    one = Columnar(mat[0], np.zeros(1, dtype=np.int64), np.array([width], dtype=np.int64), ros1=ros1,
+                   defs=registry.defs)
+    one.probe = []
+    zero = np.zeros(1, dtype=np.int64)
+    end = one.skip((Nodetype.NAME, msgtype), zero, zero.copy())
+    slack = width - head - int(end[0])
+    if slack < 0 or (slack != 0 if ros1 else slack > 3):
+        raise Bail("payload sizes do not match the definition")
+    wanted = [(fp.text, fp.steps) for fp in plans]
+    if has_header:
+        wanted += [("\0sec", _HEADER_STEPS["sec"]), ("\0nanosec", _HEADER_STEPS["nanosec"])]
+    located = {text: one.locate(msgtype, steps, 1) for text, steps in wanted}
+    if one.probe:
+        cols = np.unique(np.concatenate([np.arange(a, a + w) for a, w in one.probe]) + head)
+        if len(cols) and not (mat[:, cols] == mat[0, cols]).all():
+            return None
+    raw: dict[str, tuple[np.ndarray, str]] = {}
+    for text, (r, p, leaf) in located.items():
+        if not len(r):
+            raw[text] = (np.full(n, np.nan), "float64")
+            continue
+        size = SIZES[leaf]
+        a = int(one._align(p, size)[0]) + head
+        dtype = DTYPES[leaf] if size == 1 else one.order + DTYPES[leaf]
+        raw[text] = (np.ascontiguousarray(mat[:, a:a + size]).view(dtype).ravel(), leaf)
     out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
     stamps = None
     if has_header:
