@@ -162,7 +162,10 @@ def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict
     if not directory.is_dir():
         return f"<p class='warn'>Nothing under {H.esc(base)}/ (stage not run?).</p>"
     parts = []
-    files = sorted(p for p in directory.rglob("*") if p.is_file() and not p.name.startswith("."))
+    # The paper-style tables (Markdown) first, then figures, then the JSON behind them, then CSV heads.
+    order = {".md": 0, ".png": 1, ".json": 2, ".csv": 3}
+    files = sorted((p for p in directory.rglob("*") if p.is_file() and not p.name.startswith(".")),
+                   key=lambda p: (p.relative_to(directory).parent.as_posix(), order.get(p.suffix.lower(), 9), p.name))
     for path in files:
         rel = path.relative_to(directory).as_posix()
         suffix = path.suffix.lower()

@@ -19,7 +19,7 @@ th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right;vertical-align:t
 th{background:#e8eef5}td.k,th.k{text-align:left}
 img{max-width:100%;border:1px solid #ddd;background:#fff;margin:.4em 0}
 .warn{color:#a40000}.muted{color:#666;font-size:.85em}pre{background:#f0f0f0;padding:.6em;overflow:auto}
-figure{margin:.6em 0}figcaption{font-size:.8em;color:#555}
+figure{margin:.6em 0}figcaption{font-size:.8em;color:#555}.tw{overflow-x:auto;max-width:100%}
 """
 
 
@@ -56,7 +56,7 @@ def table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None, 
                         for i, c in enumerate(columns))
         body.append(f"<tr>{cells}</tr>")
     cap = f"<caption>{esc(caption)}</caption>" if caption else ""
-    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    return f"<div class='tw'><table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table></div>"
 
 
 def kv_table(mapping: dict[str, Any], key: str = "key", value: str = "value") -> str:
