@@ -440,9 +440,21 @@ class TopicDecoder:
         self.plans = plans
         self.ros1 = ros1
         self.allow_fast = allow_fast
-        self.pieces: list[tuple[dict[str, np.ndarray], np.ndarray | None, np.ndarray]] = []
+        # The columns are allocated once, at the size the storage announces, and filled batch by batch, so that
+        # peak memory stays near one copy of the extracted arrays (grown by doubling if the storage undercounts).
+        self.out: dict[str, np.ndarray] = {}
         self.paths: set[str] = set()
         self.read = 0
+
+    def _put(self, name: str, values: np.ndarray, dtype: type) -> None:
+        col = self.out.get(name)
+        end = self.read + len(values)
+        if col is None or end > len(col):
+            grown = np.empty(max(end, self.info.count, 2 * len(col) if col is not None else 0), dtype=dtype)
+            if col is not None:
+                grown[:self.read] = col[:self.read]
+            self.out[name] = col = grown
+        col[self.read:end] = values
 
     def feed(self, buf: np.ndarray, rows: Rows) -> None:
         """Decode one batch (raises what rosbags raises on a payload the definition does not describe)."""
@@ -464,25 +476,28 @@ class TopicDecoder:
             columns, stamps = slow_columns(self.registry, info.msgtype, payloads, self.plans, ros1=self.ros1,
                                            has_header=info.has_header)
             self.paths.add("per-message")
-        self.pieces.append((columns, stamps, np.asarray(rows.log_ns, dtype=np.int64)))
+        for name, values in columns.items():
+            self._put(name, values, np.float64)
+        if stamps is not None:
+            self._put("\0header_ns", stamps, np.int64)
+        self._put("\0log_ns", rows.log_ns, np.int64)
         self.read += n
 
     def result(self, expected: int) -> TopicData:
-        pieces, self.pieces = self.pieces, []
-        columns = {fp.text: _join([p[0][fp.text] for p in pieces], np.float64) for fp in self.plans}
-        stamps = _join([p[1] for p in pieces], np.int64) if self.info.has_header else None  # type: ignore[misc]
-        log_ns = _join([p[2] for p in pieces], np.int64)
+        out, self.out = self.out, {}
+
+        def take(name: str, dtype: type) -> np.ndarray:
+            col = out.pop(name, None)
+            if col is None:
+                return np.empty(0, dtype=dtype)
+            return col if len(col) == self.read else col[:self.read].copy()
+
+        columns = {fp.text: take(fp.text, np.float64) for fp in self.plans}
+        stamps = take("\0header_ns", np.int64) if self.info.has_header else None
+        log_ns = take("\0log_ns", np.int64)
         path = "fast" if self.paths <= {"fast"} and self.paths else \
             "per-message" if self.paths <= {"per-message"} else "mixed"
         if not self.paths:
             path = "fast" if self.allow_fast else "per-message"
         return TopicData(topic=self.info.topic, msgtype=self.info.msgtype, log_ns=log_ns, header_ns=stamps,
                          columns=columns, path=path, read=self.read, expected=expected)
-
-
-def _join(parts: list[np.ndarray], dtype: type) -> np.ndarray:
-    if not parts:
-        return np.empty(0, dtype=dtype)
-    if len(parts) == 1:
-        return parts[0]
-    return np.concatenate(parts)

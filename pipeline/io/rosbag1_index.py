@@ -167,9 +167,16 @@ def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: in
     parts: list[np.ndarray] = []
     pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     size = 0
+    scratch = [np.empty(0, dtype=np.uint8)]  # reused batch after batch (fresh pages cost more than the copy)
 
     def flush() -> Batch:
-        buf = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        if len(scratch[0]) < size:
+            scratch[0] = np.empty(size + (size >> 3), dtype=np.uint8)
+        buf = scratch[0][:size]
+        at = 0
+        for part in parts:
+            buf[at:at + len(part)] = part
+            at += len(part)
         rows = {}
         for topic, got in pieces.items():
             starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
