@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -150,12 +150,22 @@ def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: i
 def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[str] = ("u", "v", "r"),
               models: Sequence[str] = ("ls", "mlp", "krr", "svr", "gp"), folds: int = 5,
               search: str | dict[str, dict[str, list[Any]]] = "fast", gp_max_samples: int = 500,
-              max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0) -> StudyResult:
-    """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names."""
+              max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0,
+              dof_trials: Mapping[str, Sequence[str]] | None = None) -> StudyResult:
+    """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names.
+
+    ``dof_trials`` (optional): per DOF, the trials (``trial`` column) its models learn from; as in paper 001, where
+    each DOF's damping comes from experiments exciting that DOF alone. DOFs not named use every trial.
+    """
     results = []
     for dof in dofs:
-        X_tune, y_tune = dof_data(tuning, dof, max_samples)
-        X, y = dof_data(train_test, dof, max_samples)
+        tune_rows, tt_rows = tuning, train_test
+        if dof_trials and dof_trials.get(dof):
+            wanted = set(dof_trials[dof])
+            tune_rows = tuning[tuning["trial"].isin(wanted)]
+            tt_rows = train_test[train_test["trial"].isin(wanted)]
+        X_tune, y_tune = dof_data(tune_rows, dof, max_samples)
+        X, y = dof_data(tt_rows, dof, max_samples)
         if len(y) < 2 * folds:
             raise ModelError(f"{len(y)} train_test samples are too few for {folds}-fold CV", field=dof)
         for name in models:

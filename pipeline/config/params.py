@@ -65,12 +65,16 @@ class DecoupledParams(Frozen):
     max_samples: int | None = Field(
         3000, ge=50, description="Each split thinned to this many rows by an even time stride (None: all rows).")
     curve_points: int = Field(5, ge=2, description="Training sizes on each learning curve.")
+    trials: dict[str, list[str]] = Field(
+        default_factory=dict, description="Per DOF, the trials its damping is learned from (paper 001: experiments "
+        "that excite that DOF alone, e.g. pipeline.sim Controls(excite='surge')); DOFs not named use every trial.")
 
 
 class SimulateParams(Frozen):
     horizons_s: list[float] = Field(default_factory=lambda: [1.0, 5.0, 10.0])
     outage_windows_s: list[float] = Field(default_factory=lambda: [10.0, 30.0, 60.0])
-    divergence_factor: float = Field(10.0, gt=1, description="A rollout beyond this many times the measured range diverged.")
+    divergence_factor: float = Field(
+        10.0, gt=1, description="A rollout beyond this many times the measured range diverged.")
     method: Literal["rk4", "euler"] = Field("rk4", description="Fixed-step integrator at the grid rate (ZOH inputs).")
     band_samples: int = Field(32, ge=0, description="GP posterior functions rolled out for the 2-sigma band (0: none).")
     models: list[str] | None = Field(None, description="Decoupled models to simulate (None: every fitted one).")

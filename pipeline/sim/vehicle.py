@@ -30,6 +30,10 @@ class Controls:
     """Command options: sines on the horizontal thrusters, PD on the vertical ones."""
 
     commands: str = "sines"             # "sines" or "none"
+    # "all": independent sines per horizontal thruster; "surge" / "sway" / "yaw": one sum of sines on that
+    # generalized force, allocated over the horizontal thrusters so that the other horizontal DOFs get no force
+    # (single-DOF excitation, as in the decoupled identification experiments of paper 001)
+    excite: str = "all"
     amplitude_rpm: float = 2600.0       # peak command of the horizontal thrusters
     max_rpm: float = 3500.0
     period_range_s: tuple[float, float] = (6.0, 45.0)
@@ -145,16 +149,38 @@ class Commander:
         vert = np.flatnonzero(self.vertical)
         self._vert = vert
         self._alloc_pinv = np.linalg.pinv(dyn.B[np.ix_([2, 4], vert)]) if vert.size else None
+        self._single = self._single_dof_allocation() if controls.excite != "all" else None
+
+    def _single_dof_allocation(self) -> tuple[np.ndarray, np.ndarray]:
+        """(horizontal thruster indices, thrust per thruster at full excitation) for ``controls.excite``."""
+        dofs = {"surge": 0, "sway": 1, "yaw": 5}
+        if self.c.excite not in dofs:
+            raise ValueError(f"excite must be 'all' or one of {sorted(dofs)}, not {self.c.excite!r}")
+        horiz = np.flatnonzero(~self.vertical)
+        rows = [0, 1, 5]
+        unit = np.linalg.pinv(self.dyn.B[np.ix_(rows, horiz)])[:, rows.index(dofs[self.c.excite])]
+        amp = np.full((1, self.vertical.size), self.c.amplitude_rpm)
+        t_max = np.minimum(self.dyn.thrust(amp)[0], -self.dyn.thrust(-amp)[0])[horiz]  # symmetric thrust limit
+        used = np.abs(unit) > 1e-12 * np.abs(unit).max()
+        scale = float(np.min(t_max[used] / np.abs(unit[used])))
+        return horiz, unit * scale
+
+    def _inverse(self, thrust: np.ndarray, thrusters: np.ndarray) -> np.ndarray:
+        return np.array([np.interp(thrust[j], self._thrust_grid[:, i], self._grid) for j, i in enumerate(thrusters)])
 
     def inverse_thrust(self, thrust: np.ndarray) -> np.ndarray:
         """Propeller speed (rpm) giving ``thrust`` (N) per vertical thruster, clamped to max_rpm."""
-        return np.array([np.interp(thrust[j], self._thrust_grid[:, i], self._grid) for j, i in enumerate(self._vert)])
+        return self._inverse(thrust, self._vert)
 
     def __call__(self, t_s: float, eta: np.ndarray, nu: np.ndarray) -> np.ndarray:
         n_cmd = np.zeros(self.vertical.size)
         if self.c.commands == "sines":
             s = (self.weights * np.sin(2 * np.pi * t_s / self.periods + self.phases)).sum(axis=1)
-            n_cmd = np.where(self.vertical, 0.0, self.c.amplitude_rpm * s)
+            if self._single is None:
+                n_cmd = np.where(self.vertical, 0.0, self.c.amplitude_rpm * s)
+            else:  # one force signal (the first thruster's sines), allocated
+                horiz, full = self._single
+                n_cmd[horiz] = self._inverse(full * s[0], horiz)
         elif self.c.commands != "none":
             raise ValueError(f"commands must be 'sines' or 'none', not {self.c.commands!r}")
         if self.c.depth_control and self._alloc_pinv is not None:
