@@ -1,1 +1,1 @@
-"""Figures and the self-contained HTML report (``build.build(root, vehicle, params)``; stage shell: stages/report.py)."""
+"""Figures and the self-contained HTML report: ``build.build(root, vehicle, params)``; shell: stages/report.py."""

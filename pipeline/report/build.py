@@ -211,6 +211,20 @@ def _provenance_section(root: Path, vehicle: Vehicle, params: Params, trials: li
             + "</pre>")
 
 
+def _headline(metrics: dict[str, Any]) -> str:
+    """Per results file, its best R² (the key says which model / output / split)."""
+    rows = []
+    for group, values in metrics.items():
+        if not isinstance(values, dict) or "/" not in group:
+            continue
+        r2 = {k: v for k, v in values.items()
+              if "r2" in k.rsplit(".", 1)[-1] and not k.endswith(("_sd", "_std")) and "fold" not in k}
+        if r2:
+            key = max(r2, key=lambda k: r2[k])
+            rows.append({"results": group, "best R²": r2[key], "where": key, "scores": len(values)})
+    return ("<h3>Best R² per results file</h3>" + H.table(rows)) if rows else ""
+
+
 def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
     """The report of the run in ``root``: HTML, metrics (for ``dvc metrics``), plot data, figures."""
     root = Path(root)
@@ -235,7 +249,7 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
             sections.insert(-1, (sub.name, f"Evaluation: {sub.name}",
                                  _artifact_section(root, f"{layout.EVALUATION}/{sub.name}", metrics, figs)))
     summary = H.kv_table({"trials": len(trials), "quarantined inputs": metrics["ingest"]["quarantined"],
-                          "figures": len(figs)})
+                          "figures": len(figs)}) + _headline(metrics)
     sections.insert(0, ("summary", "Summary", summary))
     text = H.page(f"auvid report: {vehicle.name}", sections,
                   subtitle=f"auvid {__version__} · config {config_hash(vehicle)[:12]} · params "
