@@ -33,7 +33,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     if not hp.exists() and any(m not in EXPLICIT_MODELS for m in cp.models):
         raise ModelError("no tuned hyperparameters; run stages.tune first", file=hp)
     hyper = json.loads(hp.read_text())["hyperparameters"] if hp.exists() else {}
-    cols = sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.outputs))
+    cols = ["t_ns", *sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.outputs))]
     tt = store.load(root, vehicle=vehicle.name, split="train_test", columns=cols)
     te = store.load(root, vehicle=vehicle.name, split="test", columns=cols)
     tuning_keys = store.load(root, vehicle=vehicle.name, split="tuning", columns=["t_ns"])
