@@ -47,6 +47,23 @@ def _rss_mb() -> float:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
+def _reset_peak() -> None:
+    """Reset the kernel's peak-RSS mark (VmHWM) so that the read's own peak can be read back."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def _peak_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
 def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
     extra: dict[str, Any] = {}
     if method == "auvid":
@@ -62,9 +79,11 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
         base = _rss_mb()
         with tempfile.TemporaryDirectory() as tmp:
             start = time.perf_counter()
+            _reset_peak()
             with open_log(path) as reader:
                 reader.topics()
                 result = reader.read(REQUESTS)
+            read_peak = _peak_mb()
             for topic, data in result.topics.items():
                 cols = {"log_ns": data.log_ns, **({"header_ns": data.header_ns} if data.header_ns is not None else {}),
                         **data.columns}
@@ -74,7 +93,7 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
         arrays = sum(d.log_ns.nbytes + (d.header_ns.nbytes if d.header_ns is not None else 0)
                      + sum(c.nbytes for c in d.columns.values()) for d in result.topics.values())
         extra = {"paths": {t: d.path for t, d in result.topics.items()}, "failed": result.failed,
-                 "arrays_mb": arrays / 1e6, "base_rss_mb": base}
+                 "arrays_mb": arrays / 1e6, "base_rss_mb": base, "read_peak_mb": read_peak}
     else:
         from ingest import typestore  # bench/ingest.py
         from rosbags.highlevel import AnyReader
@@ -131,7 +150,7 @@ def logs_in(outdir: Path, minutes: float, formats: list[str]) -> dict[str, dict[
 
 
 HEAD = ("| format | MB | messages | auvid s | MB/s | msgs/s | raw s | deser s | × raw | × deser | arrays MB "
-        "| peak RSS MB (base) | raw / deser RSS MB | paths |")
+        "| peak RSS MB: read / +Parquet (base) | raw / deser RSS MB | paths |")
 
 
 def row_md(fmt: str, size: float, a: dict[str, Any], r: dict[str, Any], d: dict[str, Any]) -> str:
@@ -139,7 +158,8 @@ def row_md(fmt: str, size: float, a: dict[str, Any], r: dict[str, Any], d: dict[
     return (f"| {fmt} | {size:.1f} | {a['messages']} | {a['seconds']:.3f} | {size / a['seconds']:.0f} | "
             f"{a['messages'] / a['seconds']:,.0f} | {r['seconds']:.2f} | {d['seconds']:.2f} | "
             f"{r['seconds'] / a['seconds']:.1f} | {d['seconds'] / a['seconds']:.1f} | {a['arrays_mb']:.1f} | "
-            f"{a['peak_rss_mb']:.0f} ({a['base_rss_mb']:.0f}) | {r['peak_rss_mb']:.0f} / {d['peak_rss_mb']:.0f} | "
+            f"{a.get('read_peak_mb', float('nan')):.0f} / {a['peak_rss_mb']:.0f} ({a['base_rss_mb']:.0f}) | "
+            f"{r['peak_rss_mb']:.0f} / {d['peak_rss_mb']:.0f} | "
             f"{paths} |")
 
 

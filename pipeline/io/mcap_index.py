@@ -81,7 +81,6 @@ def index_walk(path: Path) -> IndexedFile | None:
 def _index_walk(path: Path) -> IndexedFile | None:
     out = Walk()
     chunks: list[ChunkRef] = []
-    times: dict[int, list[np.ndarray]] = {}
     fd = os.open(path, os.O_RDONLY)
     try:
         size = os.fstat(fd).st_size
@@ -111,8 +110,15 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 if n % 16 or 6 + n > length:
                     return None
                 entries = np.frombuffer(raw, dtype=_ENTRY, count=n // 16, offset=6)
-                chunks[-1].index[cid] = entries["o"].astype(np.int64)
-                times.setdefault(cid, []).append(entries["t"].astype(np.int64))
+                if len(entries) and int(entries["o"].max()) >= 1 << 32:
+                    return None
+                chunks[-1].index[cid] = entries["o"].astype(np.uint32)  # offsets in a chunk; 4 bytes a message
+                if len(entries):
+                    t = entries["t"]
+                    lo, hi = int(t.min()), int(t.max())
+                    out.counts[cid] = out.counts.get(cid, 0) + len(entries)
+                    out.first[cid] = min(out.first.get(cid, lo), lo)
+                    out.last[cid] = max(out.last.get(cid, hi), hi)
             elif op in (OP_SCHEMA, OP_CHANNEL, OP_STATISTICS):
                 raw = os.pread(fd, length, body)
                 _record(op, raw, out)
@@ -126,12 +132,6 @@ def _index_walk(path: Path) -> IndexedFile | None:
     for chunk in chunks:
         if chunk.usize and not chunk.index:
             return None  # a chunk without message indexes: walk it
-    for cid, parts in times.items():
-        t = np.concatenate(parts)
-        if len(t):
-            out.counts[cid] = len(t)
-            out.first[cid] = int(t.min())
-            out.last[cid] = int(t.max())
     if any(cid not in out.channels for cid in out.counts):
         return None
     if out.stats_counts is not None:
@@ -219,7 +219,7 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
         by_topic: dict[str, list[np.ndarray]] = {}
         for cid, offs in chunk.index.items():
             if cid in wanted and len(offs):
-                by_topic.setdefault(wanted[cid], []).append(offs)
+                by_topic.setdefault(wanted[cid], []).append(offs.astype(np.int64))
                 channels.setdefault(wanted[cid], set()).add(cid)
         for topic, offs_list in by_topic.items():
             offs = np.sort(np.concatenate(offs_list)) if len(offs_list) > 1 else np.sort(offs_list[0])

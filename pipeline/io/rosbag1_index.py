@@ -114,7 +114,6 @@ def _index_walk(path: Path) -> IndexedBag | None:
                 return None
             pos = dpos + dlen
         del section
-        times: dict[int, list[np.ndarray]] = {}
         for cpos in chunk_pos:
             hdr, dpos, dlen = _record(fd, cpos, index_pos)
             if hdr.get("op") != bytes([OP_CHUNK]):
@@ -128,16 +127,17 @@ def _index_walk(path: Path) -> IndexedBag | None:
                     break
                 cid = struct.unpack("<I", ihdr["conn"])[0]
                 entries = np.frombuffer(os.pread(fd, ilen, ipos), dtype=_ENTRY)
-                chunk.index[cid] = entries["off"].astype(np.int64)
-                times.setdefault(cid, []).append(entries["sec"].astype(np.int64) * 1_000_000_000 + entries["nsec"])
+                chunk.index[cid] = entries["off"].copy()  # uint32 offsets in the chunk
+                if len(entries):
+                    t = entries["sec"].astype(np.int64) * 1_000_000_000 + entries["nsec"]
+                    lo, hi = int(t.min()), int(t.max())
+                    out.counts[cid] = out.counts.get(cid, 0) + len(t)
+                    out.first[cid] = min(out.first.get(cid, lo), lo)
+                    out.last[cid] = max(out.last.get(cid, hi), hi)
                 pos = ipos + ilen
             chunks.append(chunk)
     finally:
         os.close(fd)
-    for cid, parts in times.items():
-        t = np.concatenate(parts)
-        if len(t):
-            out.counts[cid], out.first[cid], out.last[cid] = len(t), int(t.min()), int(t.max())
     if {c: n for c, n in out.counts.items() if n} != {c: n for c, n in info_counts.items() if n}:
         return None
     if any(cid not in out.connections for cid in out.counts):
@@ -199,7 +199,7 @@ def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: in
             data = np.frombuffer(dec, dtype=np.uint8)
             by_topic: dict[str, list[tuple[int, np.ndarray]]] = {}
             for cid, offs in mine.items():
-                by_topic.setdefault(wanted[cid], []).append((cid, offs))
+                by_topic.setdefault(wanted[cid], []).append((cid, offs.astype(np.int64)))
             for topic, got in by_topic.items():
                 starts_l, lengths_l, stamps_l = [], [], []
                 for cid, offs in got:
