@@ -29,6 +29,7 @@ import pandas as pd
 from sklearn.base import BaseEstimator, clone
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.model_selection import GridSearchCV, KFold, cross_validate, learning_curve
+from threadpoolctl import threadpool_limits
 
 from pipeline.errors import ModelError
 from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
@@ -157,6 +158,14 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
     ``dof_trials`` (optional): per DOF, the trials (``trial`` column) its models learn from; as in paper 001, where
     each DOF's damping comes from experiments exciting that DOF alone. DOFs not named use every trial.
     """
+    with threadpool_limits(1, user_api="blas"):  # small problems: parallelism belongs to models, not BLAS
+        return _run_study(tuning, train_test, dofs, models, folds, search, gp_max_samples, max_samples, curve_points,
+                          seed, dof_trials)
+
+
+def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[str], models: Sequence[str], folds: int,
+               search: str | dict[str, dict[str, list[Any]]], gp_max_samples: int, max_samples: int | None,
+               curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None) -> StudyResult:
     results = []
     for dof in dofs:
         tune_rows, tt_rows = tuning, train_test

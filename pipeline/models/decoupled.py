@@ -7,6 +7,8 @@ Every model is a scikit-learn estimator. Two are written here and pass ``paramet
 - :class:`DampingGP`: GP regression with ``C * RBF + WhiteKernel`` on standardized inputs and targets, kernel
   hyperparameters by marginal likelihood, trained on at most ``max_samples`` points chosen evenly in the
   first input (equal-width bins, water-filled), because scikit-learn's GP is O(n^3) (see ``bench/gp.py``).
+  Its linear algebra runs on one BLAS thread: at these sizes (n <= 2000) a second thread gains little, and on
+  a loaded machine OpenBLAS's spinning threads made fits 15-30x slower (bench/gp.py).
   ``predict(X, return_std=True)`` returns the std of the *latent* function (the white noise excluded), which is
   the band that should cover the true damping; :meth:`DampingGP.sample_functions` draws posterior functions.
 
@@ -21,7 +23,8 @@ import logging
 from typing import Any, Literal
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg import cho_solve, cholesky, solve_triangular
+from scipy.optimize import minimize
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.compose import TransformedTargetRegressor
 from sklearn.gaussian_process import GaussianProcessRegressor
@@ -32,6 +35,7 @@ from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVR
 from sklearn.utils.validation import check_is_fitted, validate_data
+from threadpoolctl import threadpool_limits
 
 log = logging.getLogger(__name__)
 
@@ -126,6 +130,49 @@ class LinearQuadraticDamping(RegressorMixin, BaseEstimator):
         return self._design(X)[:, : 2 * X.shape[1]] @ self.coef_.T + self.intercept_
 
 
+_BOUNDS = ((1e-3, 1e3), (1e-3, 1e3), (1e-8, 1e1))  # signal variance, length scale, noise variance
+
+
+def _neg_log_marginal_likelihood(theta: np.ndarray, d2: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
+    """-log p(y | theta) and its gradient for ``c * exp(-d2 / (2 l^2)) + s2 I``, ``theta = log [c, l, s2]``.
+
+    The analytic gradient of this one isotropic kernel; scikit-learn's generic kernel gradients cost ~10x more
+    per evaluation (``bench/gp.py``)."""
+    c, ls, s2 = np.exp(theta)
+    k_rbf = np.exp(-0.5 * d2 / ls**2)
+    K = c * k_rbf
+    K[np.diag_indices_from(K)] += s2
+    try:
+        L = cholesky(K, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return 1e25, np.zeros(3)
+    alpha = cho_solve((L, True), y, check_finite=False)
+    nll = 0.5 * float(y @ alpha) + float(np.log(np.diag(L)).sum()) + 0.5 * y.size * np.log(2 * np.pi)
+    W = np.outer(alpha, alpha) - cho_solve((L, True), np.eye(y.size), check_finite=False)
+    dk_c = c * k_rbf
+    grad = np.array([np.sum(W * dk_c), np.sum(W * dk_c * d2) / ls**2, s2 * np.trace(W)])
+    return nll, -0.5 * grad
+
+
+def _fit_hyperparameters(Z: np.ndarray, y: np.ndarray, length_scale: float, noise_level: float, n_restarts: int,
+                         random_state: int) -> tuple[float, float, float]:
+    """Maximum marginal likelihood (L-BFGS-B in log space, the bounds of :data:`_BOUNDS`), as scikit-learn's
+    ``GaussianProcessRegressor`` does for ``C * RBF + WhiteKernel`` (``normalize_y=False``), restarts included."""
+    d2 = np.sum((Z[:, None, :] - Z[None, :, :]) ** 2, axis=-1)
+    bounds = np.log(np.array(_BOUNDS))
+    starts = [np.log([1.0, length_scale, noise_level])]
+    rng = np.random.RandomState(random_state)
+    starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(n_restarts)]
+    best = None
+    for theta0 in starts:
+        res = minimize(_neg_log_marginal_likelihood, np.clip(theta0, bounds[:, 0], bounds[:, 1]), args=(d2, y),
+                       jac=True, method="L-BFGS-B", bounds=bounds)
+        if best is None or res.fun < best.fun:
+            best = res
+    assert best is not None
+    return tuple(float(v) for v in np.exp(best.x))  # type: ignore[return-value]
+
+
 class DampingGP(RegressorMixin, BaseEstimator):
     """GP regression, ``C * RBF + WhiteKernel``, hyperparameters by marginal likelihood, on standardized data.
 
@@ -145,17 +192,22 @@ class DampingGP(RegressorMixin, BaseEstimator):
         self.random_state = random_state
 
     def fit(self, X: Any, y: Any) -> DampingGP:
+        with threadpool_limits(1, user_api="blas"):
+            return self._fit(X, y)
+
+    def _fit(self, X: Any, y: Any) -> DampingGP:
         X, y = validate_data(self, X, y, y_numeric=True)
         idx = even_subsample(X[:, 0], self.max_samples, self.n_bins)
         X, y = X[idx], y[idx]
         self.x_mean_, self.x_scale_ = X.mean(axis=0), X.std(axis=0)
         self.x_scale_[self.x_scale_ == 0] = 1.0
         self.y_mean_, self.y_scale_ = float(y.mean()), float(y.std()) or 1.0
-        kernel = (ConstantKernel(1.0, (1e-3, 1e3)) * RBF(self.length_scale, (1e-3, 1e3))
-                  + WhiteKernel(self.noise_level, (1e-8, 1e1)))
-        self.gp_ = GaussianProcessRegressor(kernel, n_restarts_optimizer=self.n_restarts_optimizer,
-                                            random_state=self.random_state)
-        self.gp_.fit((X - self.x_mean_) / self.x_scale_, (y - self.y_mean_) / self.y_scale_)
+        Z, t = (X - self.x_mean_) / self.x_scale_, (y - self.y_mean_) / self.y_scale_
+        c, ls, noise = _fit_hyperparameters(Z, t, self.length_scale, self.noise_level, self.n_restarts_optimizer,
+                                            self.random_state)
+        kernel = (ConstantKernel(c, _BOUNDS[0]) * RBF(ls, _BOUNDS[1]) + WhiteKernel(noise, _BOUNDS[2]))
+        self.gp_ = GaussianProcessRegressor(kernel, optimizer=None)  # hyperparameters set: factorize only
+        self.gp_.fit(Z, t)
         k = self.gp_.kernel_
         self.length_scale_ = np.atleast_1d(k.k1.k2.length_scale) * self.x_scale_
         self.noise_std_ = float(np.sqrt(k.k2.noise_level)) * self.y_scale_
@@ -163,6 +215,10 @@ class DampingGP(RegressorMixin, BaseEstimator):
         return self
 
     def _latent(self, X: Any, full_cov: bool) -> tuple[np.ndarray, np.ndarray]:
+        with threadpool_limits(1, user_api="blas"):
+            return self._latent_unlimited(X, full_cov)
+
+    def _latent_unlimited(self, X: Any, full_cov: bool) -> tuple[np.ndarray, np.ndarray]:
         check_is_fitted(self)
         X = validate_data(self, X, reset=False)
         Z = (X - self.x_mean_) / self.x_scale_
@@ -185,7 +241,8 @@ class DampingGP(RegressorMixin, BaseEstimator):
         """Posterior samples of the latent function at ``X``: shape ``(n_samples, len(X))``."""
         mean, cov = self._latent(X, full_cov=True)
         cov = 0.5 * (cov + cov.T) + 1e-10 * self.y_scale_**2 * np.eye(len(mean))
-        w, vecs = np.linalg.eigh(cov)
+        with threadpool_limits(1, user_api="blas"):
+            w, vecs = np.linalg.eigh(cov)
         root = vecs * np.sqrt(np.clip(w, 0, None))
         z = np.random.default_rng(random_state).standard_normal((n_samples, len(mean)))
         return mean + z @ root.T
