@@ -38,6 +38,8 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     outputs.append(write_json(report.metrics, out / "metrics.json"))
     for name, rows in sorted(report.plots.items()):
         outputs.append(write_json(rows, out / "plots" / f"{name}.json"))
+    for path in outputs:
+        path.chmod(0o644)
     figdir = out / "figures"
     wanted = {f"{_safe(name)}" + ("" if name.endswith(".png") else ".png") for name in report.figures}
     if figdir.is_dir():

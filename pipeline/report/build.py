@@ -29,7 +29,7 @@ METRIC_KEY = re.compile(r"(r2|mae|rmse|mse|score|error|diverged)", re.IGNORECASE
 # change on every run). Train scores stay in the tables too: metrics.json carries the scores that decide.
 NOT_METRIC = re.compile(r"(time|fit_s|predict_s|train_|train\.|trace)", re.IGNORECASE)
 ID_KEYS = ("window_s", "horizon_s", "fold", "dof", "output")
-MAX_METRICS_PER_FILE = 300
+MAX_METRICS_PER_FILE = 1000
 MAX_CSV_ROWS = 40
 
 
@@ -162,6 +162,11 @@ def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict
     if not directory.is_dir():
         return f"<p class='warn'>Nothing under {H.esc(base)}/ (stage not run?).</p>"
     parts = []
+    # metrics.json goes by the files a stage calls metrics (metrics*.json / summary*.json); failing those, every
+    # JSON but timings. Per-fold scores and search traces stay in the report's tables.
+    jsons = sorted(p.name for p in directory.rglob("*.json"))
+    metric_files = {n for n in jsons if n.startswith(("metrics", "summary"))} or \
+        {n for n in jsons if "timing" not in n and "fold" not in n and "trace" not in n}
     # The paper-style tables (Markdown) first, then figures, then the JSON behind them, then CSV heads.
     order = {".md": 0, ".png": 1, ".json": 2, ".csv": 3}
     files = sorted((p for p in directory.rglob("*") if p.is_file() and not p.name.startswith(".")),
@@ -178,7 +183,7 @@ def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict
             if doc is None:
                 continue
             found: dict[str, float] = {}
-            if "timing" not in path.name:
+            if path.name in metric_files:
                 _flatten_numbers(doc, "", found)
             if found:
                 key = f"{base.split('/')[-1]}/{rel[: -len('.json')]}"
