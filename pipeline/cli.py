@@ -105,8 +105,8 @@ def _progress_factory(args: argparse.Namespace) -> Callable[[str], Progress]:
 def _add_config(p: argparse.ArgumentParser, vehicle_required: bool = False) -> None:
     p.add_argument("--root", type=Path, default=Path("."), help="run directory holding data/ and reports/ "
                    "(default: .)")
-    p.add_argument("--vehicle", type=Path, default=Path("vehicle.yaml"),
-                   help="vehicle config YAML (default: vehicle.yaml)")
+    p.add_argument("--vehicle", type=Path, default=None,
+                   help="vehicle config YAML (default: ./vehicle.yaml, else <root>/vehicle.yaml)")
     p.add_argument("--params", type=Path, default=None,
                    help="params YAML (default: <root>/params.yaml if present, else built-in defaults)")
 
@@ -192,10 +192,17 @@ def _stage_names() -> list[str]:
 
 # ----------------------------------------------------------------------------------------------- commands
 
+def _vehicle_path(args: argparse.Namespace) -> Path:
+    if args.vehicle is not None:
+        return args.vehicle
+    here = Path("vehicle.yaml")
+    return here if here.exists() or not (args.root / "vehicle.yaml").exists() else args.root / "vehicle.yaml"
+
+
 def _load(args: argparse.Namespace) -> tuple[Any, Any]:
     from stages.common import load_configs
 
-    return load_configs(args.root, args.vehicle, args.params)
+    return load_configs(args.root, _vehicle_path(args), args.params)
 
 
 def _print_stage(stage: str, result: Any, seconds: float) -> None:

@@ -179,3 +179,13 @@ def test_demo_lays_out_a_run_and_prints_the_report(tmp_path: Path, monkeypatch: 
     assert "trial03" in params  # the last trial is held out as the unseen test trial
     assert f"report: {out / 'reports/report.html'}" in capsys.readouterr().out
     assert [n for n, _ in dag.calls][:2] == ["ingest", "sync"]
+
+
+def test_vehicle_defaults_to_the_run_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["ingest", "--root", str(root), "-q"]) == 0
+    assert dag.calls == [("ingest", None)]
+    monkeypatch.chdir(root.parent.parent)
+    assert cli.main(["ingest", "--root", str(tmp_path / "nowhere"), "-q"]) == 2  # no vehicle config anywhere
