@@ -21,17 +21,18 @@ DOF_INDEX = {"u": 0, "v": 1, "r": 5}
 EXCITED_BY = {"u": "surge", "v": "sway", "r": "yaw"}
 PARAMS = Params(
     features={"test_trials": ["test"]},
-    decoupled={"models": ["ls", "krr", "gp"], "max_samples": 150, "gp_max_samples": 150, "curve_points": 2,
+    decoupled={"models": ["ls", "svr", "gp"], "max_samples": 400, "gp_max_samples": 400, "curve_points": 2,
                "folds": 3, "trials": {d: [t] for d, t in EXCITED_BY.items()}},
-    simulate={"band_samples": 0, "outage_windows_s": [10.0, 30.0]},
+    simulate={"band_samples": 0, "outage_windows_s": [10.0, 30.0], "models": ["ls", "gp"]},
 )
 
 
 @pytest.fixture(scope="module")
 def study_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("sim_store")
-    specs = {"surge": ("surge", 11, 60.0, True), "sway": ("sway", 12, 60.0, True), "yaw": ("yaw", 13, 60.0, True),
-             "test": ("all", 14, 70.0, False)}
+    # long enough for the cubic terms of surge and yaw to show (the first 20 % of each is the tuning block)
+    specs = {"surge": ("surge", 11, 120.0, True), "sway": ("sway", 12, 45.0, True), "yaw": ("yaw", 13, 100.0, True),
+             "test": ("all", 14, 80.0, False)}
     vehicle, _ = build_store(root, specs, PARAMS)
     decoupled_stage.run(root, vehicle, PARAMS)
     simulate_stage.run(root, vehicle, PARAMS)
@@ -66,19 +67,14 @@ def curve_errors(root: Path, dof: str) -> tuple[dict[str, float], float, dict[st
 @pytest.mark.parametrize("dof", ["u", "v", "r"])
 def test_learned_curves_match_the_truth_within_the_noise(study_root: Path, dof: str) -> None:
     errors, noise, _ = curve_errors(study_root, dof)
-    assert errors["ls"] < noise and errors["gp"] < noise, (errors, noise)
-    if dof != "r":  # KRR's yaw curve is off by ~3x the noise: its search sees only the tuning block's range
-        assert errors["krr"] < noise, (errors, noise)
+    assert all(e < noise for e in errors.values()), (errors, noise)
 
 
-@pytest.mark.xfail(reason="at DAGON's sensor noise, 60-s trials and 150 samples the LS bias from the small cubic terms "
-                   "(~0.02-0.08) is below the kernel models' estimation error; 90-s trials with 400 samples: GP "
-                   "and MLP beat LS on u and r (see the issue report)", strict=False)
 def test_a_kernel_model_beats_ls_where_the_truth_is_cubic(study_root: Path) -> None:
     # surge and yaw have cubic terms (8 u^3, 4 r^3): the best kernel curve is closer to the truth than LS's
     for dof in ("u", "r"):
         errors, noise, _ = curve_errors(study_root, dof)
-        assert min(errors["krr"], errors["gp"]) < errors["ls"], (dof, errors)
+        assert min(errors["svr"], errors["gp"]) < 0.7 * errors["ls"], (dof, errors)
 
 
 def test_gp_band_covers_the_surge_truth(study_root: Path) -> None:
