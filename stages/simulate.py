@@ -3,10 +3,10 @@
 For every test trial: each decoupled model set (``data/models/decoupled/<dof>_<model>.joblib`` for all of
 ``decoupled.dofs``) becomes ``M nudot = tau - C(nu) nu - d(nu)`` with M and C from ``pipeline.physics`` and tau
 from the measured thruster speeds (``physics.generalized_forces``; minus ``physics.restoring_force`` when roll and
-pitch are in the store); each coupled model with a card (``data/models/coupled/<name>.json`` naming ``inputs``:
-the velocity columns of those DOFs first, then thruster speeds or ``tau_*`` columns) is rolled out as
-``nudot = F(nu, inputs)``. Writes ``data/simulation/<trial>/``: ``free_run.json|png``, ``horizons.json``,
-``bridging.json|md|png``, and ``data/simulation/metrics.json`` (all trials, deterministic).
+pitch are in the store); each coupled model of ``stages.train`` (``data/models/coupled/<name>.joblib`` + card
+``<name>.card.json`` whose ``inputs`` are the velocity columns of those DOFs first, then thruster speeds or ``tau_*``
+columns) is rolled out as ``nudot = F(nu, inputs)``. Writes ``data/simulation/<trial>/``: ``free_run.json|png``,
+``horizons.json``, ``bridging.json|md|png``, and ``data/simulation/metrics.json`` (all trials, deterministic).
 """
 
 from __future__ import annotations
@@ -62,20 +62,34 @@ def decoupled_models(root: Path, dofs: list[str], wanted: list[str] | None) -> d
 
 
 def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str]]]:
-    """``{name: (estimator, extra input columns)}`` for coupled models whose card fits the simulated DOFs."""
+    """``{name: (estimator, extra input columns)}`` for the coupled models ``stages.train`` wrote.
+
+    Each is ``data/models/coupled/<name>.joblib`` with its model card ``<name>.card.json``
+    (:mod:`pipeline.models.card`: ``inputs``, ``outputs``, sha256 of the pickle, checked at load). A model is
+    used when its inputs start with the velocity columns of the simulated DOFs and its outputs are their
+    accelerations in the same order; the remaining inputs (thruster speeds or ``tau_*``) are read per sample.
+    """
+    from pipeline.models.card import load_model
+
     base = Path(root) / layout.MODELS / "coupled"
     states = [VELOCITY_COLUMNS[d] for d in dofs]
+    accels = [c.replace("_mps", "dot_mps2", 1) if c.endswith("_mps") else c.replace("_radps", "dot_radps2", 1)
+              for c in states]
     out = {}
-    for card_path in sorted(base.glob("*.json")) if base.exists() else []:
-        model_path = card_path.with_suffix(".joblib")
+    for card_path in sorted(base.glob("*.card.json")) if base.exists() else []:
+        name = card_path.name.removesuffix(".card.json")
         try:
             card = json.loads(card_path.read_text())
         except json.JSONDecodeError:
+            log.warning("unreadable model card %s; skipped", card_path)
             continue
-        inputs = card.get("inputs") if isinstance(card, dict) else None
-        if not model_path.exists() or not isinstance(inputs, list) or inputs[: len(states)] != states:
+        inputs, outputs = card.get("inputs"), card.get("outputs")
+        if not isinstance(inputs, list) or inputs[: len(states)] != states or outputs != accels:
+            log.info("coupled model %r (inputs %s, outputs %s) does not fit DOFs %s; skipped", name, inputs,
+                     outputs, dofs)
             continue
-        out[f"coupled_{card_path.stem}"] = (joblib.load(model_path), inputs[len(states):])
+        estimator, _ = load_model(base / card.get("model_file", f"{name}.joblib"))
+        out[f"coupled_{name}"] = (estimator, inputs[len(states):])
     return out
 
 

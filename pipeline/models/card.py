@@ -62,6 +62,8 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     if not cpath.exists():
         raise ModelError("model has no card (refusing an undocumented pickle)", file=path)
     card = json.loads(cpath.read_text())
+    if not path.exists():
+        raise ModelError("the model file of this card does not exist", file=path)
     if card.get("model_sha256") != file_sha256(path):
         raise ModelError("model file does not match the sha256 in its card", file=path)
     written = card.get("versions", {}).get("scikit-learn")

@@ -234,8 +234,12 @@ def _log_bounds(n_gammas: int, y_sd: float) -> tuple[np.ndarray, np.ndarray]:
 def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n_jobs: int | None = 1,
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
-                warm_start: dict[str, Any] | None = None) -> SearchResult:
+                warm_start: dict[str, Any] | None = None, max_fits: int | None = None) -> SearchResult:
     """GP-seeded coordinate pattern search on log scale (see module docstring).
+
+    Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. When the pattern
+    search has converged (step below ``min_step``) and budget is left, it restarts from the best point with random
+    log-scale perturbations (seeded by ``seed``) and a fresh step, so the whole budget is used.
 
     ``warm_start``: best hyperparameters of a simpler variant (RBF for 2-weights, 2-weights for WDSE), added
     as a seed, so that the richer kernel's tuning score is never below the simpler one's.
@@ -243,6 +247,9 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     X, y = _check_xy(X, y)
     folds = blocked_folds(len(X), n_folds)
     names = _names(model, X.shape[1])
+    if max_fits is not None:
+        max_evals = max(1, max_fits // n_folds)
+    rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     seeds, gp_s = _gp_seed(model, X, y, n_velocity, gp_samples, seed)
     if warm_start is not None:
@@ -264,7 +271,20 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     best, k_best = max(scored)
     x = np.clip(seeds[k_best], lo, hi)
     step = initial_step
-    while step >= min_step and len(cache) < max_evals:
+    while len(cache) < max_evals:
+        if step < min_step:  # converged: restart around the best point with a random log-scale perturbation
+            n_before = len(cache)
+            for _ in range(20):
+                cand = np.clip(x + rng.normal(0.0, initial_step / 2, size=x.size), lo, hi)
+                score = evaluate(cand)
+                if len(cache) > n_before:
+                    break
+            if len(cache) == n_before:
+                break  # nothing new to try
+            if score > best:
+                x, best = cand, score
+            step = initial_step / 2
+            continue
         improved = False
         for i in range(len(x)):
             for direction in (1.0, -1.0):

@@ -1,0 +1,141 @@
+"""Coupled study (paper 000) end to end on the project's simulator: features store -> tune -> train -> simulate.
+
+Three DAGON trials from ``pipeline.sim`` (coupled true damping, DAGON's sensor noise and rates) go through the real
+stages (sync, differentiate, derive, features), then ``stages.tune`` and ``stages.train``; the third trial is the
+test trial that neither tuning nor CV sees.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline import store
+from pipeline.config import Params, Vehicle
+from pipeline.coupled import evaluate_models
+from pipeline.errors import ModelError
+from pipeline.models.card import load_model
+from pipeline.sim import load_example_vehicle, simulate_trial
+from stages import train as train_stage
+from stages import tune as tune_stage
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_stages_features import _run_all, _write_signals, signal_tables  # noqa: E402
+
+TRIALS = {"s1": 11, "s2": 12, "s3": 13}  # trial -> simulator seed; s3 is the test trial
+DURATION_S = 60.0
+COUPLED = {"folds": 3, "max_evals": 6, "max_samples": 300}
+
+
+def study_params(**coupled) -> Params:
+    return Params(features={"test_trials": ["s3"]}, coupled={**COUPLED, **coupled})
+
+
+@pytest.fixture(scope="module")
+def vehicle() -> Vehicle:
+    return load_example_vehicle()
+
+
+@pytest.fixture(scope="module")
+def run_root(tmp_path_factory, vehicle: Vehicle) -> tuple[Path, dict]:
+    root = tmp_path_factory.mktemp("coupled")
+    for k, (name, seed) in enumerate(TRIALS.items()):
+        trial = simulate_trial(vehicle, DURATION_S, seed=seed, start_offset_s=1000.0 * k)
+        _write_signals(root, name, signal_tables(trial, vehicle))
+    params = study_params()
+    _run_all(root, vehicle, params)
+    t0 = time.perf_counter()
+    tuned = tune_stage.run(root, vehicle, params)
+    trained = train_stage.run(root, vehicle, params)
+    return root, {"tune": tuned, "train": trained, "seconds": time.perf_counter() - t0}
+
+
+MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb")
+
+
+def test_outputs_tables_figure_and_model_cards(run_root) -> None:
+    root, res = run_root
+    ev, md = root / "data/evaluation/coupled", root / "data/models/coupled"
+    for name in ("table2.md", "table2.json", "table3.md", "table3.json", "fold_scores.json", "metrics.json",
+                 "search_trace.json"):
+        assert (ev / name).stat().st_size > 0, name
+    assert (ev / "fold_test_r2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "WDSE-SVR" in (ev / "table3.md").read_text() and "gamma_n3_rpm" in (ev / "table2.md").read_text()
+    hyper = json.loads((md / "hyperparameters.json").read_text())
+    assert hyper["n_tuning_rows"] > 0 and set(hyper["hyperparameters"]) == set(MODELS[:3])
+    for model in MODELS:
+        est, card = load_model(md / f"{model}.joblib")  # checks the pickle's sha256 against its card
+        assert card["model"] == model and card["outputs"] == ["udot_mps2", "vdot_mps2", "rdot_radps2"]
+        lineage = card["data_lineage"]
+        assert sorted(e["file"].split("/")[-2] for e in lineage) == [f"trial={t}" for t in sorted(TRIALS)]
+        assert all(len(e["sha256"]) == 64 for e in lineage)
+        assert card["trained_on"]["trials"] == ["s1", "s2"] and card["scores"]["final_check_trials"] == ["s3"]
+        assert card["versions"]["scikit-learn"] and hasattr(est, "predict")
+    metrics = res["train"].summary["metrics"]
+    assert set(metrics) == set(MODELS)
+    assert all(np.isfinite(v["final_r2"]) for m in metrics.values() for v in m.values())
+
+
+def test_rerun_gives_identical_metrics(run_root, vehicle: Vehicle) -> None:
+    root, _ = run_root
+    path = root / "data/evaluation/coupled/metrics.json"
+    before = path.read_bytes()
+    train_stage.run(root, vehicle, study_params())
+    assert path.read_bytes() == before
+
+
+def test_leakage_guard_fires_on_a_bad_split(run_root) -> None:
+    root, _ = run_root
+    cp = study_params().coupled
+    hyper = json.loads((root / "data/models/coupled/hyperparameters.json").read_text())["hyperparameters"]
+    cols = ["t_ns", "u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm", "tau_u_N", "tau_v_N", "tau_r_Nm",
+            "udot_mps2", "vdot_mps2", "rdot_radps2"]
+    tt = store.load(root, split="train_test", columns=cols)
+    tuning = store.load(root, split="tuning", columns=["t_ns"])
+    with pytest.raises(ModelError, match="leakage"):  # "test" rows that are training rows
+        evaluate_models(tt, tt.iloc[200:260], hyper, cp)
+    with pytest.raises(ModelError, match="tuning"):  # tuning block overlapping the CV data
+        evaluate_models(tt, tt.iloc[:0], hyper, cp, tuning_keys=tt[["trial", "t_ns"]].iloc[300:320])
+    evaluate_models(tt, tt.iloc[:0], {}, cp.model_copy(update={"models": ["gertler_hagen"]}),
+                    tuning_keys=tuning[["trial", "t_ns"]])  # the real split passes
+
+
+def test_simulate_stage_rolls_out_trained_coupled_models(run_root, vehicle: Vehicle, tmp_path: Path) -> None:
+    import shutil
+
+    from stages import simulate as simulate_stage
+
+    root, _ = run_root
+    shutil.copytree(root / "data/features", tmp_path / "data/features")
+    (tmp_path / "data/models/coupled").mkdir(parents=True)
+    for name in ("wdse_svr.joblib", "wdse_svr.card.json", "mcfarland_whitcomb.card.json", "hyperparameters.json"):
+        shutil.copy(root / "data/models/coupled" / name, tmp_path / "data/models/coupled" / name)
+    with pytest.raises(ModelError, match="sha256|No such|not"):  # a card whose pickle is missing is refused
+        simulate_stage.coupled_models(tmp_path, ["u", "v", "r"])
+    (tmp_path / "data/models/coupled/mcfarland_whitcomb.card.json").unlink()
+    found = simulate_stage.coupled_models(tmp_path, ["u", "v", "r"])
+    assert set(found) == {"coupled_wdse_svr"} and found["coupled_wdse_svr"][1] == ["n1_rpm", "n2_rpm", "n3_rpm"]
+    params = study_params().model_copy(update={"simulate": study_params().simulate.model_copy(
+        update={"horizons_s": [1.0], "outage_windows_s": [5.0]})})
+    result = simulate_stage.run(tmp_path, vehicle, params)
+    assert set(result.summary["status"]) == {"s3/coupled_wdse_svr"}
+    assert (tmp_path / "data/simulation/s3/free_run.json").exists()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "Acceptance of issue 4 does NOT hold on the project's simulator: its store carries tau computed with the very "
+    "thrust curve the simulator uses, so the explicit models only miss the linear/cubic damping terms, while the "
+    "SVRs must learn thrust from rpm on little data. Measured (3 x 120 s trials, docs/models.md): McFarland-Whitcomb "
+    "beats WDSE-SVR on udot and vdot; WDSE beats RBF on udot/vdot only. Strict: it fails loudly once it holds."))
+def test_acceptance_wdse_beats_rbf_and_explicit_on_test_trial(run_root) -> None:
+    _, res = run_root
+    metrics = res["train"].summary["metrics"]
+    for out in ("udot_mps2", "vdot_mps2", "rdot_radps2"):
+        wdse = metrics["wdse_svr"][out]["final_r2"]
+        for other in ("rbf_svr", "gertler_hagen", "mcfarland_whitcomb"):
+            assert wdse > metrics[other][out]["final_r2"], (out, other)
