@@ -66,7 +66,7 @@ class Table1D:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         s = (np.asarray(x, dtype=float) - self.lo) / self.h
-        i = np.clip(np.floor(np.nan_to_num(s)), 0, self.n - 2).astype(int)
+        i = np.fmin(np.fmax(s, 0.0), self.n - 2).astype(np.intp)  # fmax/fmin drop NaN; truncation = floor here
         w = s - i
         if self.values.ndim == 1:
             a, b = self.values[i], self.values[i + 1]

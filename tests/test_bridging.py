@@ -47,7 +47,7 @@ def test_learned_model_beats_hold_last_velocity_on_30s_outages(tmp_path) -> None
             est = make_estimator(name)
             if name == "krr":
                 est.set_params(krr__alpha=1e-2, krr__gamma=1.0)
-            rows = slice(None, None, 2)
+            rows = slice(None, None, 4)
             fitted[d] = est.fit(train[[VELOCITY_COLUMNS[d]]].to_numpy()[rows],
                                 train[f"d_{d}_{'Nm' if d == 'r' else 'N'}"].to_numpy()[rows])
         models[name] = DecoupledDynamics(PLANT.mass_matrix(), DOFS, damping_tables(fitted, ranges),
