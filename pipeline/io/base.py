@@ -1,10 +1,12 @@
 """The reader protocol every log container implements, and the shared decode step.
 
-A container reader (MCAP, ROS 1 bag, ROS 2 bag) only has to list its topics and yield the raw payloads of the
-requested topics in storage order; :class:`RawReader` does the rest once for all of them: it validates the
-requested topics and field paths against the message definitions before the long loop, decodes each topic by
-the fast columnar path (:mod:`pipeline.io.cdr`) or per message (:mod:`pipeline.io.fields`), and cross-checks
-the number of messages read against the number the storage says it holds.
+A container reader (MCAP, ROS 1 bag, ROS 2 bag) only has to list its topics and yield the payloads of the
+requested topics in storage order, as batches (:class:`Batch`: one buffer of ~16 MB of decompressed chunks or
+sqlite rows, and per topic the start, length and log time of each payload in it); :class:`RawReader` does the
+rest once for all of them: it validates the requested topics and field paths against the message definitions
+before the long loop, decodes each batch of each topic by the fast columnar path (:mod:`pipeline.io.cdr`) or per
+message, fills the columns in place (memory stays near one copy of the extracted arrays plus one batch), and
+cross-checks the number of messages read against the number the storage says it holds.
 """
 
 from __future__ import annotations

@@ -4,6 +4,10 @@ The walker never sorts (the mcap library's default ``log_time_order=True`` sorts
 messages come in storage order, chunks are decompressed once each, and only the payloads of requested channels
 are kept. A file cut short or damaged raises :class:`Damaged` in strict mode; in tolerant mode the walk stops
 at the first damaged record and reports where (:mod:`pipeline.io.salvage`).
+
+An intact file whose chunks carry message-index records is not walked record by record at all: the reader lists
+its topics from those indexes and reads it through :mod:`pipeline.io.mcap_index`; the walker here serves files
+without indexes or chunks, and damaged ones (damage found while reading restarts the read on the salvage path).
 """
 
 from __future__ import annotations

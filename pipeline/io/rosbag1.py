@@ -4,6 +4,9 @@ Records are walked in file order. An indexed bag lists its topics, counts and ti
 (connection, chunk-info and index-data records) without decompressing a chunk; a bag whose index was never
 written is scanned. A bag cut short raises :class:`Damaged` in strict mode; in tolerant mode the walk keeps
 every complete message before the damage and reports where it stopped (:mod:`pipeline.io.salvage`).
+
+An intact indexed bag is read through :mod:`pipeline.io.rosbag1_index` (each chunk decompressed once, messages
+located from the index-data records with numpy); the record walk here serves unindexed and damaged bags.
 """
 
 from __future__ import annotations
