@@ -21,7 +21,7 @@ DOF_INDEX = {"u": 0, "v": 1, "r": 5}
 EXCITED_BY = {"u": "surge", "v": "sway", "r": "yaw"}
 PARAMS = Params(
     features={"test_trials": ["test"]},
-    decoupled={"models": ["ls", "svr", "gp"], "max_samples": 400, "gp_max_samples": 400, "curve_points": 2,
+    decoupled={"models": ["ls", "gp"], "max_samples": 400, "gp_max_samples": 400, "curve_points": 2,
                "folds": 3, "trials": {d: [t] for d, t in EXCITED_BY.items()}},
     simulate={"band_samples": 0, "outage_windows_s": [10.0, 30.0], "models": ["ls", "gp"]},
 )
@@ -71,10 +71,11 @@ def test_learned_curves_match_the_truth_within_the_noise(study_root: Path, dof: 
 
 
 def test_a_kernel_model_beats_ls_where_the_truth_is_cubic(study_root: Path) -> None:
-    # surge and yaw have cubic terms (8 u^3, 4 r^3): the best kernel curve is closer to the truth than LS's
+    # surge and yaw have cubic terms (8 u^3, 4 r^3): the GP's curve is closer to the truth than LS's (SVR too, at
+    # 3x the test's time: u 0.11 vs LS 0.26 N, r 0.010 vs 0.027 N*m; sway's 20 v^3 is too small at |v| < 0.5 m/s)
     for dof in ("u", "r"):
         errors, noise, _ = curve_errors(study_root, dof)
-        assert min(errors["svr"], errors["gp"]) < 0.7 * errors["ls"], (dof, errors)
+        assert errors["gp"] < 0.7 * errors["ls"], (dof, errors)
 
 
 def test_gp_band_covers_the_surge_truth(study_root: Path) -> None:
