@@ -1,7 +1,9 @@
 """Decoupled damping stage (paper 001): feature store -> data/models/decoupled/ + data/evaluation/decoupled/.
 
 Reads the ``tuning`` split (hyperparameter search only) and the ``train_test`` split (unshuffled k-fold CV,
-learning curves, timings, final fit). Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card
+learning curves, timings, final fit); ``decoupled.trials`` names, per DOF, the trials that excite it alone (paper
+001's protocol; ``pipeline.sim.Controls(excite="surge")`` makes such trials), otherwise every trial is used.
+Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card
 ``<dof>_<model>.json`` (lineage, hyperparameters, scores, versions), and ``metrics.json`` (deterministic),
 ``timings.json`` (wall-clock, varies run to run), ``curves.json``, ``table.md``, ``learning_curves.png``,
 ``timings.png``, ``damping.png``.
