@@ -135,4 +135,4 @@ def test_train_outs_cover_every_coupled_model() -> None:
     stages = {full: s for _, full, s in expanded_stages()}
     outs = set(_entries(stages["train"]["outs"]))
     for model in params.coupled.models:
-        assert f"data/models/coupled/{model}.joblib" in outs and f"data/models/coupled/{model}.json" in outs
+        assert f"data/models/coupled/{model}.joblib" in outs and f"data/models/coupled/{model}.card.json" in outs
