@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from pipeline.config import Params, load_params
+from pipeline.models.card import card_path
 from stages.common import STAGE_ORDER
 
 REPO = Path(__file__).resolve().parents[1]
@@ -131,8 +132,13 @@ def test_foreach_trials_match_the_example(trial: str) -> None:
 
 
 def test_train_outs_cover_every_coupled_model() -> None:
+    from stages.tune import hyperparameters_path
+
     params = load_params(REPO / "params.yaml")
     stages = {full: s for _, full, s in expanded_stages()}
     outs = set(_entries(stages["train"]["outs"]))
     for model in params.coupled.models:
-        assert f"data/models/coupled/{model}.joblib" in outs and f"data/models/coupled/{model}.card.json" in outs
+        joblib_path = Path("data/models/coupled") / f"{model}.joblib"
+        assert joblib_path.as_posix() in outs and card_path(joblib_path).as_posix() in outs
+    tune_outs = set(_entries(stages["tune"]["outs"]))
+    assert hyperparameters_path(Path(".")).as_posix() in tune_outs
