@@ -309,3 +309,55 @@ def test_simulate_with_thrust_table(vehicle: Vehicle, tmp_path) -> None:
     np.testing.assert_allclose(t[[f"T_{thr.name}_N" for thr in tabled.thrusters]].to_numpy(),
                                physics.thrusts(tabled, speeds), atol=1e-12)
     assert np.abs(t["T_th1_N"]).max() > 0.1
+
+
+INFLOW = SimTruth.from_dict({**{k: list(v) for k, v in (("linear", (10.0, 25.0, 30.0, 6.0, 10.0, 10.0)),
+                                                       ("quadratic", (30.0, 80.0, 90.0, 4.0, 12.0, 20.0)))},
+                             "inflow_loss": 0.3, "inflow_ref_rpm": 2500.0})
+
+
+def test_inflow_loss_scalar_and_vector_rhs_agree(vehicle: Vehicle) -> None:
+    dyn = Dynamics(vehicle, INFLOW)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        y = np.concatenate([rng.normal(size=6) * 0.3, rng.normal(size=6) * 0.5, rng.normal(size=5) * 2000])
+        fast = np.array(scalar_rhs(dyn)(y.tolist(), [0.0] * 5))
+        np.testing.assert_allclose(fast[6:12], dyn.nu_dot(y[None, :6], y[None, 6:12], y[None, 12:])[0],
+                                   rtol=1e-12, atol=1e-12)
+
+
+def test_inflow_loss_is_the_advance_ratio_law(vehicle: Vehicle) -> None:
+    """T = T0(n) (1 - c u_a / n): 15 % of static thrust lost at 0.5 m/s axial inflow and 2500 rpm; more when the
+    vehicle moves the way the thruster pushes, less (a gain) against it; no loss at rest; T(0) = 0."""
+    dyn = Dynamics(vehicle, INFLOW)
+    n = np.array([[2500.0, 2500.0, -2500.0, 0.0, 1250.0]])
+    surge = np.array([[0.5, 0, 0, 0, 0, 0]])
+    static, applied = dyn.thrust(n), dyn.thrust(n, surge)
+    np.testing.assert_allclose(applied[0, :2] / static[0, :2], 0.85)  # th1/th2 push +x, inflow +0.5 m/s
+    np.testing.assert_allclose(applied[0, 2], static[0, 2])  # th3 is lateral: no axial inflow in pure surge
+    assert applied[0, 3] == 0.0
+    np.testing.assert_allclose(dyn.thrust(n, -surge)[0, :2] / static[0, :2], 1.15)
+    np.testing.assert_allclose(dyn.thrust(n, np.zeros((1, 6))), static)
+    sway = np.array([[0, 0.5, 0, 0, 0, 0]])  # th3 reversed (pushes -y) while the vehicle moves +y: thrust grows
+    assert abs(dyn.thrust(n, sway)[0, 2]) > abs(static[0, 2])
+    assert SimTruth().applied_thrust(static, n, np.ones_like(n)) is static  # off by default
+
+
+def test_truth_table_keeps_applied_forces_and_true_damping_with_inflow_loss(vehicle: Vehicle) -> None:
+    """With the loss on, T_*/tau_* are the forces applied and d_* the true damping; the static-curve damping
+    target (what derive computes) differs from d by exactly the unmodelled thrust loss B (T0 - T)."""
+    t = simulate_trial(vehicle, duration_s=10.0, seed=3, truth=INFLOW, sensors=QUIET, warmup_s=5.0).truth
+    nu = nu_of(t)
+    assert abs(t["u_mps"].iloc[0]) > 0.01  # warm-up: the trial starts in motion
+    np.testing.assert_allclose(t[physics.force_columns("d")].to_numpy(), INFLOW.damping(nu), atol=1e-9)
+    speeds = t[[thr.speed_signal for thr in vehicle.thrusters]].to_numpy()
+    tau_static = physics.generalized_forces(vehicle, speeds)
+    tau = t[physics.force_columns("tau")].to_numpy()
+    M = physics.mass_matrix(vehicle)
+    g = physics.restoring_force(vehicle, t["roll_rad"].to_numpy(), t["pitch_rad"].to_numpy())
+    nudot = t[["udot_mps2", "vdot_mps2", "wdot_mps2", "pdot_radps2", "qdot_radps2", "rdot_radps2"]].to_numpy()
+    np.testing.assert_allclose(physics.damping_target(M, tau, nudot, nu, g), INFLOW.damping(nu), atol=1e-9)
+    loss = tau_static - tau
+    assert np.abs(loss[:, 0]).max() > 0.05 * np.abs(tau_static[:, 0]).max()
+    np.testing.assert_allclose(physics.damping_target(M, tau_static, nudot, nu, g), INFLOW.damping(nu) + loss,
+                               atol=1e-9)

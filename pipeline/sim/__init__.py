@@ -26,13 +26,13 @@ from pipeline import physics
 from pipeline.config import load_vehicle
 from pipeline.config.vehicle import Vehicle
 from pipeline.sim.sensors import SensorOptions, Stream, StreamSpec, dvl_measurement, dvl_rotation, make_streams
-from pipeline.sim.truth import CoupledTerm, SimTruth, load_truth, true_damping
+from pipeline.sim.truth import DAGON_INFLOW_LOSS, CoupledTerm, SimTruth, load_truth, true_damping
 from pipeline.sim.vehicle import Commander, Controls, Dynamics, integrate
 
 __all__ = [
-    "Controls", "CoupledTerm", "SensorOptions", "SimTrial", "SimTruth", "Stream", "StreamSpec", "dvl_measurement",
-    "example", "example_vehicle_path", "load_example_vehicle", "load_truth", "simulate_trial", "true_damping",
-    "truth_table", "write_trial", "FORMATS", "EPOCH_NS",
+    "Controls", "CoupledTerm", "DAGON_INFLOW_LOSS", "SensorOptions", "SimTrial", "SimTruth", "Stream", "StreamSpec",
+    "dvl_measurement", "example", "example_vehicle_path", "load_example_vehicle", "load_truth", "simulate_trial",
+    "true_damping", "truth_table", "write_trial", "FORMATS", "EPOCH_NS",
 ]
 
 log = logging.getLogger(__name__)
@@ -75,7 +75,7 @@ def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], 
     """The truth DataFrame: velocities, accelerations, pose, speeds, thrusts, forces and true damping."""
     eta, nu, n = states["eta"], states["nu"], states["n"]
     nudot = dyn.nu_dot(eta, nu, n)
-    thrust = dyn.thrust(n)
+    thrust = dyn.thrust(n, nu)  # applied (after the truth's inflow loss, if any); tau_* = B T: the true forces
     tau = thrust @ dyn.B.T
     cols: dict[str, np.ndarray] = {"t_ns": t_ns.astype(np.int64)}
     vel_units = ("mps",) * 3 + ("radps",) * 3
@@ -117,13 +117,15 @@ def simulate_trial(
     nu0: np.ndarray | None = None,
     eta0: np.ndarray | None = None,
     start_offset_s: float = 0.0,
+    warmup_s: float = 0.0,
 ) -> SimTrial:
     """Simulate one trial, deterministic given ``seed``.
 
     ``vehicle``: default the packaged DAGON; ``truth``: the true damping (default DAGON's); ``rate_hz``: RK4
     step and truth rate (1e9 / rate_hz must be an integer number of ns); ``controls``: thruster commands and
     depth/pitch hold; ``sensors``: rates, noise, stamps, dropouts; ``start_offset_s``: trial start after
-    :data:`EPOCH_NS`.
+    :data:`EPOCH_NS`; ``warmup_s``: seconds simulated (same commands) before the trial starts and dropped, so
+    that a trial begins already in motion rather than from rest (as a logged run cut out of a longer mission).
     """
     vehicle = vehicle if vehicle is not None else load_example_vehicle()
     truth = truth if truth is not None else load_truth()
@@ -139,7 +141,12 @@ def simulate_trial(
     if eta0 is None and controls.depth_control:
         eta_start[2] = controls.depth_ref_m
     nu_start = np.zeros(6) if nu0 is None else np.asarray(nu0, dtype=float)
-    states = integrate(dyn, commander, duration_s, rate_hz, eta_start, nu_start, np.zeros(len(vehicle.thrusters)))
+    states = integrate(dyn, commander, duration_s + warmup_s, rate_hz, eta_start, nu_start,
+                       np.zeros(len(vehicle.thrusters)))
+    skip = int(round(warmup_s * rate_hz))
+    if skip:
+        states = {key: val[skip:] for key, val in states.items()}
+        states["t_s"] = states["t_s"] - states["t_s"][0]
     start_ns = EPOCH_NS + int(round(start_offset_s * 1e9))
     t_ns = start_ns + np.arange(states["t_s"].size, dtype=np.int64) * int(round(dt_ns))
     table = truth_table(vehicle, dyn, states, t_ns)

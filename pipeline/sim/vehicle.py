@@ -1,6 +1,8 @@
 """Vehicle dynamics: 6-DOF rigid body with added mass, true damping, restoring forces and lagged thrusters.
 
-    M nu_dot + C(nu) nu + d(nu) + g(eta) = tau = B T(n),   eta_dot = J(eta) nu,   n_dot = (n_cmd - n) / lag
+    M nu_dot + C(nu) nu + d(nu) + g(eta) = tau = B T(n, nu),   eta_dot = J(eta) nu,   n_dot = (n_cmd - n) / lag
+
+(T(n, nu): the static curve T0(n), less the truth's thrust loss to inflow, :class:`pipeline.sim.truth.SimTruth`)
 
 integrated with fixed-step RK4 (commands held over a step). The horizontal thrusters get sums of sines
 (several periods, separate per thruster, zero offset, as in the DAGON trials); the vertical thrusters hold
@@ -85,12 +87,17 @@ class Dynamics:
         self.cg, self.cb = np.asarray(rb.cg_m), np.asarray(rb.cb_m)
         self._cg, self._cb = tuple(map(float, rb.cg_m)), tuple(map(float, rb.cb_m))
 
-    def thrust(self, n: np.ndarray) -> np.ndarray:
-        """Per-thruster thrust in N, (m, n_thr)."""
+    def thrust(self, n: np.ndarray, nu: np.ndarray | None = None) -> np.ndarray:
+        """Per-thruster thrust in N, (m, n_thr): the static curve T0(n); with ``nu`` (m, 6) the thrust actually
+        applied, less the truth's loss to axial inflow ``u_a = B^T nu`` (none when the truth has it off)."""
         if self._k is not None:
-            return np.where(n >= 0, self._k[0], self._k[1]) * n * np.abs(n)
-        return np.stack([physics.thrust_N(t, n[:, i], self._base) for i, t in enumerate(self.vehicle.thrusters)],
-                        axis=1)
+            static = np.where(n >= 0, self._k[0], self._k[1]) * n * np.abs(n)
+        else:
+            static = np.stack([physics.thrust_N(t, n[:, i], self._base)
+                               for i, t in enumerate(self.vehicle.thrusters)], axis=1)
+        if nu is None:
+            return static
+        return self.truth.applied_thrust(static, n, np.atleast_2d(nu) @ self.B)
 
     def restoring(self, roll: np.ndarray | float, pitch: np.ndarray | float) -> Any:
         """g(eta) (Fossen 4.6): (m, 6) for arrays, a list of 6 floats for one state."""
@@ -113,7 +120,7 @@ class Dynamics:
         ], axis=-1)
 
     def nu_dot(self, eta: np.ndarray, nu: np.ndarray, n: np.ndarray) -> np.ndarray:
-        tau = self.thrust(n) @ self.B.T
+        tau = self.thrust(n, nu) @ self.B.T
         rhs = tau - physics.coriolis_force(self.M, nu) - self.truth.damping(nu) - self.restoring(eta[:, 3], eta[:, 4])
         return rhs @ self.M_inv.T
 
@@ -214,15 +221,24 @@ def scalar_rhs(dyn: Dynamics):
     lags = dyn.lag_s.tolist()
     k = None if dyn._k is None else (dyn._k[0].tolist(), dyn._k[1].tolist())
     r3 = range(3)
+    c_inflow = dyn.truth.inflow_rpm_per_mps
+    bcols = [[(j, float(dyn.B[j, i])) for j in range(6) if dyn.B[j, i] != 0.0] for i in range(n_thr)]
 
     def rhs(y: list[float], cmd: list[float]) -> list[float]:
         x, yy, z, phi, th, psi, u, v, ww, p, q, r = y[:12]
         n = y[12:]
-        if k is not None:
-            thrust = [(k[0][i] if n[i] >= 0 else k[1][i]) * n[i] * abs(n[i]) for i in range(n_thr)]
-        else:
-            thrust = dyn.thrust(np.array([n]))[0].tolist()
         nu = (u, v, ww, p, q, r)
+        if k is not None:
+            kk = [k[0][i] if n[i] >= 0 else k[1][i] for i in range(n_thr)]
+            thrust = [kk[i] * n[i] * abs(n[i]) for i in range(n_thr)]
+            if c_inflow:  # T0(n) - K c |n| u_a, u_a = B[:, i] . nu
+                for i in range(n_thr):
+                    u_a = 0.0
+                    for j, val in bcols[i]:
+                        u_a += val * nu[j]
+                    thrust[i] -= kk[i] * c_inflow * abs(n[i]) * u_a
+        else:
+            thrust = dyn.thrust(np.array([n]), np.array([nu]))[0].tolist()
         v1, v2 = nu[:3], nu[3:]
         a = [0.0, 0.0, 0.0]
         c = [0.0, 0.0, 0.0]
