@@ -109,3 +109,16 @@ def test_study_protocol_outputs(study, data: pd.DataFrame) -> None:
     for r in study.results:  # picklable, same predictions after a round trip
         X, _ = dof_data(data, "v")
         np.testing.assert_allclose(pickle.loads(pickle.dumps(r.estimator)).predict(X[:20]), r.estimator.predict(X[:20]))
+
+
+def test_decorrelation_of_an_ar1_series() -> None:
+    from pipeline.models.decoupled import decorrelation
+
+    rng = np.random.default_rng(0)
+    e = np.zeros(20000)
+    for i in range(1, e.size):
+        e[i] = 0.8 * e[i - 1] + rng.standard_normal()
+    lag, tau = decorrelation(e, threshold=0.1)
+    assert 10 <= lag <= 13  # 0.8^11 = 0.086: the first lag below 0.1
+    assert 7.5 < tau < 11.5  # (1 + 0.8) / (1 - 0.8) = 9
+    assert decorrelation(rng.standard_normal(5000))[1] < 1.1
