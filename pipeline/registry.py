@@ -64,7 +64,9 @@ def load(root: str | Path) -> dict[str, Any]:
 
 def save(root: str | Path, data: dict[str, Any]) -> Path:
     """Write the registry atomically (temp file + ``os.replace``): readers see the old or the new, never half."""
-    return write_json(data, registry_path(root))
+    path = write_json(data, registry_path(root))
+    path.chmod(0o644)  # mkstemp makes 0600; dashboards and other users read the registry
+    return path
 
 
 def next_version(data: dict[str, Any]) -> str:
