@@ -177,7 +177,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
         for out in params.outputs:
             kw: dict[str, Any] = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
             if params.search == "fast":
-                kw.update(max_evals=params.max_evals, seed=params.seed,
+                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
                           warm_start=hyper[simpler][out] if simpler else None)
             res = search(model, X, data[out].to_numpy(float), params.search, **kw)
             log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)

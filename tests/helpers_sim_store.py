@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from pipeline.config import Params, Vehicle
-from pipeline.sim import Controls, SensorOptions, load_example_vehicle, simulate_trial, write_trial
+from pipeline.sim import Controls, SensorOptions, SimTrial, SimTruth, load_example_vehicle, simulate_trial, write_trial
 from stages import derive, differentiate, features, ingest, sync
 
 #: name -> (excitation, seed, duration s, DVL dropouts)
@@ -28,3 +29,25 @@ def build_store(root: Path, specs: dict[str, TrialSpec], params: Params, amplitu
         result = stage.run(root, vehicle, params)
         assert not result.quarantined, (stage.NAME, result.quarantined)
     return vehicle, trials
+
+
+@functools.lru_cache(maxsize=16)
+def cached_trial(seed: int, duration_s: float, *, truth: SimTruth | None = None, warmup_s: float = 0.0,
+                 start_offset_s: float = 0.0, controls: Controls | None = None) -> SimTrial:
+    """One simulated DAGON trial, computed once per test session (arguments are hashable: frozen dataclasses)."""
+    return simulate_trial(load_example_vehicle(), duration_s, seed=seed, truth=truth, warmup_s=warmup_s,
+                          start_offset_s=start_offset_s, controls=controls)
+
+
+def coupled_store(root: Path, trials: dict[str, int], duration_s: float, params: Params, *,
+                  truth: SimTruth | None = None, warmup_s: float = 0.0) -> Vehicle:
+    """The coupled study's feature store: simulated trials (``name -> seed``, 1000 s apart) written as signal
+    tables, then sync ... features through the real stages. Trials come from :func:`cached_trial`."""
+    from test_stages_features import _run_all, _write_signals, signal_tables
+
+    vehicle = load_example_vehicle()
+    for k, (name, seed) in enumerate(trials.items()):
+        trial = cached_trial(seed, duration_s, truth=truth, warmup_s=warmup_s, start_offset_s=1000.0 * k)
+        _write_signals(root, name, signal_tables(trial, vehicle))
+    _run_all(root, vehicle, params)
+    return vehicle

@@ -71,3 +71,13 @@ def test_card_roundtrip(tmp_path, study):
     card.unlink()
     with pytest.raises(ModelError, match="card"):
         load_model(path)
+
+
+def test_smooth_tolerance_picks_the_widest_kernel_among_near_ties():
+    frame = synthetic_frame(200, seed=2, split="tuning")
+    X, y = frame[["u_mps", "v_mps", "r_radps"]].to_numpy(), frame["rdot_radps2"].to_numpy()
+    best = fast_search("rbf_svr", X, y, max_evals=6)
+    smooth = fast_search("rbf_svr", X, y, max_evals=6, smooth_tolerance=0.05)
+    near = [t for t in smooth.trace if t["score"] >= best.best_score - 0.05]
+    assert smooth.best_params["gamma"] == min(t["params"]["gamma"] for t in near) <= best.best_params["gamma"]
+    assert smooth.best_score >= best.best_score - 0.05

@@ -50,6 +50,9 @@ class CoupledParams(Frozen):
     seed: int = 0
     tuning_folds: int = Field(3, ge=2, description="Blocked CV folds inside the tuning block (search score).")
     max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
+    smooth_tolerance: float = Field(
+        0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
+        "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")
     n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
 
 

@@ -234,7 +234,8 @@ def _log_bounds(n_gammas: int, y_sd: float) -> tuple[np.ndarray, np.ndarray]:
 def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n_jobs: int | None = 1,
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
-                warm_start: dict[str, Any] | None = None, max_fits: int | None = None) -> SearchResult:
+                warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
+                smooth_tolerance: float = 0.0) -> SearchResult:
     """GP-seeded coordinate pattern search on log scale (see module docstring).
 
     Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. When the pattern
@@ -243,6 +244,9 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
 
     ``warm_start``: best hyperparameters of a simpler variant (RBF for 2-weights, 2-weights for WDSE), added
     as a seed, so that the richer kernel's tuning score is never below the simpler one's.
+
+    ``smooth_tolerance`` > 0: return the smoothest candidate within that much R² of the best (see
+    :func:`_smoothest_within`) rather than the best itself.
     """
     X, y = _check_xy(X, y)
     folds = blocked_folds(len(X), n_folds)
@@ -300,8 +304,26 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                     break  # keep this direction; move on to the next coordinate
         if not improved:
             step /= 2.0
-    return SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                        len(cache) * n_folds, n_folds, time.perf_counter() - t0, gp_fit_s=gp_s, trace=trace)
+    params = _to_params(model, names, np.exp(x))
+    if smooth_tolerance > 0:
+        params, best = _smoothest_within(trace, best, smooth_tolerance)
+    return SearchResult(model, "fast", params, float(best), len(cache), len(cache) * n_folds, n_folds,
+                        time.perf_counter() - t0, gp_fit_s=gp_s, trace=trace)
+
+
+def _gammas(params: dict[str, Any]) -> list[float]:
+    if "gammas" in params:
+        return list(params["gammas"])
+    return [v for k, v in params.items() if k.startswith("gamma")]
+
+
+def _smoothest_within(trace: list[dict[str, Any]], best: float, tolerance: float) -> tuple[dict[str, Any], float]:
+    """Regularized choice: of the candidates scoring within ``tolerance`` (R²) of the best, the smoothest kernel
+    (smallest sum of log gammas, then smallest C). The tuning block is short, so its CV score is a noisy estimate;
+    among near-ties the wider kernel extrapolates better to the rest of the data."""
+    near = [t for t in trace if t["score"] >= best - tolerance]
+    pick = min(near, key=lambda t: (float(np.sum(np.log(_gammas(t["params"])))), t["params"]["C"]))
+    return pick["params"], float(pick["score"])
 
 
 def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
@@ -309,6 +331,7 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
     if method == "fast":
         return fast_search(model, X, y, **kw)
     if method == "paper_grid":
-        kw.pop("max_evals", None), kw.pop("gp_samples", None), kw.pop("seed", None)
+        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance"):
+            kw.pop(key, None)
         return grid_search(model, X, y, keep_trace=False, **kw)
     raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")
