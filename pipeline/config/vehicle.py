@@ -6,9 +6,8 @@ choose which DOFs they use (``dofs``), nothing here hard-wires 3 DOF.
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, PrivateAttr, model_validator
 
