@@ -69,7 +69,7 @@ def test_partition_strings_survive_and_order_is_stable(tmp_path: Path) -> None:
 def test_test_trials_and_plain_parquet_readers(tmp_path: Path) -> None:
     _write(tmp_path, FeaturesParams(test_trials=["01"]))
     assert set(load(tmp_path, split="test")["trial"]) == {"01"}
-    # any hive-aware reader (DuckDB, Polars) sees plain Parquet; pyarrow.dataset stands in for them
+    # pyarrow.dataset with hive partitioning reads it as plain Parquet too
     plain = ds.dataset(tmp_path / "data/features", format="parquet",
                        partitioning=ds.partitioning(PARTITIONING, flavor="hive"))
     table = plain.to_table(filter=ds.field("trial") == "01")
@@ -97,3 +97,27 @@ def test_unknown_column_and_prune(tmp_path: Path) -> None:
     assert set(load(tmp_path)["trial"]) == {"01", "7"}
     with pytest.raises(SchemaError, match="nope"):
         load(tmp_path, columns=["nope"])
+
+
+def test_duckdb_and_polars_read_the_store_as_plain_parquet(tmp_path: Path) -> None:
+    import duckdb
+    import polars as pl
+
+    _write(tmp_path, FeaturesParams(tuning_fraction=0.2))
+    pattern = str(tmp_path / "data/features/*/*/*.parquet")
+    expected = load(tmp_path, vehicle="testbot", trials=["01"])
+
+    rows = duckdb.sql(
+        f"SELECT trial, t_ns, u_mps, split FROM read_parquet('{pattern}', hive_partitioning = true, "
+        "hive_types = {'vehicle': VARCHAR, 'trial': VARCHAR}) "
+        "WHERE vehicle = 'testbot' AND trial = '01' ORDER BY t_ns").fetchall()
+    assert [r[0] for r in rows] == ["01"] * 10  # the partition string survives, not the integer 1
+    assert [r[1] for r in rows] == expected["t_ns"].tolist()
+    assert [r[2] for r in rows] == expected["u_mps"].tolist()
+    assert [r[3] for r in rows] == expected["split"].tolist()
+
+    frame = (pl.scan_parquet(pattern, hive_partitioning=True, hive_schema={"vehicle": pl.String, "trial": pl.String})
+             .filter((pl.col("vehicle") == "testbot") & (pl.col("trial") == "01")).sort("t_ns").collect())
+    assert frame["trial"].to_list() == ["01"] * 10
+    assert frame["u_mps"].to_list() == expected["u_mps"].tolist()
+    assert frame["split"].to_list() == expected["split"].tolist()
