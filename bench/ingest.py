@@ -63,6 +63,25 @@ def typestore(ros1: bool) -> Any:
     return store
 
 
+
+def rosbags_reference(path: Path, method: str, ros1: bool) -> tuple[float, int]:
+    """rosbags AnyReader over every message: ``raw`` iteration, or ``deser`` with deserialization.
+
+    Returns (seconds, messages). The typestore is built before the clock starts.
+    """
+    from rosbags.highlevel import AnyReader
+
+    store = typestore(ros1)
+    count = 0
+    start = time.perf_counter()
+    with AnyReader([path], default_typestore=store) as reader:
+        deser = method == "deser"
+        for conn, _t, raw in reader.messages(connections=reader.connections):
+            if deser:
+                reader.deserialize(raw, conn.msgtype)
+            count += 1
+    return time.perf_counter() - start, count
+
 def schedule(minutes: float) -> dict[str, np.ndarray]:
     """Log time stamps per topic; the DVL loses lock (no message) for 10 s of every minute."""
     span_ns = int(minutes * 60e9)
@@ -263,18 +282,7 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
         paths = sorted({t["decode_path"] for t in out.report["topics"].values()})
         extra = {"decode_paths": paths, "quarantine": out.quarantine}
     else:
-        from rosbags.highlevel import AnyReader
-
-        store = typestore(ros1)
-        count = 0
-        start = time.perf_counter()
-        with AnyReader([path], default_typestore=store) as reader:
-            deser = method == "deser"
-            for conn, _t, raw in reader.messages(connections=reader.connections):
-                if deser:
-                    reader.deserialize(raw, conn.msgtype)
-                count += 1
-        seconds = time.perf_counter() - start
+        seconds, count = rosbags_reference(path, method, ros1)
         extra = {}
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return {"method": method, "seconds": seconds, "messages": count, "peak_rss_mb": rss_mb, **extra}

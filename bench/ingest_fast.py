@@ -95,19 +95,9 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
         extra = {"paths": {t: d.path for t, d in result.topics.items()}, "failed": result.failed,
                  "arrays_mb": arrays / 1e6, "base_rss_mb": base, "read_peak_mb": read_peak}
     else:
-        from ingest import typestore  # bench/ingest.py
-        from rosbags.highlevel import AnyReader
+        from ingest import rosbags_reference  # bench/ingest.py
 
-        store = typestore(ros1)
-        count = 0
-        start = time.perf_counter()
-        with AnyReader([path], default_typestore=store) as reader:
-            deser = method == "deser"
-            for conn, _t, raw in reader.messages(connections=reader.connections):
-                if deser:
-                    reader.deserialize(raw, conn.msgtype)
-                count += 1
-        seconds = time.perf_counter() - start
+        seconds, count = rosbags_reference(path, method, ros1)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return {"method": method, "seconds": seconds, "messages": count, "peak_rss_mb": peak, **extra}
 
