@@ -100,18 +100,23 @@ def mass_matrix(vehicle: Vehicle) -> np.ndarray:
     return m
 
 
+def _momenta(M: np.ndarray, nu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Linear and angular velocity (v1, v2) and the momenta a = M11 v1 + M12 v2, b = M21 v1 + M22 v2 of the
+    symmetric part of M, per sample: the pieces C(nu) is built from."""
+    M = np.asarray(M, dtype=float)
+    ms = 0.5 * (M + M.T)
+    nu = np.atleast_2d(np.asarray(nu, dtype=float))
+    v1, v2 = nu[:, :3], nu[:, 3:]
+    return v1, v2, v1 @ ms[:3, :3].T + v2 @ ms[:3, 3:].T, v1 @ ms[3:, :3].T + v2 @ ms[3:, 3:].T
+
+
 def coriolis_matrix(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
     """Coriolis-centripetal matrix C(nu) from M, Fossen's skew-symmetric form; nu (n, 6) -> (n, 6, 6).
 
     ``C = [[0, -S(M11 v1 + M12 v2)], [-S(M11 v1 + M12 v2), -S(M21 v1 + M22 v2)]]`` with the symmetric part
     of M, so that ``nu . C(nu) nu = 0`` for every nu.
     """
-    M = np.asarray(M, dtype=float)
-    ms = 0.5 * (M + M.T)
-    nu = np.atleast_2d(np.asarray(nu, dtype=float))
-    v1, v2 = nu[:, :3], nu[:, 3:]
-    a = v1 @ ms[:3, :3].T + v2 @ ms[:3, 3:].T
-    b = v1 @ ms[3:, :3].T + v2 @ ms[3:, 3:].T
+    v1, v2, a, b = _momenta(M, nu)
     out = np.zeros((nu.shape[0], 6, 6))
     sa = skew(a)
     out[:, :3, 3:] = -sa
@@ -122,12 +127,7 @@ def coriolis_matrix(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
 
 def coriolis_force(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
     """C(nu) nu, (n, 6), without building the (n, 6, 6) stack."""
-    M = np.asarray(M, dtype=float)
-    ms = 0.5 * (M + M.T)
-    nu = np.atleast_2d(np.asarray(nu, dtype=float))
-    v1, v2 = nu[:, :3], nu[:, 3:]
-    a = v1 @ ms[:3, :3].T + v2 @ ms[:3, 3:].T
-    b = v1 @ ms[3:, :3].T + v2 @ ms[3:, 3:].T
+    v1, v2, a, b = _momenta(M, nu)
     # -S(a) v2 = -a x v2 = v2 x a ; -S(a) v1 - S(b) v2 = v1 x a + v2 x b
     return np.hstack([np.cross(v2, a), np.cross(v1, a) + np.cross(v2, b)])
 
