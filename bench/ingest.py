@@ -1,8 +1,9 @@
-"""Ingest benchmark: generate one trial in each log format, then time auvid's ingest against rosbags.
+"""Ingest benchmark (issue "Fast ingest"): log -> per-stream Parquet of the configured fields, against rosbags.
 
-    python bench/ingest.py                       # 10 simulated minutes (~150k messages), all formats
-    python bench/ingest.py --minutes 60          # the one-hour trial of DESIGN.md (~910k messages)
-    python bench/ingest.py --formats mcap-zstd ros1 --keep /tmp/bench
+    python bench/ingest.py                                          # 10 simulated minutes, all formats, temp dir
+    python bench/ingest.py --minutes 60 --logs /tmp/trial60         # the one-hour trial; keep / reuse the logs
+    python bench/ingest.py --minutes 60 --logs /tmp/trial60 --repeat 3 --json /tmp/b60.json
+    python bench/ingest.py --minutes 240 --logs /tmp/trial240 --repeat 1 --skip-rosbags --formats ros2-mcap
 
 The trial: IMU 120 Hz (sensor_msgs/Imu), gyro 100 Hz (geometry_msgs/Vector3Stamped), pressure 10 Hz
 (sensor_msgs/FluidPressure), DVL 4 Hz (a custom type, defined only in the file, with a 10 s drop-out every
@@ -10,9 +11,14 @@ minute), thrusters 20 Hz (sensor_msgs/JointState, four named joints). Formats: R
 ROS 2 sqlite3 (rosbags writers), MCAP with zstd chunks (mcap writer, wrapped in a bag directory so rosbags can
 read it too), ROS 1 bag (rosbags writer).
 
-Each measurement runs in its own subprocess (peak RSS is the child's ``ru_maxrss``, imports included):
-``auvid`` = ``ingest_log`` + writing every stream's Parquet; ``raw`` = rosbags ``AnyReader`` iterating every
-message without deserializing; ``deser`` = the same plus ``deserialize``. Ratios > 1 mean auvid is faster.
+Every measurement runs in a fresh subprocess; auvid and the two rosbags references take turns, ``--repeat`` times,
+and the table shows medians. ``auvid`` = the ingest stage's work for one log: ``pipeline.ingest.ingest_log`` (open,
+validate, read the 16 configured fields, provenance with the file's sha256, sorted tables) + ``write_parquet`` of
+every stream; ``raw`` = rosbags ``AnyReader`` iterating every message without deserializing; ``deser`` = the same
+plus ``deserialize`` (rosbags' typestore is built before its clock starts; auvid's imports are warmed the same
+way). Ratios > 1 mean auvid is faster. Memory: the child's RSS after imports (base), its peak during
+``ingest_log`` and its peak including the Parquet writes, and the size of the extracted arrays (the output
+tables); the target is peak - base <= 2 x arrays + a constant, flat as the log grows.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import json
 import math
 import os
 import resource
-import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -261,31 +267,62 @@ def _warm_imports() -> None:
     import importlib
 
     for name in ("pandas", "pyarrow.parquet", "pipeline.io", "pipeline.io.cdr", "pipeline.io.fields",
-                 "pipeline.io.mcap_reader", "pipeline.io.rosbag1", "pipeline.io.rosbag2", "pipeline.io.text"):
+                 "pipeline.io.mcap_reader", "pipeline.io.mcap_index", "pipeline.io.rosbag1",
+                 "pipeline.io.rosbag1_index", "pipeline.io.rosbag2", "pipeline.io.text"):
         importlib.import_module(name)
+    from pipeline.io.fields import _latest
+
+    _latest()  # the standard ROS 2 definitions, parsed once per process
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def _reset_peak() -> None:
+    """Reset the kernel's peak-RSS mark (VmHWM), so that the ingest's own peak can be read back."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def _peak_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
 
 
 def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
+    extra: dict[str, Any] = {}
     if method == "auvid":
         from pipeline.ingest import ingest_log
         from pipeline.tableio import write_parquet
 
         vehicle = bench_vehicle()
         _warm_imports()
+        base = _rss_mb()
         with tempfile.TemporaryDirectory() as tmp:
+            _reset_peak()
             start = time.perf_counter()
             out = ingest_log(path, vehicle)
+            read_peak = _peak_mb()
             for stream, table in out.tables.items():
                 write_parquet(table, Path(tmp) / f"{stream}.parquet", out.provenance[stream])
             seconds = time.perf_counter() - start
+            peak = _peak_mb()
         count = sum(t["messages_read"] for t in out.report["topics"].values())
-        paths = sorted({t["decode_path"] for t in out.report["topics"].values()})
-        extra = {"decode_paths": paths, "quarantine": out.quarantine}
+        extra = {"paths": {t: r["decode_path"] for t, r in out.report["topics"].items()},
+                 "quarantine": out.quarantine, "arrays_mb": sum(t.nbytes for t in out.tables.values()) / 1e6,
+                 "base_rss_mb": base, "read_peak_mb": read_peak, "peak_mb": peak}
     else:
         seconds, count = rosbags_reference(path, method, ros1)
-        extra = {}
-    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    return {"method": method, "seconds": seconds, "messages": count, "peak_rss_mb": rss_mb, **extra}
+        extra = {"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    return {"method": method, "seconds": seconds, "messages": count, **extra}
 
 
 def _size_mb(path: Path) -> float:
@@ -297,68 +334,98 @@ def _child(method: str, path: Path, ros1: bool) -> dict[str, Any]:
     cmd = [sys.executable, str(Path(__file__).resolve()), "--measure", method, "--path", str(path)]
     if ros1:
         cmd.append("--ros1")
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          check=False)
     if proc.returncode != 0:
-        return {"method": method, "error": proc.stderr.strip().splitlines()[-1] if proc.stderr else "failed"}
+        raise RuntimeError(f"{method} on {path} failed:\n{proc.stderr[-3000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def logs_in(outdir: Path, minutes: float, formats: list[str]) -> dict[str, dict[str, Path]]:
+    """The generated logs under ``outdir``: reused when its marker file lists them, else generated there."""
+    marker = outdir / f"generated-{minutes:g}min.json"
+    known: dict[str, dict[str, Path]] = {}
+    if marker.exists():
+        known = {f: {k: Path(v) for k, v in p.items()} for f, p in json.loads(marker.read_text()).items()}
+        if all(f in known for f in formats):
+            return {f: known[f] for f in formats}
+    outdir.mkdir(parents=True, exist_ok=True)
+    for sub in ("ros2_mcap", "mcap_zstd", "ros2_sqlite3", "trial.bag"):
+        if (outdir / sub).exists():
+            raise SystemExit(f"{outdir / sub} exists but {marker.name} does not list every format asked for: "
+                             "use an empty --logs directory")
+    start = time.perf_counter()
+    logs = generate(outdir, minutes, [f for f in FORMATS if f in formats])
+    print(f"generated {minutes:g} min in {time.perf_counter() - start:.0f} s under {outdir}", flush=True)
+    marker.write_text(json.dumps({f: {k: str(v) for k, v in p.items()} for f, p in logs.items()}))
+    return {f: logs[f] for f in formats}
+
+
+HEAD = ("| format | MB | messages | auvid s | MB/s | msgs/s | raw s | deser s | × raw | × deser | arrays MB "
+        "| auvid peak RSS − base MB: ingest / +Parquet (base) | raw / deser peak RSS MB | paths |")
+
+
+def row_md(fmt: str, size: float, a: dict[str, Any], r: dict[str, Any], d: dict[str, Any]) -> str:
+    paths = ",".join(sorted(set(a["paths"].values())))
+    base = a["base_rss_mb"]
+    return (f"| {fmt} | {size:.1f} | {a['messages']} | {a['seconds']:.3f} | {size / a['seconds']:.0f} | "
+            f"{a['messages'] / a['seconds']:,.0f} | {r['seconds']:.2f} | {d['seconds']:.2f} | "
+            f"{r['seconds'] / a['seconds']:.1f} | {d['seconds'] / a['seconds']:.1f} | {a['arrays_mb']:.1f} | "
+            f"{a['read_peak_mb'] - base:.0f} / {a['peak_mb'] - base:.0f} ({base:.0f}) | "
+            f"{r['peak_mb']:.0f} / {d['peak_mb']:.0f} | {paths}"
+            + (f" QUARANTINE {a['quarantine']}" if a["quarantine"] else "") + " |")
+
+
+def _median(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    if not runs:
+        return {"seconds": float("nan"), "peak_mb": float("nan"), "messages": 0}
+    pick = sorted(runs, key=lambda m: m["seconds"])[len(runs) // 2]
+    out = {**pick, "seconds": statistics.median(m["seconds"] for m in runs),
+           "peak_mb": max(m["peak_mb"] for m in runs)}
+    if "read_peak_mb" in pick:
+        out["read_peak_mb"] = max(m["read_peak_mb"] for m in runs)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
-    parser.add_argument("--keep", type=Path, default=None, help="write the logs here and keep them")
+    parser.add_argument("--logs", type=Path, default=None, help="generate into / reuse the logs of this directory")
+    parser.add_argument("--repeat", type=int, default=3, help="runs of each measurement (the table shows medians)")
+    parser.add_argument("--skip-rosbags", action="store_true", help="measure auvid only")
+    parser.add_argument("--json", type=Path, default=None, help="also write every run as JSON here")
     parser.add_argument("--measure", choices=("auvid", "raw", "deser"), help=argparse.SUPPRESS)
     parser.add_argument("--path", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--ros1", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--json", type=Path, default=None, help="also write the results as JSON here")
     args = parser.parse_args(argv)
     if args.measure:
         print(json.dumps(measure(args.measure, args.path, args.ros1)))
         return 0
-
-    outdir = args.keep or Path(tempfile.mkdtemp(prefix="auvid-bench-"))
-    outdir.mkdir(parents=True, exist_ok=True)
-    try:
-        start = time.perf_counter()
-        logs = generate(outdir, args.minutes, args.formats)
-        print(f"generated {args.minutes:g} min in {time.perf_counter() - start:.1f} s under {outdir}", flush=True)
-        rows = []
-        for fmt, paths in logs.items():
-            ros1 = fmt == "ros1"
-            res = {m: _child(m, paths["auvid" if m == "auvid" else "rosbags"], ros1) for m in ("auvid", "raw", "deser")}
-            rows.append({"format": fmt, "size_mb": _size_mb(paths["auvid"]), **res})
-            _print_row(rows[-1])
-        if args.json:
-            args.json.write_text(json.dumps(rows, indent=2))
-    finally:
-        if args.keep is None:
-            shutil.rmtree(outdir, ignore_errors=True)
+    outdir = args.logs or Path(tempfile.mkdtemp(prefix="auvid-bench-"))
+    logs = logs_in(outdir, args.minutes, args.formats)
+    with open("/proc/loadavg") as fh:
+        print(f"{time.strftime('%Y-%m-%d %H:%M')}, load average {' '.join(fh.read().split()[:3])}", flush=True)
+    print(HEAD)
+    print("|" + "---|" * (HEAD.count("|") - 1), flush=True)
+    rows = []
+    for fmt, paths in logs.items():
+        ros1 = fmt == "ros1"
+        runs: dict[str, list[dict[str, Any]]] = {"auvid": [], "raw": [], "deser": []}
+        for _ in range(args.repeat):
+            for method in ("auvid",) if args.skip_rosbags else ("auvid", "raw", "deser"):
+                runs[method].append(_child(method, paths["auvid" if method == "auvid" else "rosbags"], ros1))
+        med = {method: _median(got) for method, got in runs.items()}
+        size = _size_mb(paths["auvid"])
+        print(row_md(fmt, size, med["auvid"], med["raw"], med["deser"]), flush=True)
+        if not args.skip_rosbags and med["raw"]["messages"] != med["auvid"]["messages"]:
+            print(f"  note: rosbags read {med['raw']['messages']} messages, auvid {med['auvid']['messages']}")
+        rows.append({"format": fmt, "size_mb": size, "minutes": args.minutes, **med, "runs": runs})
+    with open("/proc/loadavg") as fh:
+        print(f"load average after: {' '.join(fh.read().split()[:3])}")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2, default=str))
     return 0
-
-
-_HEADER_PRINTED = False
-
-
-def _print_row(row: dict[str, Any]) -> None:
-    global _HEADER_PRINTED
-    if not _HEADER_PRINTED:
-        print(f"{'format':<13} {'MB':>7} {'messages':>9} {'auvid s':>8} {'MB/s':>7} {'msgs/s':>9} "
-              f"{'raw s':>7} {'deser s':>8} {'x raw':>6} {'x deser':>7} {'RSS MB auvid/raw/deser':>23}  paths")
-        _HEADER_PRINTED = True
-    a, r, d = row["auvid"], row["raw"], row["deser"]
-    for m in (a, r, d):
-        if "error" in m:
-            print(f"{row['format']:<13} {m['method']} failed: {m['error']}")
-    if any("error" in m for m in (a, r, d)):
-        return
-    print(f"{row['format']:<13} {row['size_mb']:7.1f} {a['messages']:9d} {a['seconds']:8.2f} "
-          f"{row['size_mb'] / a['seconds']:7.1f} {a['messages'] / a['seconds']:9.0f} {r['seconds']:7.2f} "
-          f"{d['seconds']:8.2f} {r['seconds'] / a['seconds']:6.1f} {d['seconds'] / a['seconds']:7.1f} "
-          f"{a['peak_rss_mb']:7.0f}/{r['peak_rss_mb']:.0f}/{d['peak_rss_mb']:.0f}  {','.join(a['decode_paths'])}"
-          + (f"  QUARANTINE {a['quarantine']}" if a["quarantine"] else ""))
-    if r["messages"] != a["messages"]:
-        print(f"  note: rosbags read {r['messages']} messages, auvid {a['messages']}")
 
 
 if __name__ == "__main__":
