@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import fnmatch
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -132,6 +133,17 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
     """
     path = Path(path)
     out = IngestOutput(trial=trial or trial_id(path))
+    # The file's sha256 (provenance) is computed while the log is read: hashlib and file reads release the GIL.
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256") as pool:
+        sha_job = pool.submit(file_sha256, path)
+        try:
+            return _ingest(path, vehicle, out, salvage=salvage, source_name=source_name, sha_job=sha_job)
+        finally:
+            sha_job.cancel()
+
+
+def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, source_name: str | None,
+            sha_job: Any) -> IngestOutput:
     with _open(path) as reader:
         is_csv = reader.format == "csv"
         infos: dict[str, TopicInfo] = reader.topics()
@@ -162,7 +174,7 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
     if result.salvage is not None and not salvage:
         raise IngestError(f"file is damaged ({result.salvage.reason}); salvage is disabled in params",
                           file=path)
-    sha = file_sha256(path)
+    sha = sha_job.result()
     chash = config_hash(vehicle)
     source_file = source_name if source_name is not None else str(path)
     report: dict[str, Any] = {

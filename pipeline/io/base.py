@@ -101,6 +101,20 @@ class Batch:
     rows: dict[str, Rows]
 
 
+def take_rows(buf: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
+    """The ``width`` bytes at each offset ``at`` of the byte buffer ``buf``, as a new (len(at), width) array.
+
+    One fancy index over a (stride 1) view of the buffer as ``width``-byte items: a memcpy per row, several
+    times faster than indexing a 2-D ``sliding_window_view``.
+    """
+    if width > len(buf):
+        if len(at):
+            raise IndexError(f"{width} bytes at offsets into a buffer of {len(buf)}")
+        return np.empty((0, width), dtype=np.uint8)
+    items = np.ndarray(shape=(len(buf) - width + 1,), dtype=np.dtype((np.void, width)), buffer=buf, strides=(1,))
+    return items[at].view(np.uint8).reshape(len(at), width)
+
+
 class Restart(Exception):
     """The reader found damage while reading and switched to its salvage path; read again from the start."""
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys.base import Nodetype
 
-from pipeline.io.base import Rows, TopicData, TopicInfo
+from pipeline.io.base import Rows, TopicData, TopicInfo, take_rows
 from pipeline.io.fields import FieldPath, Step, TypeRegistry, extract, header_ns
 
 log = logging.getLogger(__name__)
@@ -64,7 +64,6 @@ class Columnar:
         self.mat: np.ndarray | None = None
         self.probe: list[tuple[int, int]] | None = None  # byte ranges that decide the layout (one-message probe)
         self.n = len(starts)
-        self._views: dict[int, np.ndarray] = {}
         self._strs: dict[int, tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]] = {}
         self._cache: dict[tuple[Step, ...], tuple[Any, ...]] = {}
         if not ros1 and len(starts):
@@ -90,7 +89,7 @@ class Columnar:
             raw = np.ascontiguousarray(self.mat[:, a:a + size])
         else:
             at = self.base[rows] + pos
-            raw = self.buf[at] if size == 1 else self._windows(size)[at]
+            raw = self.buf[at] if size == 1 else take_rows(self.buf, at, size)
         dtype = DTYPES[base_type] if size == 1 else self.order + DTYPES[base_type]
         return raw.view(dtype).ravel()
 
@@ -103,16 +102,10 @@ class Columnar:
         starts = self.base - (0 if self.ros1 else 4)
         if width > limit or width < 1 or int(starts[-1]) + width > len(self.buf):
             return
-        self.mat = np.lib.stride_tricks.sliding_window_view(self.buf, width)[starts]
+        self.mat = take_rows(self.buf, starts, width)
         self.buf = self.mat.reshape(-1)
         self.base = np.arange(self.n, dtype=np.int64) * width + (0 if self.ros1 else 4)
-        self._views, self._strs = {}, {}
-
-    def _windows(self, size: int) -> np.ndarray:
-        """A (len - size + 1, size) view of the buffer: row ``i`` is the ``size`` bytes at ``i`` (no copy)."""
-        if size not in self._views:
-            self._views[size] = np.lib.stride_tricks.sliding_window_view(self.buf, size)
-        return self._views[size]
+        self._strs = {}
 
     def _u32(self, rows: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pos = self._align(pos, 4)
@@ -204,7 +197,7 @@ class Columnar:
                 idx[cand] = j
                 continue
             at = self.base[rows[cand]] + start[np.searchsorted(live, cand)]
-            eq = (self._windows(len(key))[at] == want).all(axis=1)
+            eq = (take_rows(self.buf, at, len(key)) == want).all(axis=1)
             idx[cand[eq]] = j
         return idx
 
@@ -241,7 +234,7 @@ class Columnar:
         for d, z in zip(deltas, sizes, strict=True):
             if (first + d + z > self.room).any():
                 raise Bail("payload shorter than its definition")
-        win = np.lib.stride_tricks.sliding_window_view(self.buf, width)[at]
+        win = take_rows(self.buf, at, width)
         out = []
         for d, z, leaf in zip(deltas, sizes, leaves, strict=True):
             dtype = DTYPES[leaf] if z == 1 else self.order + DTYPES[leaf]
@@ -320,13 +313,13 @@ def fast_columns(
     has_header: bool,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """Columns of one batch of one topic without decoding messages; raises :class:`Bail` when it cannot."""
-    col = Columnar(buf, rows.starts, rows.lengths, ros1=ros1, defs=registry.defs)
     n = len(rows.starts)
-    col.densify()
-    if col.mat is not None and n > 1:
-        got = _uniform_columns(col, registry, msgtype, plans, ros1=ros1, has_header=has_header)
+    if n > 1 and (rows.lengths == rows.lengths[0]).all():
+        got = _uniform_columns(registry, msgtype, buf, rows, plans, ros1=ros1, has_header=has_header)
         if got is not None:
             return got
+    col = Columnar(buf, rows.starts, rows.lengths, ros1=ros1, defs=registry.defs)
+    col.densify()
     every = np.arange(n, dtype=np.int64)
     # The definition must describe every payload exactly (as rosbags checks per message): a type that differs
     # from what was recorded (e.g. a standard type that changed between ROS distributions) is not read.
@@ -334,10 +327,7 @@ def fast_columns(
     slack = col.room - end
     if n and ((slack < 0).any() or (slack != 0 if ros1 else slack > 3).any()):
         raise Bail("payload sizes do not match the definition")
-    wanted = [(fp.text, fp.steps) for fp in plans]
-    if has_header:
-        wanted += [("\0sec", _HEADER_STEPS["sec"]), ("\0nanosec", _HEADER_STEPS["nanosec"])]
-    located = {text: col.locate(msgtype, steps, n) for text, steps in wanted}
+    located = {text: col.locate(msgtype, steps, n) for text, steps in _wanted(plans, has_header)}
     raw: dict[str, tuple[np.ndarray, str]] = {}
     # Fields at a constant distance from each other (a quaternion, a stamp) are read with one gather each group.
     groups: list[list[str]] = []
@@ -358,6 +348,18 @@ def fast_columns(
     for text, (r, p, leaf) in located.items():
         if text not in raw:
             raw[text] = col.values(r, p, leaf, n)
+    return _finish(raw, plans, has_header)
+
+
+def _wanted(plans: list[FieldPath], has_header: bool) -> list[tuple[str, tuple[Step, ...]]]:
+    wanted = [(fp.text, fp.steps) for fp in plans]
+    if has_header:
+        wanted += [("\0sec", _HEADER_STEPS["sec"]), ("\0nanosec", _HEADER_STEPS["nanosec"])]
+    return wanted
+
+
+def _finish(raw: dict[str, tuple[np.ndarray, str]], plans: list[FieldPath],
+            has_header: bool) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
     stamps = None
     if has_header:
@@ -365,21 +367,27 @@ def fast_columns(
     return out, stamps
 
 
+SPAN_GAP = 256  # byte ranges closer than this are read with one gather (a gather costs per row more than per byte)
+
+
 def _uniform_columns(
-    col: Columnar, registry: TypeRegistry, msgtype: str, plans: list[FieldPath], *, ros1: bool, has_header: bool,
+    registry: TypeRegistry, msgtype: str, buf: np.ndarray, rows: Rows, plans: list[FieldPath], *, ros1: bool,
+    has_header: bool,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None] | None:
     """Columns when every message has the first one's layout: equal lengths and equal bytes in every length
     prefix (and in the key strings of selections), so that each field lies at one offset in all of them.
 
-    The layout is worked out on the first message alone, recording the byte ranges it depended on; one vectorized
-    comparison then checks those ranges in all messages, and each field is one strided copy. None when the
-    messages differ in those bytes (the general path then handles them).
+    The layout is worked out on the first message alone, recording the byte ranges it depended on; those ranges
+    and the fields' own bytes are then read from every message (nearby ranges with one gather, never the whole
+    payload), the recorded ranges compared with the first message's, and each field is one strided copy.
+    None when the messages differ in those bytes (the general path then handles them).
     """
-    mat = col.mat
-    assert mat is not None
-    n, width = mat.shape
+    n = len(rows.starts)
+    width = int(rows.lengths[0])
+    s0 = int(rows.starts[0])
     head = 0 if ros1 else 4
-    one = Columnar(mat[0], np.zeros(1, dtype=np.int64), np.array([width], dtype=np.int64), ros1=ros1,
+    first = buf[s0:s0 + width]
+    one = Columnar(first, np.zeros(1, dtype=np.int64), np.array([width], dtype=np.int64), ros1=ros1,
                    defs=registry.defs)
     one.probe = []
     zero = np.zeros(1, dtype=np.int64)
@@ -387,28 +395,46 @@ def _uniform_columns(
     slack = width - head - int(end[0])
     if slack < 0 or (slack != 0 if ros1 else slack > 3):
         raise Bail("payload sizes do not match the definition")
-    wanted = [(fp.text, fp.steps) for fp in plans]
-    if has_header:
-        wanted += [("\0sec", _HEADER_STEPS["sec"]), ("\0nanosec", _HEADER_STEPS["nanosec"])]
-    located = {text: one.locate(msgtype, steps, 1) for text, steps in wanted}
-    if one.probe:
-        cols = np.unique(np.concatenate([np.arange(a, a + w) for a, w in one.probe]) + head)
-        if len(cols) and not (mat[:, cols] == mat[0, cols]).all():
+    located = {text: one.locate(msgtype, steps, 1) for text, steps in _wanted(plans, has_header)}
+    checks = [(a + head, w) for a, w in one.probe if w > 0]
+    if not ros1:
+        checks.append((0, 2))  # CDR encapsulation: plain CDR in the first message's byte order
+    fields: dict[str, tuple[int, str]] = {}
+    for text, (r, p, leaf) in located.items():
+        if len(r):
+            fields[text] = (int(one._align(p, SIZES[leaf])[0]) + head, leaf)
+    ranges = sorted(checks + [(a, SIZES[leaf]) for a, leaf in fields.values()])
+    spans: list[list[int]] = []
+    for a, w in ranges:
+        if spans and a <= spans[-1][1] + SPAN_GAP:
+            spans[-1][1] = max(spans[-1][1], a + w)
+        else:
+            spans.append([a, a + w])
+    if spans and spans[-1][1] > width:
+        raise Bail("payload shorter than its definition")
+    got: list[tuple[int, np.ndarray]] = []
+    for lo, hi in spans:
+        got.append((lo, take_rows(buf, rows.starts + lo, hi - lo)))
+
+    def part(a: int, w: int) -> np.ndarray:
+        for lo, win in got:
+            if lo <= a and a + w <= lo + win.shape[1]:
+                return win[:, a - lo:a - lo + w]
+        raise AssertionError("byte range outside the spans read")
+
+    for a, w in checks:
+        if not (part(a, w) == first[a:a + w]).all():
             return None
     raw: dict[str, tuple[np.ndarray, str]] = {}
-    for text, (r, p, leaf) in located.items():
-        if not len(r):
+    for text, _steps in _wanted(plans, has_header):
+        if text not in fields:
             raw[text] = (np.full(n, np.nan), "float64")
             continue
+        a, leaf = fields[text]
         size = SIZES[leaf]
-        a = int(one._align(p, size)[0]) + head
         dtype = DTYPES[leaf] if size == 1 else one.order + DTYPES[leaf]
-        raw[text] = (np.ascontiguousarray(mat[:, a:a + size]).view(dtype).ravel(), leaf)
-    out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
-    stamps = None
-    if has_header:
-        stamps = raw["\0sec"][0].astype(np.int64) * 1_000_000_000 + raw["\0nanosec"][0].astype(np.int64)
-    return out, stamps
+        raw[text] = (np.ascontiguousarray(part(a, size)).view(dtype).ravel(), leaf)
+    return _finish(raw, plans, has_header)
 
 
 def slow_columns(

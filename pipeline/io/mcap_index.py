@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, take_rows
 from pipeline.io.mcap_reader import (
     MAGIC,
     OP_CHANNEL,
@@ -252,7 +252,7 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
 
 def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
     """Payload starts, lengths and log times of the message records at ``offs``, checked against their chunks."""
-    head = np.lib.stride_tricks.sliding_window_view(data, 23)[offs]  # opcode, length, channel, sequence, log time
+    head = take_rows(data, offs, 23)  # opcode, length, channel, sequence, log time
     if (head[:, 0] != 0x05).any():
         raise Damaged("message index points at a record that is not a message", at)
     length = np.ascontiguousarray(head[:, 1:9]).view("<u8").ravel().astype(np.int64)

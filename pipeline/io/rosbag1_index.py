@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, take_rows
 from pipeline.io.mcap_reader import Damaged
 from pipeline.io.rosbag1 import (
     MAGIC,
@@ -147,7 +147,7 @@ def _index_walk(path: Path) -> IndexedBag | None:
 
 
 def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return np.lib.stride_tricks.sliding_window_view(buf, 4)[at].view("<u4").ravel().astype(np.int64)
+    return take_rows(buf, at, 4).view("<u4").ravel().astype(np.int64)
 
 
 def _layout(data: np.ndarray, off: int) -> tuple[int, int, int, int]:
