@@ -146,7 +146,8 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
             sha_job: Any) -> IngestOutput:
     with _open(path) as reader:
         is_csv = reader.format == "csv"
-        infos: dict[str, TopicInfo] = reader.topics()
+        # The cheap listing (a reader may take counts from the recorder's summary; read() checks them).
+        infos: dict[str, TopicInfo] = reader.catalog() if hasattr(reader, "catalog") else reader.topics()
         sources: dict[str, str] = {}  # stream -> topic / file
         skipped: dict[str, str] = {}
         for name, stream in vehicle.streams.items():
@@ -169,6 +170,8 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
             fields.extend(p.field for p in column_plans(vehicle.streams[name]) if p.field not in fields)
         log.info("%s: reading %d topic(s) for %d stream(s)", path, len(requests), len(sources))
         result: ReadResult = reader.read(requests)
+        if hasattr(reader, "catalog"):
+            infos = reader.catalog()  # counts checked and time ranges filled in by the read
         fmt = reader.format
 
     if result.salvage is not None and not salvage:

@@ -179,6 +179,13 @@ class RawReader:
 
     # -- protocol -------------------------------------------------------------------------------------------
     def topics(self) -> dict[str, TopicInfo]:
+        """Every topic with its type, message count and first / last log time, as the storage holds them."""
+        return self.catalog()
+
+    def catalog(self) -> dict[str, TopicInfo]:
+        """The topics as cheaply listed: a reader may take the counts from the recorder's own summary (checked
+        against what :meth:`read` finds) and leave first / last unknown (None) until read; :meth:`topics` is exact.
+        """
         if self._infos is None:
             self._scan()
         assert self._infos is not None
@@ -193,7 +200,7 @@ class RawReader:
     def _read(self, requests: dict[str, list[str]]) -> ReadResult:
         from pipeline.io import fields
 
-        infos = self.topics()
+        infos = self.catalog()
         missing = [t for t in requests if t not in infos]
         if missing:
             raise IngestError(
@@ -235,9 +242,12 @@ class RawReader:
                 result.failed[topic] = broken[topic]
                 continue
             if self.salvage is None and dec.read != expected:
+                expected = self._recount(topic, dec.read, expected)
+            if self.salvage is None and dec.read != expected:
                 raise IngestError(f"read {dec.read} messages but the storage holds {expected}", file=self.path,
                                   topic=topic)
-            result.topics[topic] = dec.result(expected if self.salvage is None else dec.read)
+            result.topics[topic] = data = dec.result(expected if self.salvage is None else dec.read)
+            self._was_read(topic, data)
         return result
 
     def close(self) -> None:
@@ -258,6 +268,13 @@ class RawReader:
             return f"message encoding {enc!r} is not CDR or ROS 1; cannot decode"
         assert self._types is not None
         return self._types.ensure(msgtype)
+
+    def _recount(self, topic: str, read: int, listed: int) -> int:
+        """The storage's own count of ``topic`` when the listed count disagrees with what was read."""
+        return listed
+
+    def _was_read(self, topic: str, data: TopicData) -> None:
+        """Hook: a reader whose catalog left something unknown fills it in from what was read."""
 
     def _scan(self) -> None:  # pragma: no cover - abstract
         raise NotImplementedError

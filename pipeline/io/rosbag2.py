@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, Restart, Rows, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, Batcher, RawReader, Restart, Rows, SalvageInfo, TopicData, TopicInfo
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, walk
@@ -80,8 +80,10 @@ class Rosbag2Reader(RawReader):
         self.storage = kinds.pop()
         self.format = f"ros2-{self.storage}"
         self._ids: list[dict[int, str]] = []     # per file: topic id / channel id -> topic
+        self._provisional: set[str] = set()       # topics whose count is metadata.yaml's, not yet checked by a read
         self._indexes: list[IndexedFile | None] = []  # per MCAP file: its chunk indexes, when intact and indexed
         self._no_index = False
+        self._no_adbc = False
 
     @classmethod
     def from_files(cls, files: list[Path]) -> Rosbag2Reader:
@@ -124,7 +126,32 @@ class Rosbag2Reader(RawReader):
         return payload
 
     # -- scanning -------------------------------------------------------------------------------------------
-    def _scan(self) -> None:
+    def catalog(self) -> dict[str, TopicInfo]:
+        """Topics; for sqlite storage with a metadata.yaml that lists every topic's count, those counts (checked
+        against the rows :meth:`read` fetches) instead of a scan of every row, and first / last unknown until read.
+        """
+        if self._infos is None:
+            self._scan(quick=True)
+        assert self._infos is not None
+        return dict(self._infos)
+
+    def topics(self) -> dict[str, TopicInfo]:
+        if self._infos is None or self._provisional:
+            self._scan()
+        assert self._infos is not None
+        return dict(self._infos)
+
+    def _listed_counts(self) -> dict[str, int] | None:
+        counts = {}
+        for entry in self.metadata.get("topics_with_message_count") or []:
+            name, want = (entry.get("topic_metadata") or {}).get("name"), entry.get("message_count")
+            if not isinstance(name, str) or not isinstance(want, int) or want < 0:
+                return None
+            counts[name] = counts.get(name, 0) + want
+        return counts or None
+
+    def _scan(self, quick: bool = False) -> None:
+        listed = self._listed_counts() if quick and self.storage == "sqlite3" else None
         self._types = TypeRegistry(ros1=False)
         totals: dict[str, list[Any]] = {}   # topic -> [msgtype, count, first, last, encoding]
 
@@ -140,15 +167,39 @@ class Rosbag2Reader(RawReader):
         for path in self.files:
             ids: dict[int, str] = {}
             if self.storage == "sqlite3":
-                self._scan_sqlite(path, ids, add)
+                self._scan_sqlite(path, ids, add, stats=listed is None)
             else:
                 self._scan_mcap(path, ids, add)
             self._ids.append(ids)
+        if listed is not None and not set(totals) <= set(listed):
+            self._scan()  # metadata.yaml does not list every topic of the storage: count the rows
+            return
+        self._provisional = set(totals) if listed is not None else set()
         self._infos = {}
         for topic, (msgtype, count, first, last, enc) in totals.items():
+            if listed is not None:
+                count = listed[topic]
             self._infos[topic] = TopicInfo(topic, msgtype, count, first, last, self._types.has_header(msgtype))
             self._encoding[topic] = "cdr" if enc.lower() == "cdr" else enc
-        self._check_metadata()
+        if listed is None:
+            self._check_metadata()
+
+    def _recount(self, topic: str, read: int, listed: int) -> int:
+        if topic not in self._provisional:
+            return listed
+        counts = self.topics()  # the exact scan
+        have = counts[topic].count if topic in counts else 0
+        log.warning("%s: metadata.yaml says topic %s has %s messages; the storage holds %s", self.path, topic,
+                    listed, have)
+        return have
+
+    def _was_read(self, topic: str, data: TopicData) -> None:
+        if topic in self._provisional and self._infos is not None and data.read == self._infos[topic].count:
+            info = self._infos[topic]
+            first = int(data.log_ns.min()) if data.read else None
+            last = int(data.log_ns.max()) if data.read else None
+            self._infos[topic] = TopicInfo(topic, info.msgtype, info.count, first, last, info.has_header)
+            self._provisional.discard(topic)
 
     def _check_metadata(self) -> None:
         assert self._infos is not None
@@ -166,7 +217,7 @@ class Rosbag2Reader(RawReader):
         except sqlite3.Error as err:
             raise IngestError(f"cannot open sqlite storage: {err}", file=path) from err
 
-    def _scan_sqlite(self, path: Path, ids: dict[int, str], add: Any) -> None:
+    def _scan_sqlite(self, path: Path, ids: dict[int, str], add: Any, *, stats: bool = True) -> None:
         con = self._connect(path)
         try:
             tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
@@ -174,11 +225,12 @@ class Rosbag2Reader(RawReader):
                 for typ, enc, text in con.execute(
                         "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"):
                     self._types.add(normalize_msgtype(typ), enc, text)  # type: ignore[union-attr]
-            stats = {tid: (n, lo, hi) for tid, n, lo, hi in con.execute(
-                "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")}
+            counted = {tid: (n, lo, hi) for tid, n, lo, hi in con.execute(
+                "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")} \
+                if stats else {}
             for tid, name, typ, fmt in con.execute("SELECT id, name, type, serialization_format FROM topics"):
                 ids[tid] = name
-                n, lo, hi = stats.get(tid, (0, None, None))
+                n, lo, hi = counted.get(tid, (0, None, None))
                 add(name, normalize_msgtype(typ), fmt, n, lo, hi)
         except sqlite3.DatabaseError as err:
             raise IngestError(f"not a readable rosbag2 sqlite3 storage file: {err}", file=path) from err
@@ -251,13 +303,29 @@ class Rosbag2Reader(RawReader):
             yield from done + ([last] if last is not None else [])
 
     def _sqlite_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
-        """Rows fetched in bulk, ~16 MB of payloads at a time, joined into one buffer per batch."""
+        """Rows fetched in bulk, ~16 MB of payloads at a time: as Arrow columns through ADBC when the driver is
+        installed (no Python object per row), else through the sqlite3 module, joined into one buffer per batch.
+        """
+        per_message = self.compression_mode == "MESSAGE"
+        sql = (f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN "
+               f"({','.join(str(int(i)) for i in wanted)}) ORDER BY id")
+        if not per_message and not self._no_adbc:
+            arrow = _arrow_batches(path, sql)
+            if arrow is not None:
+                started = False
+                try:
+                    for tid, log_ns, buf, starts, lengths in arrow:
+                        started = True
+                        yield _batch(wanted, tid, log_ns, buf, starts, lengths)
+                    return
+                except _ArrowUnfit as why:
+                    log.info("%s: reading rows through the sqlite3 module (%s)", path, why)
+                    self._no_adbc = True
+                    if started:
+                        raise Restart from why
         con = self._connect(path)
         try:
-            marks = ",".join("?" * len(wanted))
-            cur = con.execute(
-                f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) ORDER BY id", list(wanted))
-            per_message = self.compression_mode == "MESSAGE"
+            cur = con.execute(sql)
             while True:
                 rows = cur.fetchmany(BATCH_ROWS)
                 if not rows:
@@ -266,21 +334,81 @@ class Rosbag2Reader(RawReader):
                 del rows
                 if per_message:
                     datas = tuple(self._decompress(bytes(d)) for d in datas)
-                yield _batch(wanted, tids, stamps, datas)
+                lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+                starts = np.zeros(len(datas), dtype=np.int64)
+                np.cumsum(lengths[:-1], out=starts[1:])
+                buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
+                del datas
+                yield _batch(wanted, np.fromiter(tids, dtype=np.int64, count=len(tids)),
+                             np.fromiter(stamps, dtype=np.int64, count=len(stamps)), buf, starts, lengths)
         finally:
             con.close()
+
+
+class _ArrowUnfit(Exception):
+    """The ADBC driver cannot give these rows as plain int64 / binary columns."""
+
+
+def _arrow_batches(path: Path, sql: str) -> Iterator[tuple[np.ndarray, ...]] | None:
+    """Batches of (topic ids, timestamps, payload buffer, starts, lengths) straight from Arrow record batches;
+    None when the ADBC sqlite driver is not installed. Raises :class:`_ArrowUnfit` on columns of other types."""
+    try:
+        import adbc_driver_sqlite.dbapi as adbc
+    except ImportError:
+        return None
+
+    def gen() -> Iterator[tuple[np.ndarray, ...]]:
+        try:
+            con = adbc.connect(f"file:{path}?mode=ro&immutable=1")
+        except adbc.Error as err:
+            raise _ArrowUnfit(f"ADBC cannot open it: {err}") from err
+        try:
+            cur = con.cursor()
+            try:
+                cur.adbc_statement.set_options(**{"adbc.sqlite.query.batch_rows": str(BATCH_ROWS)})
+                cur.execute(sql)
+                reader = cur.fetch_record_batch()
+                for rb in reader:
+                    yield _arrow_columns(rb)
+            except adbc.Error as err:
+                raise _ArrowUnfit(f"ADBC: {err}") from err
+            finally:
+                cur.close()
+        finally:
+            con.close()
+
+    return gen()
+
+
+def _arrow_columns(rb: Any) -> tuple[np.ndarray, ...]:
+    import pyarrow as pa
+
+    tid, stamps, data = rb.column(0), rb.column(1), rb.column(2)
+    if rb.num_rows == 0:
+        empty = np.empty(0, dtype=np.int64)
+        return empty, empty, np.empty(0, dtype=np.uint8), empty, empty
+    if not (pa.types.is_integer(tid.type) and pa.types.is_integer(stamps.type)) or \
+            tid.null_count or stamps.null_count or data.null_count:
+        raise _ArrowUnfit(f"columns of types {tid.type}, {stamps.type}, {data.type} or with nulls")
+    if pa.types.is_binary(data.type):
+        width = np.int32
+    elif pa.types.is_large_binary(data.type):
+        width = np.int64
+    else:
+        raise _ArrowUnfit(f"payload column of type {data.type}")
+    _, offsets_buf, data_buf = data.buffers()
+    skip = data.offset * np.dtype(width).itemsize
+    offsets = np.frombuffer(offsets_buf, dtype=width, count=len(data) + 1, offset=skip).astype(np.int64)
+    buf = np.frombuffer(data_buf, dtype=np.uint8) if data_buf is not None else np.empty(0, dtype=np.uint8)
+    return (tid.to_numpy().astype(np.int64, copy=False), stamps.to_numpy().astype(np.int64, copy=False), buf,
+            offsets[:-1], np.diff(offsets))
 
 
 BATCH_ROWS = 65536
 
 
-def _batch(wanted: dict[int, str], tids: tuple[int, ...], stamps: tuple[int, ...], datas: tuple[bytes, ...]) -> Batch:
-    lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
-    starts = np.zeros(len(datas), dtype=np.int64)
-    np.cumsum(lengths[:-1], out=starts[1:])
-    buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
-    tid = np.fromiter(tids, dtype=np.int64, count=len(tids))
-    log_ns = np.fromiter(stamps, dtype=np.int64, count=len(stamps))
+def _batch(wanted: dict[int, str], tid: np.ndarray, log_ns: np.ndarray, buf: np.ndarray, starts: np.ndarray,
+           lengths: np.ndarray) -> Batch:
     out = {}
     for i, topic in wanted.items():
         m = tid == i
