@@ -119,7 +119,8 @@ def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
     if n > 1:
         diffs = np.diff(t_ns)
         out["steps_back"] = int((diffs < 0).sum())
-        out["largest_gap_s"] = float(np.diff(np.sort(t_ns)).max()) / 1e9
+        gaps = diffs if out["steps_back"] == 0 else np.diff(np.sort(t_ns))
+        out["largest_gap_s"] = float(gaps.max()) / 1e9
         out["mean_rate_hz"] = (n - 1) / ((hi - lo) / 1e9) if hi > lo else None
     return out
 
@@ -189,9 +190,12 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
     for topic, data in sorted(result.topics.items()):
         report["topics"][topic] = _topic_report(data, infos.get(topic))
 
+    uses = {source: list(sources.values()).count(source) for source in sources.values()}
     for name, source in sources.items():
         stream = vehicle.streams[name]
-        data = result.topics.get(source)
+        uses[source] -= 1
+        # The reader's columns are let go once their last stream's table is built (peak memory).
+        data = result.topics.get(source) if uses[source] else result.topics.pop(source, None)
         where = {"stream": name, "topic": source}
         if data is None:
             reason = result.failed.get(source, "the reader returned no data")
@@ -270,8 +274,9 @@ def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData) -
     else:
         base = np.asarray(data.log_ns, dtype=np.int64)
     t_ns = base + np.int64(round(stream.offset_s * 1e9))
-    order = np.argsort(t_ns, kind="stable")
-    arrays: dict[str, pa.Array] = {"t_ns": pa.array(t_ns[order], type=pa.int64())}
+    # Sorted stably by time; logs are nearly always in order already, and then no permuted copies are made.
+    order = None if t_ns.size < 2 or bool((t_ns[1:] >= t_ns[:-1]).all()) else np.argsort(t_ns, kind="stable")
+    arrays: dict[str, pa.Array] = {"t_ns": pa.array(t_ns if order is None else t_ns[order], type=pa.int64())}
     for plan in column_plans(stream):
         try:
             raw = np.asarray(data.columns[plan.field], dtype=np.float64)
@@ -282,5 +287,5 @@ def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData) -
                                   file=path, topic=data.topic, field=plan.field) from None
             raw = np.asarray(data.columns[key], dtype=np.float64)
         values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
-        arrays[plan.column] = pa.array(values[order], type=pa.float64())
+        arrays[plan.column] = pa.array(values if order is None else values[order], type=pa.float64())
     return pa.table(arrays), t_ns
