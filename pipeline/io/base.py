@@ -11,8 +11,11 @@ cross-checks the number of messages read against the number the storage says it 
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -156,6 +159,70 @@ class Batcher:
             m = names == topic
             rows[topic] = Rows(starts[m], lengths[m], log_ns[m])
         return Batch(buf, rows)
+
+
+class _Stopped(Exception):
+    """The consumer of a streamed walk went away."""
+
+
+_DONE = object()
+
+
+def stream_walk(walk: Callable[[Callable[[str, int, bytes], None]], object], limit: int = BATCH_BYTES,
+                ahead: int = 2) -> Iterator[Batch]:
+    """Batches of ~``limit`` bytes from a callback-style record walk, as the walk goes.
+
+    ``walk(emit)`` calls ``emit(topic, log_ns, payload)`` for each wanted message. It runs in a thread that stays
+    at most ``ahead`` batches in front of the consumer, so memory stays bounded however long the file (the walks
+    of unindexed and damaged files are callback-style; the indexed paths are generators already). An exception
+    in the walk is raised in the consumer; a consumer that stops early stops the walk.
+    """
+    q: queue.Queue[object] = queue.Queue(maxsize=ahead)
+    stop = threading.Event()
+
+    def put(item: object) -> None:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return
+            except queue.Full:
+                continue
+        raise _Stopped
+
+    def run() -> None:
+        batcher = Batcher(limit)
+
+        def emit(topic: str, log_ns: int, payload: bytes) -> None:
+            batch = batcher.add(topic, log_ns, payload)
+            if batch is not None:
+                put(batch)
+
+        try:
+            walk(emit)
+            last = batcher.flush()
+            if last is not None:
+                put(last)
+            put(_DONE)
+        except _Stopped:
+            pass
+        except BaseException as err:  # noqa: BLE001 - handed to the consumer, raised there
+            with contextlib.suppress(_Stopped):
+                put(err)
+
+    thread = threading.Thread(target=run, name="record-walk", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = q.get()
+            if item is _DONE:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            assert isinstance(item, Batch)
+            yield item
+    finally:
+        stop.set()
+        thread.join()
 
 
 class RawReader:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, Restart, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, RawReader, Restart, SalvageInfo, TopicInfo, stream_walk
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 
 if TYPE_CHECKING:
@@ -296,15 +296,11 @@ class McapReader(RawReader):
                 self._encoding = {}
                 raise Restart from dmg
             return
-        batcher = Batcher()
-        done: list[Batch] = []
+        def walk_wanted(emit: Callable[[str, int, bytes], None]) -> None:
+            def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
+                if payload is not None:
+                    emit(by_channel[cid], log_ns, payload)
 
-        def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
-            if payload is not None:
-                batch = batcher.add(by_channel[cid], log_ns, payload)
-                if batch is not None:
-                    done.append(batch)
+            self._do_walk(on_message, set(by_channel))
 
-        self._do_walk(on_message, set(by_channel))
-        last = batcher.flush()
-        yield from done + ([last] if last is not None else [])
+        yield from stream_walk(walk_wanted)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, Restart, SalvageInfo, TopicInfo
+from pipeline.io.base import Batch, RawReader, Restart, SalvageInfo, TopicInfo, stream_walk
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import Damaged
 
@@ -327,14 +327,7 @@ class Rosbag1Reader(RawReader):
                 self._infos = self._index = None
                 raise Restart from dmg
             return
-        batcher = Batcher()
-        done: list[Batch] = []
+        def walk_wanted(emit: Callable[[str, int, bytes], None]) -> None:
+            self._do_walk(lambda cid, log_ns, payload: emit(by_conn[cid], log_ns, payload), set(by_conn))
 
-        def on_message(cid: int, log_ns: int, payload: bytes) -> None:
-            batch = batcher.add(by_conn[cid], log_ns, payload)
-            if batch is not None:
-                done.append(batch)
-
-        self._do_walk(on_message, set(by_conn))
-        last = batcher.flush()
-        yield from done + ([last] if last is not None else [])
+        yield from stream_walk(walk_wanted)

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, Batcher, RawReader, Restart, Rows, SalvageInfo, TopicData, TopicInfo
+from pipeline.io.base import Batch, RawReader, Restart, Rows, SalvageInfo, TopicData, TopicInfo, stream_walk
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, walk
@@ -288,19 +288,14 @@ class Rosbag2Reader(RawReader):
                     self._encoding = {}
                     raise Restart from dmg
                 continue
-            batcher = Batcher()
-            done: list[Batch] = []
+            def walk_wanted(emit: Any, path: Path = path, wanted: dict[int, str] = wanted) -> None:
+                def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
+                    if payload is not None:
+                        emit(wanted[cid], log_ns, self._decompress(payload))
 
-            def on_message(cid: int, log_ns: int, payload: bytes | None, wanted: dict[int, str] = wanted,
-                           batcher: Batcher = batcher, done: list[Batch] = done) -> None:
-                if payload is not None:
-                    batch = batcher.add(wanted[cid], log_ns, self._decompress(payload))
-                    if batch is not None:
-                        done.append(batch)
+                self._walk_mcap(path, on_message, set(wanted))
 
-            self._walk_mcap(path, on_message, set(wanted))
-            last = batcher.flush()
-            yield from done + ([last] if last is not None else [])
+            yield from stream_walk(walk_wanted)
 
     def _sqlite_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
         """Rows fetched in bulk, ~16 MB of payloads at a time: as Arrow columns through ADBC when the driver is
