@@ -216,7 +216,8 @@ def table_markdown(study: StudyResult) -> str:
     for r in study.results:
         params = ", ".join(f"{k}: {v:g}" if isinstance(v, float) else f"{k}: {v}" for k, v in r.best_params.items())
         if r.model == "gp" and r.estimator is not None:
-            params = f"l-s: {r.estimator.length_scale_[0]:.3g}, n-l: {r.estimator.noise_std_:.3g}"
+            scales = "/".join(f"{v:.3g}" for v in r.estimator.length_scale_)
+            params = f"l-s: {scales} (standardized), n-l: {r.estimator.noise_std_:.3g}"
         c = r.cv
         lines.append(f"| {r.dof} | {r.model} | {params or 'N/A'} | {r.search_mae:.3f} | "
                      f"{c['test_mae_mean']:.3f} ({c['test_mae_sd']:.3f}) | {c['test_r2_mean']:.3f} "

@@ -88,12 +88,13 @@ def gp_coverage(root: Path, dof: str) -> float:
 
 @pytest.mark.parametrize("dof", ["u", "v", "r"])
 def test_gp_band_covers_the_truth(study_root: Path, dof: str) -> None:
-    # Rows thinned to the residuals' decorrelation lag, latent variance x n/n_eff (DampingGP(decorrelate=True)).
-    # Over 8 seed sets of these trials (/tmp study, report of issue 5): coverage u 0.70-1.00 (mean 0.84),
-    # v 0.86-1.00 (0.97), r 0.73-0.94 (0.83); before, u 0.37-0.96, v 0.48-1.00, r 0.52-0.72. The shortfall left in
-    # u and r is a systematic error of the damping target near nu = 0 (see the issue), not correlated noise.
+    # The GP sees (nu, nu|nu|) (DampingGP(warp="signed_square")). Over 8 seed sets of these trials
+    # (python bench/decoupled_coverage.py --configs plain default) the 2-sigma coverage of the truth averaged
+    # u 0.95, v 0.97, r 0.88; with the paper's plain RBF on nu, u 0.84, v 0.97, r 0.83, the band missing around
+    # nu = 0 on every seed. What r still misses is the plain Gaussian derivative's bias around r = 0
+    # (differentiate.gaussian_degree=4 removes it: u 0.97, v 0.98, r 0.96; not the default, see docs/models.md).
     coverage = gp_coverage(study_root, dof)
-    assert 0.7 <= coverage <= 1.0, (dof, coverage)
+    assert 0.75 <= coverage <= 1.0, (dof, coverage)
 
 
 def test_gp_band_is_calibrated_on_average(study_root: Path) -> None:
