@@ -56,7 +56,7 @@ def test_differentiate_drops_edge_samples_per_segment_and_never_spans_gaps() -> 
     nu = np.zeros((n, 6))
     nu[:, 0] = 0.2 + 0.05 * t**2
     nu[:, 5] = np.where(seg == 1, 5.0, 0.1 * t)  # a jump between segments must not leak
-    out = differentiate(_table(t, seg, nu), DifferentiateParams(sigma_s=0.25, edge_sigmas=3.0))
+    out = differentiate(_table(t, seg, nu), DifferentiateParams(sigma_s=0.25, gaussian_degree=2, edge_sigmas=3.0))
     kept = np.round(out["t_ns"].to_numpy() / PERIOD_NS).astype(int)
     expected = np.concatenate([np.arange(25, 75), np.arange(115, 185)])
     assert kept.tolist() == expected.tolist()
@@ -69,6 +69,25 @@ def test_differentiate_drops_edge_samples_per_segment_and_never_spans_gaps() -> 
     assert out["u_smooth_mps"].to_numpy() == pytest.approx(0.2 + 0.05 * ts**2 + 0.05 * 0.25**2, abs=1e-4)
     assert out["n1_rpm"].tolist() == expected.astype(float).tolist()  # passed through, rows aligned
     assert list(out.columns[:20]) == ["t_ns", "segment", *VELOCITY, *SMOOTH, *ACCELERATION]
+
+
+def test_bias_corrected_gaussian_is_exact_to_degree_four_and_cancels_the_plain_kernels_bias() -> None:
+    n = 300
+    t = np.arange(n) * DT
+    nu = np.zeros((n, 6))
+    nu[:, 0] = 0.3 - 0.2 * t + 0.04 * t**2 - 0.01 * t**3 + 0.002 * t**4
+    nu[:, 5] = 0.1 * t**3
+    corrected = differentiate(_table(t, np.zeros(n), nu), DifferentiateParams(sigma_s=0.35, gaussian_degree=4))
+    plain = differentiate(_table(t, np.zeros(n), nu), DifferentiateParams(sigma_s=0.35, gaussian_degree=2))
+    assert len(corrected) == len(plain) == n - 2 * 21  # 3 sigma = 1.05 s = 21 samples dropped each side
+    ts = corrected["t_ns"].to_numpy() / 1e9
+    exact_udot = -0.2 + 0.08 * ts - 0.03 * ts**2 + 0.008 * ts**3
+    assert corrected["udot_mps2"].to_numpy() == pytest.approx(exact_udot, abs=1e-9)
+    assert corrected["rdot_radps2"].to_numpy() == pytest.approx(0.3 * ts**2, abs=1e-9)
+    # smoothing is exact for the cubic (the plain kernel adds sigma^2 x''/2 = 0.35^2 * 0.3 t)
+    assert corrected["r_smooth_radps"].to_numpy() == pytest.approx(0.1 * ts**3, abs=1e-9)
+    # ... and the plain derivative is off by about sigma^2 x'''/2 (a little less: the kernel is cut at 3 sigma)
+    assert plain["rdot_radps2"].to_numpy() - 0.3 * ts**2 == pytest.approx(0.35**2 / 2 * 0.6, rel=0.1)
 
 
 def test_savgol_is_exact_for_a_cubic() -> None:

@@ -16,8 +16,7 @@ from pipeline.derive import derive
 from pipeline.kinematics import (
     ACCELERATION,
     SMOOTH,
-    gaussian_derivative,
-    gaussian_smooth,
+    gaussian_filters,
     gaussian_truncate,
     kinematics,
 )
@@ -85,8 +84,9 @@ def _truth_at(trial, t_ns: np.ndarray, cols: list[str], smooth: bool) -> np.ndar
     rows = np.searchsorted(truth["t_ns"].to_numpy(), t_ns)
     assert np.array_equal(truth["t_ns"].to_numpy()[rows], t_ns)
     values = truth[cols].to_numpy()
-    if smooth:  # the same Gaussian the pipeline applies, on the 200 Hz truth (whole trial: no edge effects inside)
-        values = gaussian_smooth(values, TRUTH_DT_S, Params().differentiate.sigma_s, 6.0)
+    if smooth:  # the same kernel the pipeline applies, on the 200 Hz truth (whole trial: no edge effects inside)
+        d = Params().differentiate
+        values, _ = gaussian_filters(values, TRUTH_DT_S, d.sigma_s, d.gaussian_degree, 6.0)
     return values[rows]
 
 
@@ -126,7 +126,7 @@ def _dvl_derivative_noise_gain(vehicle: Vehicle, dvl_hz: float) -> float:
     grid = np.arange(0, t_dvl[-1] + 1, grid_dt_ns, dtype=np.int64)
     interp, _ = resample(t_dvl, np.eye(n_dvl), np.ones(n_dvl, bool), grid, "linear", 10**9)
     d = params.differentiate
-    resp = gaussian_derivative(interp, grid_dt_ns / 1e9, d.sigma_s, gaussian_truncate(d.edge_sigmas))
+    _, resp = gaussian_filters(interp, grid_dt_ns / 1e9, d.sigma_s, d.gaussian_degree, gaussian_truncate(d.edge_sigmas))
     mid = slice(len(grid) // 2 - 10, len(grid) // 2 + 10)
     return float(np.sqrt(np.mean(np.sum(resp[mid] ** 2, axis=1))))
 

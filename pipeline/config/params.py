@@ -29,6 +29,9 @@ class SyncParams(Frozen):
 class DifferentiateParams(Frozen):
     method: Literal["gaussian", "savgol"] = "gaussian"
     sigma_s: float = Field(0.25, gt=0, description="Gaussian kernel width.")
+    gaussian_degree: Literal[2, 4] = Field(
+        2, description="Gaussian kernels exact for polynomials up to this degree: 2 = the plain Gaussian derivative "
+        "(bias sigma^2/2 times the third derivative), 4 = bias-corrected (a Gaussian-weighted local cubic fit).")
     savgol_window_s: float = Field(1.0, gt=0)
     savgol_order: int = Field(3, ge=1)
     edge_sigmas: float = Field(3.0, ge=0, description="Samples within this many sigma of a segment edge are dropped.")
