@@ -112,9 +112,10 @@ def _quiet() -> Iterator[None]:
 
 
 def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, list[Any]] = "fast", folds: int = 5,
-         seed: int = 0, gp_max_samples: int = 500) -> tuple[BaseEstimator, dict[str, Any], float]:
+         seed: int = 0, gp_max_samples: int = 500, gp_warp: str = "signed_square"
+         ) -> tuple[BaseEstimator, dict[str, Any], float]:
     """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE)``."""
-    estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples)
+    estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples, gp_warp=gp_warp)
     grid = param_grid(name, search)
     cv = KFold(n_splits=folds, shuffle=False)
     if len(y) < 2 * folds:
@@ -152,7 +153,7 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
               models: Sequence[str] = ("ls", "mlp", "krr", "svr", "gp"), folds: int = 5,
               search: str | dict[str, dict[str, list[Any]]] = "fast", gp_max_samples: int = 500,
               max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0,
-              dof_trials: Mapping[str, Sequence[str]] | None = None) -> StudyResult:
+              dof_trials: Mapping[str, Sequence[str]] | None = None, gp_warp: str = "signed_square") -> StudyResult:
     """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names.
 
     ``dof_trials`` (optional): per DOF, the trials (``trial`` column) its models learn from; as in paper 001, where
@@ -160,12 +161,13 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
     """
     with threadpool_limits(1, user_api="blas"):  # small problems: parallelism belongs to models, not BLAS
         return _run_study(tuning, train_test, dofs, models, folds, search, gp_max_samples, max_samples, curve_points,
-                          seed, dof_trials)
+                          seed, dof_trials, gp_warp)
 
 
 def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[str], models: Sequence[str], folds: int,
                search: str | dict[str, dict[str, list[Any]]], gp_max_samples: int, max_samples: int | None,
-               curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None) -> StudyResult:
+               curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str
+               ) -> StudyResult:
     results = []
     for dof in dofs:
         tune_rows, tt_rows = tuning, train_test
@@ -181,7 +183,7 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
             model_search = search.get(name, "fast") if isinstance(search, dict) else search
             t0 = time.perf_counter()
             est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
-                                    gp_max_samples=gp_max_samples)
+                                    gp_max_samples=gp_max_samples, gp_warp=gp_warp)
             cv, curve, fit_s, pred_s = evaluate(est, X, y, folds=folds, curve_points=curve_points)
             with _quiet():
                 final = clone(est).fit(X, y)

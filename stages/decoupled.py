@@ -82,7 +82,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
                          f"vehicle {vehicle.name!r}; both are needed", file=layout.features_dir(root))
     study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
                       gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
-                      seed=p.seed, dof_trials=p.trials)
+                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp)
     lineage = {"vehicle": vehicle.name, "vehicle_hash": config_hash(vehicle), "params_hash": config_hash(p),
                "params": p.model_dump(), "trials": sorted(set(tuning["trial"]) | set(train_test["trial"])),
                "rows": {"tuning": len(tuning), "train_test": len(train_test)}}

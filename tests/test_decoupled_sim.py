@@ -89,7 +89,7 @@ def gp_coverage(root: Path, dof: str) -> float:
 @pytest.mark.parametrize("dof", ["u", "v", "r"])
 def test_gp_band_covers_the_truth(study_root: Path, dof: str) -> None:
     # The GP sees (nu, nu|nu|) (DampingGP(warp="signed_square")). Over 8 seed sets of these trials
-    # (python bench/decoupled_coverage.py --configs plain default) the 2-sigma coverage of the truth averaged
+    # (python bench/decoupled_coverage.py --configs default corrected) the 2-sigma coverage of the truth averaged
     # u 0.95, v 0.97, r 0.88; with the paper's plain RBF on nu, u 0.84, v 0.97, r 0.83, the band missing around
     # nu = 0 on every seed. What r still misses is the plain Gaussian derivative's bias around r = 0
     # (differentiate.gaussian_degree=4 removes it: u 0.97, v 0.98, r 0.96; not the default, see docs/models.md).

@@ -67,6 +67,9 @@ class DecoupledParams(Frozen):
     gp_max_samples: int = Field(
         500, ge=50, description="GP training points, chosen evenly in velocity (O(n^3); bench/gp.py: ~0.5 s at 500, "
         "~2 s at 1000, ~18 s at 2000 per fit on 2 cores, with no gain in accuracy from 500 to 1000).")
+    gp_warp: Literal["signed_square", "none"] = Field(
+        "signed_square", description="GP inputs: (nu, nu|nu|) with a length scale each (default), or nu alone (the "
+        "paper's RBF, whose band misses the truth around nu = 0; docs/models.md).")
     seed: int = 0
     max_samples: int | None = Field(
         3000, ge=50, description="Each split thinned to this many rows by an even time stride (None: all rows).")

@@ -337,7 +337,8 @@ class DampingGP(RegressorMixin, BaseEstimator):
         return f"{self.theta_[0]:.3g} * RBF([{ls}] on {on}) + White({self.theta_[-1]:.3g})"
 
 
-def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000) -> BaseEstimator:
+def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000, gp_warp: str = "signed_square"
+                   ) -> BaseEstimator:
     """A fresh, unfitted estimator for one of :data:`MODEL_NAMES` (paper-default hyperparameters)."""
     if name == "ls":
         return LinearQuadraticDamping()
@@ -352,7 +353,7 @@ def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000) -> Base
         return Pipeline([("scale", StandardScaler()), ("svr", SVR(kernel="rbf", gamma=10, epsilon=0.1, C=1e3,
                                                                   cache_size=500))])
     if name == "gp":
-        return DampingGP(max_samples=gp_max_samples, random_state=seed)
+        return DampingGP(max_samples=gp_max_samples, random_state=seed, warp=gp_warp)
     raise ValueError(f"unknown decoupled model {name!r}; expected one of {MODEL_NAMES}")
 
 

@@ -1,0 +1,104 @@
+"""Calibration of the decoupled GP over many simulated trial sets: does its 2-sigma band cover the true damping?
+
+    python bench/decoupled_coverage.py                  # 8 seed sets, the default differentiate params
+    python bench/decoupled_coverage.py --configs default corrected     # the table of docs/models.md
+
+Each seed set is three single-DOF trials of the project's simulator (surge 120 s, sway 45 s, yaw 100 s, DVL
+drop-outs on; the trials of tests/test_decoupled_sim.py with seeds 11 + 100 k ...) written as MCAP and taken through
+the real stages (ingest ... features). On each DOF's train_test rows (at most 400, as the test) it fits LS and the
+GP with and without the (nu, nu|nu|) warp, and scores the curves on 2-98 % of the DOF's velocities against the
+simulator's true damping: coverage = fraction of the curve inside mean +- 2 sd, errors = mean |curve - truth|.
+Configs: ``default`` = the default differentiate params (plain Gaussian derivative, 0.25 s); ``corrected`` = the
+bias-corrected kernel (``gaussian_degree: 4``) at 0.35 s. Prints one markdown row per (config, GP inputs, DOF).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+for path in (ROOT, ROOT / "tests"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+CONFIGS = {"default": {}, "corrected": {"gaussian_degree": 4, "sigma_s": 0.35}}
+DOF_INDEX = {"u": 0, "v": 1, "r": 5}
+TRIALS = {"u": "surge", "v": "sway", "r": "yaw"}
+
+
+def true_curve(dof: str, x: np.ndarray) -> np.ndarray:
+    from pipeline.sim import true_damping
+
+    nu = np.zeros((len(x), 6))
+    nu[:, DOF_INDEX[dof]] = x
+    return true_damping(nu)[:, DOF_INDEX[dof]]
+
+
+def seed_set(root: Path, k: int, differentiate: dict) -> dict[str, object]:
+    """The train_test rows of each DOF's trial for seed set ``k``."""
+    from helpers_sim_store import build_store
+
+    from pipeline import store
+    from pipeline.config import Params
+
+    params = Params(features={"test_trials": []}, differentiate=differentiate)
+    specs = {"surge": ("surge", 11 + 100 * k, 120.0, True), "sway": ("sway", 12 + 100 * k, 45.0, True),
+             "yaw": ("yaw", 13 + 100 * k, 100.0, True)}
+    build_store(root, specs, params)
+    return {dof: store.load(root, trials=trial, split="train_test") for dof, trial in TRIALS.items()}
+
+
+def score(data: object, dof: str) -> dict[str, float]:
+    from pipeline.decoupled import dof_data
+    from pipeline.models.decoupled import DampingGP, LinearQuadraticDamping
+
+    X, y = dof_data(data, dof, 400)
+    x = X[:, 0]
+    lo, hi = np.quantile(x, [0.02, 0.98])
+    grid = np.linspace(x.min(), x.max(), 101)
+    grid = grid[(grid >= lo) & (grid <= hi)]
+    truth = true_curve(dof, grid)
+    out = {"ls_err": float(np.mean(np.abs(LinearQuadraticDamping().fit(X, y).predict(grid[:, None]) - truth)))}
+    for warp in ("none", "signed_square"):
+        mean, sd = DampingGP(max_samples=400, warp=warp).fit(X, y).predict(grid[:, None], return_std=True)
+        out[f"{warp}_cov"] = float(np.mean(np.abs(mean - truth) <= 2 * sd))
+        out[f"{warp}_err"] = float(np.mean(np.abs(mean - truth)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=8)
+    parser.add_argument("--configs", nargs="+", choices=sorted(CONFIGS), default=["default"])
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    rows: dict[tuple[str, str], list[dict[str, float]]] = {}
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="auvid-coverage-") as tmp:
+        for config in args.configs:
+            for k in range(args.seeds):
+                data = seed_set(Path(tmp) / f"{config}{k}", k, CONFIGS[config])
+                for dof in DOF_INDEX:
+                    rows.setdefault((config, dof), []).append(score(data[dof], dof))
+                print(f"# {config} seed set {k} done ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
+    print("| differentiate | GP inputs | DOF | coverage mean | coverage min | GP err | LS err | GP/LS |")
+    print("|---|---|---|---|---|---|---|---|")
+    for (config, dof), runs in rows.items():
+        ls = np.array([r["ls_err"] for r in runs])
+        for warp, label in (("none", "nu (paper)"), ("signed_square", "(nu, nu abs nu)")):
+            cov = np.array([r[f"{warp}_cov"] for r in runs])
+            err = np.array([r[f"{warp}_err"] for r in runs])
+            print(f"| {config} | {label} | {dof} | {cov.mean():.2f} | {cov.min():.2f} | {err.mean():.3f} | "
+                  f"{ls.mean():.3f} | {np.mean(err / ls):.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
