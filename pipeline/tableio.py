@@ -64,13 +64,16 @@ def write_parquet(table: pa.Table, target: str | Path, provenance: dict[str, Any
     """Write ``table`` atomically with schema version, package version and ``provenance`` in its metadata.
 
     Byte-identical output for identical input: fixed compression, no timestamps, sorted JSON metadata.
+    zstd level 1: half the compression time of level 3 for ~9 % more bytes on sensor columns (a one-hour IMU
+    table: 0.07 s against 0.14 s, 24.5 against 22.5 MB), which matters for ingest, the stage that grows with the
+    logs (docs/benchmarks.md).
     """
     meta = {"schema_version": SCHEMA_VERSION, "package_version": __version__, **provenance}
     existing = dict(table.schema.metadata or {})
     existing[META_KEY] = canonical_json(meta).encode()
     table = table.replace_schema_metadata(existing)
     with atomic_path(target) as tmp:
-        pq.write_table(table, tmp, compression="zstd", compression_level=3, use_dictionary=False,
+        pq.write_table(table, tmp, compression="zstd", compression_level=1, use_dictionary=False,
                        write_statistics=True, store_schema=True)
     return Path(target)
 
