@@ -155,14 +155,20 @@ def test_service_events_decode() -> None:
     assert data.read == 4 and set(data.columns["info.event_type"]) <= {0.0, 1.0, 2.0, 3.0}
 
 
-def test_ros1_waterlinked_custom_types() -> None:
+def _ros1_counts(path: Path) -> Counter:
+    """Messages per topic as the bag's own connection records count them (rosbags)."""
     from rosbags.rosbag1 import Reader
 
-    path = FIXTURES / "ros1/dtu_bluerov2_waterlinked.bag"
+    own: Counter = Counter()
     with Reader(path) as bag:
-        own = Counter()
         for c in bag.connections:
             own[c.topic] += c.msgcount
+    return own
+
+
+def test_ros1_waterlinked_custom_types() -> None:
+    path = FIXTURES / "ros1/dtu_bluerov2_waterlinked.bag"
+    own = _ros1_counts(path)
     reader = open_log(path)
     infos = reader.topics()
     assert {t: i.count for t, i in infos.items()} == dict(own)
@@ -179,13 +185,8 @@ def test_ros1_waterlinked_custom_types() -> None:
 
 
 def test_ros1_headerless_float64() -> None:
-    from rosbags.rosbag1 import Reader
-
     path = FIXTURES / "ros1/usv_sim_trialnu_sines.bag"
-    with Reader(path) as bag:
-        own = Counter()
-        for c in bag.connections:
-            own[c.topic] += c.msgcount
+    own = _ros1_counts(path)
     reader = open_log(path)
     infos = reader.topics()
     assert {t: i.count for t, i in infos.items()} == dict(own)
