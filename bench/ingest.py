@@ -13,8 +13,9 @@ read it too), ROS 1 bag (rosbags writer).
 
 Every measurement runs in a fresh subprocess; auvid and the two rosbags references take turns, ``--repeat`` times,
 and the table shows medians. ``auvid`` = the ingest stage's work for one log: ``pipeline.ingest.ingest_log`` (open,
-validate, read the 16 configured fields, provenance with the file's sha256, sorted tables) + ``write_parquet`` of
-every stream; ``raw`` = rosbags ``AnyReader`` iterating every message without deserializing; ``deser`` = the same
+validate, read the 16 configured fields, provenance with the file's sha256, sorted tables) + the stage's
+``write_trial`` (each stream's Parquet file and the ingest report, written atomically into the trial's
+directory); ``raw`` = rosbags ``AnyReader`` iterating every message without deserializing; ``deser`` = the same
 plus ``deserialize`` (rosbags' typestore is built before its clock starts; auvid's imports are warmed the same
 way). Ratios > 1 mean auvid is faster. Memory: the child's RSS after imports (base), its peak during
 ``ingest_log`` and its peak including the Parquet writes, and the size of the extracted arrays (the output
@@ -305,7 +306,7 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
     extra: dict[str, Any] = {}
     if method == "auvid":
         from pipeline.ingest import ingest_log
-        from pipeline.tableio import write_parquet
+        from stages.ingest import write_trial
 
         vehicle = bench_vehicle()
         _warm_imports()
@@ -315,8 +316,7 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
             start = time.perf_counter()
             out = ingest_log(path, vehicle)
             read_peak = _peak_mb()
-            for stream, table in out.tables.items():
-                write_parquet(table, Path(tmp) / f"{stream}.parquet", out.provenance[stream])
+            write_trial(Path(tmp), "trial", out.tables, out.provenance, out.report)
             seconds = time.perf_counter() - start
             peak = _peak_mb()
         count = sum(t["messages_read"] for t in out.report["topics"].values())

@@ -19,6 +19,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,7 @@ log = logging.getLogger(__name__)
 NAME = "ingest"
 QUARANTINE_FILE = "quarantine.json"
 _IGNORED = {".gitignore", ".dvcignore", ".DS_Store"}
+WRITE_THREADS = 4  # streams of one trial written at once
 
 
 def discover_logs(root: Path) -> list[Path]:
@@ -65,13 +67,22 @@ def _replace_dir(tmp: Path, target: Path) -> None:
 
 def write_trial(root: Path, trial: str, tables: dict[str, Any], provenance: dict[str, dict[str, Any]],
                 report: dict[str, Any]) -> list[Path]:
-    """Write one trial's streams and report atomically (all or nothing); returns the final paths."""
+    """Write one trial's streams and report atomically (all or nothing); returns the final paths.
+
+    The streams are written by a few threads at once (Parquet encoding and zstd release the GIL), largest first;
+    each file's bytes do not depend on that.
+    """
     target = layout.signals_dir(root, trial)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{trial}.tmp-", dir=target.parent))
     try:
-        for stream in sorted(tables):
-            write_parquet(tables[stream], tmp / f"{stream}.parquet", provenance[stream])
+        order = sorted(tables, key=lambda s: (-tables[s].nbytes, s))
+        workers = max(1, min(len(order), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                             else os.cpu_count() or 1, WRITE_THREADS))
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="parquet") as pool:
+            jobs = [pool.submit(write_parquet, tables[s], tmp / f"{s}.parquet", provenance[s]) for s in order]
+            for job in jobs:
+                job.result()
         write_json(report, tmp / "ingest_report.json")
         _replace_dir(tmp, target)
     finally:

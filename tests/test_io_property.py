@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from pipeline.io.base import Batcher, TopicInfo
+from pipeline.io.base import Batcher, Rows, TopicInfo
 from pipeline.io.cdr import TopicDecoder
 from pipeline.io.fields import TypeRegistry, resolve
 
@@ -163,7 +163,11 @@ def test_fast_equals_per_message(fields: list[tuple[str, str]], inner: list[str]
             rows = batch.rows["/t"]
             rows.starts += np.arange(n) % 3
             rows.lengths -= np.arange(n) % 3
-            dec.feed(batch.buf, rows)
+            # Fed as up to three batches, so that a layout the fast path keeps from one batch to the next is
+            # reused (or rightly not) on messages it was not worked out on.
+            cuts = sorted({0, n, *(int(c) for c in np.random.default_rng(seed).integers(0, n + 1, 2))})
+            for lo, hi in zip(cuts[:-1], cuts[1:], strict=False):
+                dec.feed(batch.buf, Rows(rows.starts[lo:hi], rows.lengths[lo:hi], rows.log_ns[lo:hi]))
             rows.starts -= np.arange(n) % 3
             rows.lengths += np.arange(n) % 3
         out[fast] = dec.result(n)
@@ -174,3 +178,36 @@ def test_fast_equals_per_message(fields: list[tuple[str, str]], inner: list[str]
         assert a.columns[p].tobytes() == b.columns[p].tobytes(), p
     if header:
         assert a.header_ns.tobytes() == b.header_ns.tobytes()
+
+
+def test_layout_of_one_batch_is_not_reused_on_messages_that_differ_in_their_keys() -> None:
+    """JointState messages of equal size whose joint names come in another order: the fast path keeps the
+    layout of a batch for the next, and must see that the selected joint now lies elsewhere."""
+    store = get_typestore(Stores.LATEST)
+    js = store.types["sensor_msgs/msg/JointState"]
+    header = store.types["std_msgs/msg/Header"]
+    stamp = store.types["builtin_interfaces/msg/Time"]
+
+    def msg(names: list[str], vel: list[float], sec: int) -> bytes:
+        m = js(header=header(stamp=stamp(sec=sec, nanosec=0), frame_id="t"), name=names,
+               position=np.zeros(2), velocity=np.array(vel), effort=np.zeros(2))
+        return bytes(store.serialize_cdr(m, "sensor_msgs/msg/JointState"))
+
+    first = [msg(["a", "bbbbb"], [1.0 + i, -1.0], i) for i in range(3)]
+    second = [msg(["aaaaa", "a"], [-2.0, 2.0 + i], 10 + i) for i in range(3)]  # "a" is now the second joint
+    assert {len(m) for m in first} == {len(m) for m in second}
+    registry = TypeRegistry(ros1=False)
+    info = TopicInfo("/js", "sensor_msgs/msg/JointState", 6, None, None, True)
+    plans = [resolve(registry, "sensor_msgs/msg/JointState", "velocity[name=a]", file=None, topic="/js")]
+    dec = TopicDecoder(registry, info, plans, ros1=False)
+    for part in (first, second):
+        batcher = Batcher()
+        for i, payload in enumerate(part):
+            batcher.add("/js", i, payload)
+        batch = batcher.flush()
+        assert batch is not None
+        dec.feed(batch.buf, batch.rows["/js"])
+    got = dec.result(6)
+    assert got.path == "fast"
+    assert got.columns["velocity[name=a]"].tolist() == [1.0, 2.0, 3.0, 2.0, 3.0, 4.0]
+    assert got.header_ns.tolist() == [i * 1_000_000_000 for i in (0, 1, 2, 10, 11, 12)]

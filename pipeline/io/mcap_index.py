@@ -253,10 +253,14 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
 def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
     """Payload starts, lengths and log times of the message records at ``offs``, checked against their chunks."""
     head = take_rows(data, offs, 23)  # opcode, length, channel, sequence, log time
-    if (head[:, 0] != 0x05).any():
+
+    def column(at: int, dtype: str) -> np.ndarray:  # one field of every record, a strided view (no copy)
+        return np.ndarray(shape=(len(offs),), dtype=dtype, buffer=head, offset=at, strides=(23,))
+
+    if (column(0, "u1") != 0x05).any():
         raise Damaged("message index points at a record that is not a message", at)
-    length = np.ascontiguousarray(head[:, 1:9]).view("<u8").ravel().astype(np.int64)
-    cid = np.ascontiguousarray(head[:, 9:11]).view("<u2").ravel()
+    length = column(1, "<u8").astype(np.int64)
+    cid = column(9, "<u2")
     if len(channels) == 1:
         bad = (cid != next(iter(channels))).any()
     else:
@@ -265,5 +269,5 @@ def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[i
         raise Damaged("message index points at a message of another channel", at)
     if (length < 22).any() or (offs + 9 + length > end).any():
         raise Damaged("message record overruns its chunk", at)
-    stamps = np.ascontiguousarray(head[:, 15:23]).view("<u8").ravel().astype(np.int64)
+    stamps = column(15, "<u8").astype(np.int64)
     return offs + 31, length - 22, stamps
