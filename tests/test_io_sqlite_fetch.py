@@ -80,3 +80,78 @@ def test_catalog_fills_time_ranges_from_the_read(tmp_path: Path, msgs: list) -> 
     for topic, cols in want.items():
         assert infos[topic].count == len(cols["log_ns"])
         assert (infos[topic].first_ns, infos[topic].last_ns) == (cols["log_ns"].min(), cols["log_ns"].max())
+
+
+def test_arrow_failure_midway_rereads_through_the_sqlite3_module(tmp_path: Path, msgs: list,
+                                                                 monkeypatch: pytest.MonkeyPatch,
+                                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """ADBC giving up after some batches were decoded (a column whose type changes between record batches):
+    the read starts again through the sqlite3 module, and nothing is counted twice."""
+    pytest.importorskip("adbc_driver_sqlite")
+    import pipeline.io.rosbag2 as rosbag2
+
+    path = write_rosbag2(tmp_path / "bag", msgs)
+    plain = _read(path, adbc=False, fast=True)
+    monkeypatch.setattr(rosbag2, "BATCH_ROWS", 16)
+    real = rosbag2._arrow_columns  # noqa: SLF001
+    calls = {"n": 0}
+
+    def flaky(rb: object) -> tuple:
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise rosbag2._ArrowUnfit("payload column of type string")  # noqa: SLF001
+        return real(rb)
+
+    monkeypatch.setattr(rosbag2, "_arrow_columns", flaky)
+    with open_log(path) as reader, caplog.at_level(logging.INFO):
+        topics = reader.read(REQUESTS).topics
+        assert reader._no_adbc  # noqa: SLF001
+    assert calls["n"] == 2
+    assert "reading rows through the sqlite3 module (payload column of type string)" in caplog.text
+    for topic, a in topics.items():
+        b = plain[topic]
+        assert a.read == b.read == a.expected
+        assert a.log_ns.tobytes() == b.log_ns.tobytes()
+        for field in a.columns:
+            assert a.columns[field].tobytes() == b.columns[field].tobytes(), (topic, field)
+
+
+def test_unreadable_by_adbc_from_the_start_falls_back_without_restart(tmp_path: Path, msgs: list,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("adbc_driver_sqlite")
+    import adbc_driver_manager
+    import adbc_driver_sqlite.dbapi as adbc
+
+    path = write_rosbag2(tmp_path / "bag", msgs)
+    plain = _read(path, adbc=False, fast=True)
+
+    def refuse(*_a: object, **_k: object) -> None:
+        raise adbc.OperationalError("cannot open", status_code=adbc_driver_manager.AdbcStatusCode.IO)
+
+    monkeypatch.setattr(adbc, "connect", refuse)
+    with open_log(path) as reader:
+        topics = reader.read(REQUESTS).topics
+        assert reader._no_adbc  # noqa: SLF001
+    for topic, a in topics.items():
+        assert a.read == plain[topic].read
+        assert a.columns.keys() == plain[topic].columns.keys()
+        for field in a.columns:
+            assert a.columns[field].tobytes() == plain[topic].columns[field].tobytes(), (topic, field)
+
+
+@pytest.mark.parametrize("adbc", [True, False], ids=["arrow", "sqlite3-module"])
+def test_directory_names_with_uri_characters_open_the_right_file_read_only(tmp_path: Path, msgs: list,
+                                                                         adbc: bool) -> None:
+    """'?', '#' and '%' in a bag's path are percent-encoded in the sqlite URI: unquoted they would end the file
+    name early and open, or create, another file beside the raw log."""
+    if adbc:
+        pytest.importorskip("adbc_driver_sqlite")
+    write_rosbag2(tmp_path / "plain" / "bag", msgs)  # (rosbags' own writer does not quote such paths)
+    parent = (tmp_path / "plain").rename(tmp_path / "sea trial #3?50%")
+    path = parent / "bag"
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    topics = _read(path, adbc=adbc, fast=True)
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+    want = expected(msgs)
+    for topic, cols in want.items():
+        np.testing.assert_array_equal(topics[topic].log_ns, cols["log_ns"])

@@ -15,6 +15,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import quote
 
 import numpy as np
 import yaml
@@ -213,7 +214,7 @@ class Rosbag2Reader(RawReader):
 
     def _connect(self, path: Path) -> sqlite3.Connection:
         try:
-            return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
+            return sqlite3.connect(_read_only_uri(path), uri=True)
         except sqlite3.Error as err:
             raise IngestError(f"cannot open sqlite storage: {err}", file=path) from err
 
@@ -340,6 +341,15 @@ class Rosbag2Reader(RawReader):
             con.close()
 
 
+def _read_only_uri(path: Path) -> str:
+    """The sqlite URI that opens ``path`` read-only and never writes beside it (no journal, no -wal file).
+
+    The path is percent-encoded: a '?', '#' or '%' in a directory name would otherwise end the file name early
+    and open (or create) another file.
+    """
+    return f"file:{quote(str(Path(path).resolve()), safe='/')}?mode=ro&immutable=1"
+
+
 class _ArrowUnfit(Exception):
     """The ADBC driver cannot give these rows as plain int64 / binary columns."""
 
@@ -354,7 +364,7 @@ def _arrow_batches(path: Path, sql: str) -> Iterator[tuple[np.ndarray, ...]] | N
 
     def gen() -> Iterator[tuple[np.ndarray, ...]]:
         try:
-            con = adbc.connect(f"file:{path}?mode=ro&immutable=1")
+            con = adbc.connect(_read_only_uri(path))
         except adbc.Error as err:
             raise _ArrowUnfit(f"ADBC cannot open it: {err}") from err
         try:
