@@ -9,7 +9,8 @@ the real stages (ingest ... features). On each DOF's train_test rows (at most 40
 GP with and without the (nu, nu|nu|) warp, and scores the curves on 2-98 % of the DOF's velocities against the
 simulator's true damping: coverage = fraction of the curve inside mean +- 2 sd, errors = mean |curve - truth|.
 Configs: ``default`` = the default differentiate params (plain Gaussian derivative, 0.25 s); ``corrected`` = the
-bias-corrected kernel (``gaussian_degree: 4``) at 0.35 s. Prints one markdown row per (config, GP inputs, DOF).
+bias-corrected kernel (``gaussian_degree: 4``) at 0.35 s, ``corrected-0.25`` the same at 0.25 s. Prints one
+markdown row per (config, GP inputs, DOF).
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ for path in (ROOT, ROOT / "tests"):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
-CONFIGS = {"default": {}, "corrected": {"gaussian_degree": 4, "sigma_s": 0.35}}
+CONFIGS = {"default": {}, "corrected": {"gaussian_degree": 4, "sigma_s": 0.35},
+           "corrected-0.25": {"gaussian_degree": 4, "sigma_s": 0.25}}
 DOF_INDEX = {"u": 0, "v": 1, "r": 5}
 TRIALS = {"u": "surge", "v": "sway", "r": "yaw"}
 
