@@ -58,6 +58,11 @@ def n_jobs() -> int:
         except ValueError:
             raise ConfigError(f"{ENV_JOBS} must be an integer, found {env!r}") from None
         return max(1, value)
+    return usable_cpus()
+
+
+def usable_cpus() -> int:
+    """The number of CPUs this process may run on."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux

@@ -27,6 +27,7 @@ from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.errors import PipelineError
 from pipeline.ingest import ingest_log, trial_id
+from pipeline.parallel import usable_cpus
 from pipeline.tableio import write_json, write_parquet
 from stages.common import StageResult, stage_main
 
@@ -77,8 +78,7 @@ def write_trial(root: Path, trial: str, tables: dict[str, Any], provenance: dict
     tmp = Path(tempfile.mkdtemp(prefix=f".{trial}.tmp-", dir=target.parent))
     try:
         order = sorted(tables, key=lambda s: (-tables[s].nbytes, s))
-        workers = max(1, min(len(order), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                             else os.cpu_count() or 1, WRITE_THREADS))
+        workers = max(1, min(len(order), usable_cpus(), WRITE_THREADS))
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="parquet") as pool:
             jobs = [pool.submit(write_parquet, tables[s], tmp / f"{s}.parquet", provenance[s]) for s in order]
             for job in jobs:

@@ -118,6 +118,14 @@ def take_rows(buf: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
     return items[at].view(np.uint8).reshape(len(at), width)
 
 
+def field_view(rows: np.ndarray, at: int, dtype: np.dtype | str) -> np.ndarray:
+    """Bytes ``[at, at + itemsize)`` of every row of a C-contiguous (n, width) byte array, as a strided 1-D view
+    of ``dtype`` values: no copy, and several times faster to read than a copy of the byte columns."""
+    if not rows.shape[0]:
+        return np.empty(0, dtype=dtype)
+    return np.ndarray(shape=(rows.shape[0],), dtype=dtype, buffer=rows, offset=at, strides=(rows.strides[0],))
+
+
 class Restart(Exception):
     """The reader found damage while reading and switched to its salvage path; read again from the start."""
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys.base import Nodetype
 
-from pipeline.io.base import Rows, TopicData, TopicInfo, take_rows
+from pipeline.io.base import Rows, TopicData, TopicInfo, field_view, take_rows
 from pipeline.io.fields import FieldPath, Step, TypeRegistry, extract, header_ns
 
 log = logging.getLogger(__name__)
@@ -448,13 +448,10 @@ def _uniform_columns(
         got.append((lo, take_rows(buf, rows.starts + lo, hi - lo)))
 
     def part(a: int, w: int, dtype: np.dtype | str | None = None) -> np.ndarray:
-        """Bytes [a, a + w) of every message: a (n, w) byte view, or with ``dtype`` (itemsize w) a strided
-        1-D view of those values (no copy; a typed strided read is several times faster than copying bytes)."""
+        """Bytes [a, a + w) of every message: a (n, w) byte view, or with ``dtype`` (itemsize w) its values."""
         for lo, win in got:
             if lo <= a and a + w <= lo + win.shape[1]:
-                if dtype is None:
-                    return win[:, a - lo:a - lo + w]
-                return np.ndarray(shape=(n,), dtype=dtype, buffer=win, offset=a - lo, strides=(win.strides[0],))
+                return win[:, a - lo:a - lo + w] if dtype is None else field_view(win, a - lo, dtype)
         raise AssertionError("byte range outside the spans read")
 
     for a, w in checks:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows, take_rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, take_rows
 from pipeline.io.mcap_reader import (
     MAGIC,
     OP_CHANNEL,
@@ -253,14 +253,10 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
 def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
     """Payload starts, lengths and log times of the message records at ``offs``, checked against their chunks."""
     head = take_rows(data, offs, 23)  # opcode, length, channel, sequence, log time
-
-    def column(at: int, dtype: str) -> np.ndarray:  # one field of every record, a strided view (no copy)
-        return np.ndarray(shape=(len(offs),), dtype=dtype, buffer=head, offset=at, strides=(23,))
-
-    if (column(0, "u1") != 0x05).any():
+    if (field_view(head, 0, "u1") != 0x05).any():
         raise Damaged("message index points at a record that is not a message", at)
-    length = column(1, "<u8").astype(np.int64)
-    cid = column(9, "<u2")
+    length = field_view(head, 1, "<u8").astype(np.int64)
+    cid = field_view(head, 9, "<u2")
     if len(channels) == 1:
         bad = (cid != next(iter(channels))).any()
     else:
@@ -269,5 +265,5 @@ def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[i
         raise Damaged("message index points at a message of another channel", at)
     if (length < 22).any() or (offs + 9 + length > end).any():
         raise Damaged("message record overruns its chunk", at)
-    stamps = column(15, "<u8").astype(np.int64)
+    stamps = field_view(head, 15, "<u8").astype(np.int64)
     return offs + 31, length - 22, stamps
