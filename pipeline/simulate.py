@@ -136,14 +136,52 @@ class DecoupledDynamics:
 
 
 class CoupledDynamics:
-    """``nudot = estimator.predict([nu, inputs])`` for a fitted multi-output estimator (a protocol, any library)."""
+    """``nudot = estimator.predict([nu, inputs])`` for a fitted multi-output estimator (a protocol, any library).
 
-    def __init__(self, estimator: Any) -> None:
+    A rollout calls it four times per step with a small batch, where scikit-learn's per-call input validation
+    costs more than the kernel sums; for the project's SVRs (:func:`svr_kernel_predictor`) the same sums are done
+    in plain numpy (equal to libsvm's to float rounding). ``fast=False`` always calls ``predict``.
+    """
+
+    def __init__(self, estimator: Any, *, fast: bool = True) -> None:
         self.estimator = estimator
+        self._predict = (svr_kernel_predictor(estimator) if fast else None) or estimator.predict
 
     def __call__(self, nu: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        out = np.asarray(self.estimator.predict(np.hstack([nu, inputs])), dtype=float)
+        out = np.asarray(self._predict(np.hstack([nu, inputs])), dtype=float)
         return out.reshape(nu.shape)
+
+
+def svr_kernel_predictor(estimator: Any) -> Callable[[np.ndarray], np.ndarray] | None:
+    """``predict`` of a fitted :class:`pipeline.models.svr.PerOutputRegressor` of scaled-RBF SVRs as numpy sums
+    over the support vectors, without scikit-learn's per-call checks; None for any other estimator ("not mine").
+
+    Per output: ``z = (x - mean) / scale * sqrt(gamma)`` (the estimator's own transform), ``y = sum_j a_j
+    exp(-|z - s_j|^2) + b`` (libsvm's RBF with gamma = 1; ``a`` the dual coefficients, ``b`` the intercept).
+    """
+    from sklearn.svm import SVR
+
+    parts = []
+    for est in getattr(estimator, "estimators_", None) or []:
+        svr, scaler, scale = (getattr(est, k, None) for k in ("svr_", "scaler_", "feature_scale_"))
+        if not isinstance(svr, SVR) or svr.kernel != "rbf" or getattr(svr, "_gamma", None) != 1.0 or \
+                scale is None or getattr(scaler, "mean_", None) is None or getattr(scaler, "scale_", None) is None:
+            return None
+        parts.append((scaler.mean_, scaler.scale_, np.asarray(scale, dtype=float), svr.support_vectors_,
+                      svr.dual_coef_[0], float(svr.intercept_[0])))
+    if not parts or getattr(estimator, "_y_1d", True):
+        return None
+
+    def predict(X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X, dtype=float)
+        out = np.empty((X.shape[0], len(parts)))
+        for k, (mean, std, scale, sv, coef, b) in enumerate(parts):
+            z = (X - mean) / std * scale
+            d2 = np.square(z[:, None, :] - sv[None, :, :]).sum(axis=2)
+            out[:, k] = np.exp(-d2) @ coef + b
+        return out
+
+    return predict
 
 
 def damping_tables(models: Mapping[str, Any], ranges: Mapping[str, tuple[float, float]], n_points: int = 2001

@@ -115,11 +115,12 @@ def test_determinism_same_seed(vehicle: Vehicle) -> None:
 
 
 def test_stream_rates_and_stamps(trial: SimTrial) -> None:
-    counts = {name: len(s) for name, s in trial.streams.items()}
-    assert counts == {"ahrs": 20 * 120 + 1, "fog": 20 * 100 + 1, "depth": 20 * 10 + 1, "dvl": 20 * 4 + 1,
-                      "thrusters": 20 * 20 + 1}
+    counts = {name: len(s) for name, s in trial.streams.items() if name != "dvl"}
+    assert counts == {"ahrs": 20 * 120 + 1, "fog": 20 * 100 + 1, "depth": 20 * 10 + 1, "thrusters": 20 * 20 + 1}
     t_ns = trial.truth["t_ns"].to_numpy()
     dvl = trial.streams["dvl"]
+    gaps = np.diff(t_ns[dvl.index]) / 1e9  # irregular pings, 0.25-0.31 s apart (snapped to the 5 ms truth grid)
+    assert gaps.min() >= 0.25 - 0.005 and gaps.max() <= 0.31 + 0.005 and gaps.std() > 0.01
     np.testing.assert_array_equal(dvl.header_ns - t_ns[dvl.index], -50_000_000)
     np.testing.assert_array_equal(dvl.log_ns - t_ns[dvl.index], 20_000_000)
 
@@ -138,7 +139,7 @@ def test_dvl_lever_arm_measurement(trial: SimTrial, vehicle: Vehicle) -> None:
 
 
 def test_dvl_dropout_bursts(vehicle: Vehicle) -> None:
-    opts = SensorOptions(dropout_bursts_per_min=6.0, dropout_duration_s=(2.0, 3.0))
+    opts = SensorOptions(dropout_bursts_per_min=6.0, dropout_duration_s=(2.0, 3.0), dvl_lock_loss_fraction=0.0)
     trial = simulate_trial(vehicle, duration_s=30.0, seed=11, sensors=opts)
     dvl = trial.streams["dvl"]
     lock = dvl.fields["bottom_lock"]
@@ -148,7 +149,40 @@ def test_dvl_dropout_bursts(vehicle: Vehicle) -> None:
         assert np.all(dvl.fields[f"velocity.{a}"][lost] == 0.0)
         assert np.all(dvl.fields[f"velocity.{a}"][lock] != 0.0)
     runs = np.diff(np.flatnonzero(np.diff(np.r_[0, lost.astype(int), 0])))[::2]
-    assert runs.min() >= 4  # bursts of >= 2 s at 4 Hz, not isolated samples
+    assert runs.min() >= 6  # bursts of >= 2 s at 3.2-4 Hz, not isolated samples
+
+
+def test_dvl_lock_loss_chain_has_the_configured_fraction_and_burst_length() -> None:
+    from pipeline.sim.sensors import lock_chain
+
+    lock = lock_chain(200_000, 0.2, 6.0, np.random.default_rng(3))
+    lost = ~lock
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, lost.astype(int), 0])))[::2]
+    assert lost.mean() == pytest.approx(0.2, abs=0.01)
+    assert runs.mean() == pytest.approx(6.0, rel=0.05)
+
+
+def test_default_dvl_is_realistic(vehicle: Vehicle) -> None:
+    """The default DVL: 0.02 m/s white noise, 0.5 % outliers, 0.3 % scale, 1 deg yaw misalignment, ~20 % lost."""
+    opts = SensorOptions(dvl_averaging_s=0.0)
+    trial = simulate_trial(vehicle, duration_s=600.0, seed=5, sensors=opts)
+    dvl = trial.streams["dvl"]
+    lock = dvl.fields["bottom_lock"]
+    assert 0.15 < 1 - lock.mean() < 0.25
+    nu = nu_of(trial.truth)[dvl.index]
+    r = np.array(vehicle.sensors.dvl.position_m)
+    R_true = dvl_rotation(vehicle.sensors.dvl.rotation_rpy_deg) @ dvl_rotation((0.0, 0.0, 1.0))
+    ideal = (nu[:, :3] + np.cross(nu[:, 3:], r)) @ R_true * 1.003
+    got = np.stack([dvl.fields[f"velocity.{a}"] for a in "xyz"], axis=1)
+    err = (got - ideal)[lock]
+    mad_sd = 1.4826 * np.median(np.abs(err), axis=0)
+    np.testing.assert_allclose(mad_sd, 0.02, rtol=0.1)
+    big = np.any(np.abs(err) > 0.1, axis=1)  # 5 sigma: outliers only
+    assert 0.001 < big.mean() < 0.01
+    # the configured mount (without the misalignment) leaves a velocity-proportional error across track
+    R_cfg = dvl_rotation(vehicle.sensors.dvl.rotation_rpy_deg)
+    naive = (nu[:, :3] + np.cross(nu[:, 3:], r)) @ R_cfg
+    assert np.median(np.abs(got - naive)[lock]) > np.median(np.abs(err))
 
 
 def test_ahrs_quaternion_conventions(trial: SimTrial, vehicle: Vehicle) -> None:
@@ -185,9 +219,9 @@ def short_trial(vehicle: Vehicle) -> SimTrial:
     return simulate_trial(vehicle, duration_s=4.0, seed=5)
 
 
-def expected_counts(duration_s: float) -> dict[str, int]:
-    rates = {"/ahrs/imu": 120, "/fog/rate": 100, "/pressure/depth": 10, "/dvl/data": 4, "/thrusters/joint_states": 20}
-    return {topic: int(duration_s * rate) + 1 for topic, rate in rates.items()}
+def expected_counts(duration_s: float, dvl_pings: int) -> dict[str, int]:
+    rates = {"/ahrs/imu": 120, "/fog/rate": 100, "/pressure/depth": 10, "/thrusters/joint_states": 20}
+    return {"/dvl/data": dvl_pings, **{topic: int(duration_s * rate) + 1 for topic, rate in rates.items()}}
 
 
 @pytest.mark.parametrize("fmt", ["mcap", "ros1", "ros2-sqlite3", "ros2-mcap"])
@@ -201,7 +235,7 @@ def test_written_logs_open_with_anyreader(fmt: str, short_trial: SimTrial, tmp_p
         counts: dict[str, int] = {}
         for conn, _, _ in reader.messages():
             counts[conn.topic] = counts.get(conn.topic, 0) + 1
-        assert counts == expected_counts(4.0)
+        assert counts == expected_counts(4.0, len(short_trial.streams["dvl"]))
         dvl_conn = [c for c in reader.connections if c.topic == "/dvl/data"]
         assert dvl_conn[0].msgtype == "auv_msgs/msg/DVL"
         stream = short_trial.streams["dvl"]
@@ -229,11 +263,11 @@ def test_mcap_readable_by_mcap_ros2_decoder(short_trial: SimTrial, tmp_path) -> 
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
-        assert summary.statistics.message_count == sum(expected_counts(4.0).values())
+        assert summary.statistics.message_count == sum(expected_counts(4.0, len(short_trial.streams["dvl"])).values())
         schemas = {s.name: s.data.decode() for s in summary.schemas.values()}
         assert "bool bottom_lock" in schemas["auv_msgs/msg/DVL"]
         decoded = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/dvl/data"])]
-    assert len(decoded) == 17
+    assert len(decoded) == len(short_trial.streams["dvl"])
     assert decoded[3].velocity.y == short_trial.streams["dvl"].fields["velocity.y"][3]
 
 

@@ -1,5 +1,10 @@
 """Sensor models: each stream samples the truth at its own rate, adds noise, and stamps its messages.
 
+The DVL is as real ones are (defaults: a 3.6 Hz DVL as measured on a basin trial): pings 0.25-0.31 s apart,
+each the average velocity over 0.1 s, white noise 0.02 m/s per axis, 0.5 % outliers of 0.15 m/s, a 0.3 %
+scale error, its true mount turned 1 deg in yaw from the configured one, and bottom lock lost on about 20 % of
+the pings in bursts of 6 pings on average (a two-state Markov chain), velocity zero while lost.
+
 Sample times are the nominal times ``k / rate_hz`` snapped to the integration grid, so a noise-free stream
 equals the truth at those rows exactly. Every message has a log time (``t + latency_s``) and a header stamp
 (``t + clock_offset_s``, the sensor's own clock); the vehicle config's ``offset_s`` undoes the one its
@@ -38,14 +43,22 @@ class SensorOptions:
     ahrs_convention: str = "frd_ned"                                        # or "flu_enu"
     fog: StreamSpec = StreamSpec(100.0, 0.002, 0.0, 2e-4)
     depth: StreamSpec = StreamSpec(10.0, 0.005, 0.0, 0.01)
-    dvl: StreamSpec = StreamSpec(4.0, 0.020, -0.05, 0.005)
+    dvl: StreamSpec = StreamSpec(3.6, 0.020, -0.05, 0.02)                 # noise: white, m/s per axis
+    dvl_ping_interval_s: tuple[float, float] | None = (0.25, 0.31)          # None: regular pings at dvl.rate_hz
+    dvl_outlier_rate: float = 0.005                                         # fraction of pings with an outlier
+    dvl_outlier_mps: float = 0.15                                           # its SD per axis
+    dvl_scale_error: float = 0.003                                          # measured = (1 + e) x true
+    dvl_misalignment_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 1.0)  # true mount - configured mount
+    dvl_averaging_s: float = 0.1                                            # each ping averages this window
+    dvl_lock_loss_fraction: float = 0.2                                     # pings without bottom lock ...
+    dvl_lock_loss_mean_pings: float = 6.0                                   # ... in bursts of this mean length
     thrusters: StreamSpec = StreamSpec(20.0, 0.001, 0.0, 5.0)               # noise in rpm
     thruster_unit: str = "rad/s"                                            # or "rpm"
     bottom_depth_m: float = 10.0
-    dropout_bursts_per_min: float = 1.0
+    dropout_bursts_per_min: float = 0.0                                     # long outages (turns, steep slopes)
     dropout_duration_s: tuple[float, float] = (2.0, 8.0)
-    noise: bool = True
-    dropouts: bool = True
+    noise: bool = True      # False: every sensor ideal (no noise, outliers, scale, misalignment or averaging)
+    dropouts: bool = True   # False: the DVL never loses bottom lock
 
 
 @dataclass
@@ -99,10 +112,39 @@ def dvl_measurement(nu: np.ndarray, position_m: np.ndarray, rot_dvl_to_body: np.
     return v_body @ rot_dvl_to_body  # rows: (R^T v)^T = v^T R
 
 
+def ping_rows(n_rows: int, grid_hz: float, interval_s: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """Truth rows of irregular pings: intervals uniform in ``interval_s``, snapped to the truth grid."""
+    lo, hi = interval_s
+    duration_s = (n_rows - 1) / grid_hz
+    count = int(duration_s / lo) + 2
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(lo, hi, size=count))])
+    t = t[t <= duration_s]
+    return np.unique(np.minimum(np.rint(t * grid_hz).astype(np.int64), n_rows - 1))
+
+
+def lock_chain(n_pings: int, fraction: float, mean_pings: float, rng: np.random.Generator) -> np.ndarray:
+    """True where a ping has bottom lock: a two-state Markov chain losing lock on ``fraction`` of the pings in
+    bursts of ``mean_pings`` on average (exit probability 1/mean, entry fraction/(1-fraction)/mean)."""
+    lock = np.ones(n_pings, dtype=bool)
+    if fraction <= 0 or n_pings == 0:
+        return lock
+    p_exit = 1.0 / max(mean_pings, 1.0)
+    p_enter = min(fraction / (1.0 - fraction) * p_exit, 1.0)
+    draws = rng.uniform(size=n_pings)
+    lost = draws[0] < fraction
+    for k in range(n_pings):
+        if k:
+            lost = draws[k] >= p_exit if lost else draws[k] < p_enter
+        lock[k] = not lost
+    return lock
+
+
 def dropout_mask(t_s: np.ndarray, duration_s: float, opts: SensorOptions, rng: np.random.Generator) -> np.ndarray:
-    """True where the DVL has bottom lock; bursts of lost lock at random times."""
-    lock = np.ones(t_s.size, dtype=bool)
-    if not opts.dropouts or opts.dropout_bursts_per_min <= 0:
+    """True where the DVL has bottom lock: per-ping bursts (:func:`lock_chain`) and long outages at random times."""
+    if not opts.dropouts:
+        return np.ones(t_s.size, dtype=bool)
+    lock = lock_chain(t_s.size, opts.dvl_lock_loss_fraction, opts.dvl_lock_loss_mean_pings, rng)
+    if opts.dropout_bursts_per_min <= 0:
         return lock
     n_bursts = rng.poisson(opts.dropout_bursts_per_min * duration_s / 60.0)
     starts = np.sort(rng.uniform(0.0, duration_s, size=n_bursts))
@@ -148,9 +190,24 @@ def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: Sensor
                           {"point.x": np.zeros(i.size), "point.y": np.zeros(i.size), "point.z": depth},
                           "pressure", index=i)
 
-    i = sample_rows(rows, grid_hz, opts.dvl.rate_hz)
-    vel = dvl_measurement(nu[i], vehicle_mount["position_m"], vehicle_mount["rotation"])
+    if opts.dvl_ping_interval_s is None:
+        i = sample_rows(rows, grid_hz, opts.dvl.rate_hz)
+    else:
+        i = ping_rows(rows, grid_hz, opts.dvl_ping_interval_s, rng)
+    rot = vehicle_mount["rotation"]
+    if opts.noise and any(opts.dvl_misalignment_rpy_deg):
+        rot = rot @ dvl_rotation(opts.dvl_misalignment_rpy_deg)
+    half = int(round(0.5 * opts.dvl_averaging_s * grid_hz)) if opts.noise else 0
+    if half > 0:  # the ping's velocity is the mean over a window centred on its stamp
+        csum = np.concatenate([np.zeros((1, 6)), np.cumsum(nu, axis=0)])
+        lo, hi = np.maximum(i - half, 0), np.minimum(i + half, rows - 1)
+        nu_ping = (csum[hi + 1] - csum[lo]) / (hi - lo + 1)[:, None]
+    else:
+        nu_ping = nu[i]
+    vel = dvl_measurement(nu_ping, vehicle_mount["position_m"], rot) * (1.0 + scale * opts.dvl_scale_error)
     vel = vel + scale * opts.dvl.noise * rng.standard_normal(vel.shape)
+    outlier = rng.uniform(size=i.size) < scale * opts.dvl_outlier_rate
+    vel[outlier] += opts.dvl_outlier_mps * rng.standard_normal((int(outlier.sum()), 3))
     lock = dropout_mask(truth["t_s"][i], duration_s, opts, rng)
     vel[~lock] = 0.0
     altitude = np.where(lock, opts.bottom_depth_m - eta[i, 2], 0.0)
