@@ -5,7 +5,11 @@ vehicle config it returns a pyarrow Table (``t_ns`` int64 from the configured cl
 sorted stably; one float64 column per signal in the unit its name states; a ``*_quat`` signal as four columns
 ``_w _x _y _z``), the provenance that goes into the Parquet metadata (``docs/contracts.md``), and an ingest
 report (JSON-able): per topic messages read vs held by the storage, time span, mean rate, largest gap, decode
-path; salvage; failed topics; CSV rows dropped; quarantine reasons.
+path; salvage; failed topics; CSV rows dropped; quarantine reasons; per stream, the time-stamp checks of
+:mod:`pipeline.stamps` (``stamps`` counts and ``stamp_warnings``, each with the remedy; also logged as warnings).
+
+A stream with ``time: {rate_hz: R}`` gets ``t_ns = first + k / R`` (k the row or message index, the first
+stamp from its clock) plus its offset, instead of its own stamps.
 
 Validation happens before anything is decoded: every configured topic (or CSV file and column) must exist, a
 ``header`` clock needs a message type with a header; the :class:`~pipeline.errors.IngestError` lists what is
@@ -32,6 +36,7 @@ from pipeline.config import Vehicle, config_hash
 from pipeline.config.sources import StreamSource
 from pipeline.errors import IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo
+from pipeline.stamps import check_stamps, fmt_rate, uniform_times
 from pipeline.tableio import file_sha256
 from pipeline.units import conversion
 
@@ -204,14 +209,18 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         if data.read == 0 or data.log_ns.size == 0:
             out.quarantine.append({**where, "reason": "configured topic holds no message (or no valid row)"})
             continue
-        table, stamps = _build_table(path, name, stream, data)
+        table, stamps, checked = _build_table(path, name, stream, data)
         out.tables[name] = table
         stream_report = {"topic" if not is_csv else "file": source, "clock": stream.clock,
                          "offset_s": stream.offset_s, **time_stats(stamps)}
+        if stream.time is not None:
+            stream_report["time_rate_hz"] = stream.time.rate_hz
+        stream_report.update(_stamp_report(out.trial, path, name, source, stream, data, checked))
         report["streams"][name] = stream_report
         prov: dict[str, Any] = {
             "trial": out.trial, "stream": name, "source_file": source_file, "source_sha256": sha,
             "message_type": data.msgtype, "clock": stream.clock, "offset_s": stream.offset_s,
+            **({"time_rate_hz": stream.time.rate_hz} if stream.time is not None else {}),
             "config_hash": chash, "decode_path": data.path, "reader_format": fmt,
             "fields": {p.column: {"signal": p.signal, "field": p.field, "unit": p.unit}
                        for p in column_plans(stream)},
@@ -265,7 +274,29 @@ def _topic_report(data: TopicData, info: TopicInfo | None) -> dict[str, Any]:
     return rep
 
 
-def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData) -> tuple[pa.Table, np.ndarray]:
+def _stamp_report(trial: str, path: Path, name: str, source: str, stream: StreamSource, data: TopicData,
+                  checked: np.ndarray) -> dict[str, Any]:
+    """The stream's stamp checks for the report; each warning is logged with trial, file, stream and remedy."""
+    if stream.time is not None:
+        label = f"times rebuilt at {fmt_rate(stream.time.rate_hz)} Hz from the first {stream.clock} stamp"
+    elif stream.clock == "column":
+        assert stream.csv is not None
+        label = f"stamps of time column {stream.csv.time_column!r}"
+    else:
+        label = None
+    log_ns = np.asarray(data.log_ns) if stream.clock == "header" else None
+    result = check_stamps(checked, clock=stream.clock, log_ns=log_ns, label=label)
+    for w in result.warnings:
+        log.warning("%s (%s): stream %r (%s): %s; e.g. %s. Remedy: %s", trial, path.name, name, source, w.message,
+                    ", ".join(w.examples) or "-", w.remedy)
+    stamps = result.as_dict()
+    warnings = stamps.pop("warnings")
+    return {"stamps": stamps, "stamp_warnings": warnings}
+
+
+def _build_table(path: Path, name: str, stream: StreamSource,
+                 data: TopicData) -> tuple[pa.Table, np.ndarray, np.ndarray]:
+    """The stream's table, its t_ns in storage order, and the stamps to check (t_ns before the offset)."""
     if stream.clock == "header":
         if data.header_ns is None:
             raise IngestError(f"stream {name!r} uses clock: header, but {data.msgtype} has no header stamp",
@@ -273,6 +304,10 @@ def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData) -
         base = np.asarray(data.header_ns, dtype=np.int64)
     else:
         base = np.asarray(data.log_ns, dtype=np.int64)
+    if stream.time is not None and base.size:
+        rows = getattr(data, "rows", None)
+        rows = np.arange(base.size, dtype=np.int64) if rows is None else np.asarray(rows, dtype=np.int64)
+        base = uniform_times(int(base[0]), rows, stream.time.rate_hz)
     t_ns = base + np.int64(round(stream.offset_s * 1e9))
     # Sorted stably by time; logs are nearly always in order already, and then no permuted copies are made.
     order = None if t_ns.size < 2 or bool((t_ns[1:] >= t_ns[:-1]).all()) else np.argsort(t_ns, kind="stable")
@@ -288,4 +323,4 @@ def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData) -
             raw = np.asarray(data.columns[key], dtype=np.float64)
         values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
         arrays[plan.column] = pa.array(values if order is None else values[order], type=pa.float64())
-    return pa.table(arrays), t_ns
+    return pa.table(arrays), t_ns, base

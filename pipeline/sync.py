@@ -15,6 +15,10 @@ signals contract of ``docs/contracts.md``), one DataFrame out (the synced contra
   sample counts as an invalid sample.
 - **DVL**: a source sample with the bottom-lock flag 0 or (``zero_is_invalid``) an exact zero vector is an
   invalid sample; grid samples whose nearest flag sample is 0 are invalid too.
+- **Duplicate stamps**: samples of one stream that share a time stamp are merged into one before anything
+  else, each signal averaged over the finite values (``*_flag`` signals take the minimum, so one unlocked DVL
+  sample makes the merged one unlocked; quaternions are sign-aligned first); nothing is dropped silently: the
+  count is logged as a warning and left in ``frame.attrs["duplicate_stamps"]``.
 - **Segments**: ``segment`` (int32) numbers the contiguous runs where every required signal is valid, in
   time order from 0; runs shorter than ``min_segment_s`` (counted as samples x period) get -1.
 
@@ -34,6 +38,7 @@ import pyarrow as pa
 from pipeline.config.params import SyncParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import ConfigError, SchemaError, SyncError
+from pipeline.stamps import fmt_ns
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +102,48 @@ def _as_arrays(stream: str, table: pd.DataFrame | pa.Table) -> dict[str, np.ndar
     for name, values in cols.items():
         out[name] = np.asarray(values, dtype=np.float64)[order]
     return out
+
+
+def merge_duplicates(cols: dict[str, np.ndarray],
+                     quats: list[tuple[str, ...]] = ()) -> tuple[dict[str, np.ndarray], int]:
+    """Merge the samples of one time-sorted stream that share a stamp; returns (columns, samples merged away).
+
+    Per column, the mean of the finite values of each run of equal stamps (NaN if none is finite; a run whose
+    values are all equal keeps that value exactly); ``*_flag`` columns take the minimum. The columns of each
+    quaternion in ``quats`` (w, x, y, z) are flipped to the sign of the run's first sample before averaging
+    (q and -q are one attitude). Without duplicates the input is returned as is.
+    """
+    t = cols["t_ns"]
+    if t.size < 2:
+        return cols, 0
+    new_run = np.concatenate([[True], t[1:] != t[:-1]])
+    starts = np.flatnonzero(new_run)
+    merged = int(t.size - starts.size)
+    if merged == 0:
+        return cols, 0
+    run_of = np.cumsum(new_run) - 1
+    cols = dict(cols)
+    for group in quats:
+        q = np.stack([cols[c] for c in group], axis=1)
+        dots = np.einsum("ij,ij->i", q, q[starts][run_of])
+        sign = np.where(np.nan_to_num(dots) < 0, -1.0, 1.0)
+        for j, c in enumerate(group):
+            cols[c] = q[:, j] * sign
+    out = {"t_ns": t[starts]}
+    for name, x in cols.items():
+        if name == "t_ns":
+            continue
+        finite = np.isfinite(x)
+        n = np.add.reduceat(finite.astype(np.int64), starts)
+        if name.endswith("_flag"):
+            value = np.minimum.reduceat(np.where(finite, x, np.inf), starts)
+        else:
+            ref = np.maximum.reduceat(np.where(finite, x, -np.inf), starts)
+            dev = np.add.reduceat(np.where(finite, x - ref[run_of], 0.0), starts)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                value = ref + dev / n
+        out[name] = np.where(n > 0, value, np.nan)
+    return out, merged
 
 
 def _find_signals(arrays: dict[str, dict[str, np.ndarray]]) -> dict[str, _Signal]:
@@ -221,6 +268,34 @@ def _dvl_sample_ok(vehicle: Vehicle, signals: dict[str, _Signal],
     return out
 
 
+def _no_overlap_message(arrays: dict[str, dict[str, np.ndarray]], req_streams: list[str], start: int, end: int,
+                        rate_hz: float, duplicates: dict[str, dict[str, int]]) -> str:
+    """Which streams do not overlap, each with its time span, and where to look for the cause."""
+    span = {s: (int(arrays[s]["t_ns"][0]), int(arrays[s]["t_ns"][-1])) for s in req_streams}
+    apart = {s: [o for o in req_streams if o != s and (span[o][0] > span[s][1] or span[o][1] < span[s][0])]
+             for s in req_streams}
+    odd = [s for s in req_streams if len(apart[s]) > (len(req_streams) - 1) / 2] or [s for s in req_streams
+                                                                                     if apart[s]]
+    spans = []
+    for s in req_streams:
+        first, last = span[s]
+        n = duplicates.get(s, {}).get("samples", len(arrays[s]["t_ns"]))
+        same = f" (all {n} stamps equal)" if first == last and n > 1 else ""
+        mark = ""
+        if s in odd:
+            mark = (" <- overlaps none of the others" if len(apart[s]) == len(req_streams) - 1
+                    else f" <- no overlap with {apart[s]}")
+        spans.append(f"{s!r}: {fmt_ns(first)} to {fmt_ns(last)}{same}{mark}")
+    if start > end:
+        what = f"latest start {fmt_ns(start)} is after earliest end {fmt_ns(end)}"
+    else:
+        what = f"the overlap {fmt_ns(start)} to {fmt_ns(end)} holds no {rate_hz:g} Hz grid point"
+    return (f"the streams carrying required signals do not overlap in time ({what}); " + "; ".join(spans)
+            + ". A stream at zero, at a constant or near 0 s while the others hold wall-clock time usually has "
+            "zero or simulation-time header stamps: see 'stamp_warnings' in the trial's ingest_report.json, and "
+            "set `clock: log` (or `time: {rate_hz: ...}`) for that stream, or fix its `offset_s`")
+
+
 def check_params(vehicle: Vehicle, params: SyncParams) -> None:
     """Per-signal settings must name configured signals (a typo would silently fall back to the default)."""
     known = set(vehicle.signal_names())
@@ -237,6 +312,16 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
     check_params(vehicle, params)
     arrays = {name: _as_arrays(name, table) for name, table in streams.items()}
     signals = _find_signals(arrays)
+    duplicates: dict[str, dict[str, int]] = {}
+    for stream in sorted(arrays):
+        quats = [sig.columns for sig in signals.values() if sig.stream == stream and len(sig.columns) == 4]
+        n_before = len(arrays[stream]["t_ns"])
+        arrays[stream], merged = merge_duplicates(arrays[stream], quats)
+        if merged:
+            duplicates[stream] = {"samples": n_before, "merged_away": merged, "kept": n_before - merged}
+            log.warning("stream %r: %d of %d samples share a time stamp with the one before; merged into %d "
+                        "(each signal averaged); see the stamp warnings of the ingest report for the remedy",
+                        stream, merged, n_before, n_before - merged)
     required = required_signals(vehicle)
     missing = [s for s in required if s not in signals]
     if missing:
@@ -251,7 +336,7 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
     period_ns = int(round(NS_PER_S / params.rate_hz))
     grid = grid_for(start, end, period_ns)
     if len(grid) == 0:
-        raise SyncError(f"streams {req_streams} do not overlap (latest start {start} ns, earliest end {end} ns)")
+        raise SyncError(_no_overlap_message(arrays, req_streams, start, end, params.rate_hz, duplicates))
 
     dvl_ok = _dvl_sample_ok(vehicle, signals, arrays)
     out: dict[str, np.ndarray] = {"t_ns": grid}
@@ -295,5 +380,6 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
     for name in signals:
         frame[valid_column(name)] = valid[name]
     frame["segment"] = seg
+    frame.attrs["duplicate_stamps"] = duplicates
     log.debug("synced %d samples at %g Hz, %d segment(s)", len(grid), params.rate_hz, int(seg.max()) + 1)
     return frame

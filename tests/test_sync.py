@@ -157,3 +157,53 @@ def test_per_signal_params_must_name_configured_signals() -> None:
     with pytest.raises(ConfigError, match="n9_rpm") as info:
         synchronize(constant_streams(5.0), VEHICLE, SyncParams(interpolation={"n9_rpm": "zoh"}))
     assert info.value.field == "sync.interpolation.n9_rpm"
+
+
+def test_duplicate_stamps_are_averaged_per_signal_and_reported(caplog: pytest.LogCaptureFixture) -> None:
+    streams = constant_streams(5.0)
+    fog = streams["fog"]  # 100 Hz on a 20 Hz grid: grid points fall on source samples
+    t = fog["t_ns"].to_numpy().copy()
+    r = np.zeros(len(t))
+    t[11] = t[10]  # three samples stamped alike, the middle one missing: mean of the finite two
+    t[12] = t[10]
+    r[10], r[11], r[12] = 1.0, np.nan, 4.0
+    t[21] = t[20]
+    r[20], r[21] = 0.3, 0.3  # equal values stay exact
+    streams["fog"] = stream(t, r_fog_radps=r)
+    with caplog.at_level("WARNING", logger="pipeline.sync"):
+        out = synchronize(streams, VEHICLE, SyncParams(min_segment_s=1))
+    at = {int(k): i for i, k in enumerate(out["t_ns"])}
+    assert out["r_fog_radps"].iloc[at[int(t[10])]] == 2.5  # not 4.0, the last of the run
+    assert out["r_fog_radps"].iloc[at[int(t[20])]] == 0.3
+    assert out.attrs["duplicate_stamps"] == {"fog": {"samples": len(t), "merged_away": 3, "kept": len(t) - 3}}
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert line.startswith(f"stream 'fog': 3 of {len(t)} samples share a time stamp") and "averaged" in line
+
+
+def test_merge_duplicates_flags_take_the_minimum_and_quaternions_align_sign() -> None:
+    from pipeline.sync import merge_duplicates
+
+    cols = {"t_ns": np.array([0, 5, 5, 9], dtype=np.int64),
+            "dvl_lock_flag": np.array([1.0, 1.0, 0.0, 1.0]),
+            "u_mps": np.array([1.0, 2.0, np.inf, 3.0]),
+            "q_quat_w": np.array([1.0, 0.6, -0.6, 1.0]), "q_quat_x": np.array([0.0, 0.8, -0.8, 0.0])}
+    out, merged = merge_duplicates(cols, [("q_quat_w", "q_quat_x")])
+    assert merged == 1 and out["t_ns"].tolist() == [0, 5, 9]
+    assert out["dvl_lock_flag"].tolist() == [1.0, 0.0, 1.0]  # one unlocked sample makes the merged one unlocked
+    assert out["u_mps"].tolist() == [1.0, 2.0, 3.0]
+    assert out["q_quat_w"].tolist() == [1.0, 0.6, 1.0] and out["q_quat_x"].tolist() == [0.0, 0.8, 0.0]
+    same, none = merge_duplicates({"t_ns": np.array([1, 2], dtype=np.int64), "a": np.array([1.0, 2.0])})
+    assert none == 0 and same["a"].tolist() == [1.0, 2.0]
+
+
+def test_no_overlap_names_the_streams_their_spans_and_the_remedy() -> None:
+    streams = constant_streams(5.0)
+    n = len(streams["thrusters"])
+    streams["thrusters"] = stream(np.zeros(n, dtype=np.int64), **{c: streams["thrusters"][c]
+                                                                  for c in ("n1_rpm", "n2_rpm", "n3_rpm")})
+    with pytest.raises(SyncError) as info:
+        synchronize(streams, VEHICLE, SyncParams())
+    message = str(info.value)
+    assert f"'thrusters': 0.000 s to 0.000 s (all {n} stamps equal) <- overlaps none of the others" in message
+    assert "'dvl': 2023-11-14T22:13:20.000Z to 2023-11-14T22:13:25.000Z;" in message  # not marked
+    assert "stamp_warnings" in message and "ingest_report.json" in message and "`clock: log`" in message

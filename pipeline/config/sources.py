@@ -25,7 +25,17 @@ streams:
     csv: {time_column: t, time_unit: ms, time_origin: absolute}
     signals:
       r_fog_radps: {field: rate, unit: deg/s}
+  tank:
+    file: run*.dat
+    clock: column
+    time: {rate_hz: 20}      # stamps rounded to 3 digits: time = first stamp + row index / 20 Hz
+    csv: {time_column: t, header: false, columns: [t, x, y], skip_rows: 4, encoding: cp1252}
+    signals:
+      x_m: {field: x}
 ```
+
+Ingest checks the stamps of every stream (zero, constant, sim-time header stamps, duplicates, quantized
+stamps, steps back; :mod:`pipeline.stamps`) and names these options as the remedy.
 """
 
 from __future__ import annotations
@@ -64,6 +74,15 @@ class CsvOptions(Frozen):
         return self
 
 
+class TimeOptions(Frozen):
+    """Rebuild a stream's time from the row index: uniformly sampled from its first stamp."""
+
+    rate_hz: float = Field(gt=0, allow_inf_nan=False, description=(
+        "Sampling rate of the stream. Its time becomes first + k / rate_hz (k: the row or message index, "
+        "dropped rows counted), the first stamp taken from `clock` and `offset_s` added. For stamps that are "
+        "zero, constant, duplicated or rounded (3 significant digits) while the samples are uniform."))
+
+
 class StreamSource(Frozen):
     topic: str | None = Field(None, description="Topic in a ROS log / MCAP file.")
     file: str | None = Field(None, description="CSV file name (or glob) inside the trial directory.")
@@ -71,6 +90,9 @@ class StreamSource(Frozen):
         description="Which time stamps the stream: log time, the message header stamp, or the CSV time "
         "column. Never guessed.")
     offset_s: float = Field(0.0, description="Constant offset added to every stamp of this stream.")
+    time: TimeOptions | None = Field(None, description=(
+        "None: every sample keeps its own stamp. {rate_hz: R}: time from the row index, uniformly sampled "
+        "at R Hz from the first stamp (the remedy for zero, duplicate or quantized stamps)."))
     csv: CsvOptions | None = None
     signals: dict[str, SignalSource] = Field(min_length=1)
 

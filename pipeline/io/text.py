@@ -50,10 +50,15 @@ _DECIMAL = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
 
 @dataclass
 class CsvTopicData(TopicData):
-    """TopicData of one CSV file, plus the rows dropped because a value did not parse."""
+    """TopicData of one CSV file, plus the rows dropped because a value did not parse.
+
+    ``rows``: the index of each kept row among the file's data rows (blank lines not counted), so that time
+    rebuilt from the row index (the stream option ``time: {rate_hz: ...}``) counts dropped rows too.
+    """
 
     dropped_lines: list[int] = field(default_factory=list)
     dropped_count: int = 0
+    rows: np.ndarray | None = None
 
 
 def is_gzip(path: str | Path) -> bool:
@@ -265,16 +270,18 @@ class TextLogReader:
             else:
                 values[col] = series.to_numpy(dtype=np.float64, na_value=np.nan)
         dropped: list[int] = []
+        rows = np.arange(len(frame), dtype=np.int64)
         if bad.any():
             dropped = lines[bad].tolist()
             log.warning("%s: dropped %d row(s) with unparseable numbers at line(s) %s", path, len(dropped),
                         dropped[:10])
             keep = ~bad
             log_ns = log_ns[keep]
+            rows = rows[keep]
             values = {k: v[keep] for k, v in values.items()}
         return CsvTopicData(topic=name, msgtype="csv", log_ns=log_ns, header_ns=None, columns=values,
                             path="csv", read=len(log_ns), expected=expected,
-                            dropped_lines=dropped[:_MAX_REPORTED_LINES], dropped_count=len(dropped))
+                            dropped_lines=dropped[:_MAX_REPORTED_LINES], dropped_count=len(dropped), rows=rows)
 
 
 def sniff_delimiter(lines: list[str]) -> str:

@@ -1,0 +1,189 @@
+"""Time-stamp sanity: what is wrong with a stream's stamps, in numbers, and the config change that fixes it.
+
+:func:`check_stamps` is pure: the stamps a stream uses (in storage order, before its offset), the log time of
+the same messages when there is one, and the stream's clock in; a :class:`StampCheck` out (counts for the
+ingest report and a list of :class:`StampWarning`). Each warning says what was found (counts, example values)
+and the remedy in config terms: ``clock: log`` (a topic whose header stamps are bad while its log time is
+fine) or ``time: {rate_hz: R}`` (time rebuilt from the row index, uniformly sampled from the first stamp;
+R estimated from the stamps when they allow it). The checks:
+
+- ``zero``: header stamps equal to 0 (simulators that never fill the header);
+- ``constant``: every stamp the same value (and not 0);
+- ``far_from_log``: header stamps more than a day from the log time (simulation time, ~0-1000 s, in a log
+  recorded with wall-clock time), by the median of |header - log|;
+- ``duplicates``: equal consecutive stamps, at least :data:`DUPLICATE_WARN_FRACTION` of the intervals (sync
+  averages the samples that share a stamp; a few are normal, many mean the stamps are coarser than the data);
+- ``quantized``: distinct stamps typically further apart (median non-zero interval) than the mean interval
+  (time written with 3 significant digits, or in whole seconds, for a 20 Hz stream);
+- ``steps_back``: a stamp earlier than the one before it (ingest sorts by time; the order of the rows may be
+  the true one).
+
+Time stays int64 nanoseconds; seconds appear only in the messages.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+NS_PER_S = 1_000_000_000
+DAY_NS = 86_400 * NS_PER_S
+EPOCH_LIKE_NS = 10 * 365 * DAY_NS  # stamps after 1980: wall-clock time; before: a relative or simulation clock
+DUPLICATE_WARN_FRACTION = 0.01  # equal consecutive stamps, of the intervals, from which on a warning is logged
+QUANTIZED_RATIO = 1.5  # median non-zero interval / mean interval from which the stamps count as quantized
+N_EXAMPLES = 3
+
+
+@dataclass(frozen=True)
+class StampWarning:
+    """One finding: ``check`` (its name), ``message`` (what was found), ``remedy`` (the config change)."""
+
+    check: str
+    message: str
+    remedy: str
+    count: int
+    examples: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class StampCheck:
+    """Counts of one stream's stamps and the warnings they raise (JSON-able through :meth:`as_dict`)."""
+
+    checked: str  # which stamps: "header stamps", "log times", "time column 't'", ...
+    count: int
+    zeros: int
+    distinct: int
+    duplicates: int  # equal consecutive stamps
+    duplicate_fraction: float  # of the n - 1 intervals
+    median_step_s: float | None  # median of the non-zero intervals
+    mean_interval_s: float | None
+    steps_back: int
+    header_minus_log_s: float | None  # median, header clock only
+    warnings: list[StampWarning] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def fmt_ns(t_ns: int) -> str:
+    """A stamp for humans: UTC date and time for wall-clock stamps, seconds for relative ones."""
+    if abs(t_ns) >= EPOCH_LIKE_NS:
+        when = datetime.fromtimestamp(t_ns // NS_PER_S, tz=UTC)
+        return when.strftime("%Y-%m-%dT%H:%M:%S") + f".{(t_ns % NS_PER_S) // 1_000_000:03d}Z"
+    return f"{t_ns / NS_PER_S:.3f} s"
+
+
+def fmt_rate(rate_hz: float) -> str:
+    """A rate to put in a config: 3 significant digits, no trailing zeros (20, 7.39, 100)."""
+    return f"{rate_hz:.3g}"
+
+
+def _remedy(clock: str, rate_hz: float | None, *, log_first: bool) -> str:
+    rate = fmt_rate(rate_hz) if rate_hz else "<rate>"
+    rebuild = f"`time: {{rate_hz: {rate}}}` (time from the row index, uniform from the first stamp)"
+    if clock == "header" and log_first:
+        return f"set `clock: log` for this stream, or {rebuild}"
+    if clock == "header":
+        return f"{rebuild} if the stream is uniformly sampled, or `clock: log`"
+    return f"{rebuild} if the stream is uniformly sampled"
+
+
+def check_stamps(stamps_ns: np.ndarray, *, clock: str, log_ns: np.ndarray | None = None,
+                 label: str | None = None) -> StampCheck:
+    """Check one stream's stamps (storage order, before the stream's offset); see the module docstring.
+
+    ``log_ns``: the log time of the same messages (a ROS log), used by the ``far_from_log`` check and to
+    estimate the rate when the stamps themselves cannot. ``label`` names the stamps in the messages (default
+    from the clock).
+    """
+    t = np.asarray(stamps_ns, dtype=np.int64)
+    n = int(t.size)
+    checked = label or {"header": "header stamps", "log": "log times", "column": "time column"}.get(clock, clock)
+    diffs = np.diff(t) if n > 1 else np.empty(0, dtype=np.int64)
+    zeros = int((t == 0).sum())
+    dup_mask = diffs == 0
+    duplicates = int(dup_mask.sum())
+    steps = np.flatnonzero(diffs < 0)
+    positive = diffs[diffs > 0]
+    step_ns = float(np.median(positive)) if positive.size else None
+    span_ns = int(t.max()) - int(t.min()) if n else 0
+    mean_ns = span_ns / (n - 1) if n > 1 and span_ns > 0 else None
+    offset_ns: int | None = None
+    if clock == "header" and log_ns is not None and n and len(log_ns) == n:
+        offset_ns = int(np.median(t - np.asarray(log_ns, dtype=np.int64)))
+    rate_hz = NS_PER_S / mean_ns if mean_ns else None
+    if rate_hz is None and log_ns is not None and len(log_ns) > 1:
+        log_span = int(np.max(log_ns)) - int(np.min(log_ns))
+        rate_hz = (len(log_ns) - 1) * NS_PER_S / log_span if log_span > 0 else None
+    log_first = log_ns is not None
+
+    warnings: list[StampWarning] = []
+    if clock == "header" and zeros:
+        what = "all" if zeros == n else f"{zeros} of"
+        at = np.flatnonzero(t == 0)[:N_EXAMPLES].tolist()
+        warnings.append(StampWarning(
+            "zero", f"{what} {n} {checked} are 0 (a simulator or driver that never fills the header)",
+            _remedy(clock, rate_hz, log_first=log_first), zeros,
+            [f"message {i}" + (f" logged at {fmt_ns(int(log_ns[i]))}" if log_ns is not None else "") for i in at]))
+    if n > 1 and duplicates == n - 1 and not (clock == "header" and zeros == n):
+        warnings.append(StampWarning(
+            "constant", f"all {n} {checked} are {fmt_ns(int(t[0]))}",
+            _remedy(clock, rate_hz, log_first=log_first), n, [fmt_ns(int(t[0]))]))
+    if offset_ns is not None and abs(offset_ns) > DAY_NS and zeros < n:
+        sim = abs(int(np.median(t))) < EPOCH_LIKE_NS <= abs(int(np.median(np.asarray(log_ns))))
+        kind = " (simulation time?)" if sim else ""
+        lo, hi = int(t.min()), int(t.max())
+        lmin, lmax = int(np.min(log_ns)), int(np.max(log_ns))  # type: ignore[arg-type]
+        warnings.append(StampWarning(
+            "far_from_log", f"{checked} span {fmt_ns(lo)} to {fmt_ns(hi)}{kind} while log time spans "
+            f"{fmt_ns(lmin)} to {fmt_ns(lmax)}: median header - log = {offset_ns / DAY_NS:.1f} days; streams on "
+            "log time will not overlap this one", _remedy(clock, rate_hz, log_first=True), n,
+            [fmt_ns(lo), fmt_ns(hi)]))
+    constant = n > 1 and duplicates == n - 1
+    fraction = duplicates / (n - 1) if n > 1 else 0.0
+    if duplicates and not constant and fraction >= DUPLICATE_WARN_FRACTION:
+        runs = _longest_runs(t, dup_mask)
+        warnings.append(StampWarning(
+            "duplicates", f"{duplicates} of {n} {checked} repeat the one before ({100 * fraction:.0f}% of the "
+            f"intervals); sync averages the samples that share a stamp",
+            _remedy(clock, rate_hz, log_first=log_first), duplicates, runs))
+    ordered = t if steps.size == 0 else np.sort(t)
+    distinct = 1 + int(np.count_nonzero(np.diff(ordered))) if n else 0  # np.unique is slow on 1M stamps
+    if step_ns is not None and mean_ns is not None and not constant and step_ns >= QUANTIZED_RATIO * mean_ns:
+        warnings.append(StampWarning(
+            "quantized", f"distinct {checked} are typically {step_ns / NS_PER_S:.3g} s apart while the samples "
+            f"come every {mean_ns / NS_PER_S:.3g} s on average ({distinct} distinct values for {n} samples): "
+            "the time was rounded (3 significant digits?)",
+            _remedy(clock, rate_hz, log_first=log_first), n - distinct,
+            [fmt_ns(int(v)) for v in t[:: max(1, n // N_EXAMPLES)][:N_EXAMPLES]]))
+    if steps.size:
+        warnings.append(StampWarning(
+            "steps_back", f"{steps.size} of {n} {checked} are earlier than the one before; ingest sorts the "
+            "samples by time", _remedy(clock, rate_hz, log_first=log_first).replace(
+                " if the stream", " if the order of the rows is the true order and the stream"), int(steps.size),
+            [f"message {i + 1}: {fmt_ns(int(t[i]))} -> {fmt_ns(int(t[i + 1]))}" for i in steps[:N_EXAMPLES]]))
+    return StampCheck(
+        checked=checked, count=n, zeros=zeros, distinct=distinct, duplicates=duplicates,
+        duplicate_fraction=fraction, median_step_s=step_ns / NS_PER_S if step_ns is not None else None,
+        mean_interval_s=mean_ns / NS_PER_S if mean_ns else None, steps_back=int(steps.size),
+        header_minus_log_s=offset_ns / NS_PER_S if offset_ns is not None else None, warnings=warnings)
+
+
+def _longest_runs(t: np.ndarray, dup_mask: np.ndarray) -> list[str]:
+    """The longest runs of equal stamps, as "value x count" (earliest first among equals)."""
+    starts = np.flatnonzero(np.concatenate([[True], ~dup_mask]))
+    lengths = np.diff(np.concatenate([starts, [t.size]]))
+    order = np.argsort(-lengths, kind="stable")[:N_EXAMPLES]
+    return [f"{fmt_ns(int(t[starts[i]]))} x{int(lengths[i])}" for i in order if lengths[i] > 1]
+
+
+def uniform_times(first_ns: int, rows: np.ndarray, rate_hz: float) -> np.ndarray:
+    """``first + (k - k0) / rate`` in int64 ns for row indices ``rows`` (k0 = rows[0]); the ``time`` option."""
+    k = np.asarray(rows, dtype=np.int64)
+    if k.size == 0:
+        return np.empty(0, dtype=np.int64)
+    steps = np.rint((k - k[0]).astype(np.float64) * (NS_PER_S / rate_hz)).astype(np.int64)
+    return np.int64(first_ns) + steps
