@@ -42,7 +42,7 @@ def demo_params(trials: list[str]) -> dict[str, Any]:
     params = {
         "ingest": {"salvage": True},
         "sync": {"rate_hz": 10.0, "min_segment_s": 5.0},
-        "differentiate": {"method": "gaussian", "sigma_s": 0.25, "edge_sigmas": 3.0},
+        "differentiate": {"method": "kalman"},
         "features": {"tuning_fraction": 0.2, "test_trials": test},
         "coupled": {"folds": 3, "search": "fast", "max_samples": 600, "seed": 0},
         "decoupled": {"folds": 3, "search": "fast", "gp_max_samples": 200, "max_samples": 600, "curve_points": 3,

@@ -12,6 +12,11 @@ Which nu: the accelerations come from smoothed data, so C(nu) nu uses the **smoo
 (``u_smooth_mps`` ...) as well: the terms of d then belong to the same filtered signal, and C(nu) nu, being
 quadratic in nu, gets no noise-squared bias. The measured velocities stay in the table for the models.
 
+Uncertainty: when the kinematics table carries the smoother's SDs (``u_smooth_std_mps`` ..., ``udot_std_mps2``
+..., the ``kalman`` method), ``d_std_*`` is the first-order SD of d: var(d_i) = sum_j M_ij^2 var(nudot_j) +
+sum_j (d(C(nu) nu)_i / d nu_j)^2 var(nu_j), the Jacobian by central differences, errors of different DOFs and of
+nu and nudot taken as independent (tau and g as exact).
+
 All vectors are 6-DOF. DOFs the vehicle does not measure (rates not configured, see
 :mod:`pipeline.kinematics`) carry zeros in nu and nu_dot, so their terms reduce to what tau and g give;
 models choose the DOFs they use. Columns are named ``<prefix>_<dof>_<N|Nm>``.
@@ -27,6 +32,7 @@ import pandas as pd
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError
+from pipeline.estimation.motion import DOFS, accel_std_column, std_column
 from pipeline.kinematics import ACCELERATION, SMOOTH
 
 log = logging.getLogger(__name__)
@@ -79,8 +85,25 @@ def derive(kin: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     for prefix, values in zip(TERMS, (tau, m_nudot, c_nu, g, d), strict=True):
         for j, col in enumerate(physics.force_columns(prefix)):
             new[col] = values[:, j]
+    sd_cols = [std_column(d) for d in DOFS] + [accel_std_column(d) for d in DOFS]
+    if all(c in kin.columns for c in sd_cols):
+        sd = damping_sd(M, nu, kin[sd_cols[:6]].to_numpy(dtype=float), kin[sd_cols[6:]].to_numpy(dtype=float))
+        for j, col in enumerate(physics.force_columns("d_std")):
+            new[col] = sd[:, j]
     clash = [c for c in new if c in out.columns]
     if clash:
         log.warning("kinematics table already has %s; overwritten", clash)
         out = out.drop(columns=clash)
     return pd.concat([out, pd.DataFrame(new, index=out.index)], axis=1)
+
+
+def damping_sd(M: np.ndarray, nu: np.ndarray, nu_sd: np.ndarray, nudot_sd: np.ndarray, step: float = 1e-6
+               ) -> np.ndarray:
+    """First-order SD of d = tau - M nudot - C(nu) nu - g from the SDs of nu and nudot (see the module docstring)."""
+    var = (nudot_sd**2) @ (M**2).T
+    for j in range(nu.shape[1]):
+        dn = np.zeros(nu.shape[1])
+        dn[j] = step
+        jac = (physics.coriolis_force(M, nu + dn) - physics.coriolis_force(M, nu - dn)) / (2 * step)
+        var += jac**2 * nu_sd[:, j:j + 1] ** 2
+    return np.sqrt(var)

@@ -40,6 +40,7 @@ Two pure steps (the differentiate stage calls both):
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -227,15 +228,18 @@ def gaussian_filters(x: np.ndarray, dt_s: float, sigma_s: float, degree: int = 4
     return apply_weights(x, w_smooth), apply_weights(x, w_deriv)
 
 
-def edge_samples(params: DifferentiateParams, dt_s: float) -> int:
-    """Samples dropped at each end of a segment."""
+def edge_samples(params: DifferentiateParams, dt_s: float, sigma_s: float | None = None,
+                 window: int | None = None) -> int:
+    """Samples dropped at each end of a segment (for one width: ``sigma_s`` / ``window`` when ``auto``)."""
     if params.method == "gaussian":
-        return int(gaussian_truncate(params.edge_sigmas) * params.sigma_s / dt_s + 0.5) if params.edge_sigmas else 0
-    return savgol_window(params, dt_s) // 2
+        sigma = params.sigma_s if sigma_s is None else sigma_s
+        return int(gaussian_truncate(params.edge_sigmas) * sigma / dt_s + 0.5) if params.edge_sigmas else 0
+    return (savgol_window(params, dt_s) if window is None else window) // 2
 
 
-def savgol_window(params: DifferentiateParams, dt_s: float) -> int:
-    window = max(int(round(params.savgol_window_s / dt_s)), params.savgol_order + 1)
+def savgol_window(params: DifferentiateParams, dt_s: float, window_s: float | None = None) -> int:
+    width = params.savgol_window_s if window_s is None else window_s
+    window = max(int(round(width / dt_s)), params.savgol_order + 1)
     return window if window % 2 == 1 else window + 1
 
 
@@ -251,33 +255,63 @@ def grid_step_s(t_ns: np.ndarray, segment: np.ndarray) -> float:
     return float(steps[0]) / 1e9
 
 
-def differentiate(table: pd.DataFrame, params: DifferentiateParams) -> pd.DataFrame:
-    """Smoothed velocities and accelerations per segment; edge samples dropped; other columns passed through."""
+def _widths(params: DifferentiateParams, widths: dict[str, float] | None) -> dict[str, float]:
+    """Per velocity column, the Gaussian sigma (s) or the Savitzky-Golay window (s)."""
+    fixed = params.sigma_s if params.method == "gaussian" else params.savgol_window_s
+    out = {}
+    for col in VELOCITY:
+        if params.method == "gaussian" and col in params.sigma_s_per_signal:
+            out[col] = float(params.sigma_s_per_signal[col])
+        elif widths is not None and col in widths:
+            out[col] = float(widths[col])
+        elif fixed == "auto":
+            raise SchemaError(f"{params.method}: width 'auto' needs the widths chosen from the data "
+                              f"(pipeline.kinematics.kinematics does it); none given for {col!r}", field=col)
+        else:
+            out[col] = float(fixed)
+    return out
+
+
+def differentiate(table: pd.DataFrame, params: DifferentiateParams, widths: dict[str, float] | None = None
+                  ) -> pd.DataFrame:
+    """Smoothed velocities and accelerations per segment; edge samples dropped; other columns passed through.
+
+    ``widths``: per velocity column, the Gaussian sigma or Savitzky-Golay window in seconds (``auto``: from
+    :func:`auto_widths`); a segment loses the edge samples of its widest filter.
+    """
+    if params.method not in ("gaussian", "savgol"):
+        raise ValueError(f"differentiate() filters the grid (gaussian, savgol); {params.method!r} is "
+                         "pipeline.estimation.estimate_motion")
     missing = [c for c in ("t_ns", "segment", *VELOCITY) if c not in table.columns]
     if missing:
         raise SchemaError(f"columns {missing} missing from the kinematics input", field=missing[0])
     seg = table["segment"].to_numpy(dtype=np.int32)
     t = table["t_ns"].to_numpy(dtype=np.int64)
     dt_s = grid_step_s(t, seg)
-    edge = edge_samples(params, dt_s)
+    width = _widths(params, widths)
     truncate = gaussian_truncate(params.edge_sigmas)
-    window = savgol_window(params, dt_s)
+    if params.method == "gaussian":
+        edge = max(edge_samples(params, dt_s, sigma_s=w) for w in width.values())
+        window = {}
+    else:
+        window = {c: savgol_window(params, dt_s, w) for c, w in width.items()}
+        edge = max(window.values()) // 2
     parts = []
     for sid in np.unique(seg[seg >= 0]):
         rows = np.flatnonzero(seg == sid)
-        if len(rows) <= 2 * edge or (params.method == "savgol" and len(rows) < window):
+        if len(rows) <= 2 * edge or (params.method == "savgol" and len(rows) < max(window.values())):
             log.info("segment %d: %d samples, too short for %d edge samples each side; dropped", sid, len(rows), edge)
             continue
         part = table.iloc[rows].reset_index(drop=True)
-        nu = part[VELOCITY].to_numpy(dtype=float)
-        if params.method == "gaussian":
-            smooth, acc = gaussian_filters(nu, dt_s, params.sigma_s, params.gaussian_degree, truncate)
-        else:
-            smooth = savgol_filter(nu, window, params.savgol_order, axis=0, mode="interp")
-            acc = savgol_filter(nu, window, params.savgol_order, deriv=1, delta=dt_s, axis=0, mode="interp")
-        for j in range(6):
-            part[SMOOTH[j]] = smooth[:, j]
-            part[ACCELERATION[j]] = acc[:, j]
+        for j, col in enumerate(VELOCITY):
+            nu = part[col].to_numpy(dtype=float)
+            if params.method == "gaussian":
+                smooth, acc = gaussian_filters(nu, dt_s, width[col], params.gaussian_degree, truncate)
+            else:
+                smooth = savgol_filter(nu, window[col], params.savgol_order, mode="interp")
+                acc = savgol_filter(nu, window[col], params.savgol_order, deriv=1, delta=dt_s, mode="interp")
+            part[SMOOTH[j]] = smooth
+            part[ACCELERATION[j]] = acc
         parts.append(part.iloc[edge: len(part) - edge])
     if not parts:
         raise SyncError(f"no segment longer than {2 * edge} samples ({2 * edge * dt_s:g} s) to differentiate")
@@ -286,10 +320,55 @@ def differentiate(table: pd.DataFrame, params: DifferentiateParams) -> pd.DataFr
     return out[first + [c for c in out.columns if c not in first]]
 
 
-def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams) -> pd.DataFrame:
-    """Both steps: the kinematics table of the contract from a synced table."""
-    return differentiate(body_kinematics(synced, vehicle), params)
+def auto_widths(body: pd.DataFrame, synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
+                streams=None) -> tuple[dict[str, float], dict[str, Any]]:
+    """Per velocity column, the width of least estimated mean-square derivative error
+    (:func:`pipeline.estimation.widths.optimal_sigma`; for Savitzky-Golay, the window of equal noise gain,
+    8 sigma), from each sensor's noise and rate at its native stamps; and the noise estimates used."""
+    from pipeline.estimation.motion import sensor_noise
+    from pipeline.estimation.widths import optimal_sigma
+
+    seg = body["segment"].to_numpy()
+    dt_s = grid_step_s(body["t_ns"].to_numpy(dtype=np.int64), seg)
+    per_dof, noise = sensor_noise(synced, body, vehicle, params, streams)
+    widths: dict[str, float] = {}
+    for col, dof in zip(VELOCITY, DOFS, strict=True):
+        if dof not in per_dof:
+            widths[col] = 0.05 if params.method == "gaussian" else 8 * 0.05
+            continue
+        sd, native_dt = per_dof[dof]
+        x = body[col].to_numpy(dtype=float)
+        pieces = [x[seg == sid] for sid in np.unique(seg[seg >= 0])]
+        sigma = optimal_sigma(pieces, dt_s, sd, native_dt)
+        widths[col] = sigma if params.method == "gaussian" else 8.0 * sigma
+    report = {"method": params.method, "widths_s": widths,
+              "noise": {name: est.as_dict() for name, est in sorted(noise.items())}}
+    return widths, report
+
+
+def kinematics_report(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams, streams=None
+                      ) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The kinematics table of the contract and the stage's report (noise per signal, widths or smoother)."""
+    if params.method == "kalman":
+        from pipeline.estimation.motion import estimate_motion
+
+        return estimate_motion(synced, vehicle, params, streams)
+    body = body_kinematics(synced, vehicle)
+    auto = (params.sigma_s if params.method == "gaussian" else params.savgol_window_s) == "auto"
+    widths, report = auto_widths(body, synced, vehicle, params, streams) if auto else (None, {
+        "method": params.method, "widths_s": _widths(params, None), "noise": {}})
+    out = differentiate(body, params, widths)
+    report.update(grid_samples=len(synced), usable_samples=len(out), usable_fraction=len(out) / max(len(synced), 1),
+                  synced_segment_fraction=float(np.mean(synced["segment"].to_numpy() >= 0)))
+    return out, report
+
+
+def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams, streams=None) -> pd.DataFrame:
+    """The kinematics table of the contract from a synced table (and, for the smoother and ``auto`` widths,
+    the trial's native streams)."""
+    return kinematics_report(synced, vehicle, params, streams)[0]
 
 
 __all__ = ["ACCELERATION", "ATTITUDE", "SMOOTH", "VELOCITY", "attitude_from_quaternion", "body_kinematics",
-           "differentiate", "gaussian_derivative", "gaussian_filters", "kinematics", "local_cubic_weights"]
+           "differentiate", "gaussian_derivative", "kinematics_report", "auto_widths",
+           "gaussian_filters", "kinematics", "local_cubic_weights"]

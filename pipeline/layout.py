@@ -40,6 +40,11 @@ def kinematics_path(root: Path, trial: str) -> Path:
     return Path(root) / KINEMATICS / f"{trial}.parquet"
 
 
+def estimation_report_path(root: Path, trial: str) -> Path:
+    """The differentiate stage's report of one trial (noise per signal, smoother or widths, usable fraction)."""
+    return Path(root) / KINEMATICS / f"{trial}.estimation.json"
+
+
 def derived_path(root: Path, trial: str) -> Path:
     return Path(root) / DERIVED / f"{trial}.parquet"
 

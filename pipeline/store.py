@@ -57,6 +57,11 @@ OPTIONAL_COLUMNS: list[tuple[str, pa.DataType]] = [("depth_m", pa.float64())]
 PATTERN_COLUMNS: list[tuple[str, pa.DataType, str]] = [
     (r"^T_[A-Za-z0-9_\-]+_N$", pa.float64(), "thrust of one thruster (T_<thruster>_N)"),
     (r"^[A-Za-z0-9_]+_rpm$", pa.float64(), "propeller speed signal of one thruster"),
+    (r"^[uvwpqr]_smooth_std_(mps|radps)$", pa.float64(), "SD of the smoothed velocity (kalman method)"),
+    (r"^[uvwpqr]dot_std_(mps2|radps2)$", pa.float64(), "SD of the estimated acceleration (kalman method)"),
+    (r"^[uvwpqr]_meas_(mps|radps)$", pa.float64(),
+     "measured velocity on the grid, NaN where none (kalman method; u_mps ... are then the estimate)"),
+    (r"^d_std_[uvwpqr]_(N|Nm)$", pa.float64(), "first-order SD of the damping target (kalman method)"),
 ]
 
 

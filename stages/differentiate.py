@@ -1,4 +1,6 @@
-"""Differentiate stage: data/synced/<trial>.parquet -> data/kinematics/<trial>.parquet (body frame, nu_dot)."""
+"""Differentiate stage: data/synced/<trial>.parquet (+ the trial's native streams in data/signals/<trial>/) ->
+data/kinematics/<trial>.parquet (body frame, nu, nu_dot and their SDs) and <trial>.estimation.json (noise per
+signal, the smoother's process noise and gating, or the filter widths; how much of the trial is usable)."""
 
 from __future__ import annotations
 
@@ -8,8 +10,8 @@ from pathlib import Path
 from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.errors import SchemaError, SyncError
-from pipeline.kinematics import kinematics
-from pipeline.tableio import read_parquet, write_parquet
+from pipeline.kinematics import kinematics_report
+from pipeline.tableio import read_parquet, write_json, write_parquet
 from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, to_arrow, trials_in
 from stages.common import StageResult, stage_main
 
@@ -27,15 +29,23 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
         try:
             if not source.exists():
                 raise SyncError("no synced table (run the sync stage)", file=shown(source, root))
-            frame = kinematics(read_parquet(source)[0].to_pandas(), vehicle, params.differentiate)
+            stream_files = sorted(p for p in layout.signals_dir(root, name).glob("*.parquet")
+                                  if not p.name.startswith("."))
+            streams = {f.stem: read_parquet(f)[0] for f in stream_files}
+            frame, report = kinematics_report(read_parquet(source)[0].to_pandas(), vehicle, params.differentiate,
+                                              streams)
         except (SyncError, SchemaError) as err:
             result.quarantined.append(quarantine(err, name, shown(source, root)))
             drop_stale(target)
+            drop_stale(layout.estimation_report_path(root, name))
             continue
-        write_parquet(to_arrow(frame), target, provenance(root, NAME, name, [source], vehicle, params.differentiate))
-        result.outputs.append(target)
-        result.summary[name] = {"samples": len(frame)}
-        log.info("differentiate %s: %d samples kept", name, len(frame))
+        inputs = [source, *stream_files]
+        write_parquet(to_arrow(frame), target, provenance(root, NAME, name, inputs, vehicle, params.differentiate))
+        write_json({"trial": name, **report}, layout.estimation_report_path(root, name))
+        result.outputs += [target, layout.estimation_report_path(root, name)]
+        result.summary[name] = {"samples": len(frame), "usable_fraction": round(report["usable_fraction"], 4)}
+        log.info("differentiate %s: %d samples kept (%.0f %% of the grid)", name, len(frame),
+                 100 * report["usable_fraction"])
     return result
 
 

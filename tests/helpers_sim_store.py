@@ -13,8 +13,8 @@ from stages import derive, differentiate, features, ingest, sync
 TrialSpec = tuple[str, int, float, bool]
 
 
-def build_store(root: Path, specs: dict[str, TrialSpec], params: Params, amplitude_rpm: float = 3500.0
-                ) -> tuple[Vehicle, dict[str, object]]:
+def build_store(root: Path, specs: dict[str, TrialSpec], params: Params, amplitude_rpm: float = 3500.0,
+                sensors: dict | None = None) -> tuple[Vehicle, dict[str, object]]:
     """Simulate each trial, write it as MCAP under ``data/raw``, and run the stages up to the feature store."""
     vehicle = load_example_vehicle()
     (root / "data/raw").mkdir(parents=True, exist_ok=True)
@@ -22,7 +22,7 @@ def build_store(root: Path, specs: dict[str, TrialSpec], params: Params, amplitu
     for name, (excite, seed, duration_s, dropouts) in specs.items():
         trial = simulate_trial(vehicle, duration_s, seed=seed, controls=Controls(excite=excite,
                                                                                   amplitude_rpm=amplitude_rpm),
-                               sensors=SensorOptions(dropouts=dropouts))
+                               sensors=SensorOptions(dropouts=dropouts, **(sensors or {})))
         write_trial(trial, "mcap", root / f"data/raw/{name}.mcap")
         trials[name] = trial
     for stage in (ingest, sync, differentiate, derive, features):

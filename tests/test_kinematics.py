@@ -56,7 +56,8 @@ def test_differentiate_drops_edge_samples_per_segment_and_never_spans_gaps() -> 
     nu = np.zeros((n, 6))
     nu[:, 0] = 0.2 + 0.05 * t**2
     nu[:, 5] = np.where(seg == 1, 5.0, 0.1 * t)  # a jump between segments must not leak
-    out = differentiate(_table(t, seg, nu), DifferentiateParams(sigma_s=0.25, gaussian_degree=2, edge_sigmas=3.0))
+    out = differentiate(_table(t, seg, nu), DifferentiateParams(method="gaussian", sigma_s=0.25, gaussian_degree=2,
+                                                                  edge_sigmas=3.0))
     kept = np.round(out["t_ns"].to_numpy() / PERIOD_NS).astype(int)
     expected = np.concatenate([np.arange(25, 75), np.arange(115, 185)])
     assert kept.tolist() == expected.tolist()
@@ -77,8 +78,10 @@ def test_bias_corrected_gaussian_is_exact_to_degree_four_and_cancels_the_plain_k
     nu = np.zeros((n, 6))
     nu[:, 0] = 0.3 - 0.2 * t + 0.04 * t**2 - 0.01 * t**3 + 0.002 * t**4
     nu[:, 5] = 0.1 * t**3
-    corrected = differentiate(_table(t, np.zeros(n), nu), DifferentiateParams(sigma_s=0.35, gaussian_degree=4))
-    plain = differentiate(_table(t, np.zeros(n), nu), DifferentiateParams(sigma_s=0.35, gaussian_degree=2))
+    corrected = differentiate(_table(t, np.zeros(n), nu),
+                              DifferentiateParams(method="gaussian", sigma_s=0.35, gaussian_degree=4))
+    plain = differentiate(_table(t, np.zeros(n), nu),
+                          DifferentiateParams(method="gaussian", sigma_s=0.35, gaussian_degree=2))
     assert len(corrected) == len(plain) == n - 2 * 21  # 3 sigma = 1.05 s = 21 samples dropped each side
     ts = corrected["t_ns"].to_numpy() / 1e9
     exact_udot = -0.2 + 0.08 * ts - 0.03 * ts**2 + 0.008 * ts**3
@@ -105,7 +108,7 @@ def test_savgol_is_exact_for_a_cubic() -> None:
 def test_too_short_everywhere_is_a_sync_error() -> None:
     t = np.arange(20) * DT
     with pytest.raises(SyncError, match="no segment longer"):
-        differentiate(_table(t, np.zeros(20), np.zeros((20, 6))), DifferentiateParams())
+        differentiate(_table(t, np.zeros(20), np.zeros((20, 6))), DifferentiateParams(method="gaussian", sigma_s=0.25))
 
 
 def _synced(n: int, q: np.ndarray, v_dvl: np.ndarray, rates: np.ndarray) -> pd.DataFrame:
@@ -170,6 +173,27 @@ def test_lever_arm_and_mounting_rotation_recover_body_velocity() -> None:
     assert kin["depth_m"].tolist() == [1.0] * n
     # without the lever arm the recovered velocity would be off by omega x r
     assert np.abs(np.cross(omega, r_dvl)).max() > 0.05
+
+
+def test_an_asymmetric_dvl_mounting_is_recovered_exactly() -> None:
+    """Yaw 45 deg, pitch 10 deg, a lever arm and non-zero rates: a transposed mounting rotation must not pass (the
+    half-turn mounting above is a symmetric matrix, so it cannot tell R from R^T)."""
+    from pipeline.sim.sensors import dvl_measurement, dvl_rotation
+
+    rng = np.random.default_rng(11)
+    n = 60
+    nu = np.column_stack([rng.normal(0.8, 0.4, n), rng.normal(0, 0.3, n), rng.normal(0, 0.1, n),
+                          rng.normal(0, 0.2, (n, 3))])
+    r_dvl = np.array([0.45, 0.12, 0.3])
+    mount_deg = (0.0, 10.0, 45.0)
+    R = dvl_rotation(mount_deg)
+    assert np.abs(R - R.T).max() > 0.5  # the check below can tell R from its transpose
+    v_dvl = dvl_measurement(nu, r_dvl, R)
+    vehicle = make_vehicle(dvl={"velocity": ["u_dvl_mps", "v_dvl_mps", "w_dvl_mps"], "position_m": r_dvl.tolist(),
+                                "rotation_rpy_deg": list(mount_deg)})
+    kin = body_kinematics(_synced(n, np.tile([1.0, 0, 0, 0], (n, 1)), v_dvl, nu[:, 3:]), vehicle)
+    assert np.abs(kin[VELOCITY[:3]].to_numpy() - nu[:, :3]).max() < 1e-12
+    assert np.abs(kin[VELOCITY[3:]].to_numpy() - nu[:, 3:]).max() < 1e-15
 
 
 def test_unconfigured_rates_are_zero_and_yaw_is_unwrapped() -> None:

@@ -20,7 +20,7 @@ from pipeline.kinematics import (
     gaussian_truncate,
     kinematics,
 )
-from pipeline.sim import SensorOptions, example_vehicle_path, load_example_vehicle, simulate_trial
+from pipeline.sim import SensorOptions, StreamSpec, example_vehicle_path, load_example_vehicle, simulate_trial
 from pipeline.sync import resample, synchronize
 from pipeline.tableio import read_meta, write_parquet
 from pipeline.units import conversion
@@ -61,6 +61,14 @@ def vehicle() -> Vehicle:
     return load_example_vehicle()
 
 
+#: These tests check the Gaussian method's arithmetic (kernel, edges, noise gain) against the truth, so they pin it
+#: and a DVL of regular 4 Hz pings with plain white noise (the kalman method's tests are tests/test_estimation.py).
+GAUSSIAN = Params.model_validate({"differentiate": {"method": "gaussian", "sigma_s": 0.25}})
+PLAIN_DVL = dict(dvl=StreamSpec(4.0, 0.020, -0.05, 0.005), dvl_ping_interval_s=None, dvl_outlier_rate=0.0,
+                 dvl_scale_error=0.0, dvl_misalignment_rpy_deg=(0.0, 0.0, 0.0), dvl_averaging_s=0.0,
+                 dvl_lock_loss_fraction=0.0)
+
+
 @pytest.fixture(scope="module")
 def clean(vehicle: Vehicle):
     return simulate_trial(vehicle, DURATION_S, seed=1, sensors=SensorOptions(noise=False, dropouts=False))
@@ -70,11 +78,12 @@ def clean(vehicle: Vehicle):
 def noisy(vehicle: Vehicle):
     # DAGON's sensors (noise, rates, stamps) with more frequent DVL dropouts, so that 30 s have some
     return simulate_trial(vehicle, DURATION_S, seed=2, sensors=SensorOptions(dropout_bursts_per_min=4.0,
-                                                                             dropout_duration_s=(1.0, 3.0)))
+                                                                             dropout_duration_s=(1.0, 3.0),
+                                                                             **PLAIN_DVL))
 
 
 def _pipeline(trial, vehicle: Vehicle) -> pd.DataFrame:
-    params = Params()
+    params = GAUSSIAN
     synced = synchronize(signal_tables(trial, vehicle), vehicle, params.sync)
     return derive(kinematics(synced, vehicle, params.differentiate), vehicle)
 
@@ -85,7 +94,7 @@ def _truth_at(trial, t_ns: np.ndarray, cols: list[str], smooth: bool) -> np.ndar
     assert np.array_equal(truth["t_ns"].to_numpy()[rows], t_ns)
     values = truth[cols].to_numpy()
     if smooth:  # the same kernel the pipeline applies, on the 200 Hz truth (whole trial: no edge effects inside)
-        d = Params().differentiate
+        d = GAUSSIAN.differentiate
         values, _ = gaussian_filters(values, TRUTH_DT_S, d.sigma_s, d.gaussian_degree, 6.0)
     return values[rows]
 
@@ -119,7 +128,7 @@ def test_noise_free_accelerations_and_damping_match_truth(clean, vehicle: Vehicl
 def _dvl_derivative_noise_gain(vehicle: Vehicle, dvl_hz: float) -> float:
     """Std of the Gaussian derivative of unit white noise sampled at the DVL rate and linearly interpolated to
     the grid: the pipeline is linear in the noise, so this is the norm of its impulse response (phase-averaged)."""
-    params = Params()
+    params = GAUSSIAN
     grid_dt_ns = int(1e9 / params.sync.rate_hz)
     n_dvl = 80
     t_dvl = np.arange(n_dvl, dtype=np.int64) * int(1e9 / dvl_hz)
@@ -184,16 +193,17 @@ def test_stages_end_to_end_quarantine_and_byte_identical_rerun(tmp_path: Path, n
     sync = results["sync"]
     assert [e["trial"] for e in sync.quarantined] == ["bad"]
     assert "overlap" in sync.quarantined[0]["reason"] and sync.quarantined[0]["error"] == "SyncError"
-    for name in ("differentiate", "derive", "features"):
-        assert results[name].quarantined == [] and len(results[name].outputs) == 1, name
+    for name in ("differentiate", "derive", "features"):  # differentiate: + its estimation report
+        assert results[name].quarantined == [] and len(results[name].outputs) == 1 + (name == "differentiate"), name
     frame = store.load(tmp_path)
     assert set(frame["trial"]) == {"01"} and set(frame["vehicle"]) == {"dagon"}
     assert set(frame["split"]) == {"tuning", "train_test"}
-    assert {*SMOOTH, "d_u_N", "T_th1_N", "n5_rpm", "segment"} <= set(frame.columns)
-    files = sorted((tmp_path / "data").rglob("*.parquet"))
+    assert {*SMOOTH, "d_u_N", "T_th1_N", "n5_rpm", "segment", "udot_std_mps2", "u_smooth_std_mps", "u_meas_mps",
+            "d_std_u_N"} <= set(frame.columns)
+    files = sorted((tmp_path / "data").rglob("*.parquet")) + sorted((tmp_path / "data").rglob("*.json"))
     before = {p: p.read_bytes() for p in files}
     _run_all(tmp_path, vehicle, params)
-    assert {p: p.read_bytes() for p in sorted((tmp_path / "data").rglob("*.parquet"))} == before
+    assert {p: p.read_bytes() for p in files} == before
     meta = read_meta(store.partition_dir(tmp_path, "dagon", "01") / store.PART_FILE)
     assert meta["inputs"][0]["file"] == "data/derived/01.parquet" and len(meta["inputs"][0]["sha256"]) == 64
     assert meta["params"] == {"tuning_fraction": 0.25, "test_trials": []}
@@ -220,10 +230,12 @@ def test_reads_what_the_real_ingest_writes(tmp_path: Path, noisy, vehicle: Vehic
 
     (tmp_path / "data/raw").mkdir(parents=True)
     write_trial(noisy, "mcap", tmp_path / "data/raw/trial7.mcap")
-    params = Params()
+    params = GAUSSIAN
     assert ingest_stage.run(tmp_path, vehicle, params).quarantined == []
     results = _run_all(tmp_path, vehicle, params)
-    assert all(not r.quarantined and len(r.outputs) == 1 for r in results.values())
+    assert all(not r.quarantined for r in results.values())
+    assert {name: len(r.outputs) for name, r in results.items()} == {
+        name: 2 if name == "differentiate" else 1 for name in results}  # + the estimation report
     frame = store.load(tmp_path, trials="trial7")
     direct = _pipeline(noisy, vehicle)  # the same signals, assembled in this test
     assert frame["t_ns"].tolist() == direct["t_ns"].tolist()

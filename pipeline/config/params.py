@@ -27,12 +27,31 @@ class SyncParams(Frozen):
 
 
 class DifferentiateParams(Frozen):
-    method: Literal["gaussian", "savgol"] = "gaussian"
-    sigma_s: float = Field(0.25, gt=0, description="Gaussian kernel width.")
+    method: Literal["kalman", "gaussian", "savgol"] = Field(
+        "kalman", description="kalman: a Kalman/RTS smoother over every velocity and rate sensor at its own stamps "
+        "with its own noise (pipeline.estimation); gaussian / savgol: filters of the synced grid.")
+    noise_sd: dict[str, float] = Field(
+        default_factory=dict, description="Per signal, its white-noise SD in the signal's unit; signals not named "
+        "get an SD estimated from the data (robust local fit).")
+    process_noise: dict[str, float] = Field(
+        default_factory=dict, description="kalman: per DOF (u v w p q r), the jerk's spectral density; DOFs not "
+        "named get it by maximum likelihood.")
+    gate_sigmas: float = Field(5.0, ge=0, description="kalman: measurements whose residual exceeds this many SDs "
+                               "are rejected as outliers (0: none).")
+    max_velocity_sd_mps: float = Field(
+        0.03, gt=0, description="kalman: a grid sample is usable where each smoothed linear velocity's SD is within "
+        "this (bridged lock losses grow it).")
+    max_rate_sd_radps: float = Field(0.01, gt=0, description="kalman: the same for the angular rates.")
+    min_segment_s: float = Field(5.0, ge=0, description="kalman: shorter usable stretches get no segment id.")
+    sigma_s: float | Literal["auto"] = Field(
+        "auto", description="gaussian: kernel width (s), or auto: per signal, the width of least estimated "
+        "mean-square error of the derivative from the signal's noise and spectrum.")
+    sigma_s_per_signal: dict[str, float] = Field(
+        default_factory=dict, description="gaussian: per velocity column (u_mps ...), a width overriding sigma_s.")
     gaussian_degree: Literal[2, 4] = Field(
         2, description="Gaussian kernels exact for polynomials up to this degree: 2 = the plain Gaussian derivative "
         "(bias sigma^2/2 times the third derivative), 4 = bias-corrected (a Gaussian-weighted local cubic fit).")
-    savgol_window_s: float = Field(1.0, gt=0)
+    savgol_window_s: float | Literal["auto"] = Field(1.0, description="savgol: window (s), or auto (per signal).")
     savgol_order: int = Field(3, ge=1)
     edge_sigmas: float = Field(3.0, ge=0, description="Samples within this many sigma of a segment edge are dropped.")
 

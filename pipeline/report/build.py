@@ -156,6 +156,47 @@ def _signals_section(root: Path, trials: list[str], metrics: dict[str, Any],
     return "".join(parts) or "<p class='warn'>No synced trial found (data/synced/).</p>"
 
 
+def _estimation_section(root: Path, trials: list[str], metrics: dict[str, Any], figs: dict[str, bytes]) -> str:
+    """Per trial: the noise of each signal, the smoother's process noise and gating, how much became usable,
+    and measured vs estimated velocity with the 2-sigma band (the differentiate stage's report and table)."""
+    parts = []
+    for trial in trials:
+        rep = _read_json(layout.estimation_report_path(root, trial)) if layout.estimation_report_path(
+            root, trial).exists() else None
+        if not rep:
+            continue
+        metrics.setdefault("estimation", {})[trial] = {
+            "usable_fraction": round(float(rep.get("usable_fraction", 0.0)), 6),
+            "synced_segment_fraction": round(float(rep.get("synced_segment_fraction", 0.0)), 6)}
+        parts.append(f"<h3>{H.esc(trial)}</h3>")
+        parts.append(H.kv_table({
+            "method": rep.get("method"),
+            "usable fraction of the grid": rep.get("usable_fraction"),
+            "fraction in sync's segments (without bridging)": rep.get("synced_segment_fraction"),
+            "segments": rep.get("segments")}))
+        noise = [{"signal": name, "noise SD": v.get("sd"), "outlier rate": v.get("outlier_rate"),
+                  "residuals": v.get("samples"), "source": v.get("source")}
+                 for name, v in sorted(rep.get("noise", {}).items())]
+        if noise:
+            parts.append(H.table(noise, caption="Noise per signal (in the signal's unit)"))
+        dofs = [{"DOF": d, "process noise q": v.get("process_noise"), "chosen by": v.get("process_noise_source"),
+                 "measurements": v.get("measurements"), "rejected (gate)": v.get("gated"),
+                 "median velocity SD": v.get("median_velocity_sd"),
+                 "median acceleration SD": v.get("median_acceleration_sd")}
+                for d, v in rep.get("dofs", {}).items()]
+        if dofs:
+            parts.append(H.table(dofs, caption="Kalman/RTS smoother per degree of freedom"))
+        if rep.get("widths_s"):
+            parts.append(H.kv_table(rep["widths_s"], key="velocity", value="filter width [s]"))
+        kin_path = layout.kinematics_path(root, trial)
+        if kin_path.exists():
+            png = figures.estimated_velocities(pd.read_parquet(kin_path), trial)
+            if png:
+                figs[f"estimation_{trial}"] = png
+                parts.append(H.image(png, f"measured vs estimated velocity of {trial}"))
+    return "".join(parts) or "<p class='muted'>No estimation report found (data/kinematics/*.estimation.json).</p>"
+
+
 def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict[str, bytes]) -> str:
     """Everything a model stage wrote under ``base``: PNGs, JSON (as tables), Markdown tables, CSV heads."""
     directory = root / base
@@ -240,6 +281,8 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
     sections = [
         ("ingest", "Ingest, sensor rates and quarantine", _ingest_section(root, trials, metrics, plots, figs)),
         ("signals", "Signals and validity", _signals_section(root, trials, metrics, plots, figs)),
+        ("estimation", "Motion estimation: noise, smoother, usable data",
+         _estimation_section(root, trials, metrics, figs)),
         ("coupled", "Coupled models (acceleration, SVR vs explicit)",
          _artifact_section(root, f"{layout.EVALUATION}/coupled", metrics, figs)),
         ("decoupled", "Decoupled damping models",

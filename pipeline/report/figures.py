@@ -100,3 +100,33 @@ def validity_fractions(frame: pd.DataFrame) -> dict[str, float]:
     if "segment" in frame.columns and len(frame):
         out["segment"] = float((frame["segment"].to_numpy() >= 0).mean())
     return out
+
+
+def estimated_velocities(kin: pd.DataFrame, trial: str, window_s: float = 120.0) -> bytes | None:
+    """Measured vs estimated u, v, r over the first ``window_s`` of a trial, the smoother's 2-sigma band
+    shaded, and the stretches it bridged (no measurement: lost bottom lock) shaded orange."""
+    dofs = [(d, u) for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps")) if f"{d}_smooth_std_{u}" in kin.columns]
+    if not dofs or kin.empty:
+        return None
+    plt = _pyplot()
+    t_all = (kin["t_ns"].to_numpy(np.int64) - int(kin["t_ns"].iloc[0])) / 1e9
+    keep = t_all <= window_s
+    t = t_all[keep]
+    fig, axes = plt.subplots(len(dofs), 1, figsize=(10, 2.0 * len(dofs) + 0.6), sharex=True, squeeze=False)
+    unit_label = {"mps": "m/s", "radps": "rad/s"}
+    for ax, (d, u) in zip(axes[:, 0], dofs, strict=True):
+        est = kin[f"{d}_{u}"].to_numpy(float)[keep]
+        sd = kin[f"{d}_smooth_std_{u}"].to_numpy(float)[keep]
+        meas = kin[f"{d}_meas_{u}"].to_numpy(float)[keep] if f"{d}_meas_{u}" in kin.columns else None
+        ax.fill_between(t, est - 2 * sd, est + 2 * sd, color="#1f77b4", alpha=0.25, lw=0, label="2σ band")
+        if meas is not None:
+            ax.plot(t, meas, ".", ms=2, color="#555555", label="measured (on the grid)")
+            for a, b in _runs(~np.isfinite(meas)):
+                ax.axvspan(t[a], t[min(b, len(t) - 1)], color="#ff7f0e", alpha=0.2, lw=0)
+        ax.plot(t, est, lw=0.9, color="#1f4e79", label="estimate")
+        ax.set_ylabel(f"{d} [{unit_label[u]}]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, loc="upper right", ncol=3)
+    axes[-1, 0].set_xlabel("time since the first usable sample [s]")
+    axes[0, 0].set_title(f"{trial}: measured vs estimated velocity (orange: bridged, no measurement)", fontsize=9)
+    return png_bytes(fig)

@@ -1,0 +1,246 @@
+"""The ``kalman`` method of the differentiate stage: body velocities, accelerations and their SDs from every
+velocity and rate sensor at its own stamps, each with its own noise.
+
+:func:`estimate_motion` (synced table + native streams + vehicle + params) -> the kinematics table + a report.
+
+- **Measurements.** The DVL's pings at their own stamps (bottom lock and non-zero, as in sync), turned into
+  the reference point's body velocity, v_ref = R v_dvl - omega x r_dvl (the rates interpolated to the ping), one
+  measurement of u, v and w each, with variance sum_j R_ij^2 sigma_j^2 from the DVL axes' noise. Each configured
+  rate signal (FOG, gyro) at its own stamps, times its sign. Without native streams (a table built in memory),
+  the synced grid's valid samples stand in.
+- **Noise.** Each signal's SD and outlier rate estimated from the data (:mod:`pipeline.estimation.noise`),
+  unless ``noise_sd`` in params gives it.
+- **Smoother.** Per DOF, :func:`pipeline.estimation.smoother.smooth`: white-jerk process, process noise by
+  maximum likelihood (unless ``process_noise`` gives it), residual gating at ``gate_sigmas``.
+- **Validity.** A grid sample is usable where every measured DOF's smoothed velocity SD is within
+  ``max_velocity_sd_mps`` / ``max_rate_sd_radps`` and the other required signals (attitude, thruster speeds)
+  are valid in the synced table. Segments are renumbered on that (``min_segment_s``), so a short loss of bottom
+  lock no longer cuts a segment: the smoother bridges it and says how sure it is.
+- **Columns.** ``u_mps`` ... ``r_radps`` and ``u_smooth_mps`` ... are the smoothed estimate (the models' inputs: a
+  bridged sample has no measurement), ``udot_mps2`` ... its derivative, ``u_smooth_std_mps`` ... and
+  ``udot_std_mps2`` ... their SDs, ``u_meas_mps`` ... the measured value on the grid as sync resampled it (NaN
+  without bottom lock). DOFs without a sensor (rates not configured) are 0 with SD 0, as before.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+from pipeline.config.params import DifferentiateParams
+from pipeline.config.vehicle import Vehicle
+from pipeline.errors import SchemaError, SyncError
+from pipeline.estimation.noise import NoiseEstimate, estimate_noise
+from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
+
+log = logging.getLogger(__name__)
+
+__all__ = ["estimate_motion", "sensor_noise", "std_column", "accel_std_column", "meas_column"]
+
+DOFS = ("u", "v", "w", "p", "q", "r")
+_UNIT = {"u": "mps", "v": "mps", "w": "mps", "p": "radps", "q": "radps", "r": "radps"}
+
+
+def std_column(dof: str) -> str:
+    return f"{dof}_smooth_std_{_UNIT[dof]}"
+
+
+def accel_std_column(dof: str) -> str:
+    return f"{dof}dot_std_{_UNIT[dof]}2"
+
+
+def meas_column(dof: str) -> str:
+    return f"{dof}_meas_{_UNIT[dof]}"
+
+
+def _native(streams: Mapping[str, pd.DataFrame | pa.Table] | None, signal: str
+            ) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+    """(t_ns sorted, all columns) of the stream carrying ``signal``, or None."""
+    if not streams:
+        return None
+    for name in sorted(streams):
+        table = streams[name]
+        cols = table.column_names if isinstance(table, pa.Table) else list(table.columns)
+        if signal in cols:
+            arrays = {c: (table.column(c).to_numpy() if isinstance(table, pa.Table) else table[c].to_numpy())
+                      for c in cols}
+            t = np.asarray(arrays.pop("t_ns"), dtype=np.int64)
+            order = np.argsort(t, kind="stable")
+            return t[order], {c: np.asarray(v, dtype=float)[order] for c, v in arrays.items()}
+    return None
+
+
+def _noise(signal: str, t_ns: np.ndarray, x: np.ndarray, params: DifferentiateParams) -> NoiseEstimate:
+    if signal in params.noise_sd:
+        return NoiseEstimate(float(params.noise_sd[signal]), float("nan"), 0, "config")
+    est = estimate_noise(t_ns / 1e9, x, gate=params.gate_sigmas)
+    if not np.isfinite(est.sd) or est.sd <= 0:
+        raise SyncError(f"cannot estimate the noise of signal {signal!r} ({est.samples} usable residuals); give "
+                        f"it in params: differentiate.noise_sd.{signal}", field=signal)
+    return est
+
+
+def _dvl_measurements(synced: pd.DataFrame, body: pd.DataFrame, streams, vehicle: Vehicle,
+                      params: DifferentiateParams, noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
+    from pipeline.kinematics import rpy_matrix
+
+    dvl = vehicle.sensors.dvl
+    R = rpy_matrix(*np.deg2rad(dvl.rotation_rpy_deg))
+    native = _native(streams, dvl.velocity[0])
+    if native is not None and all(s in native[1] for s in dvl.velocity):
+        t, cols = native
+        v = np.stack([cols[s] for s in dvl.velocity], axis=1)
+        ok = np.all(np.isfinite(v), axis=1)
+        if dvl.valid is not None and dvl.valid in cols:
+            ok &= np.nan_to_num(cols[dvl.valid], nan=0.0) != 0
+        if dvl.zero_is_invalid:
+            ok &= ~np.all(v == 0.0, axis=1)
+    else:  # no native stream: the synced grid's valid samples
+        t = synced["t_ns"].to_numpy(dtype=np.int64)
+        v = np.stack([synced[s].to_numpy(dtype=float) for s in dvl.velocity], axis=1)
+        ok = np.all(np.isfinite(v), axis=1)
+    sd = np.empty(3)
+    for j, s in enumerate(dvl.velocity):
+        noise[s] = _noise(s, t[ok], v[ok, j], params)
+        sd[j] = noise[s].sd
+    t, v = t[ok], v[ok]
+    grid = body["t_ns"].to_numpy(dtype=np.int64)
+    omega = np.stack([_interp_finite(t, grid, body[f"{d}_radps"].to_numpy(dtype=float)) for d in "pqr"], axis=1)
+    v_ref = v @ R.T - np.cross(omega, np.asarray(dvl.position_m, dtype=float))
+    var = (R**2) @ (sd**2)
+    return {d: Measurements(t, v_ref[:, j], var[j]) for j, d in enumerate("uvw")}
+
+
+def _interp_finite(t_ns: np.ndarray, grid_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(values)
+    if not ok.any():
+        return np.zeros(t_ns.size)
+    return np.interp(t_ns.astype(float), grid_ns[ok].astype(float), values[ok])
+
+
+def _rate_measurements(synced: pd.DataFrame, streams, vehicle: Vehicle, params: DifferentiateParams,
+                       noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
+    rates = vehicle.sensors.rates
+    out: dict[str, Measurements] = {}
+    for dof, name, sign in zip("pqr", (rates.p, rates.q, rates.r), rates.signs, strict=True):
+        if name is None:
+            continue
+        native = _native(streams, name)
+        if native is not None:
+            t, x = native[0], native[1][name]
+        else:
+            t, x = synced["t_ns"].to_numpy(dtype=np.int64), synced[name].to_numpy(dtype=float)
+        ok = np.isfinite(x)
+        noise[name] = _noise(name, t[ok], x[ok], params)
+        out[dof] = Measurements(t[ok], sign * x[ok], noise[name].sd ** 2)
+    return out
+
+
+def sensor_noise(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
+                 streams: Mapping[str, pd.DataFrame | pa.Table] | None = None
+                 ) -> tuple[dict[str, tuple[float, float]], dict[str, NoiseEstimate]]:
+    """Per measured DOF, (noise SD in body axes, median native sample interval in s); and the noise per signal.
+    ``body``: :func:`pipeline.kinematics.body_kinematics` of ``synced``."""
+    noise: dict[str, NoiseEstimate] = {}
+    meas = _dvl_measurements(synced, body, streams, vehicle, params, noise)
+    meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
+    per_dof = {dof: (float(np.sqrt(np.median(m.var))), float(np.median(np.diff(m.t_ns))) / 1e9)
+               for dof, m in meas.items() if m.t_ns.size > 1}
+    return per_dof, noise
+
+
+def _other_required_valid(synced: pd.DataFrame, vehicle: Vehicle) -> np.ndarray:
+    """Grid samples where attitude and every thruster speed are valid (the velocities are the smoother's)."""
+    from pipeline.sync import valid_column
+
+    att = vehicle.sensors.attitude
+    names = [att.quaternion] if att.quaternion is not None else [s for s in (att.roll, att.pitch, att.yaw) if s]
+    names += [thr.speed_signal for thr in vehicle.thrusters]
+    ok = np.ones(len(synced), dtype=bool)
+    for name in names:
+        col = valid_column(name)
+        if col not in synced.columns:
+            raise SchemaError(f"the synced table has no validity column {col!r}", field=col)
+        ok &= synced[col].to_numpy(dtype=bool)
+    return ok
+
+
+def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
+                    streams: Mapping[str, pd.DataFrame | pa.Table] | None = None
+                    ) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The kinematics table (rows in usable segments) and the estimation report; see the module docstring."""
+    from pipeline.kinematics import ACCELERATION, SMOOTH, VELOCITY, body_kinematics
+    from pipeline.sync import segments
+
+    body = body_kinematics(synced, vehicle)
+    for dof, col in zip(DOFS, VELOCITY, strict=True):
+        body[meas_column(dof)] = body[col]
+    grid = body["t_ns"].to_numpy(dtype=np.int64)
+    steps = np.diff(grid)
+    if grid.size < 3 or steps.min() != steps.max():
+        raise SchemaError("the synced grid must be uniform with at least 3 samples", field="t_ns")
+    h_s = float(steps[0]) / 1e9
+
+    noise: dict[str, NoiseEstimate] = {}
+    meas = _dvl_measurements(synced, body, streams, vehicle, params, noise)
+    meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
+
+    results: dict[str, Smoothed] = {}
+    for dof in DOFS:
+        if dof not in meas:
+            continue
+        try:
+            results[dof] = smooth(grid, meas[dof], q=params.process_noise.get(dof), gate=params.gate_sigmas)
+        except ValueError as err:
+            raise SyncError(f"cannot smooth {dof}: {err}", field=dof) from err
+    smoothed_variances(list(results.values()))
+
+    usable = _other_required_valid(synced, vehicle)
+    for dof, res in results.items():
+        limit = params.max_velocity_sd_mps if _UNIT[dof] == "mps" else params.max_rate_sd_radps
+        usable &= res.x_sd <= limit
+    seg = segments(usable, int(np.ceil(params.min_segment_s / h_s - 1e-9)))
+    if not np.any(seg >= 0):
+        raise SyncError(f"no stretch of at least {params.min_segment_s} s where the smoothed velocities are known "
+                        f"within the limits ({int(usable.sum())} of {len(grid)} grid samples usable)")
+
+    out = body.copy()
+    out["segment"] = seg
+    for j, dof in enumerate(DOFS):
+        res = results.get(dof)
+        zeros = np.zeros(len(out))
+        x, xdot = (res.x, res.xdot) if res else (zeros, zeros)
+        out[VELOCITY[j]] = x
+        out[SMOOTH[j]] = x
+        out[ACCELERATION[j]] = xdot
+        out[std_column(dof)] = res.x_sd if res else zeros
+        out[accel_std_column(dof)] = res.xdot_sd if res else zeros
+    kept = out[seg >= 0].reset_index(drop=True)
+    first = ["t_ns", "segment", *VELOCITY, *SMOOTH, *ACCELERATION,
+             *[std_column(d) for d in DOFS], *[accel_std_column(d) for d in DOFS], *[meas_column(d) for d in DOFS]]
+    kept = kept[first + [c for c in kept.columns if c not in first]]
+
+    report = {
+        "method": "kalman",
+        "grid_samples": int(len(grid)),
+        "usable_samples": int(len(kept)),
+        "usable_fraction": float(len(kept) / len(grid)),
+        "synced_segment_fraction": float(np.mean(synced["segment"].to_numpy() >= 0)),
+        "segments": int(seg.max()) + 1,
+        "noise": {name: est.as_dict() for name, est in sorted(noise.items())},
+        "dofs": {dof: {"process_noise": res.q, "process_noise_source": "config" if dof in params.process_noise
+                       else "maximum likelihood", "measurements": res.used + res.gated, "gated": res.gated,
+                       "gated_fraction": res.gated / max(res.used + res.gated, 1),
+                       "median_velocity_sd": float(np.median(res.x_sd)),
+                       "median_acceleration_sd": float(np.median(res.xdot_sd))}
+                 for dof, res in results.items()},
+    }
+    log.info("kalman: %d of %d grid samples usable (%.0f %%, sync's segments alone: %.0f %%), %d segment(s)",
+             len(kept), len(grid), 100 * report["usable_fraction"], 100 * report["synced_segment_fraction"],
+             report["segments"])
+    return kept, report
