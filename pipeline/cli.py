@@ -1,7 +1,7 @@
 """The ``auvid`` command: the only place that prints, shows progress bars and chooses exit codes.
 
-Exit codes: 0 done; 1 done, but some inputs were quarantined (see the report); 2 usage or config error;
-3 a stage failed (nothing half-written: every output is written atomically).
+Exit codes: 0 done; 1 done, but some inputs were quarantined or some models failed (each named; see the report);
+2 usage or config error; 3 a stage failed (nothing half-written: every output is written atomically).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ examples:
   auvid retrain --root /srv/auvid --inbox /srv/incoming --vehicle dagon.yaml
   AUVID_SCHEDULER=tcp://scheduler:8786 auvid run ...   # fan-out on a Dask cluster (or --scheduler)
 
-exit codes: 0 done, 1 done with quarantined inputs, 2 usage or config error, 3 a stage failed.
+exit codes: 0 done, 1 done with quarantined inputs or failed models, 2 usage or config error, 3 a stage failed.
 DVC: `dvc repro` runs the same stages from dvc.yaml (pip install -e '.[dvc]'). See docs/user-guide.md.
 """
 

@@ -12,7 +12,7 @@ the Gertler–Hagen / McFarland–Whitcomb structures (for tests and benchmarks)
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,19 +20,36 @@ import pandas as pd
 
 from pipeline.config.params import CoupledParams
 from pipeline.errors import ModelError
-from pipeline.evaluate import check_no_leakage, cross_validate_blocked, score_holdout, split_blocks, summarize_folds
+from pipeline.evaluate import (
+    MODEL_FAILURES,
+    check_no_leakage,
+    cross_validate_blocked,
+    model_failure,
+    score_holdout,
+    split_blocks,
+    summarize_folds,
+)
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
+from pipeline.models.graybox import GrayBox
 from pipeline.models.search import SVR_MODELS, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXPLICIT_MODELS", "MODEL_LABELS", "synthetic_frame", "tune", "build_model", "model_inputs",
+__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "noise_std_from", "synthetic_frame", "tune",
+           "build_model", "model_inputs",
            "evaluate_models"]
 
 EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb")
+#: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
+GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen"}
 MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
-                "gertler_hagen": "Gertler-Hagen", "mcfarland_whitcomb": "McFarland-Whitcomb"}
+                "gertler_hagen": "Gertler-Hagen", "mcfarland_whitcomb": "McFarland-Whitcomb",
+                "graybox": "Gray-box (MW + WDSE)", "graybox_gh": "Gray-box (GH + WDSE)"}
+#: feature-store SD columns of the smoothed signals (u v r udot vdot rdot) -> the explicit models' noise_std
+NOISE_STD_COLUMNS = ("u_smooth_std_mps", "v_smooth_std_mps", "r_smooth_std_radps", "udot_std_mps2",
+                     "vdot_std_mps2", "rdot_std_radps2")
+_EXPLICIT_CLASSES = {"gertler_hagen": GertlerHagen, "mcfarland_whitcomb": McFarlandWhitcomb}
 
 
 # -- synthetic data ---------------------------------------------------------------------------------------
@@ -121,20 +138,46 @@ def synthetic_frame(n_samples: int = 1500, *, rate_hz: float = 2.0, seed: int = 
 # -- models -----------------------------------------------------------------------------------------------
 
 def model_inputs(model: str, params: CoupledParams) -> list[str]:
-    """The feature columns a model takes: the SVRs ``params.inputs``, the explicit models ν and τ."""
-    return list(EXPLICIT_INPUTS) if model in EXPLICIT_MODELS else list(params.inputs)
+    """The feature columns a model takes: the SVRs ``params.inputs``, the explicit models ν and τ, a gray-box model
+    the union (explicit inputs first, then the SVR inputs not among them: velocities stay first)."""
+    if model in EXPLICIT_MODELS:
+        return list(EXPLICIT_INPUTS)
+    if model in GRAYBOX_MODELS:
+        return [*EXPLICIT_INPUTS, *(c for c in params.inputs if c not in EXPLICIT_INPUTS)]
+    return list(params.inputs)
 
 
-def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams) -> Any:
-    """An unfitted estimator predicting all outputs; ``hyper`` maps output -> SVR hyperparameters."""
-    if model == "gertler_hagen":
-        return GertlerHagen(solver="tls")
-    if model == "mcfarland_whitcomb":
-        return McFarlandWhitcomb(solver="tls")
-    if model not in SVR_MODELS:
-        raise ModelError(f"unknown model {model!r}; expected {list(SVR_MODELS) + list(EXPLICIT_MODELS)}")
+def noise_std_from(frame: pd.DataFrame | None) -> tuple[float, ...] | None:
+    """The explicit models' ``noise_std`` from the smoother's SD columns (median over rows), τ left to the estimator
+    (NaN); None when the table lacks any of :data:`NOISE_STD_COLUMNS`."""
+    if frame is None or any(c not in frame.columns for c in NOISE_STD_COLUMNS):
+        return None
+    med = [float(np.nanmedian(frame[c].to_numpy(float))) for c in NOISE_STD_COLUMNS]
+    if not all(np.isfinite(med)):
+        return None
+    return (*med[:3], float("nan"), float("nan"), float("nan"), *med[3:])
+
+
+def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams, *,
+                train: pd.DataFrame | None = None) -> Any:
+    """An unfitted estimator predicting all outputs; ``hyper`` maps output -> SVR hyperparameters (a gray-box
+    model's: its residual WDSE-SVR's). ``train`` (optional): the training rows, for the explicit models' noise SDs
+    (:func:`noise_std_from`)."""
+    if model in EXPLICIT_MODELS:
+        return _EXPLICIT_CLASSES[model](solver="wtls", noise_std=noise_std_from(train))
+    known = list(SVR_MODELS) + list(EXPLICIT_MODELS) + list(GRAYBOX_MODELS)
+    if model not in SVR_MODELS and model not in GRAYBOX_MODELS:
+        raise ModelError(f"unknown model {model!r}; expected {known}")
     if not hyper or any(out not in hyper for out in params.outputs):
         raise ModelError(f"no tuned hyperparameters for {model!r} and every output {params.outputs}")
+    if model in GRAYBOX_MODELS:
+        cols = model_inputs(model, params)
+        res_cols = [cols.index(c) for c in params.inputs]
+        n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
+        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std_from(train))
+        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity) for out in params.outputs])
+        return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
+                       residual_columns=tuple(res_cols))
     n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
     return PerOutputRegressor([make_svr(model, hyper[out], n_velocity) for out in params.outputs])
 
@@ -156,14 +199,19 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
          ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
     """Search hyperparameters of every SVR model and output on the tuning block only.
 
-    Returns ``(hyper, trace)``: ``hyper[model][output]`` = flat hyperparameters, ``trace[model][output]`` =
-    the :class:`SearchResult` as a dict.
+    A gray-box model's residual WDSE-SVR is tuned on the residuals ``y - base.predict`` of its explicit base fitted
+    on the (whole, time-ordered) tuning block; its search starts from the GP seed, not from a warm start (the
+    target differs). Returns ``(hyper, trace)``: ``hyper[model][output]`` = flat hyperparameters,
+    ``trace[model][output]`` = the :class:`SearchResult` as a dict.
     """
     if len(tuning) == 0:
         raise ModelError("tuning block is empty")
     if "split" in tuning.columns and set(tuning["split"].unique()) != {"tuning"}:
         raise ModelError(f"tune() got rows of split(s) {sorted(set(tuning['split']) - {'tuning'})}")
     _check_columns(tuning, [*params.inputs, *params.outputs], "tune")
+    graybox = [m for m in GRAYBOX_MODELS if m in params.models]
+    if graybox:
+        _check_columns(tuning, EXPLICIT_INPUTS, f"tune ({', '.join(graybox)})")
     data = _subsample(tuning, params.max_samples)
     X = data[params.inputs].to_numpy(float)
     n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
@@ -183,16 +231,35 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
             log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
             trace[model][out] = res.to_dict()
+    for model in graybox:
+        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std_from(tuning))
+        base.fit(tuning[EXPLICIT_INPUTS].to_numpy(float), tuning[params.outputs].to_numpy(float))
+        resid = data[params.outputs].to_numpy(float) - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
+        hyper[model], trace[model] = {}, {}
+        for k, out in enumerate(params.outputs):
+            kw = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
+            if params.search == "fast":
+                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance)
+            res = search("wdse_svr", X, resid[:, k], params.search, **kw)
+            log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
+            hyper[model][out] = res.best_params
+            trace[model][out] = res.to_dict()
     return hyper, trace
 
 
 def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[str, dict[str, Any]],
-                    params: CoupledParams, *, tuning_keys: pd.DataFrame | None = None, n_jobs: int | None = 1
-                    ) -> dict[str, Any]:
+                    params: CoupledParams, *, tuning_keys: pd.DataFrame | None = None, n_jobs: int | None = 1,
+                    failures: dict[str, dict[str, str]] | None = None,
+                    on_model: Callable[[str, dict[str, Any] | None], None] | None = None) -> dict[str, Any]:
     """Blocked CV on the train_test block and the final check on the test trial(s), per model.
 
     Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted}}``; the
     final estimator is fitted on the whole train_test block.
+
+    A model's failure (:data:`pipeline.evaluate.MODEL_FAILURES`) names the model. With ``failures`` given it is
+    logged, recorded there (``failures[model]`` = :func:`pipeline.evaluate.model_failure`) and the other models go
+    on; without, it is raised as a ModelError. ``on_model(model, result or None)`` is called as each model
+    finishes or fails (the stage writes that model's artifacts then, not after the whole study).
     """
     _check_columns(train_test, [*params.outputs, "trial", "t_ns"], "evaluate")
     keys = train_test[["trial", "t_ns"]]
@@ -201,30 +268,50 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
     y = train_test[params.outputs].to_numpy(float)
     results: dict[str, Any] = {}
     for model in params.models:
-        est = build_model(model, hyper.get(model), params)
-        cols = model_inputs(model, params)
-        _check_columns(train_test, cols, model)
-        X = train_test[cols].to_numpy(float)
-        folds = cross_validate_blocked(est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
-                                       outputs=params.outputs, n_jobs=n_jobs)
-        final_est = est.fit(X, y)
-        final = None
-        if len(test):
-            final = score_holdout(final_est, test[cols].to_numpy(float), test[params.outputs].to_numpy(float),
-                                  params.outputs)
-        results[model] = {"folds": folds, "summary": summarize_folds(folds), "final": final, "estimator": final_est}
+        try:
+            results[model] = _evaluate_model(model, train_test, test, y, keys, hyper, params, tuning_keys, n_jobs)
+        except MODEL_FAILURES as err:
+            entry = model_failure(model, err)
+            if failures is None:
+                raise ModelError(f"model {model!r} failed ({entry['error']}): {entry['reason']}") from err
+            log.error("model %s failed, the others go on: %s: %s", model, entry["error"], entry["reason"])
+            failures[model] = entry
+            if on_model is not None:
+                on_model(model, None)
+            continue
         log.info("%s: CV test R2 %s", model, {o: round(s["test_r2"]["mean"], 4)
                                              for o, s in results[model]["summary"].items()})
+        if on_model is not None:
+            on_model(model, results[model])
     return results
 
 
+def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np.ndarray, keys: pd.DataFrame,
+                    hyper: dict[str, dict[str, Any]], params: CoupledParams, tuning_keys: pd.DataFrame | None,
+                    n_jobs: int | None) -> dict[str, Any]:
+    est = build_model(model, hyper.get(model), params, train=train_test)
+    cols = model_inputs(model, params)
+    _check_columns(train_test, cols, model)
+    X = train_test[cols].to_numpy(float)
+    folds = cross_validate_blocked(est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
+                                   outputs=params.outputs, n_jobs=n_jobs)
+    final_est = est.fit(X, y)
+    final = None
+    if len(test):
+        final = score_holdout(final_est, test[cols].to_numpy(float), test[params.outputs].to_numpy(float),
+                              params.outputs)
+    return {"folds": folds, "summary": summarize_folds(folds), "final": final, "estimator": final_est}
+
+
 def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1) -> dict[str, Any]:
-    """Everything on one table with a ``split`` column: tune, CV, final check (no files)."""
+    """Everything on one table with a ``split`` column: tune, CV, final check (no files). A model that fails
+    is left out of ``results`` and named in ``failed`` (``{model: {"error", "reason"}}``); the others stay."""
     blocks = split_blocks(frame)
     hyper, trace = tune(blocks["tuning"], params, n_jobs=n_jobs)
+    failed: dict[str, dict[str, str]] = {}
     results = evaluate_models(blocks["train_test"], blocks["test"], hyper, params,
-                              tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs)
-    return {"hyper": hyper, "trace": trace, "results": results}
+                              tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs, failures=failed)
+    return {"hyper": hyper, "trace": trace, "results": results, "failed": failed}
 
 
 # -- tables and figures ------------------------------------------------------------------------------------
@@ -247,8 +334,10 @@ def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], 
     return "\n".join(lines) + "\n"
 
 
-def table3(results: dict[str, Any], outputs: Sequence[str]) -> tuple[str, dict[str, Any]]:
-    """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check."""
+def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, dict[str, str]] | None = None
+           ) -> tuple[str, dict[str, Any]]:
+    """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check.
+    The models in ``failed`` are named under the table (JSON: ``{model: {"failed": entry}}``)."""
     lines = ["| Model | Output | train R² mean | train R² SD | test R² mean | test R² SD | test MAE mean | "
              "final-check R² |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     doc: dict[str, Any] = {}
@@ -260,6 +349,10 @@ def table3(results: dict[str, Any], outputs: Sequence[str]) -> tuple[str, dict[s
             lines.append(f"| {MODEL_LABELS.get(model, model)} | {out} | {s['train_r2']['mean']:.3f} | "
                          f"{s['train_r2']['sd']:.3f} | {s['test_r2']['mean']:.3f} | {s['test_r2']['sd']:.3f} | "
                          f"{s['test_mae']['mean']:.4g} | {final} |")
+    for model, entry in (failed or {}).items():
+        doc[model] = {"failed": entry}
+        lines.append(f"\nFailed, not in the table: {MODEL_LABELS.get(model, model)} "
+                     f"({entry['error']}: {entry['reason']})")
     return "\n".join(lines) + "\n", doc
 
 

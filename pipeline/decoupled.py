@@ -32,6 +32,7 @@ from sklearn.model_selection import GridSearchCV, KFold, cross_validate, learnin
 from threadpoolctl import threadpool_limits
 
 from pipeline.errors import ModelError
+from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
 from pipeline.simulate import DAMPING_COLUMNS, VELOCITY_COLUMNS
 
@@ -84,6 +85,8 @@ class ModelResult:
 @dataclass
 class StudyResult:
     results: list[ModelResult]
+    #: (DOF, model) pairs that failed: :func:`pipeline.evaluate.model_failure` entries with ``dof``
+    failed: list[dict[str, str]] = field(default_factory=list)
 
     def get(self, dof: str, model: str) -> ModelResult:
         for r in self.results:
@@ -96,6 +99,8 @@ class StudyResult:
         out: dict[str, Any] = {}
         for r in self.results:
             out.setdefault(r.dof, {})[r.model] = r.as_dict()
+        for f in self.failed:
+            out.setdefault(f["dof"], {})[f["model"]] = {"failed": f"{f['error']}: {f['reason']}"}
         return out
 
     def timings(self) -> dict[str, Any]:
@@ -153,44 +158,83 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
               models: Sequence[str] = ("ls", "mlp", "krr", "svr", "gp"), folds: int = 5,
               search: str | dict[str, dict[str, list[Any]]] = "fast", gp_max_samples: int = 500,
               max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0,
-              dof_trials: Mapping[str, Sequence[str]] | None = None, gp_warp: str = "signed_square") -> StudyResult:
+              dof_trials: Mapping[str, Sequence[str]] | None = None, gp_warp: str = "signed_square",
+              on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None) -> StudyResult:
     """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names.
+
+    A (DOF, model) that fails (:data:`pipeline.evaluate.MODEL_FAILURES`, e.g. too few samples of a DOF) is logged
+    and listed in :attr:`StudyResult.failed`; the others go on. ``on_result(result, None)`` or ``on_result(None,
+    failure)`` is called as each one ends, so a stage can write it at once.
 
     ``dof_trials`` (optional): per DOF, the trials (``trial`` column) its models learn from; as in paper 001, where
     each DOF's damping comes from experiments exciting that DOF alone. DOFs not named use every trial.
     """
     with threadpool_limits(1, user_api="blas"):  # small problems: parallelism belongs to models, not BLAS
         return _run_study(tuning, train_test, dofs, models, folds, search, gp_max_samples, max_samples, curve_points,
-                          seed, dof_trials, gp_warp)
+                          seed, dof_trials, gp_warp, on_result)
 
 
 def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[str], models: Sequence[str], folds: int,
                search: str | dict[str, dict[str, list[Any]]], gp_max_samples: int, max_samples: int | None,
-               curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str
-               ) -> StudyResult:
-    results = []
+               curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str,
+               on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None) -> StudyResult:
+    study = StudyResult([])
+
+    def failed(name: str, dof: str, err: Exception) -> None:
+        entry = model_failure(name, err, dof=dof)
+        log.error("%s/%s failed, the others go on: %s: %s", dof, name, entry["error"], entry["reason"])
+        study.failed.append(entry)
+        if on_result is not None:
+            on_result(None, entry)
+
     for dof in dofs:
-        tune_rows, tt_rows = tuning, train_test
-        if dof_trials and dof_trials.get(dof):
-            wanted = set(dof_trials[dof])
-            tune_rows = tuning[tuning["trial"].isin(wanted)]
-            tt_rows = train_test[train_test["trial"].isin(wanted)]
-        X_tune, y_tune = dof_data(tune_rows, dof, max_samples)
-        X, y = dof_data(tt_rows, dof, max_samples)
-        if len(y) < 2 * folds:
-            raise ModelError(f"{len(y)} train_test samples are too few for {folds}-fold CV", field=dof)
+        try:
+            rows = _dof_rows(tuning, train_test, dof, folds, max_samples, dof_trials)
+        except MODEL_FAILURES as err:
+            for name in models:
+                failed(name, dof, err)
+            continue
         for name in models:
-            model_search = search.get(name, "fast") if isinstance(search, dict) else search
-            t0 = time.perf_counter()
-            est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
-                                    gp_max_samples=gp_max_samples, gp_warp=gp_warp)
-            cv, curve, fit_s, pred_s = evaluate(est, X, y, folds=folds, curve_points=curve_points)
-            with _quiet():
-                final = clone(est).fit(X, y)
-            log.info("%s/%s: search MAE %.3f, CV test MAE %.3f (%.1f s)", dof, name, score, cv["test_mae_mean"],
-                     time.perf_counter() - t0)
-            results.append(ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final))
-    return StudyResult(results)
+            try:
+                result = _study_one(dof, name, *rows, folds=folds, search=search, seed=seed,
+                                    gp_max_samples=gp_max_samples, gp_warp=gp_warp, curve_points=curve_points)
+            except MODEL_FAILURES as err:
+                failed(name, dof, err)
+                continue
+            study.results.append(result)
+            if on_result is not None:
+                on_result(result, None)
+    return study
+
+
+def _dof_rows(tuning: pd.DataFrame, train_test: pd.DataFrame, dof: str, folds: int, max_samples: int | None,
+              dof_trials: Mapping[str, Sequence[str]] | None) -> tuple[np.ndarray, ...]:
+    """``(X_tune, y_tune, X, y)`` of a DOF (its own trials if ``dof_trials`` names them)."""
+    tune_rows, tt_rows = tuning, train_test
+    if dof_trials and dof_trials.get(dof):
+        wanted = set(dof_trials[dof])
+        tune_rows = tuning[tuning["trial"].isin(wanted)]
+        tt_rows = train_test[train_test["trial"].isin(wanted)]
+    X_tune, y_tune = dof_data(tune_rows, dof, max_samples)
+    X, y = dof_data(tt_rows, dof, max_samples)
+    if len(y) < 2 * folds:
+        raise ModelError(f"{len(y)} train_test samples are too few for {folds}-fold CV", field=dof)
+    return X_tune, y_tune, X, y
+
+
+def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, X: np.ndarray, y: np.ndarray, *,
+               folds: int, search: str | dict[str, dict[str, list[Any]]], seed: int, gp_max_samples: int,
+               gp_warp: str, curve_points: int) -> ModelResult:
+    model_search = search.get(name, "fast") if isinstance(search, dict) else search
+    t0 = time.perf_counter()
+    est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
+                            gp_max_samples=gp_max_samples, gp_warp=gp_warp)
+    cv, curve, fit_s, pred_s = evaluate(est, X, y, folds=folds, curve_points=curve_points)
+    with _quiet():
+        final = clone(est).fit(X, y)
+    log.info("%s/%s: search MAE %.3f, CV test MAE %.3f (%.1f s)", dof, name, score, cv["test_mae_mean"],
+             time.perf_counter() - t0)
+    return ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final)
 
 
 def damping_curves(study: StudyResult, ranges: dict[str, tuple[float, float]], n_points: int = 101
@@ -224,6 +268,8 @@ def table_markdown(study: StudyResult) -> str:
         lines.append(f"| {r.dof} | {r.model} | {params or 'N/A'} | {r.search_mae:.3f} | "
                      f"{c['test_mae_mean']:.3f} ({c['test_mae_sd']:.3f}) | {c['test_r2_mean']:.3f} "
                      f"({c['test_r2_sd']:.3f}) | {c['train_mae_mean']:.3f} |")
+    for f in study.failed:
+        lines.append(f"\nFailed, not in the table: {f['dof']}/{f['model']} ({f['error']}: {f['reason']})")
     return "\n".join(lines) + "\n"
 
 

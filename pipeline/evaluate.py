@@ -19,12 +19,21 @@ from sklearn.base import clone
 from sklearn.metrics import mean_absolute_error, r2_score
 from sklearn.model_selection import KFold
 
-from pipeline.errors import ModelError
+from pipeline.errors import ModelError, PipelineError
 
 log = logging.getLogger(__name__)
 
 __all__ = ["SPLITS", "split_blocks", "blocked_folds", "check_no_leakage", "regression_scores",
-           "cross_validate_blocked", "summarize_folds", "score_holdout"]
+           "cross_validate_blocked", "summarize_folds", "score_holdout", "MODEL_FAILURES", "model_failure"]
+
+#: What one model's fit or evaluation may raise without stopping a study: the pipeline's own errors and numerical
+#: errors from numpy / scipy / scikit-learn (LinAlgError is a ValueError). Never KeyboardInterrupt or MemoryError.
+MODEL_FAILURES: tuple[type[Exception], ...] = (PipelineError, ValueError, ArithmeticError, RuntimeError)
+
+
+def model_failure(model: str, err: Exception, **where: str) -> dict[str, str]:
+    """A failed model as a report entry: ``{"model", "error" (exception type), "reason"}`` (+ ``where``)."""
+    return {"model": model, **where, "error": type(err).__name__, "reason": str(err)}
 
 SPLITS = ("tuning", "train_test", "test")
 

@@ -2,7 +2,8 @@
 
 A stage module defines ``run(root, vehicle, params, **kw) -> StageResult`` (reads inputs, calls the
 library, writes outputs) and ``main(argv) = stage_main(NAME, run, argv)``. Exit codes: 0 done, 1 done
-with quarantined inputs, 2 usage or config error, 3 a stage failed (PipelineError).
+with quarantined inputs or failed models (a model stage lists each failed model in ``quarantined`` with its
+``model`` and ``reason``; the others are written), 2 usage or config error, 3 a stage failed (PipelineError).
 
 The registry of stages (``STAGE_ORDER``, ``load_stage``) and the DAG runner without DVC (``run_stages``) live
 here too: the ``auvid`` CLI, ``auvid retrain`` and the tests (with fake stages) all go through them.

@@ -6,7 +6,9 @@ learning curves, timings, final fit); ``decoupled.trials`` names, per DOF, the t
 Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card
 ``<dof>_<model>.json`` (lineage, hyperparameters, scores, versions), and ``metrics.json`` (deterministic),
 ``timings.json`` (wall-clock, varies run to run), ``curves.json``, ``table.md``, ``learning_curves.png``,
-``timings.png``, ``damping.png``.
+``timings.png``, ``damping.png``. Each (DOF, model) is written as soon as it finishes (its joblib and card, and
+the tables so far); one that fails is logged, named in ``metrics.json`` and ``table.md`` and in the result's
+quarantine list (exit code 1), and the others go on.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import sklearn
 from pipeline import __version__, layout, store
 from pipeline.config import Params, Vehicle, config_hash
 from pipeline.decoupled import (
+    ModelResult,
     StudyResult,
     damping_curves,
     dof_columns,
@@ -80,27 +83,56 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     if train_test.empty or tuning.empty:
         raise ModelError(f"the feature store has {len(tuning)} tuning and {len(train_test)} train_test rows for "
                          f"vehicle {vehicle.name!r}; both are needed", file=layout.features_dir(root))
-    study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
-                      gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
-                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp)
     lineage = {"vehicle": vehicle.name, "vehicle_hash": config_hash(vehicle), "params_hash": config_hash(p),
                "params": p.model_dump(), "trials": sorted(set(tuning["trial"]) | set(train_test["trial"])),
                "rows": {"tuning": len(tuning), "train_test": len(train_test)}}
-    outputs = write_models(study, root, lineage)
     ev = evaluation_dir(root)
+    outputs: list[Path] = []
+    done = StudyResult([])
+
+    def finished(result: ModelResult | None, failure: dict[str, str] | None) -> None:
+        """Write this (DOF, model) at once (or drop a stale file of it), then the tables of what is done."""
+        if result is not None:
+            done.results.append(result)
+            outputs.extend(write_models(StudyResult([result]), root, lineage))
+        elif failure is not None:
+            done.failed.append(failure)
+            stem = models_dir(root) / f"{failure['dof']}_{failure['model']}"
+            for stale in (stem.with_suffix(".joblib"), stem.with_suffix(".json")):
+                if stale.exists():
+                    log.warning("removing %s of an earlier run: %s/%s failed this time", stale, failure["dof"],
+                                failure["model"])
+                    stale.unlink()
+        write_tables(done, lineage, ev)
+
+    study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
+                      gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
+                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished)
+    if not study.results:
+        raise ModelError("every decoupled model failed: " + "; ".join(
+            f"{f['dof']}/{f['model']}: {f['reason']}" for f in study.failed))
+    outputs += write_tables(study, lineage, ev)
     ranges = {d: (float(train_test[dof_columns(d)[0]].min()), float(train_test[dof_columns(d)[0]].max()))
               for d in p.dofs}
-    outputs.append(write_json({"lineage": lineage, "results": study.metrics()}, ev / "metrics.json"))
-    outputs.append(write_json(study.timings(), ev / "timings.json"))
     outputs.append(write_json(damping_curves(study, ranges), ev / "curves.json"))
-    with atomic_path(ev / "table.md") as tmp:
-        tmp.write_text(table_markdown(study))
-    outputs.append(ev / "table.md")
     outputs.append(plot_learning_curves(study, ev / "learning_curves.png"))
     outputs.append(plot_timings(study.timings(), ev / "timings.png"))
     outputs.append(plot_damping(study, train_test, ev / "damping.png"))
     summary = {f"{r.dof}/{r.model}": round(r.cv["test_mae_mean"], 4) for r in study.results}
-    return StageResult(stage=NAME, outputs=outputs, summary={"cv_test_mae": summary})
+    quarantined = [{**f, "file": str(models_dir(root) / f"{f['dof']}_{f['model']}.joblib"),
+                    "reason": f"model {f['dof']}/{f['model']} failed ({f['error']}): {f['reason']}"}
+                   for f in study.failed]
+    return StageResult(stage=NAME, outputs=outputs, quarantined=quarantined,
+                       summary={"cv_test_mae": summary, "failed": [f"{f['dof']}/{f['model']}" for f in study.failed]})
+
+
+def write_tables(study: StudyResult, lineage: dict[str, Any], ev: Path) -> list[Path]:
+    """metrics.json (with the failed models), timings.json and table.md of what the study has so far (atomic)."""
+    out = [write_json({"lineage": lineage, "results": study.metrics()}, ev / "metrics.json"),
+           write_json(study.timings(), ev / "timings.json")]
+    with atomic_path(ev / "table.md") as tmp:
+        tmp.write_text(table_markdown(study))
+    return [*out, ev / "table.md"]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,10 @@
 """Train and evaluate the coupled 3-DOF models: blocked CV on train_test, final check on the test trial(s).
 
 Writes per model a joblib + model card under data/models/coupled/, and Table III (md + JSON), per-fold scores,
-the Fig. 4-like box plot and metrics.json under data/evaluation/coupled/.
+the Fig. 4-like box plot and metrics.json under data/evaluation/coupled/. Each model's files and its rows of the
+tables are written as soon as that model finishes; a model that fails is logged, named in Table III and
+metrics.json (``{model: {"failed": reason}}``) and in the result's quarantine list (exit code 1), and the others
+go on (a stale joblib of it from an earlier run is removed, so the simulate stage cannot pick it up).
 """
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 from pipeline import store
@@ -16,7 +20,7 @@ from pipeline.config import Params, Vehicle, config_hash
 from pipeline.coupled import EXPLICIT_MODELS, evaluate_models, fold_boxplot, model_inputs, table3
 from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
-from pipeline.models.card import lineage, save_model
+from pipeline.models.card import card_path, lineage, save_model
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
 from stages.tune import hyperparameters_path
@@ -34,41 +38,78 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
         raise ModelError("no tuned hyperparameters; run stages.tune first", file=hp)
     hyper = json.loads(hp.read_text())["hyperparameters"] if hp.exists() else {}
     cols = ["t_ns", *sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.outputs))]
+    sd_cols = [f"{d}_smooth_std_{u}" for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps"))] + [
+        f"{d}dot_std_{u}2" for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps"))]
+    available = set(store.dataset(root).schema.names)
+    cols += [c for c in sd_cols if c in available]  # the explicit models' errors-in-variables weights
     tt = store.load(root, vehicle=vehicle.name, split="train_test", columns=cols)
     te = store.load(root, vehicle=vehicle.name, split="test", columns=cols)
     tuning_keys = store.load(root, vehicle=vehicle.name, split="tuning", columns=["t_ns"])
-    results = evaluate_models(tt, te, hyper, cp, tuning_keys=tuning_keys[["trial", "t_ns"]], n_jobs=cp.n_jobs)
-
     files = sorted(features_dir(root).glob(f"vehicle={quote(vehicle.name, safe='')}/trial=*/part-0.parquet"))
     data_lineage = lineage(files, root)
     out_models, out_eval = root / MODELS / "coupled", root / EVALUATION / "coupled"
     outputs: list[Path] = []
-    for model, res in results.items():
-        card = {"model": model, "study": "coupled 3-DOF (paper 000)", "vehicle": vehicle.name,
-                "inputs": model_inputs(model, cp), "outputs": cp.outputs,
-                "hyperparameters": hyper.get(model, {"solver": "tls"}), "seed": cp.seed,
-                "params_hash": config_hash(cp), "data_lineage": data_lineage,
-                "trained_on": {"split": "train_test", "rows": len(tt), "trials": sorted(tt["trial"].unique())},
-                "scores": {"cv": res["summary"], "final_check": res["final"],
-                           "final_check_trials": sorted(te["trial"].unique())}}
-        if hasattr(res["estimator"], "coefficients"):
-            card["coefficients"] = res["estimator"].coefficients()
-        outputs += list(save_model(res["estimator"], out_models / f"{model}.joblib", card))
-    md, doc = table3(results, cp.outputs)
+    results: dict[str, Any] = {}
+    failed: dict[str, dict[str, str]] = {}
+
+    def finished(model: str, res: dict[str, Any] | None) -> None:
+        """Write this model's joblib + card (or drop a stale one if it failed) and the tables so far."""
+        target = out_models / f"{model}.joblib"
+        if res is None:
+            for stale in (target, card_path(target)):
+                if stale.exists():
+                    log.warning("removing %s of an earlier run: %s failed this time", stale, model)
+                    stale.unlink()
+        else:
+            results[model] = res
+            card = {"model": model, "study": "coupled 3-DOF (paper 000)", "vehicle": vehicle.name,
+                    "inputs": model_inputs(model, cp), "outputs": cp.outputs,
+                    "hyperparameters": hyper.get(model, {"solver": "tls"}), "seed": cp.seed,
+                    "params_hash": config_hash(cp), "data_lineage": data_lineage,
+                    "trained_on": {"split": "train_test", "rows": len(tt), "trials": sorted(tt["trial"].unique())},
+                    "scores": {"cv": res["summary"], "final_check": res["final"],
+                               "final_check_trials": sorted(te["trial"].unique())}}
+            if hasattr(res["estimator"], "coefficients"):
+                card["coefficients"] = res["estimator"].coefficients()
+            outputs.extend(save_model(res["estimator"], target, card))
+        write_tables(results, failed, cp.outputs, out_eval)
+
+    evaluate_models(tt, te, hyper, cp, tuning_keys=tuning_keys[["trial", "t_ns"]], n_jobs=cp.n_jobs,
+                    failures=failed, on_model=finished)
+    if not results:
+        raise ModelError("every coupled model failed: " + "; ".join(f"{m}: {e['reason']}" for m, e in failed.items()))
+    outputs += write_tables(results, failed, cp.outputs, out_eval)
+    fold_boxplot(results, cp.outputs, out_eval / "fold_test_r2.png")
+    outputs.append(out_eval / "fold_test_r2.png")
+    metrics = _metrics(results, failed)
+    quarantined = [{**entry, "file": str(out_models / f"{model}.joblib"),
+                    "reason": f"model {model!r} failed ({entry['error']}): {entry['reason']}"}
+                   for model, entry in failed.items()]
+    return StageResult(NAME, outputs=outputs, quarantined=quarantined,
+                       summary={"metrics": metrics, "failed": sorted(failed)})
+
+
+def _metrics(results: dict[str, Any], failed: dict[str, dict[str, str]]) -> dict[str, Any]:
+    metrics: dict[str, Any] = {
+        m: {out: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
+                  "final_r2": (r["final"] or {}).get(out, {}).get("r2")} for out, s in r["summary"].items()}
+        for m, r in results.items()}
+    metrics.update({m: {"failed": f"{e['error']}: {e['reason']}"} for m, e in failed.items()})
+    return metrics
+
+
+def write_tables(results: dict[str, Any], failed: dict[str, dict[str, str]], outputs: list[str],
+                 out_eval: Path) -> list[Path]:
+    """Table III, per-fold scores, timings and metrics.json of the models finished so far (atomic rewrites)."""
+    md, doc = table3(results, outputs, failed)
     with atomic_path(out_eval / "table3.md") as tmp:
         tmp.write_text(md)
     folds = {m: [{k: v for k, v in f.items() if not k.endswith("time_s")} for f in r["folds"]]
              for m, r in results.items()}
     timings = {m: {"fit_time_s": [f["fit_time_s"] for f in r["folds"]]} for m, r in results.items()}
-    metrics = {m: {out: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
-                         "final_r2": (r["final"] or {}).get(out, {}).get("r2")}
-                   for out, s in r["summary"].items()} for m, r in results.items()}
-    outputs += [out_eval / "table3.md", write_json(doc, out_eval / "table3.json"),
-                write_json(folds, out_eval / "fold_scores.json"), write_json(timings, out_eval / "timings.json"),
-                write_json(metrics, out_eval / "metrics.json")]
-    fold_boxplot(results, cp.outputs, out_eval / "fold_test_r2.png")
-    outputs.append(out_eval / "fold_test_r2.png")
-    return StageResult(NAME, outputs=outputs, summary={"metrics": metrics})
+    return [out_eval / "table3.md", write_json(doc, out_eval / "table3.json"),
+            write_json(folds, out_eval / "fold_scores.json"), write_json(timings, out_eval / "timings.json"),
+            write_json(_metrics(results, failed), out_eval / "metrics.json")]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
-from pipeline.coupled import table2, tune
+from pipeline.coupled import model_inputs, table2, tune
 from pipeline.layout import EVALUATION, MODELS
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
@@ -23,7 +23,8 @@ def hyperparameters_path(root: Path) -> Path:
 def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     """Search SVR hyperparameters on the tuning split (coupled study, paper 000)."""
     cp = params.coupled
-    frame = store.load(root, vehicle=vehicle.name, split="tuning", columns=[*cp.inputs, *cp.outputs, "split"])
+    cols = sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.inputs) | set(cp.outputs))
+    frame = store.load(root, vehicle=vehicle.name, split="tuning", columns=[*cols, "split"])
     hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs)
     out_eval = Path(root) / EVALUATION / "coupled"
     doc = {"vehicle": vehicle.name, "search": cp.search, "seed": cp.seed, "inputs": cp.inputs,

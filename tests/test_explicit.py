@@ -96,7 +96,9 @@ def test_noise_robustness_and_clone_pickle():
     assert np.all(r2 > 0.95)
     again = pickle.loads(pickle.dumps(model))
     np.testing.assert_array_equal(again.predict(X), model.predict(X))
-    assert clone(model).get_params() == {"solver": "tls", "weight_equations": True}
+    assert clone(model).get_params() == {"solver": "wtls", "weight_equations": True, "noise_std": None,
+                                         "refine": False, "dt_s": None, "refine_horizon_s": 2.0,
+                                         "refine_max_nfev": 30}
 
 
 def test_errors():
@@ -105,6 +107,14 @@ def test_errors():
         GertlerHagen().fit(nu, nudot)
     with pytest.raises(ValueError, match="solver"):
         GertlerHagen(solver="lasso").fit(np.column_stack([nu, nu]), nudot)
-    nu[:, 2] = 0.0  # no yaw rate at all: r-columns vanish
-    with pytest.raises(ModelError):
-        GertlerHagen().fit(np.column_stack([nu, nudot]), nudot)
+    with pytest.raises(ValueError, match="noise_std"):
+        GertlerHagen(noise_std=(0.1, 0.1)).fit(np.column_stack([nu, nu]), nudot)
+    with pytest.raises(ValueError, match="dt_s"):
+        GertlerHagen(refine=True).fit(np.column_stack([nu, nu]), nudot)
+    tau = nudot.copy()
+    nudot[:, 0] = 0.0  # no surge acceleration: the surge mass cannot be identified
+    with pytest.raises(ModelError, match="mass matrix is singular"):
+        GertlerHagen().fit(np.column_stack([nu, tau]), nudot)
+    tau[:, 0] = 0.0  # ... nor, without surge force either, anything of the X equation
+    with pytest.raises(ModelError, match="GertlerHagen: equation X has tau identically zero and no excited"):
+        GertlerHagen().fit(np.column_stack([nu, tau]), nudot)

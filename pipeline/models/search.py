@@ -6,8 +6,12 @@ Two methods:
   WDSE with 6 inputs + C + epsilon that is 5**8 = 390,625 candidates per fold; kept reproducible, not cheap.
 * ``"fast"`` (default): gammas seeded from a Gaussian process's ARD length scales on a subsample
   (gamma_i = 1 / (2 l_i^2) on standardized inputs; anisotropic RBF + WhiteKernel), C and epsilon seeded from
-  the target scale and the GP's noise level (Cherkassky & Ma 2004), then a coordinate pattern search on log
-  scale with step halving, capped at ``max_evals`` candidates.
+  the target scale and the GP's noise level (Cherkassky & Ma 2004), plus the simpler kernel's optimum as a warm
+  start; then a few scrambled-Sobol points within a decade of the GP seed (so the search never depends on the
+  warm start alone), expected-improvement steps of a GP fitted to the CV scores so far (a model-based search),
+  and an adaptive coordinate pattern search on log scale to finish (one step size per hyperparameter, doubled on
+  success, halved on failure; Hooke-Jeeves moves), capped at ``max_evals`` candidates. A warm start
+  that is still the best at the end is reported (``warm_start_kept``, ``note``) and logged.
 
 Grids and seeds live on standardized inputs; C and epsilon are multiples of the target's SD (``y_scale``), so
 the same grid fits surge, sway and yaw. ``n_fits`` counts SVR fits (candidates x folds); the GP fit of the
@@ -27,10 +31,11 @@ from typing import Any
 
 import numpy as np
 from joblib import Parallel, delayed
+from scipy.stats import norm, qmc
 from sklearn.base import clone
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, Matern, WhiteKernel
 from sklearn.metrics import r2_score
 
 from pipeline.errors import ModelError
@@ -63,6 +68,9 @@ class SearchResult:
     elapsed_s: float
     gp_fit_s: float = 0.0
     trace: list[dict[str, Any]] = field(default_factory=list)
+    warm_start_score: float | None = None  # fast search with a warm start: its tuning score
+    warm_start_kept: bool = False  # fast search: the warm start was still the best at the end
+    note: str = ""  # why (when warm_start_kept)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -235,20 +243,31 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
-                smooth_tolerance: float = 0.0) -> SearchResult:
-    """GP-seeded coordinate pattern search on log scale (see module docstring).
+                smooth_tolerance: float = 0.0, n_explore: int | None = None, local: str = "model",
+                model_share: float = 0.6) -> SearchResult:
+    """GP-seeded adaptive pattern search on log scale (see module docstring).
 
-    Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. When the pattern
-    search has converged (step below ``min_step``) and budget is left, it restarts from the best point with random
-    log-scale perturbations (seeded by ``seed``) and a fresh step, so the whole budget is used.
+    Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. Phases, each
+    candidate tagged in the trace (``phase``): ``seed`` (GP ARD and isotropic), ``warm_start``, ``explore``
+    (``n_explore`` scrambled-Sobol points within a decade of the best seed, deterministic; default a quarter of
+    the budget left after the seeds, at most one per hyperparameter), ``model`` (``local="model"``, the default:
+    ``model_share`` of the remaining budget on expected-improvement steps of a GP fitted to the scores so far,
+    see :func:`_model_search`), ``local`` (pattern search from the best point, one step size
+    per coordinate: a step that improves is extended and its size doubled, a coordinate on which both directions
+    fail halves its step; after each sweep a Hooke-Jeeves move along the sweep's displacement) and ``restart``
+    (random log-scale perturbations of the best once every step is below ``min_step``), so the budget is used.
 
     ``warm_start``: best hyperparameters of a simpler variant (RBF for 2-weights, 2-weights for WDSE), added
-    as a seed, so that the richer kernel's tuning score is never below the simpler one's.
+    as a seed, so that the richer kernel's tuning score is never below the simpler one's. When it is still the
+    best at the end, the result says so (``warm_start_kept``, ``note``: how many candidates of which phases were
+    tried and how close they came) and a warning is logged.
 
     ``smooth_tolerance`` > 0: return the smoothest candidate within that much R² of the best (see
     :func:`_smoothest_within`) rather than the best itself.
     """
     X, y = _check_xy(X, y)
+    if local not in ("model", "pattern"):
+        raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
     folds = blocked_folds(len(X), n_folds)
     names = _names(model, X.shape[1])
     if max_fits is not None:
@@ -256,59 +275,161 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     seeds, gp_s = _gp_seed(model, X, y, n_velocity, gp_samples, seed)
+    phases = ["seed"] * len(seeds)
     if warm_start is not None:
         seeds.append(np.log(_expand(model, warm_start, X.shape[1], n_velocity)))
+        phases.append("warm_start")
     lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
     cache: dict[tuple[float, ...], float] = {}
     trace: list[dict[str, Any]] = []
 
-    def evaluate(v: np.ndarray) -> float:
+    def evaluate(v: np.ndarray, phase: str) -> float:
         v = np.clip(v, lo, hi)
         key = tuple(np.round(v, 6))
         if key not in cache:
             params = _to_params(model, names, np.exp(v))
             cache[key] = cv_score(model, params, X, y, folds, n_jobs, n_velocity)
-            trace.append({"params": params, "score": cache[key]})
+            trace.append({"params": params, "score": cache[key], "phase": phase})
         return cache[key]
 
-    scored = [(evaluate(x0), k) for k, x0 in enumerate(seeds)]
+    scored = [(evaluate(x0, ph), k) for k, (x0, ph) in enumerate(zip(seeds, phases, strict=True))]
     best, k_best = max(scored)
     x = np.clip(seeds[k_best], lo, hi)
-    step = initial_step
-    while len(cache) < max_evals:
-        if step < min_step:  # converged: restart around the best point with a random log-scale perturbation
+    warm_key = tuple(np.round(np.clip(seeds[-1], lo, hi), 6)) if warm_start is not None else None
+    if n_explore is None:
+        n_explore = min(len(names), max(0, max_evals - len(cache)) // 4)
+    if n_explore > 0:  # a few candidates away from both seeds and warm start, around the best GP seed
+        gp_best = max(range(len(phases)), key=lambda k: scored[k][0] if phases[k] == "seed" else -np.inf)
+        centre = np.clip(seeds[gp_best], lo, hi)
+        unit = qmc.Sobol(len(names), scramble=True, seed=seed).random_base2(math.ceil(math.log2(n_explore)))
+        for u in unit[:n_explore]:
+            if len(cache) >= max_evals:
+                break
+            cand = np.clip(centre + (2.0 * u - 1.0) * math.log(10.0), lo, hi)
+            score = evaluate(cand, "explore")
+            if score > best:
+                x, best = cand, score
+    if local == "model":
+        x, best = _model_search(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
+    x, best = _pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
+    result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
+                          len(cache) * n_folds, n_folds, 0.0, gp_fit_s=gp_s, trace=trace)
+    if warm_key is not None:
+        result.warm_start_score = float(cache[warm_key])
+        if tuple(np.round(x, 6)) == warm_key:
+            result.warm_start_kept = True
+            result.note = _kept_note(trace, cache[warm_key], n_folds)
+            log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
+    if smooth_tolerance > 0:
+        result.best_params, result.best_score = _smoothest_within(trace, best, smooth_tolerance)
+    result.elapsed_s = time.perf_counter() - t0
+    return result
+
+
+def _model_search(evaluate: Any, x: np.ndarray, best: float, lo: np.ndarray, hi: np.ndarray, max_evals: int,
+                  cache: dict[tuple[float, ...], float], seed: int, share: float = 0.6) -> tuple[np.ndarray, float]:
+    """Model-based steps: a GP (Matern 5/2, ARD) on the candidates scored so far (log scale, unit box) and the
+    expected improvement over Sobol points and perturbations of the best; ``share`` of the remaining budget."""
+    n_steps = int(share * max(0, max_evals - len(cache)))
+    span = hi - lo
+    rng = np.random.default_rng(seed + 1)
+    sobol = qmc.Sobol(x.size, scramble=True, seed=seed + 2)
+    for _ in range(n_steps):
+        if len(cache) >= max_evals:
+            break
+        V = (np.array(list(cache.keys())) - lo) / span
+        f = np.array(list(cache.values()))
+        f = np.maximum(f, np.quantile(f, 0.25) if len(f) > 4 else f.min())  # cap the failures' pull
+        kernel = ConstantKernel(1.0, (1e-3, 1e3)) * Matern(np.full(x.size, 0.3), (1e-2, 1e1), nu=2.5) + \
+            WhiteKernel(1e-4, (1e-8, 1e-1))
+        gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=seed, n_restarts_optimizer=1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gp.fit(V, f)
+        xb = (x - lo) / span
+        local_pts = np.clip(xb + rng.normal(0.0, 0.05, size=(512, x.size)), 0, 1)
+        cands = np.vstack([sobol.random(512), local_pts])
+        mu, sd = gp.predict(cands, return_std=True)
+        z = (mu - best) / np.maximum(sd, 1e-9)
+        ei = (mu - best) * norm.cdf(z) + sd * norm.pdf(z)
+        cand = lo + cands[int(np.argmax(ei))] * span
+        score = evaluate(cand, "model")
+        if score > best:
+            x, best = np.clip(cand, lo, hi), score
+    return x, best
+
+
+def _pattern_search(evaluate: Any, x: np.ndarray, best: float, lo: np.ndarray, hi: np.ndarray,
+                    rng: np.random.Generator, max_evals: int, cache: dict[tuple[float, ...], float],
+                    initial_step: float, min_step: float) -> tuple[np.ndarray, float]:
+    """Adaptive coordinate pattern search with Hooke-Jeeves moves and random restarts (see :func:`fast_search`)."""
+    steps = np.full(x.size, initial_step)
+    direction = np.ones(x.size)
+
+    def budget_left() -> bool:
+        return len(cache) < max_evals
+
+    while budget_left():
+        if np.all(steps < min_step):  # converged: restart around the best point with a random perturbation
             n_before = len(cache)
             for _ in range(20):
                 cand = np.clip(x + rng.normal(0.0, initial_step / 2, size=x.size), lo, hi)
-                score = evaluate(cand)
+                score = evaluate(cand, "restart")
                 if len(cache) > n_before:
                     break
             if len(cache) == n_before:
                 break  # nothing new to try
             if score > best:
                 x, best = cand, score
-            step = initial_step / 2
+            steps[:] = initial_step / 2
             continue
-        improved = False
-        for i in range(len(x)):
-            for direction in (1.0, -1.0):
-                if len(cache) >= max_evals:
+        x_sweep = x.copy()
+        for i in range(x.size):
+            if steps[i] < min_step:
+                continue
+            moved = False
+            for sign in (direction[i], -direction[i]):
+                if not budget_left():
                     break
                 cand = x.copy()
-                cand[i] = np.clip(cand[i] + direction * step, lo[i], hi[i])
+                cand[i] = np.clip(cand[i] + sign * steps[i], lo[i], hi[i])
                 if cand[i] == x[i]:
                     continue
-                score = evaluate(cand)
+                score = evaluate(cand, "local")
                 if score > best:
-                    x, best, improved = cand, score, True
-                    break  # keep this direction; move on to the next coordinate
-        if not improved:
-            step /= 2.0
-    params = _to_params(model, names, np.exp(x))
-    if smooth_tolerance > 0:
-        params, best = _smoothest_within(trace, best, smooth_tolerance)
-    return SearchResult(model, "fast", params, float(best), len(cache), len(cache) * n_folds, n_folds,
-                        time.perf_counter() - t0, gp_fit_s=gp_s, trace=trace)
+                    x, best, moved, direction[i] = cand, score, True, sign
+                    while budget_left():  # extend the successful step while it keeps improving
+                        further = x.copy()
+                        further[i] = np.clip(x[i] + sign * steps[i], lo[i], hi[i])
+                        if further[i] == x[i] or (s2 := evaluate(further, "local")) <= best:
+                            break
+                        x, best = further, s2
+                    break
+            steps[i] = min(2.0 * steps[i], 4.0 * initial_step) if moved else steps[i] / 2.0
+        shift = x - x_sweep
+        if np.any(shift != 0) and budget_left():  # Hooke-Jeeves: try the sweep's displacement once more
+            cand = np.clip(x + shift, lo, hi)
+            score = evaluate(cand, "local")
+            if score > best:
+                x, best = cand, score
+    return x, best
+
+
+def _kept_note(trace: list[dict[str, Any]], warm_score: float, n_folds: int) -> str:
+    """Why the warm start survived: how many candidates of each phase were tried and how close they came."""
+    others = [t for t in trace if t.get("phase") != "warm_start"]
+    counts: dict[str, int] = {}
+    for t in others:
+        counts[t["phase"]] = counts.get(t["phase"], 0) + 1
+    tried = ", ".join(f"{n} {ph}" for ph, n in counts.items()) or "none"
+    if not others:
+        return f"no candidate besides the warm start fitted in the budget (R2 {warm_score:.4f})"
+    runner_up = max(t["score"] for t in others)
+    spread = warm_score - min(t["score"] for t in others)
+    why = ("the score is flat around it" if spread < 1e-3 else
+           "every other candidate scored lower: a local optimum the budget did not escape")
+    return (f"none of {len(others)} other candidates ({tried}; {n_folds}-fold CV) beat its tuning R2 "
+            f"{warm_score:.4f} (runner-up {runner_up:.4f}, worst {warm_score - spread:.4f}): {why}")
 
 
 def _gammas(params: dict[str, Any]) -> list[float]:
@@ -331,7 +452,8 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
     if method == "fast":
         return fast_search(model, X, y, **kw)
     if method == "paper_grid":
-        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance"):
+        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "n_explore",
+                    "local", "model_share", "initial_step", "min_step"):
             kw.pop(key, None)
         return grid_search(model, X, y, keep_trace=False, **kw)
     raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")

@@ -1,0 +1,60 @@
+"""The fast hyperparameter search moves away from a bad warm start, and says so when it keeps a good one."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from pipeline.models.search import fast_search
+
+
+def _two_of_six(n: int = 150, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A target that depends on inputs 0 and 1 only; inputs 2-5 are distractors on very different scales."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, 6)) * np.array([1.0, 0.2, 3.0, 500.0, 0.01, 40.0])
+    z0, z1 = X[:, 0], X[:, 1] / 0.2
+    y = np.sin(1.5 * z0) + 0.5 * z1**2 + 0.05 * rng.normal(size=n)
+    return X, y
+
+
+BAD_WARM_START = {"gammas": [30.0] * 6, "C": 0.05, "epsilon": 0.001}  # far too narrow, far too little C
+
+
+@pytest.fixture(scope="module")
+def searched():
+    X, y = _two_of_six()
+    return X, y, fast_search("wdse_svr", X, y, max_evals=30, warm_start=BAD_WARM_START)
+
+
+def test_search_leaves_a_bad_warm_start_and_beats_it(searched):
+    _, _, res = searched
+    assert not res.warm_start_kept and res.note == ""
+    assert res.warm_start_score is not None and res.warm_start_score < 0.1
+    assert res.best_score > 0.9 > res.warm_start_score + 0.8
+    assert res.n_fits == 30 * 3 and len(res.trace) == 30
+    assert {"seed", "warm_start", "explore", "model", "local"} <= {t["phase"] for t in res.trace}
+
+
+def test_irrelevant_inputs_get_the_smaller_gammas(searched):
+    _, _, res = searched
+    g = np.log(res.best_params["gammas"])
+    assert g[:2].mean() > g[2:].mean() + np.log(30.0), res.best_params["gammas"]
+
+
+def test_search_reports_a_warm_start_it_keeps(searched, caplog):
+    X, y, res = searched
+    # the previous optimum as warm start, and budget for the GP seeds only: nothing can beat it
+    with caplog.at_level(logging.WARNING, logger="pipeline.models.search"):
+        again = fast_search("wdse_svr", X, y, max_evals=3, warm_start=res.best_params)
+    assert again.warm_start_kept and again.best_params == res.best_params
+    assert again.best_score == pytest.approx(res.best_score)
+    assert "none of 2 other candidates (2 seed" in again.note
+    assert any("kept its warm start unchanged" in r.getMessage() for r in caplog.records)
+
+
+def test_no_warm_start_no_report():
+    X, y = _two_of_six(80, seed=1)
+    res = fast_search("rbf_svr", X, y, max_evals=5)
+    assert res.warm_start_score is None and not res.warm_start_kept and res.note == ""
