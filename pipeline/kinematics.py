@@ -16,6 +16,10 @@ Two pure steps (the differentiate stage calls both):
      zero within noise. The derive stage then sees zeros for those DOFs (see :mod:`pipeline.derive`).
    - **DVL**: v_ref = R v_dvl - omega x r_dvl, with R the mounting rotation (``rotation_rpy_deg``, ZYX:
      R = Rz(yaw) Ry(pitch) Rx(roll), DVL frame -> body) and r_dvl the DVL position in body axes.
+   - **Other velocity sources** (``sensors.velocity``): body-frame velocities as they are (R = I); earth-frame
+     velocities (towing-tank x/y rates, GNSS) rotated at each sample by the logged attitude, v_body = R_nb^T v_ned
+     (ENU axes converted to NED first), then the same lever-arm term. Two signals make a planar source: u, v
+     only (w = 0, not measured), and earth x/y rates are rotated by the heading alone (:func:`sensor_to_body`).
 
 2. :func:`differentiate` (that table + DifferentiateParams) -> adds ``u_smooth_mps`` ... and
    ``udot_mps2`` ... ``rdot_radps2``, per segment, and drops the samples near each segment's edges.
@@ -48,7 +52,7 @@ from scipy.ndimage import correlate1d, gaussian_filter1d
 from scipy.signal import savgol_filter
 
 from pipeline.config.params import DifferentiateParams
-from pipeline.config.vehicle import Vehicle
+from pipeline.config.vehicle import LinearVelocity, Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.sync import quat_columns
 
@@ -148,10 +152,9 @@ def body_kinematics(synced: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
         if name is not None:
             omega[:, j] = sign * _column(synced, name, f"sensors.rates.{'pqr'[j]}")
 
-    dvl = sensors.dvl
-    v_dvl = np.stack([_column(synced, s, "sensors.dvl.velocity") for s in dvl.velocity], axis=1)
-    R = rpy_matrix(*np.deg2rad(dvl.rotation_rpy_deg))
-    v_ref = v_dvl @ R.T - np.cross(omega, np.asarray(dvl.position_m, dtype=float))
+    source = sensors.linear_velocity()
+    v_sensor = np.stack([_column(synced, s, f"{source.key}.velocity") for s in source.velocity], axis=1)
+    v_ref = velocity_to_body(v_sensor, source, roll, pitch, unwrap_finite(yaw), omega)
 
     for j, name in enumerate(VELOCITY[:3]):
         out[name] = v_ref[:, j]
@@ -163,6 +166,47 @@ def body_kinematics(synced: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     for thr in vehicle.thrusters:
         out[thr.speed_signal] = _column(synced, thr.speed_signal, f"thrusters[{thr.name}].speed_signal")
     return pd.DataFrame(out)
+
+
+def sensor_to_body(source: LinearVelocity, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Per sample (n, 3, 3), the rotation taking the velocity sensor's vector (padded with 0 to three components
+    when planar) into body FRD axes.
+
+    - ``body`` (a DVL or body-frame velocities): the constant mounting rotation R (``rotation_rpy_deg``, ZYX).
+    - ``earth``: R_nb^T A, with R_nb = Rz(yaw) Ry(pitch) Rx(roll) the body attitude w.r.t. NED and A the earth
+      axes' map to NED (identity, or ENU -> NED). A planar (two-signal) earth source is rotated by the heading
+      alone, R_nb = Rz(yaw): its vertical velocity is not measured, so roll and pitch must not mix it in.
+    """
+    n = np.shape(yaw)[0]
+    if source.frame == "body":
+        return np.broadcast_to(rpy_matrix(*np.deg2rad(source.rotation_rpy_deg)), (n, 3, 3))
+    if source.frame != "earth":
+        raise ValueError(f"unknown velocity frame {source.frame!r}; expected body or earth")
+    planar = len(source.velocity) == 2
+    zeros = np.zeros(n)
+    R_nb = rpy_matrix(zeros, zeros, yaw) if planar else rpy_matrix(roll, pitch, yaw)
+    A = _ENU_TO_NED if source.earth_axes == "enu" else np.eye(3)
+    if planar and source.earth_axes == "enu":
+        A = _ENU_TO_NED @ np.diag([1.0, 1.0, 0.0])  # x east, y north -> north, east; no vertical component
+    return np.swapaxes(R_nb, 1, 2) @ A
+
+
+def velocity_to_body(v_sensor: np.ndarray, source: LinearVelocity, roll: np.ndarray, pitch: np.ndarray,
+                     yaw: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """Body velocity (n, 3) of the reference point from the velocity sensor's signals (n, 2 or 3):
+    v_ref = S v_sensor - omega x r (S: :func:`sensor_to_body`, r: the sensor's position). A planar source measures
+    no w: its w column is 0 (as an unconfigured rate), not the vertical part of the lever-arm term."""
+    v = np.asarray(v_sensor, dtype=float)
+    if v.shape[1] == 2:
+        v = np.column_stack([v, np.zeros(len(v))])
+    r = np.asarray(source.position_m, dtype=float)
+    if source.frame == "body":  # one constant rotation (the DVL's mounting): the plain product
+        v_ref = v @ rpy_matrix(*np.deg2rad(source.rotation_rpy_deg)).T - np.cross(omega, r)
+    else:
+        v_ref = np.einsum("nij,nj->ni", sensor_to_body(source, roll, pitch, yaw), v) - np.cross(omega, r)
+    if len(source.velocity) == 2:
+        v_ref[:, 2] = 0.0
+    return v_ref
 
 
 def gaussian_truncate(edge_sigmas: float) -> float:
@@ -370,5 +414,6 @@ def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiatePara
 
 
 __all__ = ["ACCELERATION", "ATTITUDE", "SMOOTH", "VELOCITY", "attitude_from_quaternion", "body_kinematics",
+           "sensor_to_body", "velocity_to_body",
            "differentiate", "gaussian_derivative", "kinematics_report", "auto_widths",
            "gaussian_filters", "kinematics", "local_cubic_weights"]

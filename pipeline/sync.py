@@ -65,9 +65,9 @@ def valid_column(signal: str) -> str:
 
 
 def required_signals(vehicle: Vehicle) -> list[str]:
-    """Signals every later stage needs: DVL velocity, attitude, configured rates, thruster speeds."""
+    """Signals every later stage needs: velocity, attitude, configured rates, thruster speeds."""
     sensors = vehicle.sensors
-    names: list[str] = list(sensors.dvl.velocity)
+    names: list[str] = list(sensors.linear_velocity().velocity)
     att = sensors.attitude
     if att.quaternion is not None:
         names.append(att.quaternion)
@@ -246,8 +246,9 @@ def segments(valid: np.ndarray, min_samples: int) -> np.ndarray:
 
 def _dvl_sample_ok(vehicle: Vehicle, signals: dict[str, _Signal],
                    arrays: dict[str, dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Per DVL velocity signal, which of its source samples are usable (bottom lock, not an exact zero)."""
-    dvl = vehicle.sensors.dvl
+    """Per velocity signal, which of its source samples are usable (valid flag / bottom lock; for a DVL, not an
+    exact zero)."""
+    dvl = vehicle.sensors.linear_velocity()
     out: dict[str, np.ndarray] = {}
     streams = {signals[s].stream for s in dvl.velocity if s in signals}
     for stream in streams:
@@ -257,7 +258,7 @@ def _dvl_sample_ok(vehicle: Vehicle, signals: dict[str, _Signal],
         if dvl.valid is not None and dvl.valid in cols:
             ok &= np.nan_to_num(cols[dvl.valid], nan=0.0) != 0
         if dvl.zero_is_invalid:
-            if len(mine) == 3:
+            if len(mine) == len(dvl.velocity):
                 ok &= ~np.all(np.stack([cols[s] for s in mine]) == 0.0, axis=0)
             else:
                 log.warning("DVL velocity signals are split over streams; zero_is_invalid checked per stream "
@@ -363,7 +364,7 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
             out[name] = values
         valid[name] = v
 
-    dvl = vehicle.sensors.dvl
+    dvl = vehicle.sensors.linear_velocity()
     if dvl.valid is not None and dvl.valid in signals:
         lock = valid[dvl.valid] & (np.nan_to_num(out[dvl.valid], nan=0.0) != 0)
         for s in dvl.velocity:

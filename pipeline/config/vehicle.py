@@ -6,6 +6,7 @@ choose which DOFs they use (``dofs``), nothing here hard-wires 3 DOF.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -88,11 +89,71 @@ class RateSource(Frozen):
     signs: Vec3 = (1.0, 1.0, 1.0)
 
 
+class VelocitySource(Frozen):
+    """Linear velocity measured directly, not by a DVL: in body axes, or in earth axes (towing-tank x/y rates,
+    GNSS, a motion-capture system's rates) rotated into body axes by the logged attitude at each sample.
+
+    Two signals make a planar source (u, v; or earth x, y): w is then not measured (0, as an unconfigured rate),
+    and earth-frame x/y rates are rotated by the heading alone. Three signals are rotated by roll, pitch and yaw.
+    """
+
+    frame: Literal["body", "earth"] = Field(description=(
+        "body: the signals are u, v[, w] in body FRD axes; earth: x, y[, z] in the earth axes of `earth_axes`, "
+        "rotated into body axes by the attitude (sensors.attitude) at each sample."))
+    signals: list[str] = Field(min_length=2, max_length=3, description=(
+        "Signals of the velocity components: 2 (planar: u, v or x, y) or 3 (with w or z)."))
+    earth_axes: Literal["ned", "enu"] = Field("ned", description=(
+        "earth frame only: ned (x north / along heading 0, y east / 90 deg clockwise, z down: the axes the attitude "
+        "is given in) or enu (x east, y north, z up; ROS), converted to NED explicitly."))
+    position_m: Vec3 = Field((0.0, 0.0, 0.0), description=(
+        "Body-axes position of the point whose velocity is measured (GNSS antenna); the reference point's velocity "
+        "is v - omega x r."))
+    valid: str | None = Field(None, description="Validity flag signal (nonzero = valid); None: always valid.")
+
+
+@dataclass(frozen=True)
+class LinearVelocity:
+    """The configured linear-velocity sensor, whichever key states it (``sensors.dvl`` or ``sensors.velocity``)."""
+
+    key: str                      # the config key: sensors.dvl or sensors.velocity
+    frame: str                    # body (a DVL is body after its constant mounting rotation) or earth
+    velocity: tuple[str, ...]     # the component signals, 2 (planar) or 3
+    valid: str | None
+    zero_is_invalid: bool
+    position_m: Vec3
+    rotation_rpy_deg: Vec3        # constant sensor -> body rotation (DVL mounting); zero otherwise
+    earth_axes: str = "ned"
+
+    @property
+    def dofs(self) -> tuple[str, ...]:
+        """The body DOFs it measures: u, v (planar) or u, v, w."""
+        return ("u", "v", "w")[: len(self.velocity)]
+
+
 class Sensors(Frozen):
-    dvl: DvlMount
+    dvl: DvlMount | None = Field(None, description="A DVL (body-frame velocity after a constant mounting rotation).")
+    velocity: VelocitySource | None = Field(None, description=(
+        "Velocities from another source: body or earth frame (give this or `dvl`)."))
     attitude: AttitudeSource
     rates: RateSource = RateSource()
     depth: str | None = None
+
+    @model_validator(mode="after")
+    def _one_velocity_source(self) -> Sensors:
+        if (self.dvl is None) == (self.velocity is None):
+            raise ValueError("give exactly one velocity source: `dvl` (a DVL with its mounting) or `velocity` "
+                             "(frame: body or earth, with its signals)")
+        return self
+
+    def linear_velocity(self) -> LinearVelocity:
+        if self.dvl is not None:
+            d = self.dvl
+            return LinearVelocity("sensors.dvl", "body", tuple(d.velocity), d.valid, d.zero_is_invalid,
+                                  d.position_m, d.rotation_rpy_deg)
+        v = self.velocity
+        assert v is not None
+        return LinearVelocity("sensors.velocity", v.frame, tuple(v.signals), v.valid, False, v.position_m,
+                              (0.0, 0.0, 0.0), v.earth_axes)
 
 
 class Vehicle(Frozen):
@@ -122,4 +183,25 @@ class Vehicle(Frozen):
             if thr.speed_signal not in known:
                 raise ValueError(f"thrusters[{i}].speed_signal {thr.speed_signal!r} is not a configured "
                                  f"signal; known: {sorted(known)}")
+        for key, name in self._sensor_references():
+            if name not in known:
+                raise ValueError(f"{key} {name!r} is not a configured signal (define it under `streams`); "
+                                 f"known: {sorted(known)}")
         return self
+
+    def _sensor_references(self) -> list[tuple[str, str]]:
+        """(config key, signal) of every signal the sensors section names."""
+        s = self.sensors
+        source = s.linear_velocity()
+        refs = [(f"{source.key}.{'velocity' if source.key == 'sensors.dvl' else 'signals'}", n)
+                for n in source.velocity]
+        if source.valid is not None:
+            refs.append((f"{source.key}.valid", source.valid))
+        att = s.attitude
+        refs += [(f"sensors.attitude.{k}", n) for k, n in (("quaternion", att.quaternion), ("roll", att.roll),
+                                                           ("pitch", att.pitch), ("yaw", att.yaw)) if n]
+        refs += [(f"sensors.rates.{k}", n) for k, n in zip("pqr", (s.rates.p, s.rates.q, s.rates.r), strict=True)
+                 if n]
+        if s.depth:
+            refs.append(("sensors.depth", s.depth))
+        return refs

@@ -3,11 +3,13 @@ velocity and rate sensor at its own stamps, each with its own noise.
 
 :func:`estimate_motion` (synced table + native streams + vehicle + params) -> the kinematics table + a report.
 
-- **Measurements.** The DVL's pings at their own stamps (bottom lock and non-zero, as in sync), turned into
-  the reference point's body velocity, v_ref = R v_dvl - omega x r_dvl (the rates interpolated to the ping), one
-  measurement of u, v and w each, with variance sum_j R_ij^2 sigma_j^2 from the DVL axes' noise. Each configured
-  rate signal (FOG, gyro) at its own stamps, times its sign. Without native streams (a table built in memory),
-  the synced grid's valid samples stand in.
+- **Measurements.** The velocity sensor's samples at their own stamps (valid flag set; for a DVL, bottom lock and
+  non-zero, as in sync), turned into the reference point's body velocity, v_ref = S v - omega x r with the rates
+  interpolated to the sample (:func:`pipeline.kinematics.velocity_to_body`): S is a DVL's constant mounting
+  rotation, or, for earth-frame velocities, the attitude at the sample's own stamp (interpolated from the grid),
+  so the variance sum_j S_ij^2 sigma_j^2 varies per sample as the vehicle turns. One measurement of u, v (and w,
+  unless the source is planar) each. Each configured rate signal (FOG, gyro) at its own stamps, times its sign.
+  Without native streams (a table built in memory), the synced grid's valid samples stand in.
 - **Noise.** Each signal's SD and outlier rate estimated from the data (:mod:`pipeline.estimation.noise`),
   unless ``noise_sd`` in params gives it.
 - **Smoother.** Per DOF, :func:`pipeline.estimation.smoother.smooth`: white-jerk process, process noise by
@@ -85,35 +87,49 @@ def _noise(signal: str, t_ns: np.ndarray, x: np.ndarray, params: DifferentiatePa
     return est
 
 
-def _dvl_measurements(synced: pd.DataFrame, body: pd.DataFrame, streams, vehicle: Vehicle,
-                      params: DifferentiateParams, noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
-    from pipeline.kinematics import rpy_matrix
+def _velocity_measurements(synced: pd.DataFrame, body: pd.DataFrame, streams, vehicle: Vehicle,
+                           params: DifferentiateParams, noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
+    """The linear-velocity sensor's samples at their own stamps, in body axes at the reference point: one
+    measurement of each DOF it measures (u, v; and w unless planar), with its variance per sample."""
+    from pipeline.kinematics import rpy_matrix, sensor_to_body, velocity_to_body
 
-    dvl = vehicle.sensors.dvl
-    R = rpy_matrix(*np.deg2rad(dvl.rotation_rpy_deg))
-    native = _native(streams, dvl.velocity[0])
-    if native is not None and all(s in native[1] for s in dvl.velocity):
+    source = vehicle.sensors.linear_velocity()
+    native = _native(streams, source.velocity[0])
+    if native is not None and all(s in native[1] for s in source.velocity):
         t, cols = native
-        v = np.stack([cols[s] for s in dvl.velocity], axis=1)
+        v = np.stack([cols[s] for s in source.velocity], axis=1)
         ok = np.all(np.isfinite(v), axis=1)
-        if dvl.valid is not None and dvl.valid in cols:
-            ok &= np.nan_to_num(cols[dvl.valid], nan=0.0) != 0
-        if dvl.zero_is_invalid:
+        if source.valid is not None and source.valid in cols:
+            ok &= np.nan_to_num(cols[source.valid], nan=0.0) != 0
+        if source.zero_is_invalid:
             ok &= ~np.all(v == 0.0, axis=1)
     else:  # no native stream: the synced grid's valid samples
         t = synced["t_ns"].to_numpy(dtype=np.int64)
-        v = np.stack([synced[s].to_numpy(dtype=float) for s in dvl.velocity], axis=1)
+        v = np.stack([synced[s].to_numpy(dtype=float) for s in source.velocity], axis=1)
         ok = np.all(np.isfinite(v), axis=1)
-    sd = np.empty(3)
-    for j, s in enumerate(dvl.velocity):
+    k = len(source.velocity)
+    sd = np.zeros(3)
+    for j, s in enumerate(source.velocity):
         noise[s] = _noise(s, t[ok], v[ok, j], params)
         sd[j] = noise[s].sd
     t, v = t[ok], v[ok]
     grid = body["t_ns"].to_numpy(dtype=np.int64)
-    omega = np.stack([_interp_finite(t, grid, body[f"{d}_radps"].to_numpy(dtype=float)) for d in "pqr"], axis=1)
-    v_ref = v @ R.T - np.cross(omega, np.asarray(dvl.position_m, dtype=float))
-    var = (R**2) @ (sd**2)
-    return {d: Measurements(t, v_ref[:, j], var[j]) for j, d in enumerate("uvw")}
+
+    def at_stamps(column: str) -> np.ndarray:
+        return _interp_finite(t, grid, body[column].to_numpy(dtype=float))
+
+    omega = np.stack([at_stamps(f"{d}_radps") for d in "pqr"], axis=1)
+    if source.frame == "earth":  # the attitude at each sample's own stamp (yaw is unwrapped on the grid)
+        roll, pitch, yaw = at_stamps("roll_rad"), at_stamps("pitch_rad"), at_stamps("yaw_rad")
+    else:
+        roll = pitch = yaw = np.zeros(t.size)
+    v_ref = velocity_to_body(v, source, roll, pitch, yaw, omega)
+    if source.frame == "body":
+        R = rpy_matrix(*np.deg2rad(source.rotation_rpy_deg))
+        var = (R**2) @ (sd**2)  # constant: one value per DOF, as the DVL always had
+        return {d: Measurements(t, v_ref[:, j], var[j]) for j, d in enumerate(source.dofs)}
+    var_n = (sensor_to_body(source, roll, pitch, yaw) ** 2) @ (sd**2)  # per sample: the rotation changes
+    return {d: Measurements(t, v_ref[:, j], var_n[:, j]) for j, d in enumerate(source.dofs[:k])}
 
 
 def _interp_finite(t_ns: np.ndarray, grid_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -147,7 +163,7 @@ def sensor_noise(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle, par
     """Per measured DOF, (noise SD in body axes, median native sample interval in s); and the noise per signal.
     ``body``: :func:`pipeline.kinematics.body_kinematics` of ``synced``."""
     noise: dict[str, NoiseEstimate] = {}
-    meas = _dvl_measurements(synced, body, streams, vehicle, params, noise)
+    meas = _velocity_measurements(synced, body, streams, vehicle, params, noise)
     meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
     per_dof = {dof: (float(np.sqrt(np.median(m.var))), float(np.median(np.diff(m.t_ns))) / 1e9)
                for dof, m in meas.items() if m.t_ns.size > 1}
@@ -187,7 +203,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     h_s = float(steps[0]) / 1e9
 
     noise: dict[str, NoiseEstimate] = {}
-    meas = _dvl_measurements(synced, body, streams, vehicle, params, noise)
+    meas = _velocity_measurements(synced, body, streams, vehicle, params, noise)
     meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
 
     results: dict[str, Smoothed] = {}
