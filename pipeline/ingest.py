@@ -13,9 +13,13 @@ stamp from its clock) plus its offset, instead of its own stamps.
 
 Validation happens before anything is decoded: every configured topic (or CSV file and column) must exist, a
 ``header`` clock needs a message type with a header; the :class:`~pipeline.errors.IngestError` lists what is
-available. A configured topic that exists but fails to decode, or yields no message, makes that stream missing;
-every configured stream is needed downstream, so the log gets **quarantine reasons** (``IngestOutput.quarantine``)
-and the stage writes none of its streams (the report goes into the quarantine entry). Streams whose source kind
+available. A configured topic that exists but fails to decode (a type without definition is found before
+anything is read: the reason names the file, topic, type and the ``message_definitions`` key that gives it), or
+yields no message, makes that stream missing; a stream that is not ``optional`` is needed downstream, so the log
+gets **quarantine reasons** (``IngestOutput.quarantine``) and the stage writes none of its streams (the report goes
+into the quarantine entry). An ``optional`` stream that is missing for any of these reasons, or whose topic / file
+is not in the log at all, is logged as a warning and listed in the report's ``absent_streams`` (source, reason,
+signals); the trial goes on without it. Streams whose source kind
 does not match the log (a CSV ``file`` stream while reading a bag, or a ``topic`` stream while reading a CSV
 directory) are listed as ``skipped_streams``; a log to which no stream applies is an IngestError.
 """
@@ -34,8 +38,9 @@ import pyarrow as pa
 
 from pipeline.config import Vehicle, config_hash
 from pipeline.config.sources import StreamSource
-from pipeline.errors import IngestError
+from pipeline.errors import ConfigError, IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo
+from pipeline.io.msgdefs import UserTypes, load_user_types
 from pipeline.stamps import check_stamps, fmt_rate, uniform_times
 from pipeline.tableio import file_sha256
 from pipeline.units import conversion
@@ -92,19 +97,34 @@ def column_plans(stream: StreamSource) -> list[ColumnPlan]:
     return plans
 
 
-def _open(path: Path) -> Any:
+def _open(path: Path, definitions: UserTypes | None = None) -> Any:
     """The reader for ``path``, chosen by content (:func:`pipeline.io.open_log`); a CSV directory -> text."""
     from pipeline.io import open_log
 
-    return open_log(path)
+    return open_log(path, definitions)
 
 
-def _resolve_csv_file(name: str, pattern: str, available: list[str], path: Path) -> str:
+def user_types(vehicle: Vehicle) -> UserTypes | None:
+    """The vehicle's ``message_definitions`` parsed (directories relative to the vehicle file); None if unset."""
+    if not vehicle.message_definitions:
+        return None
+    dirs = [vehicle.resolve(d) for d in vehicle.message_definitions]
+    for i, (given, found) in enumerate(zip(vehicle.message_definitions, dirs, strict=True)):
+        if not found.is_dir():
+            raise ConfigError(f"message definition directory {given!r} does not exist (looked at {found})",
+                              field=f"message_definitions.{i}")
+    return load_user_types(dirs)
+
+
+def _resolve_csv_file(name: str, pattern: str, available: list[str], path: Path,
+                      optional: bool = False) -> str | None:
     if pattern in available:
         return pattern
     matches = [a for a in available if fnmatch.fnmatch(a, pattern)]
     if len(matches) == 1:
         return matches[0]
+    if not matches and optional:
+        return None
     if not matches:
         raise IngestError(f"stream {name!r}: no CSV file matches {pattern!r}; available: {available}",
                           file=path, topic=pattern)
@@ -150,7 +170,16 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
 
 def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, source_name: str | None,
             sha_job: Any) -> IngestOutput:
-    with _open(path) as reader:
+    absent: dict[str, dict[str, Any]] = {}  # optional streams this trial lacks
+
+    def lack(name: str, source: str, reason: str) -> None:
+        stream = vehicle.streams[name]
+        absent[name] = {"topic" if stream.file is None else "file": source, "reason": reason,
+                        "signals": list(stream.signals)}
+        log.warning("%s (%s): optional stream %r (%s) is absent: %s; its signals %s are invalid in this trial",
+                    out.trial, path.name, name, source, reason, list(stream.signals))
+
+    with _open(path, user_types(vehicle)) as reader:
         is_csv = reader.format == "csv"
         # The cheap listing (a reader may take counts from the recorder's summary; read() checks them).
         infos: dict[str, TopicInfo] = reader.catalog() if hasattr(reader, "catalog") else reader.topics()
@@ -163,13 +192,40 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
                 continue
             if is_csv:
                 assert stream.file is not None and stream.csv is not None
-                sources[name] = _resolve_csv_file(name, stream.file, sorted(infos), path)
+                found = _resolve_csv_file(name, stream.file, sorted(infos), path, stream.optional)
+                if found is None:
+                    lack(name, stream.file, f"no CSV file matches {stream.file!r}; available: {sorted(infos)}")
+                    continue
+                sources[name] = found
             else:
                 assert stream.topic is not None
+                if stream.optional and stream.topic not in infos:
+                    lack(name, stream.topic, f"topic not in {path.name}; available: {sorted(infos)}")
+                    continue
                 sources[name] = stream.topic
         if not sources:
-            raise IngestError(f"no configured stream applies to this {reader.format} log: {skipped}", file=path)
+            why = f"skipped: {skipped}" + (f"; optional and absent: {sorted(absent)}" if absent else "")
+            raise IngestError(f"no configured stream applies to this {reader.format} log ({why})", file=path)
         _validate(path, vehicle, sources, infos, reader)
+        # Types without a definition are found before anything is decoded.
+        for name, source in list(sources.items()):
+            why = reader.undecodable(source) if hasattr(reader, "undecodable") else None
+            if why is None:
+                continue
+            reason = f"topic {source!r} in {path.name} ({infos[source].msgtype}) cannot be decoded: {why}"
+            del sources[name]
+            if vehicle.streams[name].optional:
+                lack(name, source, reason)
+            else:
+                out.quarantine.append({"stream": name, "topic": source, "reason": reason})
+        if out.quarantine:  # a needed stream cannot be decoded: the trial is quarantined without a long read
+            log.warning("%s (%s): %s", out.trial, path.name, "; ".join(q["reason"] for q in out.quarantine))
+            out.report = {"trial": out.trial, "source_file": source_name if source_name is not None else str(path),
+                          "format": reader.format, "absent_streams": absent, "skipped_streams": skipped,
+                          "quarantine": out.quarantine}
+            return out
+        if not sources:
+            raise IngestError(f"every stream that applies to this log is absent: {sorted(absent)}", file=path)
         requests: dict[str, list[str]] = {}
         for name, source in sources.items():
             fields = requests.setdefault(source, [])
@@ -190,7 +246,7 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         "trial": out.trial, "source_file": source_file, "source_sha256": sha, "format": fmt,
         "config_hash": chash, "salvage": asdict(result.salvage) if result.salvage else None,
         "failed_topics": dict(sorted(result.failed.items())), "skipped_streams": skipped,
-        "topics": {}, "streams": {},
+        "absent_streams": absent, "topics": {}, "streams": {},
     }
     for topic, data in sorted(result.topics.items()):
         report["topics"][topic] = _topic_report(data, infos.get(topic))
@@ -202,12 +258,16 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         # The reader's columns are let go once their last stream's table is built (peak memory).
         data = result.topics.get(source) if uses[source] else result.topics.pop(source, None)
         where = {"stream": name, "topic": source}
+        missing = None
         if data is None:
-            reason = result.failed.get(source, "the reader returned no data")
-            out.quarantine.append({**where, "reason": f"configured topic failed to decode: {reason}"})
-            continue
-        if data.read == 0 or data.log_ns.size == 0:
-            out.quarantine.append({**where, "reason": "configured topic holds no message (or no valid row)"})
+            missing = f"configured topic failed to decode: {result.failed.get(source, 'the reader returned no data')}"
+        elif data.read == 0 or data.log_ns.size == 0:
+            missing = "configured topic holds no message (or no valid row)"
+        if missing is not None:
+            if stream.optional:
+                lack(name, source, missing)
+            else:
+                out.quarantine.append({**where, "reason": missing})
             continue
         table, stamps, checked = _build_table(path, name, stream, data)
         out.tables[name] = table
@@ -233,6 +293,9 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         if result.salvage is not None:
             prov["salvage"] = asdict(result.salvage)
         out.provenance[name] = prov
+    if not out.tables and not out.quarantine:
+        out.quarantine.append({"stream": None, "topic": None,
+                               "reason": f"every stream is absent from this trial: {sorted(absent)}"})
     report["quarantine"] = out.quarantine
     out.report = report
     return out

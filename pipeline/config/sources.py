@@ -25,6 +25,12 @@ streams:
     csv: {time_column: t, time_unit: ms, time_origin: absolute}
     signals:
       r_fog_radps: {field: rate, unit: deg/s}
+  depth:
+    topic: /depth              # std_msgs/msg/Float64: no header
+    clock: log
+    optional: true           # a trial without /depth goes on, its signals invalid (NaN) downstream
+    signals:
+      depth_m: {field: data}
   tank:
     file: run*.dat
     clock: column
@@ -33,6 +39,17 @@ streams:
     signals:
       x_m: {field: x}
 ```
+
+Types a log does not embed (ROS 2 sqlite3 bags before Iron carry no definitions; an MCAP schema may be
+empty) come from the user's ``.msg`` / ``.idl`` files, in directories listed at the top level of the vehicle
+config, searched recursively (a ROS package tree works: ``<pkg>/msg/Foo.msg`` defines ``pkg/msg/Foo``)::
+
+    message_definitions: [msgs/]    # relative to the vehicle file
+
+A stream with ``optional: true`` may be absent from a trial (topic or file missing, undecodable, or empty):
+ingest then logs a warning, lists it under ``absent_streams`` in the ingest report, and the trial goes on;
+sync gives its signals as NaN with ``<signal>__valid`` False. A stream that is not optional (the default) is
+needed: a trial without it is quarantined, with the reason.
 
 Ingest checks the stamps of every stream (zero, constant, sim-time header stamps, duplicates, quantized
 stamps, steps back; :mod:`pipeline.stamps`) and names these options as the remedy.
@@ -46,6 +63,12 @@ from pydantic import Field, field_validator, model_validator
 
 from pipeline.config.base import Frozen
 from pipeline.units import conversion
+
+MESSAGE_DEFINITIONS_DOC = (
+    "Directories of .msg / .idl files (relative to the vehicle file, searched recursively; a ROS package tree "
+    "works: <pkg>/msg/Foo.msg defines pkg/msg/Foo) for the message types a log does not embed (ROS 2 sqlite3 "
+    "bags before Iron, empty MCAP schemas). Definitions embedded in a log win; these win over the ROS 2 "
+    "standard types.")
 
 
 class SignalSource(Frozen):
@@ -94,6 +117,10 @@ class StreamSource(Frozen):
         "None: every sample keeps its own stamp. {rate_hz: R}: time from the row index, uniformly sampled "
         "at R Hz from the first stamp (the remedy for zero, duplicate or quantized stamps)."))
     csv: CsvOptions | None = None
+    optional: bool = Field(False, description=(
+        "True: a trial may lack this stream (topic or file absent, undecodable or empty); it goes on with the "
+        "stream's signals invalid (NaN), with a warning and an entry in the ingest report's absent_streams. "
+        "False: a trial without it is quarantined."))
     signals: dict[str, SignalSource] = Field(min_length=1)
 
     @model_validator(mode="after")

@@ -13,7 +13,7 @@ from typing import Literal
 from pydantic import Field, PrivateAttr, model_validator
 
 from pipeline.config.base import Frozen
-from pipeline.config.sources import StreamSource
+from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource
 
 Vec3 = tuple[float, float, float]
 DOF_NAMES = ("u", "v", "w", "p", "q", "r")
@@ -29,32 +29,98 @@ class RigidBody(Frozen):
 
 
 class ThrustCurve(Frozen):
-    """T = k n|n| (n in rpm), with separate coefficients forward and backward; or a measured table."""
+    """T = k n|n| (n in rpm), with separate coefficients forward and backward; or a measured table, looked up by
+    propeller speed (``table_speed_column``, rpm) or by PWM pulse width (``table_pwm_column``), at one supply
+    voltage when the table holds several (``table_voltage_column`` and ``voltage_V``)."""
 
     k_fwd_N_per_rpm2: float | None = None
     k_bwd_N_per_rpm2: float | None = None
     table: str | None = Field(None, description="CSV thrust table, path relative to the vehicle file.")
-    table_speed_column: str | None = None
+    table_speed_column: str | None = Field(None, description="Column of propeller speed (rpm) in the table.")
+    table_pwm_column: str | None = Field(None, description="Column of PWM pulse width in the table (a thruster "
+                                         "driven by `pwm_signal`).")
+    table_pwm_unit: Literal["us", "ms", "s"] = Field("us", description="Unit of the table's PWM column.")
     table_thrust_column: str | None = None
     table_thrust_unit: str = "N"
+    table_voltage_column: str | None = Field(None, description="Column of supply voltage (V), for a table measured "
+                                             "at several voltages.")
+    voltage_V: float | None = Field(None, gt=0, description="Supply voltage of the vehicle: the table's rows at this "
+                                    "voltage are used (between two measured voltages, the thrust is interpolated).")
 
     @model_validator(mode="after")
     def _one_kind(self) -> ThrustCurve:
         has_k = self.k_fwd_N_per_rpm2 is not None
         if has_k == (self.table is not None):
             raise ValueError("give either k_fwd_N_per_rpm2 (and optionally k_bwd_N_per_rpm2) or a table")
-        if self.table is not None and (self.table_speed_column is None or self.table_thrust_column is None):
-            raise ValueError("a thrust table needs table_speed_column and table_thrust_column")
+        if self.table is not None and self.table_thrust_column is None:
+            raise ValueError("a thrust table needs table_thrust_column")
+        if self.table is not None and self.table_speed_column is None and self.table_pwm_column is None:
+            raise ValueError("a thrust table needs table_speed_column (rpm) or table_pwm_column (PWM)")
+        if (self.table_voltage_column is None) != (self.voltage_V is None):
+            raise ValueError("table_voltage_column and voltage_V go together: give the table's voltage column and "
+                             "the vehicle's supply voltage")
         return self
 
 
 class Thruster(Frozen):
+    """One thruster, driven by exactly one signal: propeller speed (rpm; ingest converts rev/s or rad/s), PWM pulse
+    width (through a table's PWM column), or a measured thrust (N)."""
+
     name: str
-    speed_signal: str = Field(description="Signal carrying this thruster's propeller speed, in rpm.")
+    speed_signal: str | None = Field(None, description="Signal carrying this thruster's propeller speed, in rpm.")
+    pwm_signal: str | None = Field(None, description=(
+        "Signal carrying the PWM pulse width (name it <name>_s, `unit: us`); thrust from the table's PWM column."))
+    thrust_signal: str | None = Field(None, description="Signal carrying a measured thrust in N (no thrust model).")
     position_m: Vec3
     direction: Vec3 = Field(description="Thrust direction in body axes (normalized by the pipeline).")
-    thrust: ThrustCurve
+    thrust: ThrustCurve | None = Field(None, description="Thrust model; not needed with `thrust_signal`.")
     lag_s: float = Field(0.0, ge=0, description="First-order lag of the propeller (simulator only).")
+
+    @model_validator(mode="after")
+    def _one_input(self) -> Thruster:
+        given = [k for k in ("speed_signal", "pwm_signal", "thrust_signal") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of speed_signal (rpm), pwm_signal (PWM through a table) or "
+                             f"thrust_signal (measured thrust, N); found {given or 'none'}")
+        if self.thrust_signal is not None:
+            if not self.thrust_signal.endswith("_N"):
+                raise ValueError(f"thrust_signal {self.thrust_signal!r}: a force, its name must end with _N")
+            return self
+        if self.thrust is None:
+            raise ValueError(f"{given[0]} needs a thrust model: `thrust` (k_fwd_N_per_rpm2, or a table)")
+        if self.pwm_signal is not None:
+            if not self.pwm_signal.endswith("_s"):
+                raise ValueError(f"pwm_signal {self.pwm_signal!r}: a pulse width, its name must end with _s "
+                                 "(give `unit: us` in its stream)")
+            if self.thrust.table is None or self.thrust.table_pwm_column is None:
+                raise ValueError("pwm_signal needs a thrust table with table_pwm_column (PWM -> thrust)")
+        elif self.thrust.table is not None and self.thrust.table_speed_column is None:
+            raise ValueError("speed_signal with a thrust table needs table_speed_column (rpm)")
+        return self
+
+    @property
+    def input_signal(self) -> str:
+        """The signal driving this thruster, whichever kind."""
+        return next(s for s in (self.speed_signal, self.pwm_signal, self.thrust_signal) if s is not None)
+
+    @property
+    def input_kind(self) -> Literal["speed", "pwm", "thrust"]:
+        return "speed" if self.speed_signal is not None else "pwm" if self.pwm_signal is not None else "thrust"
+
+
+class ControlSurface(Frozen):
+    """A rudder, fin or plane: its deflection angle is an input of the learned models (raw, as a feature column);
+    it adds nothing to the generalized forces tau."""
+
+    name: str
+    angle_signal: str = Field(description="Signal carrying the deflection angle (name it <name>_rad; ingest converts "
+                              "`unit: deg`).")
+
+    @model_validator(mode="after")
+    def _angle(self) -> ControlSurface:
+        if not self.angle_signal.endswith("_rad"):
+            raise ValueError(f"angle_signal {self.angle_signal!r}: an angle, its name must end with _rad")
+        return self
 
 
 class DvlMount(Frozen):
@@ -161,8 +227,11 @@ class Vehicle(Frozen):
     rigid_body: RigidBody
     added_mass: list[list[float]] = Field(description="6x6 added-mass matrix M_A (positive definite part).")
     thrusters: list[Thruster] = Field(min_length=1)
+    control_surfaces: list[ControlSurface] = Field(default_factory=list, description=(
+        "Rudders, fins: their angles are carried to the feature store as inputs of the learned models."))
     sensors: Sensors
     streams: dict[str, StreamSource] = Field(min_length=1)
+    message_definitions: list[str] = Field(default_factory=list, description=MESSAGE_DEFINITIONS_DOC)
 
     _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
 
@@ -173,6 +242,12 @@ class Vehicle(Frozen):
     def signal_names(self) -> list[str]:
         return [name for stream in self.streams.values() for name in stream.signals]
 
+    def actuator_signals(self) -> list[str]:
+        """Every actuator and control input signal, in config order: each thruster's input (speed, PWM or thrust),
+        then each control surface's angle. Carried from sync to the feature store."""
+        return list(dict.fromkeys([t.input_signal for t in self.thrusters]
+                                  + [c.angle_signal for c in self.control_surfaces]))
+
     @model_validator(mode="after")
     def _references_exist(self) -> Vehicle:
         known = set(self.signal_names())
@@ -180,9 +255,16 @@ class Vehicle(Frozen):
         if dupes:
             raise ValueError(f"signals defined in more than one stream: {sorted(dupes)}")
         for i, thr in enumerate(self.thrusters):
-            if thr.speed_signal not in known:
-                raise ValueError(f"thrusters[{i}].speed_signal {thr.speed_signal!r} is not a configured "
+            if thr.input_signal not in known:
+                raise ValueError(f"thrusters[{i}].{thr.input_kind}_signal {thr.input_signal!r} is not a configured "
                                  f"signal; known: {sorted(known)}")
+        for i, surface in enumerate(self.control_surfaces):
+            if surface.angle_signal not in known:
+                raise ValueError(f"control_surfaces[{i}].angle_signal {surface.angle_signal!r} is not a configured "
+                                 f"signal; known: {sorted(known)}")
+        names = [t.name for t in self.thrusters] + [c.name for c in self.control_surfaces]
+        if len(set(names)) < len(names):
+            raise ValueError(f"thruster and control-surface names must be unique; found {names}")
         for key, name in self._sensor_references():
             if name not in known:
                 raise ValueError(f"{key} {name!r} is not a configured signal (define it under `streams`); "

@@ -25,6 +25,7 @@ import numpy as np
 
 from pipeline.errors import IngestError
 from pipeline.io.fields import TypeRegistry
+from pipeline.io.msgdefs import UserTypes
 
 log = logging.getLogger(__name__)
 
@@ -249,6 +250,7 @@ class RawReader:
         self._infos: dict[str, TopicInfo] | None = None
         self._encoding: dict[str, str] = {}
         self._types: TypeRegistry | None = None
+        self.user_types: UserTypes | None = None  # the user's message definitions, for types the log lacks
         self.allow_fast = True
         self.salvage: SalvageInfo | None = None
 
@@ -265,6 +267,17 @@ class RawReader:
             self._scan()
         assert self._infos is not None
         return dict(self._infos)
+
+    def use_definitions(self, user: UserTypes | None) -> None:
+        """Take the user's message definitions for the types this log does not embed (before anything is read)."""
+        self.user_types = user
+        self._infos = None  # has_header and the type registry depend on them: scan again
+
+    def undecodable(self, topic: str) -> str | None:
+        """Why ``topic`` cannot be decoded (no definition of its type, an encoding that is not CDR / ROS 1), or
+        None; nothing is decoded."""
+        info = self.catalog()[topic]
+        return self._undecodable(topic, info.msgtype)
 
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
         try:

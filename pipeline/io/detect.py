@@ -6,8 +6,9 @@ import logging
 from pathlib import Path
 
 from pipeline.errors import IngestError
-from pipeline.io.base import LogReader
+from pipeline.io.base import LogReader, RawReader
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
+from pipeline.io.msgdefs import UserTypes
 from pipeline.io.rosbag1 import MAGIC as ROS1_MAGIC
 from pipeline.io.rosbag2 import SQLITE_MAGIC, ZSTD_MAGIC, storage_files
 
@@ -43,24 +44,31 @@ def sniff(path: Path) -> str:
     raise IngestError(f"unknown format: the file starts with {head[:16]!r}; {EXPECTED}", file=path)
 
 
-def open_log(path: str | Path) -> LogReader:
-    """Open any supported log; the reader lists topics and reads requested fields (:mod:`pipeline.io.base`)."""
+def open_log(path: str | Path, definitions: UserTypes | None = None) -> LogReader:
+    """Open any supported log; the reader lists topics and reads requested fields (:mod:`pipeline.io.base`).
+
+    ``definitions``: the user's message definitions (:func:`pipeline.io.msgdefs.load_user_types`), used for the
+    types the log does not embed.
+    """
     path = Path(path)
     kind = sniff(path)
-    if kind == "mcap":
-        from pipeline.io.mcap_reader import McapReader
-
-        return McapReader(path)
-    if kind == "ros1":
-        from pipeline.io.rosbag1 import Rosbag1Reader
-
-        return Rosbag1Reader(path)
     if kind == "csv-dir":
         from pipeline.io.text import open_text
 
         return open_text(path)
-    from pipeline.io.rosbag2 import Rosbag2Reader
+    reader: RawReader
+    if kind == "mcap":
+        from pipeline.io.mcap_reader import McapReader
 
-    if kind == "ros2-file":
-        return Rosbag2Reader.from_files([path])
-    return Rosbag2Reader(path)
+        reader = McapReader(path)
+    elif kind == "ros1":
+        from pipeline.io.rosbag1 import Rosbag1Reader
+
+        reader = Rosbag1Reader(path)
+    else:
+        from pipeline.io.rosbag2 import Rosbag2Reader
+
+        reader = Rosbag2Reader.from_files([path]) if kind == "ros2-file" else Rosbag2Reader(path)
+    if definitions is not None:
+        reader.use_definitions(definitions)
+    return reader

@@ -19,6 +19,7 @@ from rosbags.typesys.base import Nodetype
 from rosbags.typesys.store import Typestore
 
 from pipeline.errors import IngestError
+from pipeline.io.msgdefs import UserTypes
 
 log = logging.getLogger(__name__)
 
@@ -46,24 +47,31 @@ def _latest() -> dict[str, Any]:
 
 
 class TypeRegistry:
-    """The types of one file: embedded definitions first, then (ROS 2 only) the standard ROS 2 types.
+    """The types of one file: embedded definitions first, then the user's (``message_definitions`` in the vehicle
+    config, :mod:`pipeline.io.msgdefs`), then (ROS 2 only) the standard ROS 2 types.
 
     Types are registered in a rosbags Typestore lazily, only the closure of the types a topic needs, so that a
     broken definition of one type never sinks another topic.
     """
 
-    def __init__(self, *, ros1: bool) -> None:
+    def __init__(self, *, ros1: bool, user: UserTypes | None = None) -> None:
         self.ros1 = ros1
         if ros1:  # ROS 1 bags embed every definition; only the builtin time and duration come from rosbags
             self.defs: dict[str, Any] = {k: v for k, v in _latest().items() if k.startswith("builtin_interfaces/")}
         else:
             self.defs = dict(_latest())
+        self.user = user if user is not None else UserTypes()
+        self.defs.update(self.user.types)
         self.errors: dict[str, str] = {}
         self.store: Typestore = get_typestore(Stores.EMPTY)
 
     def add(self, msgtype: str, encoding: str, text: str) -> None:
-        """Parse one embedded definition (``ros2msg``/``ros1msg``/``ros2idl``); remember errors per type."""
-        if not text.strip() and msgtype in self.defs:
+        """Parse one embedded definition (``ros2msg``/``ros1msg``/``ros2idl``); remember errors per type.
+
+        An empty ROS 2 definition (a recorder that did not know the type writes one) is no definition: the type
+        keeps the user's or the standard one, or stays undefined. (In a ROS 1 bag it is an empty message.)
+        """
+        if not text.strip() and (msgtype in self.defs or encoding != "ros1msg"):
             return
         try:
             if "/srv/" in msgtype and encoding != "ros2idl":
@@ -105,7 +113,7 @@ class TypeRegistry:
         try:
             names = self.closure(msgtype)
         except KeyError as err:
-            self.errors[msgtype] = f"no definition of {err.args[0]} in the file or the ROS 2 standard types"
+            self.errors[msgtype] = self.user.missing(err.args[0])
             return self.errors[msgtype]
         todo = {n: self.defs[n] for n in names if n not in self.store.fielddefs}
         try:

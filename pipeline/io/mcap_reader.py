@@ -260,7 +260,7 @@ class McapReader(RawReader):
         w = self._index.walk if self._index is not None else self._do_walk()
         self._walk = w
         self._types = TypeRegistry(ros1=all(c.encoding == "ros1" for c in w.channels.values()) and
-                                   bool(w.channels))
+                                   bool(w.channels), user=self.user_types)
         infos: dict[str, TopicInfo] = {}
         for cid, ch in sorted(w.channels.items()):
             name, enc, text = w.schemas.get(ch.schema_id, ("", "", ""))

@@ -297,7 +297,7 @@ class Rosbag1Reader(RawReader):
                 stored = index_counts(self.path)
             except (struct.error, KeyError, Damaged) as err:
                 log.warning("%s: bag index unreadable (%s); counting by scanning", self.path, err)
-        self._types = TypeRegistry(ros1=True)
+        self._types = TypeRegistry(ros1=True, user=self.user_types)
         infos: dict[str, TopicInfo] = {}
         for cid, conn in sorted(w.connections.items()):
             self._types.add(conn.msgtype, "ros1msg", conn.definition)

@@ -153,7 +153,7 @@ class Rosbag2Reader(RawReader):
 
     def _scan(self, quick: bool = False) -> None:
         listed = self._listed_counts() if quick and self.storage == "sqlite3" else None
-        self._types = TypeRegistry(ros1=False)
+        self._types = TypeRegistry(ros1=False, user=self.user_types)
         totals: dict[str, list[Any]] = {}   # topic -> [msgtype, count, first, last, encoding]
 
         def add(topic: str, msgtype: str, enc: str, count: int, first: int | None, last: int | None) -> None:
