@@ -19,6 +19,10 @@ signals contract of ``docs/contracts.md``), one DataFrame out (the synced contra
   else, each signal averaged over the finite values (``*_flag`` signals take the minimum, so one unlocked DVL
   sample makes the merged one unlocked; quaternions are sign-aligned first); nothing is dropped silently: the
   count is logged as a warning and left in ``frame.attrs["duplicate_stamps"]``.
+- **Optional streams**: the signals of a stream marked ``optional`` in the vehicle config that this trial lacks
+  (ingest listed it under ``absent_streams``) become columns of NaN with ``<signal>__valid`` False, so that later
+  stages see them as invalid, not as unknown columns; logged as a warning and listed in
+  ``frame.attrs["absent_signals"]``. A required signal in such a stream raises SchemaError naming both.
 - **Segments**: ``segment`` (int32) numbers the contiguous runs where every required signal is valid, in
   time order from 0; runs shorter than ``min_segment_s`` (counted as samples x period) get -1.
 
@@ -144,6 +148,16 @@ def merge_duplicates(cols: dict[str, np.ndarray],
                 value = ref + dev / n
         out[name] = np.where(n > 0, value, np.nan)
     return out, merged
+
+
+def _columns_of(signal: str) -> list[str]:
+    return quat_columns(signal) if signal.endswith("_quat") else [signal]
+
+
+def absent_optional(vehicle: Vehicle, found: Mapping[str, object]) -> dict[str, str]:
+    """Signals of the vehicle's optional streams that are not among ``found``: signal -> its stream."""
+    return {signal: name for name, stream in vehicle.streams.items() if stream.optional
+            for signal in stream.signals if signal not in found}
 
 
 def _find_signals(arrays: dict[str, dict[str, np.ndarray]]) -> dict[str, _Signal]:
@@ -324,10 +338,17 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
                         "(each signal averaged); see the stamp warnings of the ingest report for the remedy",
                         stream, merged, n_before, n_before - merged)
     required = required_signals(vehicle)
+    absent = absent_optional(vehicle, signals)
     missing = [s for s in required if s not in signals]
     if missing:
-        raise SchemaError(f"required signal(s) {missing} not in any stream; found {sorted(signals)}",
+        optional = {s: absent[s] for s in missing if s in absent}
+        why = (f"; stream(s) {sorted(set(optional.values()))} are optional and absent from this trial, but carry "
+               f"the required signal(s) {sorted(optional)}" if optional else "")
+        raise SchemaError(f"required signal(s) {missing} not in any stream{why}; found {sorted(signals)}",
                           field=missing[0])
+    if absent:
+        log.warning("optional stream(s) %s absent: signal(s) %s are NaN and invalid in this trial",
+                    sorted(set(absent.values())), sorted(absent))
     req_streams = sorted({signals[s].stream for s in required})
     if any(len(arrays[s]["t_ns"]) == 0 for s in req_streams):
         empty = [s for s in req_streams if len(arrays[s]["t_ns"]) == 0]
@@ -371,6 +392,17 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
             valid[s] &= lock
             out[s] = np.where(valid[s], out[s], np.nan)
 
+    if absent:  # an absent optional stream: its signals are there, invalid everywhere, in their usual place
+        ghosts: dict[str, dict[str, np.ndarray]] = {}
+        for name, stream in absent.items():
+            ghost = ghosts.setdefault(stream, dict(arrays.get(stream, {"t_ns": grid[:0]})))
+            for c in _columns_of(name):
+                out[c] = ghost[c] = np.full(len(grid), np.nan)
+            valid[name] = np.zeros(len(grid), dtype=bool)
+        order = list(_find_signals({**arrays, **ghosts}))
+        out = {"t_ns": out["t_ns"], **{c: out[c] for name in order for c in _columns_of(name)}}
+        valid = {name: valid[name] for name in order}
+
     all_req = np.logical_and.reduce([valid[s] for s in required])
     min_samples = int(np.ceil(params.min_segment_s * params.rate_hz - 1e-9))
     seg = segments(all_req, min_samples)
@@ -378,9 +410,10 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
         raise SyncError(f"no stretch of at least {params.min_segment_s} s where all required signals "
                         f"{required} are valid ({int(all_req.sum())} of {len(grid)} grid samples valid)")
     frame = pd.DataFrame(out)
-    for name in signals:
+    for name in valid:
         frame[valid_column(name)] = valid[name]
     frame["segment"] = seg
     frame.attrs["duplicate_stamps"] = duplicates
+    frame.attrs["absent_signals"] = absent
     log.debug("synced %d samples at %g Hz, %d segment(s)", len(grid), params.rate_hz, int(seg.max()) + 1)
     return frame
