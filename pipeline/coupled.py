@@ -173,12 +173,12 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
     if model in GRAYBOX_MODELS:
         cols = model_inputs(model, params)
         res_cols = [cols.index(c) for c in params.inputs]
-        n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
+        n_velocity = params.n_velocity_inputs()
         base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std_from(train))
         residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity) for out in params.outputs])
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
                        residual_columns=tuple(res_cols))
-    n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
+    n_velocity = params.n_velocity_inputs()
     return PerOutputRegressor([make_svr(model, hyper[out], n_velocity) for out in params.outputs])
 
 
@@ -214,7 +214,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
         _check_columns(tuning, EXPLICIT_INPUTS, f"tune ({', '.join(graybox)})")
     data = _subsample(tuning, params.max_samples)
     X = data[params.inputs].to_numpy(float)
-    n_velocity = sum(1 for c in params.inputs if not c.endswith("_rpm"))
+    n_velocity = params.n_velocity_inputs()
     hyper: dict[str, dict[str, dict[str, Any]]] = {}
     trace: dict[str, Any] = {}
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum

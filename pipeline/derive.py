@@ -2,8 +2,9 @@
 
 ``derive(kin, vehicle)`` is pure. It adds to the kinematics table (rows and columns kept):
 
-- ``T_<thruster>_N``: thrust of each thruster (config order) from its ``speed_signal`` (rpm), by
-  :func:`pipeline.physics.thrusts` (``k n|n|`` or the interpolated thrust table);
+- ``T_<thruster>_N``: thrust of each thruster (config order) from its input signal, by
+  :func:`pipeline.physics.thrusts`: propeller speed (rpm; ``k n|n|`` or the interpolated thrust table), PWM (the
+  table's PWM column) or a measured thrust (as it is);
 - ``tau_*``: generalized forces tau = B T (allocation matrix B);
 - ``Mnudot_*`` = M nu_dot, ``Cnu_*`` = C(nu) nu, ``g_*`` = g(eta) from roll and pitch;
 - ``d_*`` = tau - M nu_dot - C(nu) nu - g(eta), the damping target.
@@ -64,10 +65,10 @@ def derive(kin: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     """The derived table: kinematics plus thrust, tau, M nu_dot, C(nu) nu, g(eta) and d."""
     speeds = np.empty((len(kin), len(vehicle.thrusters)))
     for i, thr in enumerate(vehicle.thrusters):
-        if thr.speed_signal not in kin.columns:
-            raise SchemaError(f"thrusters[{i}] ({thr.name}).speed_signal {thr.speed_signal!r} is not a column of "
-                              f"the kinematics table; found {list(kin.columns)}", field=thr.speed_signal)
-        speeds[:, i] = kin[thr.speed_signal].to_numpy(dtype=float)
+        if thr.input_signal not in kin.columns:
+            raise SchemaError(f"thrusters[{i}] ({thr.name}).{thr.input_kind}_signal {thr.input_signal!r} is not a "
+                              f"column of the kinematics table; found {list(kin.columns)}", field=thr.input_signal)
+        speeds[:, i] = kin[thr.input_signal].to_numpy(dtype=float)
     nudot = _need(kin, ACCELERATION, "accelerations")
     nu = _need(kin, SMOOTH, "smoothed velocities")
     attitude = _need(kin, ["roll_rad", "pitch_rad"], "attitude for g(eta)")

@@ -4,7 +4,8 @@ Two pure steps (the differentiate stage calls both):
 
 1. :func:`body_kinematics` (synced table + vehicle config) -> ``t_ns``, ``segment``, measured body
    velocities at the reference point (``u_mps`` ... ``r_radps``), attitude ``roll_rad pitch_rad yaw_rad``
-   of body FRD w.r.t. NED (yaw unwrapped), ``depth_m`` if configured, and the thruster speed signals.
+   of body FRD w.r.t. NED (yaw unwrapped), ``depth_m`` if configured, and every actuator signal (each
+   thruster's speed, PWM or thrust; each control surface's angle: :meth:`Vehicle.actuator_signals`).
 
    - **Attitude** from a quaternion in the configured convention: ``frd_ned`` is body FRD -> NED (marine);
      ``flu_enu`` (ROS) is body FLU -> ENU and is converted explicitly, R_ned_frd = T R_enu_flu F with
@@ -164,7 +165,10 @@ def body_kinematics(synced: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     if sensors.depth is not None:
         out["depth_m"] = _column(synced, sensors.depth, "sensors.depth")
     for thr in vehicle.thrusters:
-        out[thr.speed_signal] = _column(synced, thr.speed_signal, f"thrusters[{thr.name}].speed_signal")
+        out[thr.input_signal] = _column(synced, thr.input_signal, f"thrusters[{thr.name}].{thr.input_kind}_signal")
+    for surface in vehicle.control_surfaces:
+        out[surface.angle_signal] = _column(synced, surface.angle_signal,
+                                            f"control_surfaces[{surface.name}].angle_signal")
     return pd.DataFrame(out)
 
 

@@ -172,9 +172,7 @@ def allocation_matrix(vehicle: Vehicle) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-@functools.lru_cache(maxsize=32)
-def _load_table(path: str, speed_column: str, thrust_column: str, unit: str) -> tuple[np.ndarray, np.ndarray]:
-    """(signed speed rpm, thrust N), sorted by speed, duplicates averaged. Cached per file and columns."""
+def _read_table(path: str) -> pd.DataFrame:
     try:
         frame = pd.read_csv(path, encoding="utf-8", sep=None, engine="python")
     except FileNotFoundError:
@@ -182,52 +180,103 @@ def _load_table(path: str, speed_column: str, thrust_column: str, unit: str) -> 
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as err:
         raise ConfigError(f"thrust table cannot be parsed: {err}", file=path, field="thrust.table") from None
     frame.columns = [str(c).strip() for c in frame.columns]
-    for key, col in (("thrust.table_speed_column", speed_column), ("thrust.table_thrust_column", thrust_column)):
-        if col.strip() not in frame.columns:
-            raise ConfigError(f"column {col!r} not in thrust table; available: {list(frame.columns)}",
-                              file=path, field=key)
+    return frame
+
+
+def _numeric(frame: pd.DataFrame, column: str, key: str, path: str) -> np.ndarray:
+    if column.strip() not in frame.columns:
+        raise ConfigError(f"column {column!r} not in thrust table; available: {list(frame.columns)}", file=path,
+                          field=key)
+    return pd.to_numeric(frame[column.strip()], errors="coerce").to_numpy(dtype=float)
+
+
+def _curve(x: np.ndarray, thrust: np.ndarray, unsigned_speed: bool) -> tuple[np.ndarray, np.ndarray]:
+    ok = np.isfinite(x) & np.isfinite(thrust)
+    x, thrust = x[ok], thrust[ok]
+    if unsigned_speed and x.min() >= 0 and thrust.min() < 0:
+        x = x * np.sign(thrust)  # unsigned speed column: the thrust sign gives the direction
+    uniq, inverse = np.unique(x, return_inverse=True)
+    return uniq, np.bincount(inverse, weights=thrust) / np.bincount(inverse)
+
+
+@functools.lru_cache(maxsize=32)
+def _load_table(path: str, speed_column: str, thrust_column: str, unit: str, by: str = "speed",
+                voltage_column: str | None = None, voltage_V: float | None = None,
+                x_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(x, thrust N) sorted by x, duplicates averaged; x is the signed speed in rpm (``by="speed"``) or the PWM
+    pulse width times ``x_factor`` (``by="pwm"``). At ``voltage_V``: the rows of that voltage, or the thrust
+    interpolated between the two measured voltages around it. Cached per file and columns."""
+    frame = _read_table(path)
+    key = "thrust.table_speed_column" if by == "speed" else "thrust.table_pwm_column"
+    x_all = _numeric(frame, speed_column, key, path) * x_factor
+    thrust_all = _numeric(frame, thrust_column, "thrust.table_thrust_column", path)
     unit_def = SOURCE_UNITS.get(unit)
     if unit_def is None or unit_def.dimension != "force":
         known = sorted(k for k, v in SOURCE_UNITS.items() if v.dimension == "force")
         raise ConfigError(f"table_thrust_unit {unit!r} is not a force unit; known: {known}", file=path,
                           field="thrust.table_thrust_unit")
-    speed = pd.to_numeric(frame[speed_column.strip()], errors="coerce").to_numpy(dtype=float)
-    thrust = pd.to_numeric(frame[thrust_column.strip()], errors="coerce").to_numpy(dtype=float)
-    ok = np.isfinite(speed) & np.isfinite(thrust)
-    speed, thrust = speed[ok], thrust[ok] * unit_def.factor + unit_def.offset
-    if speed.size < 2:
+    thrust_all = thrust_all * unit_def.factor + unit_def.offset
+    if voltage_column is None:
+        curves = [(1.0, _curve(x_all, thrust_all, by == "speed"))]
+    else:
+        volts = _numeric(frame, voltage_column, "thrust.table_voltage_column", path)
+        levels = np.unique(volts[np.isfinite(volts)])
+        near = levels[np.abs(levels - voltage_V) <= 0.05]
+        if near.size:
+            chosen, weights = [near[0]], [1.0]
+        else:
+            below, above = levels[levels < voltage_V], levels[levels > voltage_V]
+            if not below.size or not above.size:
+                raise ConfigError(f"voltage_V {voltage_V:g} is outside the table's voltages {levels.tolist()}",
+                                  file=path, field="thrust.voltage_V")
+            lo, hi = below.max(), above.min()
+            chosen, weights = [lo, hi], [(hi - voltage_V) / (hi - lo), (voltage_V - lo) / (hi - lo)]
+        curves = [(w, _curve(x_all[np.abs(volts - v) <= 0.05], thrust_all[np.abs(volts - v) <= 0.05], by == "speed"))
+                  for v, w in zip(chosen, weights, strict=True)]
+    x = np.unique(np.concatenate([c[1][0] for c in curves]))
+    thrust = sum(w * np.interp(x, cx, ct) for w, (cx, ct) in curves)
+    if x.size < 2:
         raise ConfigError("thrust table needs at least two numeric rows", file=path, field="thrust.table")
-    if speed.min() >= 0 and thrust.min() < 0:
-        speed = speed * np.sign(thrust)  # unsigned speed column: the thrust sign gives the direction
-    uniq, inverse = np.unique(speed, return_inverse=True)
-    mean_thrust = np.bincount(inverse, weights=thrust) / np.bincount(inverse)
-    uniq.setflags(write=False)
-    mean_thrust.setflags(write=False)
-    return uniq, mean_thrust
+    thrust = np.asarray(thrust, dtype=float)
+    x.setflags(write=False)
+    thrust.setflags(write=False)
+    return x, thrust
+
+
+_PWM_TO_S = {"us": 1e-6, "ms": 1e-3, "s": 1.0}
 
 
 def thrust_table(thruster: Thruster, base_dir: str | Path | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The thruster's measured table as (signed speed rpm, thrust N), sorted; see the module notes."""
+    """The thruster's measured table as (signed speed rpm, or PWM pulse width s; thrust N), sorted; see the module
+    notes."""
     curve = thruster.thrust
-    if curve.table is None:
+    if curve is None or curve.table is None:
         raise ConfigError(f"thruster {thruster.name!r} has no thrust table", field="thrust.table")
     path = Path(curve.table)
     if base_dir is not None:
         path = Path(base_dir) / path
-    assert curve.table_speed_column is not None and curve.table_thrust_column is not None
-    return _load_table(str(path.resolve()), curve.table_speed_column, curve.table_thrust_column,
-                       curve.table_thrust_unit)
+    assert curve.table_thrust_column is not None
+    by_pwm = thruster.input_kind == "pwm"
+    column = curve.table_pwm_column if by_pwm else curve.table_speed_column
+    assert column is not None
+    return _load_table(str(path.resolve()), column, curve.table_thrust_column, curve.table_thrust_unit,
+                       "pwm" if by_pwm else "speed", curve.table_voltage_column, curve.voltage_V,
+                       _PWM_TO_S[curve.table_pwm_unit] if by_pwm else 1.0)
 
 
 def thrust_N(thruster: Thruster, n_rpm: np.ndarray, base_dir: str | Path | None = None) -> np.ndarray:
-    """Thrust in N of one thruster at propeller speed ``n_rpm`` (any shape).
+    """Thrust in N of one thruster from its input signal ``n_rpm`` (any shape): propeller speed in rpm, PWM pulse
+    width in s, or a measured thrust in N (returned as it is), by the thruster's kind.
 
     ``k_fwd n|n|`` for n >= 0 and ``k_bwd n|n|`` for n < 0 (k_bwd defaults to k_fwd); or linear
     interpolation of the measured table (``base_dir``: directory the table path is relative to), clamped
-    to the table's end values beyond its speed range (logged as a warning).
+    to the table's end values beyond its speed (PWM) range (logged as a warning).
     """
     n = np.asarray(n_rpm, dtype=float)
+    if thruster.input_kind == "thrust":
+        return n.copy()
     curve = thruster.thrust
+    assert curve is not None
     if curve.table is None:
         k_fwd = float(curve.k_fwd_N_per_rpm2)  # type: ignore[arg-type]
         k_bwd = k_fwd if curve.k_bwd_N_per_rpm2 is None else float(curve.k_bwd_N_per_rpm2)
@@ -235,13 +284,14 @@ def thrust_N(thruster: Thruster, n_rpm: np.ndarray, base_dir: str | Path | None 
     speed, thrust = thrust_table(thruster, base_dir)
     outside = (n < speed[0]) | (n > speed[-1])
     if np.any(outside):
-        log.warning("thruster %s: %d of %d speeds outside the thrust table [%g, %g] rpm; thrust clamped",
+        log.warning("thruster %s: %d of %d inputs outside the thrust table [%g, %g]; thrust clamped",
                     thruster.name, int(outside.sum()), n.size, speed[0], speed[-1])
     return np.interp(n, speed, thrust)
 
 
 def thrusts(vehicle: Vehicle, speeds_rpm: np.ndarray) -> np.ndarray:
-    """Per-thruster thrust in N, (n, n_thrusters), columns in config thruster order."""
+    """Per-thruster thrust in N, (n, n_thrusters), columns in config thruster order; column i of ``speeds_rpm``
+    holds thruster i's input signal (speed rpm, PWM s or thrust N: :attr:`Thruster.input_signal`)."""
     speeds = np.atleast_2d(np.asarray(speeds_rpm, dtype=float))
     if speeds.shape[1] != len(vehicle.thrusters):
         raise ValueError(f"speeds_rpm has {speeds.shape[1]} columns, the vehicle {len(vehicle.thrusters)} thrusters")

@@ -21,7 +21,7 @@ import json
 import logging
 import re
 import shutil
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
@@ -63,6 +63,10 @@ PATTERN_COLUMNS: list[tuple[str, pa.DataType, str]] = [
      "measured velocity on the grid, NaN where none (kalman method; u_mps ... are then the estimate)"),
     (r"^d_std_[uvwpqr]_(N|Nm)$", pa.float64(), "first-order SD of the damping target (kalman method)"),
 ]
+INPUT_COLUMNS_DOC = (
+    "The vehicle config's actuator and control-input signals (Vehicle.actuator_signals(): each thruster's speed, "
+    "PWM or thrust signal, each control surface's angle), named as in the config with their unit suffix; the "
+    "features stage passes them, so a rudder angle reaches the learned models.")
 
 
 def schema_document() -> dict[str, Any]:
@@ -78,6 +82,7 @@ def schema_document() -> dict[str, Any]:
         "columns": [{"name": n, "type": str(t)} for n, t in FIXED_COLUMNS],
         "optional_columns": [{"name": n, "type": str(t)} for n, t in OPTIONAL_COLUMNS],
         "pattern_columns": [{"pattern": p, "type": str(t), "description": d} for p, t, d in PATTERN_COLUMNS],
+        "input_columns": {"type": "double", "description": INPUT_COLUMNS_DOC},
     }
 
 
@@ -110,12 +115,19 @@ def assign_split(t_ns: np.ndarray, trial: str, params: FeaturesParams) -> np.nda
     return np.where(t < cut, "tuning", "train_test").astype(object)
 
 
-def features_table(derived: pd.DataFrame, trial: str, params: FeaturesParams) -> pa.Table:
-    """The table stored for one trial: t_ns, segment, split, the derived columns; checked against the schema."""
+def features_table(derived: pd.DataFrame, trial: str, params: FeaturesParams, inputs: Sequence[str] = ()
+                   ) -> pa.Table:
+    """The table stored for one trial: t_ns, segment, split, the derived columns; checked against the schema.
+    ``inputs``: the vehicle's actuator and control-input signals (input columns of the schema); each must be
+    present."""
     frame = derived.sort_values("t_ns", kind="mergesort").reset_index(drop=True) if "t_ns" in derived else derived
     missing = [n for n, _ in FIXED_COLUMNS if n != "split" and n not in frame.columns]
     if missing:
         raise SchemaError(f"derived table of trial {trial!r} lacks {missing}", field=missing[0])
+    missing = [n for n in inputs if n not in frame.columns]
+    if missing:
+        raise SchemaError(f"derived table of trial {trial!r} lacks the configured input signal(s) {missing}",
+                          field=missing[0])
     arrays: dict[str, pa.Array] = {
         "t_ns": pa.array(frame["t_ns"].to_numpy(dtype=np.int64), pa.int64()),
         "segment": pa.array(frame["segment"].to_numpy(dtype=np.int32), pa.int32()),
@@ -126,7 +138,7 @@ def features_table(derived: pd.DataFrame, trial: str, params: FeaturesParams) ->
             continue
         if name in ("vehicle", "trial"):
             raise SchemaError(f"column {name!r} is a partition key and cannot be a data column", field=name)
-        kind = _column_type(name)
+        kind = pa.float64() if name in inputs else _column_type(name)
         if kind is None:
             raise SchemaError(f"column {name!r} of trial {trial!r} is not in {SCHEMA_FILE} "
                               "(fixed, optional or pattern columns)", field=name)
@@ -139,9 +151,9 @@ def partition_dir(root: str | Path, vehicle: str, trial: str) -> Path:
 
 
 def write_trial(root: str | Path, vehicle: str, trial: str, derived: pd.DataFrame, params: FeaturesParams,
-                provenance: dict[str, Any]) -> Path:
-    """Write one trial's partition atomically; returns the file written."""
-    table = features_table(derived, trial, params)
+                provenance: dict[str, Any], inputs: Sequence[str] = ()) -> Path:
+    """Write one trial's partition atomically; returns the file written (``inputs``: see :func:`features_table`)."""
+    table = features_table(derived, trial, params, inputs)
     counts = {s: int(n) for s, n in zip(*np.unique(table.column("split").to_numpy(zero_copy_only=False),
                                                    return_counts=True), strict=True)}
     meta = {"vehicle": vehicle, "trial": trial, "features_schema": SCHEMA_FILE, "split_counts": counts,

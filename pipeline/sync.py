@@ -69,7 +69,8 @@ def valid_column(signal: str) -> str:
 
 
 def required_signals(vehicle: Vehicle) -> list[str]:
-    """Signals every later stage needs: velocity, attitude, configured rates, thruster speeds."""
+    """Signals every later stage needs: velocity, attitude, configured rates, actuators (thruster inputs, control
+    surface angles)."""
     sensors = vehicle.sensors
     names: list[str] = list(sensors.linear_velocity().velocity)
     att = sensors.attitude
@@ -78,7 +79,7 @@ def required_signals(vehicle: Vehicle) -> list[str]:
     else:
         names += [s for s in (att.roll, att.pitch, att.yaw) if s is not None]
     names += [s for s in (sensors.rates.p, sensors.rates.q, sensors.rates.r) if s is not None]
-    names += [thr.speed_signal for thr in vehicle.thrusters]
+    names += vehicle.actuator_signals()
     return list(dict.fromkeys(names))
 
 

@@ -29,7 +29,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
                 raise SchemaError("no derived table (run the derive stage)", file=shown(source, root))
             frame = read_parquet(source)[0].to_pandas()
             prov = provenance(root, NAME, name, [source], vehicle, params.features)
-            result.outputs.append(store.write_trial(root, vehicle.name, name, frame, params.features, prov))
+            result.outputs.append(store.write_trial(root, vehicle.name, name, frame, params.features, prov,
+                                                      vehicle.actuator_signals()))
         except SchemaError as err:
             result.quarantined.append(quarantine(err, name, shown(source, root)))
             drop_stale(target)

@@ -4,9 +4,10 @@ stage uses. Each stage's owner keeps its section; add fields with defaults so ol
 
 from __future__ import annotations
 
+import re
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from pipeline.config.base import Frozen
 
@@ -61,8 +62,15 @@ class FeaturesParams(Frozen):
     test_trials: list[str] = Field(default_factory=list, description="Trials held out of tuning and CV (final check).")
 
 
+_BODY_VELOCITY = re.compile(r"^[uvwpqr](_smooth|_meas)?_(mps|radps)$")
+
+
 class CoupledParams(Frozen):
     inputs: list[str] = Field(default_factory=lambda: ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"])
+    actuator_inputs: list[str] | None = Field(None, description=(
+        "The inputs that are actuators or control inputs (thruster speeds, PWM, thrust, rudder angle): the 2-weights "
+        "kernel gives them one gamma, the velocities another. They must come last in `inputs`. None: every input "
+        "that is not a body velocity of the kinematics table (u_mps ... r_radps, their _smooth and _meas forms)."))
     outputs: list[str] = Field(default_factory=lambda: ["udot_mps2", "vdot_mps2", "rdot_radps2"])
     models: list[str] = Field(default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr",
                                                        "gertler_hagen", "mcfarland_whitcomb"])
@@ -70,12 +78,42 @@ class CoupledParams(Frozen):
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
     seed: int = 0
-    tuning_folds: int = Field(3, ge=2, description="Blocked CV folds inside the tuning block (search score).")
+    tuning: Literal["nested", "split"] = Field(
+        "nested", description="Where the SVRs' hyperparameters are searched. nested: on the rows each model is "
+        "fitted on: in each CV fold on that fold's training blocks only (so the CV score stays unbiased), for the "
+        "final model on the whole train_test block (the tune stage). split: the papers' protocol, on the tuning "
+        "split (the first tuning_fraction of each trial) once, then fixed; on realistic trials that block is too "
+        "short to rank hyperparameters the way the whole training set needs them (docs/models.md).")
+    tuning_folds: int = Field(3, ge=2, description="Blocked CV folds inside each search's data (search score).")
     max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")
     n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
+
+    @model_validator(mode="after")
+    def _input_groups(self) -> CoupledParams:
+        actuators = self.actuators()
+        unknown = [c for c in actuators if c not in self.inputs]
+        if unknown:
+            raise ValueError(f"actuator_inputs {unknown} are not in coupled.inputs {self.inputs}")
+        first = len(self.inputs) - len(actuators)
+        if set(self.inputs[first:]) != set(actuators):
+            velocities = [c for c in self.inputs if c not in actuators]
+            raise ValueError(f"the kernels take the velocities first, then the actuators: order coupled.inputs as "
+                             f"{velocities + [c for c in self.inputs if c in actuators]} (velocities {velocities}, "
+                             f"actuators {actuators})")
+        return self
+
+    def actuators(self) -> list[str]:
+        """The actuator / control inputs: ``actuator_inputs``, or the inputs that are not body velocities."""
+        if self.actuator_inputs is not None:
+            return list(self.actuator_inputs)
+        return [c for c in self.inputs if not _BODY_VELOCITY.match(c)]
+
+    def n_velocity_inputs(self) -> int:
+        """How many leading inputs are velocities (the 2-weights and WDSE kernels' first group)."""
+        return len(self.inputs) - len(self.actuators())
 
 
 class DecoupledParams(Frozen):

@@ -171,12 +171,12 @@ def sensor_noise(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle, par
 
 
 def _other_required_valid(synced: pd.DataFrame, vehicle: Vehicle) -> np.ndarray:
-    """Grid samples where attitude and every thruster speed are valid (the velocities are the smoother's)."""
+    """Grid samples where attitude and every actuator signal are valid (the velocities are the smoother's)."""
     from pipeline.sync import valid_column
 
     att = vehicle.sensors.attitude
     names = [att.quaternion] if att.quaternion is not None else [s for s in (att.roll, att.pitch, att.yaw) if s]
-    names += [thr.speed_signal for thr in vehicle.thrusters]
+    names += vehicle.actuator_signals()
     ok = np.ones(len(synced), dtype=bool)
     for name in names:
         col = valid_column(name)
