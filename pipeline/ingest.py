@@ -294,7 +294,7 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
             prov["salvage"] = asdict(result.salvage)
         out.provenance[name] = prov
     if not out.tables and not out.quarantine:
-        out.quarantine.append({"stream": None, "topic": None,
+        out.quarantine.append({"stream": "(all)", "topic": None,
                                "reason": f"every stream is absent from this trial: {sorted(absent)}"})
     report["quarantine"] = out.quarantine
     out.report = report

@@ -2,8 +2,8 @@
 
 Logs are the entries of ``data/raw`` (files, bag directories, and directories of CSV files, each one trial) or
 the paths given with ``--logs``. A log that raises a :class:`~pipeline.errors.PipelineError`, or whose
-ingest has quarantine reasons (a configured stream failed to decode or is empty), is quarantined: nothing of it
-is written, an older output of the same trial is removed (it no longer matches the raw file), and
+ingest has quarantine reasons (a stream that is not ``optional`` failed to decode or is empty), is quarantined:
+nothing of it is written, an older output of the same trial is removed (it no longer matches the raw file), and
 ``data/signals/quarantine.json`` lists it with file, reason, error class, topic, field (and the ingest report
 when there is one). The batch goes on. Raw logs are only read.
 
