@@ -27,6 +27,15 @@ DT_NS = 50_000_000
 
 
 def make_vehicle(streams: dict[str, Any]) -> Vehicle:
+    # The sensors' and thruster's signals that ``streams`` lacks come from a stream of the other kind (a CSV file
+    # for a bag, a topic for a CSV directory), which this log skips: the config is valid, the log reads ``streams``.
+    defined = {sig for st in streams.values() for sig in st["signals"]}
+    filler = {n: {"field": n} for n in ("u_mps", "v_mps", "w_mps", "yaw_rad", "n1_rpm") if n not in defined}
+    if filler:
+        csv = any("file" in st for st in streams.values())
+        other = {"topic": "/filler", "clock": "log"} if csv else \
+            {"file": "filler.csv", "clock": "column", "csv": {"time_column": "t"}}
+        streams = {**streams, "filler": {**other, "signals": filler}}
     return Vehicle.model_validate({
         "name": "testbot",
         "rigid_body": {"mass_kg": 10, "inertia_kgm2": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]},
