@@ -95,7 +95,7 @@ def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str
 
 def trial_inputs(frame: pd.DataFrame, vehicle: Vehicle, dofs: list[str]) -> np.ndarray:
     """Generalized forces of the simulated DOFs from the measured thruster speeds, minus restoring forces."""
-    speeds = frame[[t.speed_signal for t in vehicle.thrusters]].to_numpy(float)
+    speeds = frame[[t.input_signal for t in vehicle.thrusters]].to_numpy(float)  # speed, PWM or thrust
     tau = physics.generalized_forces(vehicle, speeds)
     if {"roll_rad", "pitch_rad"} <= set(frame.columns):
         tau = tau - physics.restoring_force(vehicle, frame["roll_rad"].to_numpy(float),
