@@ -36,7 +36,8 @@ STAGE_HELP = {
 EPILOG = """\
 examples:
   auvid demo                                   # simulated example, whole DAG, prints where the report is
-  auvid inspect trial01.mcap                   # topics, types, rates, gaps: start a vehicle config from it
+  auvid inspect trial01.mcap                   # topics, types, rates, gaps, stamp warnings
+  auvid init data/raw/*.mcap -o dagon.yaml     # a starter vehicle config: fill in its TODOs
   auvid run --root runs/basin --vehicle dagon.yaml data/raw/*.mcap
   auvid sync --root runs/basin --vehicle dagon.yaml --trial trial01
   auvid report --root runs/basin --vehicle dagon.yaml
@@ -111,6 +112,14 @@ def _add_config(p: argparse.ArgumentParser, vehicle_required: bool = False) -> N
                    help="params YAML (default: <root>/params.yaml if present, else built-in defaults)")
 
 
+def _add_definitions(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--vehicle", type=Path, default=None, help="vehicle config: its message_definitions and the "
+                   "CSV options of its streams are used")
+    p.add_argument("--msgs", dest="definitions", action="append", type=Path, default=[], metavar="DIR",
+                   help="directory of .msg/.idl files for types the log does not embed (repeatable; a ROS package "
+                        "tree works)")
+
+
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:8786) for per-trial and CV/search fan-out "
@@ -161,14 +170,37 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--trial", default=None, help="one trial (default: every trial with input)")
         _add_run_options(p)
 
-    insp = sub.add_parser("inspect", help="list a log's topics, message types, counts, rates and gaps",
-                          formatter_class=argparse.RawDescriptionHelpFormatter,
+    insp = sub.add_parser("inspect", help="list a log's topics (or text files' columns), types, serialization, "
+                          "rates, gaps and time-stamp warnings", formatter_class=argparse.RawDescriptionHelpFormatter,
                           epilog="examples:\n  auvid inspect trial01.mcap\n  auvid inspect rosbag2_dir/ --json\n"
-                                 "Use its output to write the `streams:` of a vehicle config "
-                                 "(docs/user-guide.md).\n")
-    insp.add_argument("log", type=Path, help="an MCAP file, ROS 1 bag, ROS 2 bag directory or CSV directory")
+                                 "  auvid inspect run07.dat                     # one text file: sniffed options\n"
+                                 "  auvid inspect csv_trial/ --vehicle ship.yaml  # the config's CSV options\n"
+                                 "  auvid inspect bag/ --msgs ~/ws/src --fields /mavros/rc/override\n"
+                                 "Use its output to write the `streams:` of a vehicle config, or let `auvid init` "
+                                 "write a starter (docs/user-guide.md).\n")
+    insp.add_argument("log", type=Path, help="an MCAP file, ROS 1 bag, ROS 2 bag (directory or storage file), a "
+                      "text file or a directory of them")
+    _add_definitions(insp)
+    insp.add_argument("--fields", metavar="TOPIC", default=None, help="list the field paths of TOPIC's type "
+                      "(a text file: its columns), for `signals:` in the vehicle config")
     insp.add_argument("--json", action="store_true", help="machine-readable output")
     insp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+    init = sub.add_parser("init", help="write a starter vehicle config from logs (topics recognised, clocks "
+                          "chosen, TODO markers for the physical constants)",
+                          formatter_class=argparse.RawDescriptionHelpFormatter,
+                          epilog="examples:\n  auvid init data/raw/trial01.mcap data/raw/trial02.mcap -o vehicle.yaml\n"
+                                 "  auvid init bag/ --msgs ~/ws/src --name bluerov2 -o bluerov2.yaml\n"
+                                 "Then fill in every TODO; `auvid ingest` (or any stage) lists those left.\n")
+    init.add_argument("logs", nargs="+", type=Path, help="one or more logs of the vehicle")
+    init.add_argument("-o", "--out", type=Path, default=Path("vehicle.yaml"), help="where to write the config "
+                      "(default: ./vehicle.yaml; '-' prints it)")
+    init.add_argument("--name", default=None, help="vehicle name (default: from the first log's name)")
+    init.add_argument("--msgs", dest="definitions", action="append", type=Path, default=[], metavar="DIR",
+                      help="directory of .msg/.idl files for types the logs do not embed (repeatable); written "
+                           "to the config as message_definitions")
+    init.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    init.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
     rt = sub.add_parser("retrain", help="ingest new logs from an inbox, retrain, promote only if better "
                         "(cron-safe)", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -272,16 +304,62 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return _exit_code(results)
 
 
+def _definitions(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
+    """The user's message definitions (--msgs, then the vehicle config's) and the config's CSV options."""
+    from pipeline.io.msgdefs import load_user_types
+
+    dirs = [Path(d) for d in getattr(args, "definitions", [])]
+    csv_options: dict[str, Any] = {}
+    vehicle_path = getattr(args, "vehicle", None)
+    if vehicle_path is not None:
+        from pipeline.config import load_vehicle
+        from pipeline.ingest import user_types
+
+        vehicle = load_vehicle(vehicle_path)
+        own = user_types(vehicle)
+        dirs += list(own.dirs) if own is not None else []
+        csv_options = {s.file: s.csv for s in vehicle.streams.values() if s.file is not None and s.csv is not None}
+    for d in dirs:
+        if not d.is_dir():
+            raise ConfigError(f"message definition directory {str(d)!r} does not exist")
+    return (load_user_types(dirs) if dirs else None), csv_options
+
+
 def cmd_inspect(args: argparse.Namespace) -> int:
     try:
-        from pipeline.io.inspect import format_inspect, inspect_log
+        from pipeline.io.inspect import format_fields, format_inspect, inspect_log, topic_fields
     except ImportError as err:
         raise PipelineError(f"`auvid inspect` is not available in this build: {err}") from None
-    info = inspect_log(args.log)
+    definitions, csv_options = _definitions(args)
+    if args.fields is not None:
+        fields = topic_fields(args.log, args.fields, definitions=definitions, csv_options=csv_options)
+        print(json.dumps(fields, indent=2) if args.json else format_fields(fields))
+        return EXIT_OK
+    info = inspect_log(args.log, definitions=definitions, csv_options=csv_options)
     if args.json:
         print(json.dumps(info, indent=2, sort_keys=True, default=str))
     else:
         print(format_inspect(info))
+    return EXIT_OK
+
+
+def cmd_init(args: argparse.Namespace) -> int:
+    from pipeline.starter import starter_config
+
+    definitions, _ = _definitions(args)
+    out = args.out
+    if str(out) != "-" and out.exists() and not args.force:
+        raise ConfigError(f"{out} exists; choose another --out or give --force")
+    base = Path.cwd() if str(out) == "-" else out.resolve().parent
+    starter = starter_config(args.logs, name=args.name, definitions=definitions,
+                             definition_dirs=[Path(d).resolve() for d in args.definitions], base_dir=base)
+    if str(out) == "-":
+        print(starter.text, end="")
+    else:
+        out.write_text(starter.text, encoding="utf-8")
+        print(f"wrote {out}: {len(starter.streams)} stream(s), {starter.todo_count} TODO(s) to fill in")
+    for note in starter.notes:
+        print(f"  {note}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -314,6 +392,8 @@ def main(argv: list[str] | None = None) -> int:
                 return cmd_run(args)
             if args.command == "inspect":
                 return cmd_inspect(args)
+            if args.command == "init":
+                return cmd_init(args)
             if args.command == "retrain":
                 return cmd_retrain(args)
             return cmd_stages(args, [args.command])

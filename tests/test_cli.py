@@ -135,13 +135,17 @@ def test_inspect_json(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: p
     import types
 
     fake = types.ModuleType("pipeline.io.inspect")
-    fake.inspect_log = lambda path: {"file": str(path), "topics": [{"topic": "/dvl", "count": 3}]}
+    fake.inspect_log = lambda path, **kw: {"file": str(path), "topics": [{"topic": "/dvl", "count": 3}]}
     fake.format_inspect = lambda info: f"{info['file']}: {len(info['topics'])} topic(s)"
+    fake.topic_fields = lambda path, topic, **kw: {"topic": topic, "msgtype": "x/msg/Y", "fields": ["a.b"]}
+    fake.format_fields = lambda fields: f"{fields['topic']}: {fields['fields']}"
     monkeypatch.setitem(sys.modules, "pipeline.io.inspect", fake)
     assert cli.main(["inspect", str(tmp_path / "x.mcap"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["topics"][0]["topic"] == "/dvl"
     assert cli.main(["inspect", str(tmp_path / "x.mcap")]) == 0
     assert "1 topic(s)" in capsys.readouterr().out
+    assert cli.main(["inspect", str(tmp_path / "x.mcap"), "--fields", "/dvl"]) == 0
+    assert "/dvl: ['a.b']" in capsys.readouterr().out
 
 
 def test_demo_lays_out_a_run_and_prints_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,

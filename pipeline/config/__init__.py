@@ -58,9 +58,25 @@ def _load_yaml(path: str | Path) -> Any:
         raise ConfigError(f"not valid YAML: {err}", file=path) from None
 
 
+def todo_markers(data: Any, key: str = "") -> list[tuple[str, str]]:
+    """(key, what to give) of every ``"TODO: ..."`` value left in a config (``auvid init`` writes them)."""
+    if isinstance(data, dict):
+        return [m for k, v in data.items() for m in todo_markers(v, f"{key}.{k}" if key else str(k))]
+    if isinstance(data, list):
+        return [m for i, v in enumerate(data) for m in todo_markers(v, f"{key}.{i}")]
+    if isinstance(data, str) and data.strip().upper().startswith("TODO"):
+        return [(key or "(top level)", data.strip()[4:].lstrip(" :") or "a value")]
+    return []
+
+
 def load_vehicle(path: str | Path) -> Vehicle:
-    """Load and validate a vehicle config YAML file."""
-    vehicle = parse(Vehicle, _load_yaml(path), path)
+    """Load and validate a vehicle config YAML file; a config with ``TODO`` values left lists each of them."""
+    data = _load_yaml(path)
+    todo = todo_markers(data)
+    if todo:
+        listed = "; ".join(f"{key}: {what}" for key, what in todo)
+        raise ConfigError(f"{len(todo)} value(s) still to fill in (TODO): {listed}", file=path, field=todo[0][0])
+    vehicle = parse(Vehicle, data, path)
     vehicle._base_dir = Path(path).resolve().parent
     return vehicle
 

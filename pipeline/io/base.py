@@ -279,6 +279,58 @@ class RawReader:
         info = self.catalog()[topic]
         return self._undecodable(topic, info.msgtype)
 
+    # -- inspection (auvid inspect / init) -------------------------------------------------------------------
+    def encoding(self, topic: str) -> str:
+        """The topic's serialization as the storage states it: ``cdr``, ``ros1``, or another (unsupported)."""
+        self.catalog()
+        return self._encoding.get(topic, "")
+
+    def field_paths(self, topic: str) -> list[str]:
+        """The scalar leaf paths of the topic's type (arrays as ``name[i]``); IngestError if it has no
+        definition."""
+        from pipeline.io.fields import leaf_paths
+
+        why = self.undecodable(topic)
+        if why is not None:
+            raise IngestError(f"cannot list the fields of {topic!r}: {why}", file=self.path, topic=topic)
+        assert self._types is not None
+        return leaf_paths(self._types.defs, self.catalog()[topic].msgtype)
+
+    def log_times(self, topics: list[str]) -> dict[str, np.ndarray]:
+        """The log time of every message of ``topics``, in storage order; nothing is decoded (works for types
+        without a definition)."""
+        parts: dict[str, list[np.ndarray]] = {t: [] for t in topics}
+        for batch in (self._batches(list(topics)) if topics else ()):
+            for topic, rows in batch.rows.items():
+                if topic in parts:
+                    parts[topic].append(np.asarray(rows.log_ns, dtype=np.int64))
+        return {t: np.concatenate(p) if p else np.empty(0, dtype=np.int64) for t, p in parts.items()}
+
+    def first_message(self, topic: str) -> Any:
+        """The topic's first message, deserialized (rosbags objects), or None if it holds none or cannot be
+        decoded."""
+        if self.undecodable(topic) is not None:
+            return None
+        assert self._types is not None
+        store = self._types.store
+        msgtype = self.catalog()[topic].msgtype
+        batches = self._batches([topic])
+        try:
+            for batch in batches:
+                rows = batch.rows.get(topic)
+                if rows is None or not len(rows.starts):
+                    continue
+                start, length = int(rows.starts[0]), int(rows.lengths[0])
+                payload = batch.buf[start:start + length].tobytes()
+                if self._encoding.get(topic) == "ros1":
+                    return store.deserialize_ros1(payload, msgtype)
+                return store.deserialize_cdr(payload, msgtype)
+        finally:
+            close = getattr(batches, "close", None)
+            if close is not None:
+                close()
+        return None
+
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
         try:
             return self._read(requests)

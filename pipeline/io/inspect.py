@@ -1,12 +1,43 @@
-"""``inspect_log(path)``: what a log holds, as a JSON-able dict, and a ``rosbag info``-like text table."""
+"""``inspect_log(path)``: what a log holds, as a JSON-able dict, and a ``rosbag info``-like text table.
+
+For every topic (or text file): message type, count, serialization (``cdr``, ``ros1``, ...; text files:
+``text``), time span, mean rate and the largest gap between consecutive messages, and the time-stamp checks of
+:mod:`pipeline.stamps` (the same ones ingest runs) on the stamps a config would use: a topic with a header is
+checked on its header stamps against its log time (zero, constant, sim-time, duplicate, quantized stamps, steps
+back), one without on its log time; ``suggested_clock`` is ``header`` when the type has a header and those
+checks found nothing that makes the stamps unusable, else ``log``. Types without a definition in the log are
+decoded with the user's (``definitions``, from ``message_definitions``); a topic that still cannot be decoded is
+listed with the reason, its log times still checked.
+
+Text logs (one file, or a directory of them) are read with the options the vehicle config gives
+(``csv_options``: file name or glob -> :class:`~pipeline.config.sources.CsvOptions`), else with the options
+:func:`pipeline.io.csvsniff.sniff_csv` guesses; the result shows the columns and the options used.
+
+:func:`topic_fields` lists the field paths of one topic's type (for ``signals:`` in the vehicle config).
+"""
 
 from __future__ import annotations
 
+import fnmatch
+import logging
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from pipeline.io.detect import open_log
+import numpy as np
+
+from pipeline.config.sources import CsvOptions
+from pipeline.errors import IngestError
+from pipeline.ingest import time_stats
+from pipeline.io.msgdefs import UserTypes
+from pipeline.stamps import check_stamps
+
+log = logging.getLogger(__name__)
+
+STORAGE = {"mcap": "mcap", "ros1": "ros1 bag", "ros2-sqlite3": "sqlite3 (ROS 2 bag)",
+           "ros2-mcap": "mcap (ROS 2 bag)", "csv": "text"}
+# Warnings after which a header stamp is not a usable clock (log time is): the remedy is `clock: log`.
+UNUSABLE_HEADER = ("zero", "constant", "far_from_log")
 
 
 def _iso(ns: int | None) -> str | None:
@@ -21,60 +52,230 @@ def _size(path: Path) -> int:
     return path.stat().st_size
 
 
-def inspect_log(path: str | Path) -> dict[str, Any]:
-    """Format, size and per-topic type, count, first/last stamp (ns and ISO UTC), duration and mean rate."""
+def _is_text_file(path: Path) -> bool:
+    from pipeline.io.text import TEXT_SUFFIXES
+
+    return path.is_file() and path.name.lower().endswith(TEXT_SUFFIXES)
+
+
+def open_any(path: Path, definitions: UserTypes | None = None) -> Any:
+    """:func:`pipeline.io.open_log`, and a single text file too (a one-file CSV trial)."""
+    from pipeline.io.detect import open_log
+    from pipeline.io.text import open_text
+
+    if _is_text_file(path):
+        try:
+            return open_log(path, definitions)
+        except IngestError:  # no binary magic: a text file
+            return open_text(path)
+    return open_log(path, definitions)
+
+
+def _stamp_entry(checked: np.ndarray, *, clock: str, log_ns: np.ndarray | None, label: str | None = None
+                 ) -> dict[str, Any]:
+    result = check_stamps(checked, clock=clock, log_ns=log_ns, label=label)
+    stamps = result.as_dict()
+    warnings = stamps.pop("warnings")
+    return {"stamps": stamps, "stamp_warnings": warnings}
+
+
+def _timing(t_ns: np.ndarray) -> dict[str, Any]:
+    stats = time_stats(np.asarray(t_ns, dtype=np.int64))
+    return {"first_ns": stats["first_ns"], "last_ns": stats["last_ns"], "first_iso": _iso(stats["first_ns"]),
+            "last_iso": _iso(stats["last_ns"]), "duration_s": stats["span_s"] if stats["count"] else None,
+            "rate_hz": stats["mean_rate_hz"], "largest_gap_s": stats["largest_gap_s"]}
+
+
+def inspect_log(path: str | Path, *, definitions: UserTypes | None = None,
+                csv_options: dict[str, CsvOptions] | None = None) -> dict[str, Any]:
+    """Format, storage, size and per topic: type, count, serialization, span, rate, largest gap, stamp checks.
+
+    ``definitions``: the user's message definitions (types the log does not embed); ``csv_options``: parsing
+    options per text file name or glob (from the vehicle config), used instead of the sniffed ones.
+    """
     path = Path(path)
-    with open_log(path) as reader:
-        infos = reader.topics()
-        salvage = getattr(reader, "salvage", None)
+    with open_any(path, definitions) as reader:
         fmt = reader.format
-    topics: dict[str, Any] = {}
-    for name, info in sorted(infos.items()):
-        duration = (info.last_ns - info.first_ns) / 1e9 if info.first_ns is not None and info.last_ns is not None \
-            else None
-        rate = (info.count - 1) / duration if duration and info.count > 1 else None
-        topics[name] = {
-            "msgtype": info.msgtype, "count": info.count, "has_header": info.has_header,
-            "first_ns": info.first_ns, "last_ns": info.last_ns, "first_iso": _iso(info.first_ns),
-            "last_iso": _iso(info.last_ns), "duration_s": duration, "rate_hz": rate,
-        }
-    firsts = [i.first_ns for i in infos.values() if i.first_ns is not None]
-    lasts = [i.last_ns for i in infos.values() if i.last_ns is not None]
+        if fmt == "csv":
+            topics = _text_topics(reader, csv_options or {})
+        else:
+            topics = _binary_topics(reader)
+        salvage = getattr(reader, "salvage", None)
+    firsts = [t["first_ns"] for t in topics.values() if t["first_ns"] is not None]
+    lasts = [t["last_ns"] for t in topics.values() if t["last_ns"] is not None]
     start, end = (min(firsts), max(lasts)) if firsts else (None, None)
+    warnings = sum(len(t["stamp_warnings"]) for t in topics.values())
     return {
-        "path": str(path), "format": fmt, "size_bytes": _size(path),
-        "messages": sum(i.count for i in infos.values()),
+        "path": str(path), "format": fmt, "storage": STORAGE.get(fmt, fmt), "size_bytes": _size(path),
+        "serialization": sorted({t["serialization"] for t in topics.values() if t["serialization"]}),
+        "messages": sum(t["count"] for t in topics.values()),
         "start_ns": start, "end_ns": end, "start_iso": _iso(start), "end_iso": _iso(end),
         "duration_s": (end - start) / 1e9 if start is not None and end is not None else 0.0,
-        "topics": topics,
+        "stamp_warnings": warnings, "topics": topics,
         "salvage": None if salvage is None else {"kept": salvage.kept, "stopped_at_byte": salvage.stopped_at_byte,
                                                  "reason": salvage.reason},
     }
 
 
+def _binary_topics(reader: Any) -> dict[str, Any]:
+    infos = reader.topics()
+    undecodable = {t: reader.undecodable(t) for t in infos}
+    readable = [t for t, why in undecodable.items() if why is None]
+    result = reader.read({t: [] for t in readable}) if readable else None
+    failed = dict(result.failed) if result is not None else {}
+    data = dict(result.topics) if result is not None else {}
+    raw_only = [t for t in infos if t not in data]
+    log_only = reader.log_times(raw_only) if raw_only else {}
+    infos = reader.catalog()  # counts checked by the read
+    topics: dict[str, Any] = {}
+    for name in sorted(infos):
+        info = infos[name]
+        why = undecodable[name] or failed.get(name)
+        item = data.get(name)
+        log_ns = np.asarray(item.log_ns if item is not None else log_only.get(name, np.empty(0)), dtype=np.int64)
+        header_ns = item.header_ns if item is not None else None
+        entry: dict[str, Any] = {
+            "msgtype": info.msgtype, "count": int(info.count) if item is None else int(item.read),
+            "serialization": reader.encoding(name), "has_header": bool(info.has_header), "decodable": why is None,
+            "undecodable_reason": why, **_timing(log_ns),
+        }
+        if header_ns is not None:
+            entry.update(_stamp_entry(np.asarray(header_ns), clock="header", log_ns=log_ns))
+        else:
+            entry.update(_stamp_entry(log_ns, clock="log", log_ns=None))
+        bad = [w["check"] for w in entry["stamp_warnings"] if w["check"] in UNUSABLE_HEADER]
+        entry["suggested_clock"] = "header" if header_ns is not None and not bad else "log"
+        topics[name] = entry
+    return topics
+
+
+def _options_for(name: str, csv_options: dict[str, CsvOptions]) -> CsvOptions | None:
+    if name in csv_options:
+        return csv_options[name]
+    return next((o for pattern, o in csv_options.items() if fnmatch.fnmatch(name, pattern)), None)
+
+
+def _text_topics(reader: Any, csv_options: dict[str, CsvOptions]) -> dict[str, Any]:
+    from pipeline.io.csvsniff import sniff_csv
+
+    base = reader.path if reader.path.is_dir() else reader.path.parent
+    topics: dict[str, Any] = {}
+    for name in sorted(reader.topics()):
+        given = _options_for(name, csv_options)
+        sniffed = sniff_csv(base / name) if given is None else None
+        opts = given if given is not None else sniffed.options if sniffed is not None else None
+        entry: dict[str, Any] = {"msgtype": "text", "serialization": "text", "has_header": False,
+                                 "decodable": True, "undecodable_reason": None,
+                                 "options_from": "vehicle config" if given is not None else "sniffed",
+                                 "sniff_note": sniffed.note if sniffed is not None else None}
+        if opts is None:  # no time column: columns and rows only
+            assert sniffed is not None
+            opts = CsvOptions(time_column=sniffed.columns[0] if sniffed.columns else "?", skip_rows=sniffed.skip_rows,
+                              header=sniffed.header, columns=None if sniffed.header else sniffed.columns,
+                              delimiter=sniffed.delimiter if sniffed.delimiter != "," else None,
+                              encoding=sniffed.encoding)
+            reader.configure({name: opts})
+            entry.update(columns=reader.fields(name), count=reader.topics()[name].count, time_column=None,
+                         csv=opts.model_dump(exclude_defaults=True) | {"time_column": None},
+                         **_timing(np.empty(0, dtype=np.int64)), stamps=None, stamp_warnings=[],
+                         suggested_clock=None)
+            topics[name] = entry
+            continue
+        reader.configure({name: opts})
+        columns = reader.fields(name)
+        data = reader.read({name: []}).topics[name]
+        t_ns = np.asarray(data.log_ns, dtype=np.int64)
+        entry.update(columns=columns, count=int(data.read), time_column=opts.time_column,
+                     csv=opts.model_dump(exclude_defaults=True), **_timing(t_ns))
+        if getattr(data, "dropped_count", 0):
+            entry["rows_dropped"] = int(data.dropped_count)
+        entry.update(_stamp_entry(t_ns, clock="column", log_ns=None,
+                                  label=f"stamps of time column {opts.time_column!r}"))
+        entry["suggested_clock"] = "column"
+        topics[name] = entry
+    return topics
+
+
+def topic_fields(path: str | Path, topic: str, *, definitions: UserTypes | None = None,
+                 csv_options: dict[str, CsvOptions] | None = None) -> dict[str, Any]:
+    """The field paths of ``topic``'s type (a text file: its columns), with the type; IngestError listing the
+    topics when there is no such topic."""
+    path = Path(path)
+    with open_any(path, definitions) as reader:
+        infos = reader.catalog() if hasattr(reader, "catalog") else reader.topics()
+        if topic not in infos:
+            raise IngestError(f"topic {topic!r} not in {path.name}; available: {sorted(infos)}", file=path,
+                              topic=topic)
+        if reader.format == "csv":
+            from pipeline.io.csvsniff import sniff_csv
+
+            opts = _options_for(topic, csv_options or {})
+            if opts is None:
+                base = reader.path if reader.path.is_dir() else reader.path.parent
+                opts = sniff_csv(base / topic).options
+            if opts is not None:
+                reader.configure({topic: opts})
+            return {"topic": topic, "msgtype": "text", "fields": reader.fields(topic)}
+        fields = reader.field_paths(topic)
+        out: dict[str, Any] = {"topic": topic, "msgtype": infos[topic].msgtype, "fields": fields}
+        if infos[topic].msgtype in ("sensor_msgs/msg/JointState", "sensor_msgs/JointState"):
+            msg = reader.first_message(topic)
+            names = list(getattr(msg, "name", []) or [])
+            out["joint_names"] = names
+            out["fields"] = fields + [f"{arr}[name={n}]" for arr in ("position", "velocity", "effort") for n in names]
+        return out
+
+
 def format_inspect(info: dict[str, Any]) -> str:
-    """A text table in the spirit of ``rosbag info``."""
+    """A text table in the spirit of ``rosbag info``, then the stamp warnings with their remedies."""
     lines = [
         f"path:      {info['path']}",
         f"format:    {info['format']}",
+        f"storage:   {info.get('storage', info['format'])}",
+        f"serialization: {', '.join(info.get('serialization') or []) or '-'}",
         f"size:      {info['size_bytes'] / 1e6:.2f} MB",
         f"messages:  {info['messages']}",
     ]
     if info["start_ns"] is None:
-        lines.append("duration:  0 s (no messages)")
+        lines.append("duration:  no time stamps" if info["messages"] else "duration:  0 s (no messages)")
     else:
         lines += [f"start:     {info['start_iso']}", f"end:       {info['end_iso']}",
                   f"duration:  {info['duration_s']:.3f} s"]
     if info.get("salvage"):
         s = info["salvage"]
         lines.append(f"DAMAGED:   kept {s['kept']} messages, stopped at byte {s['stopped_at_byte']}: {s['reason']}")
-    rows = [("topic", "type", "count", "rate Hz", "duration s", "header")]
-    for name, t in info["topics"].items():
-        rows.append((name, t["msgtype"], str(t["count"]), f"{t['rate_hz']:.2f}" if t["rate_hz"] else "-",
-                     f"{t['duration_s']:.3f}" if t["duration_s"] is not None else "-",
-                     "yes" if t["has_header"] else "no"))
+    topics = info["topics"]
+    text = any(t.get("msgtype") == "text" for t in topics.values())
+    head = ("file", "time column", "rows") if text else ("topic", "type", "count")
+    rows = [(*head, "rate Hz", "duration s", "max gap s", "header" if not text else "clock", "ser.")]
+    for name, t in topics.items():
+        rows.append((name, (t.get("time_column") or "-") if text else t["msgtype"], str(t["count"]),
+                     f"{t['rate_hz']:.2f}" if t.get("rate_hz") else "-",
+                     f"{t['duration_s']:.3f}" if t.get("duration_s") is not None else "-",
+                     f"{t['largest_gap_s']:.3f}" if t.get("largest_gap_s") is not None else "-",
+                     (t.get("suggested_clock") or "-") if text else ("yes" if t["has_header"] else "no"),
+                     t.get("serialization") or "?"))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines.append("topics:")
+    lines.append("topics:" if not text else "files:")
     for row in rows:
         lines.append("  " + "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
+    for name, t in topics.items():
+        if text:
+            how = t.get("options_from", "sniffed")
+            lines.append(f"{name}: columns {t.get('columns')}")
+            lines.append(f"  csv ({how}): {t.get('csv')}" + (f"  [{t['sniff_note']}]" if t.get("sniff_note") else ""))
+        if t.get("undecodable_reason"):
+            lines.append(f"{name}: cannot decode: {t['undecodable_reason']}")
+        if not text and t.get("has_header") and t.get("suggested_clock") == "log":
+            lines.append(f"{name}: header stamps unusable: use `clock: log`")
+        for w in t.get("stamp_warnings") or []:
+            examples = ", ".join(w.get("examples") or []) or "-"
+            lines.append(f"{name}: WARNING {w['check']}: {w['message']}; e.g. {examples}. Remedy: {w['remedy']}")
+    return "\n".join(lines)
+
+
+def format_fields(fields: dict[str, Any]) -> str:
+    """One field path per line, under the topic and its type."""
+    lines = [f"{fields['topic']} ({fields['msgtype']}):"]
+    lines += [f"  {f}" for f in fields["fields"]]
     return "\n".join(lines)

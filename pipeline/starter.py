@@ -1,0 +1,340 @@
+"""``auvid init``: a starter vehicle config (YAML text) from what :func:`pipeline.io.inspect.inspect_log` sees.
+
+Recognised topics (by message type, then by topic name where the type says too little):
+
+- ``sensor_msgs/Imu``: attitude quaternion and body rates (``<s>_quat``, ``p_<s>_radps``, ``q_<s>_radps``,
+  ``r_<s>_radps``; r only when no dedicated gyro gives it);
+- DVL-like (a type with ``velocity.x/.y[.z]`` that is no ROS standard type, or a topic named ``dvl``):
+  ``dvl_x_mps`` ... and a bottom-lock / valid bool as ``dvl_valid_flag``; ``sensors.dvl`` with its mounting;
+- ``sensor_msgs/JointState``: one thruster per joint name, ``n<k>_rpm`` from ``velocity[name=<joint>]`` in rad/s
+  (the ROS unit of a joint velocity);
+- ``nav_msgs/Odometry``: body velocity from the twist (``sensors.velocity``, when there is no DVL), attitude and
+  rates when no IMU gives them;
+- ``std_msgs/Float64`` (and ``Float32``), ``geometry_msgs/PointStamped``: depth when the topic is named
+  depth / pressure; other Float64 topics are listed as commented-out streams, to be named with a unit suffix;
+- ``geometry_msgs/Vector3Stamped`` named fog / gyro / rate: a yaw-rate gyro (``r_<s>_radps`` from ``vector.z``).
+
+Each stream's ``clock`` is ``header`` when its type has a header and the stamp checks of :mod:`pipeline.stamps`
+found the header stamps usable in every log, else ``log`` (with the reason as a comment); duplicate or quantized
+stamps get the ``time: {rate_hz: R}`` remedy as a comment. A topic missing from some logs is ``optional``.
+
+What the logs cannot tell (mass, inertia, added mass, thruster positions, directions and thrust curves, sensor
+mounting, the attitude convention) is written as ``"TODO: <what to give>"``;
+:func:`pipeline.config.load_vehicle` refuses a config with TODOs left and lists each with its key.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.io.inspect import inspect_log, topic_fields
+from pipeline.io.msgdefs import UserTypes
+
+log = logging.getLogger(__name__)
+
+TODO = "TODO"
+_RATE_NAME = re.compile(r"fog|gyro|rate", re.IGNORECASE)
+_DEPTH_NAME = re.compile(r"depth|pressure", re.IGNORECASE)
+_FLAG_NAME = re.compile(r"lock|valid", re.IGNORECASE)
+_STANDARD_PREFIXES = ("std_msgs/", "geometry_msgs/", "sensor_msgs/", "nav_msgs/", "builtin_interfaces/",
+                      "tf2_msgs/", "rosgraph_msgs/", "diagnostic_msgs/")
+_STAMP_REMEDY = ("duplicates", "quantized", "steps_back")
+
+
+@dataclass
+class Starter:
+    """The starter config: its YAML text, the streams it maps (name -> topic), TODOs left, notes for the user."""
+
+    text: str
+    streams: dict[str, str]
+    todo_count: int
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _Topic:
+    topic: str
+    msgtype: str
+    has_header: bool
+    clocks: list[str]
+    warnings: list[dict[str, Any]]
+    present: int
+    decodable: bool
+    reason: str | None
+
+
+@dataclass
+class _Stream:
+    name: str
+    topic: _Topic
+    signals: dict[str, tuple[str, str | None]]  # signal -> (field, unit)
+    comment: str = ""
+
+
+def _short(msgtype: str) -> str:
+    return msgtype.replace("/msg/", "/")
+
+
+def _stream_name(topic: str, taken: set[str]) -> str:
+    parts = [re.sub(r"[^A-Za-z0-9_]", "_", p) for p in topic.strip("/").split("/") if p]
+    name = (parts[0] if parts else "stream").lower() or "stream"
+    i = 1
+    while name in taken:
+        i += 1
+        name = "_".join(parts[:i]).lower() if i <= len(parts) else f"{parts[0].lower()}{i}"
+    taken.add(name)
+    return name
+
+
+def _gather(logs: list[Path], definitions: UserTypes | None) -> dict[str, _Topic]:
+    topics: dict[str, _Topic] = {}
+    for path in logs:
+        info = inspect_log(path, definitions=definitions)
+        if info["format"] == "csv":
+            raise NotImplementedError(f"{path}: `auvid init` reads ROS logs (MCAP, bags); for text files run "
+                                      "`auvid inspect` and write the `file:` streams from its sniffed csv options")
+        for name, t in info["topics"].items():
+            seen = topics.get(name)
+            if seen is None:
+                topics[name] = _Topic(name, t["msgtype"], t["has_header"], [t["suggested_clock"]],
+                                      list(t["stamp_warnings"]), 1, t["decodable"], t["undecodable_reason"])
+            else:
+                seen.clocks.append(t["suggested_clock"])
+                seen.warnings += t["stamp_warnings"]
+                seen.present += 1
+    return topics
+
+
+def _fields(logs: list[Path], topic: str, definitions: UserTypes | None) -> dict[str, Any]:
+    for path in logs:
+        try:
+            return topic_fields(path, topic, definitions=definitions)
+        except Exception as err:  # noqa: BLE001 - not in this log or undecodable: try the next one
+            log.debug("%s: no fields of %s: %s", path, topic, err)
+    return {"fields": []}
+
+
+def _dvl_like(t: _Topic, fields: list[str]) -> bool:
+    has_velocity = {"velocity.x", "velocity.y"} <= set(fields)
+    standard = t.msgtype.startswith(_STANDARD_PREFIXES)
+    return (has_velocity and not standard) or ("dvl" in t.topic.lower() and has_velocity)
+
+
+def _classify(topics: dict[str, _Topic], logs: list[Path], definitions: UserTypes | None
+              ) -> tuple[list[_Stream], dict[str, Any], list[str], list[str]]:
+    """Streams, the sensors section (signal names or TODO strings), thruster names (joint order), and notes."""
+    taken: set[str] = set()
+    streams: list[_Stream] = []
+    notes: list[str] = []
+    roles: dict[str, Any] = {}
+    joints: list[str] = []
+    gyro = [t for t in topics.values() if _short(t.msgtype) == "geometry_msgs/Vector3Stamped"
+            and _RATE_NAME.search(t.topic)]
+    for name in sorted(topics):
+        t = topics[name]
+        kind = _short(t.msgtype)
+        if not t.decodable:
+            notes.append(f"{name} ({t.msgtype}) cannot be decoded: {t.reason}")
+            continue
+        if kind == "sensor_msgs/Imu":
+            s = _stream_name(name, taken)
+            sig = {f"{s}_quat": ("orientation", None), f"p_{s}_radps": ("angular_velocity.x", "rad/s"),
+                   f"q_{s}_radps": ("angular_velocity.y", "rad/s")}
+            roles.setdefault("quaternion", f"{s}_quat")
+            roles.setdefault("p", f"p_{s}_radps")
+            roles.setdefault("q", f"q_{s}_radps")
+            if not gyro:
+                sig[f"r_{s}_radps"] = ("angular_velocity.z", "rad/s")
+                roles.setdefault("r", f"r_{s}_radps")
+            streams.append(_Stream(s, t, sig, "attitude and body rates"))
+        elif kind == "geometry_msgs/Vector3Stamped" and t in gyro:
+            s = _stream_name(name, taken)
+            streams.append(_Stream(s, t, {f"r_{s}_radps": ("vector.z", "rad/s")},
+                                   "yaw-rate gyro (check the axis and sign)"))
+            roles["r"] = f"r_{s}_radps"
+        elif kind == "sensor_msgs/JointState":
+            names = _fields(logs, name, definitions).get("joint_names") or []
+            if not names:
+                notes.append(f"{name}: no joint names in its first message; map the thrusters by hand")
+                continue
+            s = _stream_name(name, taken)
+            sig = {}
+            for joint in names:
+                k = len(joints) + 1
+                joints.append(joint)
+                sig[f"n{k}_rpm"] = (f"velocity[name={joint}]", "rad/s")
+            streams.append(_Stream(s, t, sig, "propeller speeds (a joint velocity is rad/s in ROS)"))
+        elif kind == "nav_msgs/Odometry":
+            s = _stream_name(name, taken)
+            sig = {f"u_{s}_mps": ("twist.twist.linear.x", "m/s"), f"v_{s}_mps": ("twist.twist.linear.y", "m/s"),
+                   f"w_{s}_mps": ("twist.twist.linear.z", "m/s"), f"{s}_quat": ("pose.pose.orientation", None),
+                   f"p_{s}_radps": ("twist.twist.angular.x", "rad/s"),
+                   f"q_{s}_radps": ("twist.twist.angular.y", "rad/s"),
+                   f"r_{s}_radps": ("twist.twist.angular.z", "rad/s")}
+            roles.setdefault("odometry", s)
+            streams.append(_Stream(s, t, sig, "twist in the child frame (ROS: FLU; check the signs of v, w)"))
+        elif kind in ("std_msgs/Float64", "std_msgs/Float32", "geometry_msgs/PointStamped") \
+                and _DEPTH_NAME.search(name) and "depth" not in roles:
+            s = _stream_name(name, taken)
+            fld = "point.z" if kind == "geometry_msgs/PointStamped" else "data"
+            streams.append(_Stream(s, t, {"depth_m": (fld, "m")}, "depth (positive down; check it is not pressure)"))
+            roles["depth"] = "depth_m"
+        elif kind in ("std_msgs/Float64", "std_msgs/Float32"):
+            notes.append(f"{name} ({kind}): a scalar of unknown meaning; see the commented-out stream")
+            streams.append(_Stream(_stream_name(name, taken), t, {}, "unknown scalar"))
+        else:
+            fields = _fields(logs, name, definitions).get("fields") or []
+            if _dvl_like(t, fields) and "dvl" not in roles:
+                s = _stream_name(name, taken)
+                has_z = "velocity.z" in fields
+                sig = {f"dvl_{a}_mps": (f"velocity.{a}", "m/s") for a in ("xyz" if has_z else "xy")}
+                flag = next((f for f in fields if "." not in f and _FLAG_NAME.search(f)), None)
+                if flag is not None:
+                    sig["dvl_valid_flag"] = (flag, None)
+                streams.append(_Stream(s, t, sig, "DVL velocity in its own frame"))
+                roles["dvl"] = (list(sig)[:3 if has_z else 2], "dvl_valid_flag" if flag else None)
+            else:
+                notes.append(f"{name} ({t.msgtype}) not recognised; `auvid inspect LOG --fields {name}` lists its "
+                             "fields")
+    return streams, roles, joints, notes
+
+
+def _clock(t: _Topic, n_logs: int) -> tuple[str, list[str]]:
+    comments = []
+    clock = "header" if t.has_header and all(c == "header" for c in t.clocks) else "log"
+    if t.has_header and clock == "log":
+        bad = sorted({w["check"] for w in t.warnings if w["check"] in ("zero", "constant", "far_from_log")})
+        comments.append(f"header stamps unusable ({', '.join(bad)}): log time")
+    remedies = {w["check"]: w["remedy"] for w in t.warnings if w["check"] in _STAMP_REMEDY}
+    for check, remedy in sorted(remedies.items()):
+        comments.append(f"{check} stamps: {remedy}")
+    return clock, comments
+
+
+def _v(value: Any) -> str:
+    return json.dumps(value, ensure_ascii=False)
+
+
+def _todo(what: str) -> str:
+    return _v(f"{TODO}: {what}")
+
+
+def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = None,
+                   definitions: UserTypes | None = None, definition_dirs: list[Path] | None = None,
+                   base_dir: Path | None = None) -> Starter:
+    """The starter config of a vehicle from its logs (see the module docstring); nothing is written."""
+    paths = [Path(p) for p in logs]
+    if not paths:
+        raise ValueError("give at least one log")
+    topics = _gather(paths, definitions)
+    streams, roles, joints, notes = _classify(topics, paths, definitions)
+    vehicle_name = name or re.sub(r"[^A-Za-z0-9_\-]", "_", paths[0].name.split(".")[0]) or "vehicle"
+    out: list[str] = [
+        f"# Starter vehicle config written by `auvid init` from {len(paths)} log(s): "
+        + ", ".join(p.name for p in paths[:5]) + (" ..." if len(paths) > 5 else ""),
+        "# Fill in every TODO (the loader lists those left). Body axes FRD, world NED; matrices in the DOF",
+        "# order [u v w p q r]. See docs/user-guide.md, section 2.",
+        f"name: {_v(vehicle_name)}",
+    ]
+    if definition_dirs:
+        rel = [str(_relative(d, base_dir)) for d in definition_dirs]
+        out.append(f"message_definitions: {_v(rel)}")
+    out += [
+        "rigid_body:",
+        f"  mass_kg: {_todo('mass in air, kg')}",
+        f"  inertia_kgm2: {_todo('inertia about the CG, body axes, kg m^2: [[Ixx, 0, 0], [0, Iyy, 0], [0, 0, Izz]]')}",
+        f"  cg_m: {_todo('centre of gravity [x, y, z] in body axes, m')}",
+        f"  cb_m: {_todo('centre of buoyancy [x, y, z] in body axes, m')}",
+        f"  buoyancy_N: {_todo('buoyancy in N (null: equal to the weight)')}",
+        f"added_mass: {_todo('6x6 added-mass matrix M_A, [u v w p q r] order')}",
+    ]
+    if joints:
+        out.append("thrusters:")
+        for k, joint in enumerate(joints, start=1):
+            where = _todo(f"position of {joint} [x, y, z] in body axes, m")
+            towards = _todo(f"thrust direction of {joint} in body axes, e.g. [1, 0, 0]")
+            out += [
+                f"  - name: {_v(joint)}",
+                f"    speed_signal: n{k}_rpm",
+                f"    position_m: {where}",
+                f"    direction: {towards}",
+                f"    thrust: {_todo('thrust curve: {k_fwd_N_per_rpm2: K, k_bwd_N_per_rpm2: K} or a table')}",
+            ]
+    else:
+        what = ("one entry per thruster: name, speed_signal / pwm_signal / thrust_signal, position_m, direction, "
+                "thrust (no JointState topic found)")
+        out.append(f"thrusters: {_todo(what)}")
+    out += _sensors(roles)
+    out.append("streams:")
+    mapped: dict[str, str] = {}
+    for s in streams:
+        clock, comments = _clock(s.topic, len(paths))
+        prefix = "  " if s.signals else "  # "
+        out.append(f"{prefix}{s.name}:" + f"  # {_short(s.topic.msgtype)}: {s.comment}")
+        out.append(f"{prefix}  topic: {_v(s.topic.topic)}")
+        out.append(f"{prefix}  clock: {clock}" + (f"  # {'; '.join(comments)}" if comments else ""))
+        out.append(f"{prefix}  offset_s: 0.0  # constant offset added to the stamps, if the sensor clock is known "
+                   "to lead or lag")
+        if s.topic.present < len(paths):
+            out.append(f"{prefix}  optional: true  # in {s.topic.present} of {len(paths)} logs")
+        out.append(f"{prefix}  signals:")
+        if s.signals:
+            mapped[s.name] = s.topic.topic
+            for sig, (fld, unit) in s.signals.items():
+                unit_part = f", unit: {_v(unit)}" if unit else ""
+                out.append(f"{prefix}    {sig}: {{field: {_v(fld)}{unit_part}}}")
+        else:
+            out.append(f"{prefix}    {s.name}_<unit>: {{field: data, unit: ...}}  # e.g. rudder_rad (unit: deg), "
+                       "then list it under control_surfaces")
+    if not mapped:
+        out.append(f"  todo: {_todo('no topic recognised; map topics to signals (auvid inspect LOG --fields TOPIC)')}")
+    for note in notes:
+        out.append(f"# note: {note}")
+    text = "\n".join(out) + "\n"
+    return Starter(text=text, streams=mapped, todo_count=text.count(f'"{TODO}:'), notes=notes)
+
+
+def _relative(path: Path, base: Path | None) -> Path:
+    if base is None:
+        return path
+    try:
+        return path.resolve().relative_to(base.resolve())
+    except ValueError:
+        return path.resolve()
+
+
+def _sensors(roles: dict[str, Any]) -> list[str]:
+    out = ["sensors:"]
+    if "dvl" in roles:
+        velocity, valid = roles["dvl"]
+        out += ["  dvl:", f"    velocity: {_v(velocity)}"]
+        if valid:
+            out.append(f"    valid: {valid}")
+        out += ["    zero_is_invalid: true",
+                f"    position_m: {_todo('DVL position [x, y, z] in body axes, m')}",
+                f"    rotation_rpy_deg: {_todo('DVL frame -> body frame, [roll, pitch, yaw] in deg')}"]
+    elif "odometry" in roles:
+        s = roles["odometry"]
+        signals = [f"u_{s}_mps", f"v_{s}_mps", f"w_{s}_mps"]
+        out += ["  velocity:", "    frame: body", f"    signals: {_v(signals)}"]
+    else:
+        out.append(f"  velocity: {_todo('a velocity source: dvl (with mounting) or velocity (frame, signals)')}")
+    quat = roles.get("quaternion") or (f"{roles.get('odometry')}_quat" if "odometry" in roles else None)
+    if quat:
+        out += ["  attitude:", f"    quaternion: {quat}",
+                f"    convention: {_todo('frd_ned (body FRD -> NED, marine) or flu_enu (ROS body FLU -> ENU)')}"]
+    else:
+        out.append(f"  attitude: {_todo('quaternion signal, or roll/pitch/yaw signals')}")
+    odom = roles.get("odometry")
+    rates = {a: roles.get(a) or (f"{a}_{odom}_radps" if odom else None) for a in "pqr"}
+    if any(rates.values()):
+        out.append("  rates:")
+        out += [f"    {a}: {sig}" for a, sig in rates.items() if sig]
+    if "depth" in roles:
+        out.append(f"  depth: {roles['depth']}")
+    return out
