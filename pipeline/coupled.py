@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from sklearn.base import BaseEstimator, RegressorMixin
 
 from pipeline.config.params import CoupledParams
 from pipeline.errors import ModelError
@@ -36,7 +37,8 @@ from pipeline.models.svr import PerOutputRegressor
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "noise_std_from", "synthetic_frame", "tune",
+__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "NestedTuned", "noise_std_from", "synthetic_frame",
+           "tune",
            "build_model", "model_inputs",
            "evaluate_models"]
 
@@ -195,9 +197,11 @@ def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:
     return frame.iloc[idx]
 
 
-def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
+def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning"
          ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
-    """Search hyperparameters of every SVR model and output on the tuning block only.
+    """Search hyperparameters of every SVR model and output on one block: the tuning split (``split="tuning"``,
+    the papers' protocol) or, with ``params.tuning == "nested"``, the train_test block (``split="train_test"``).
+    Rows of any other split are refused.
 
     A gray-box model's residual WDSE-SVR is tuned on the residuals ``y - base.predict`` of its explicit base fitted
     on the (whole, time-ordered) tuning block; its search starts from the GP seed, not from a warm start (the
@@ -205,9 +209,9 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
     ``trace[model][output]`` = the :class:`SearchResult` as a dict.
     """
     if len(tuning) == 0:
-        raise ModelError("tuning block is empty")
-    if "split" in tuning.columns and set(tuning["split"].unique()) != {"tuning"}:
-        raise ModelError(f"tune() got rows of split(s) {sorted(set(tuning['split']) - {'tuning'})}")
+        raise ModelError(f"{split} block is empty: nothing to tune on")
+    if "split" in tuning.columns and set(tuning["split"].unique()) != {split}:
+        raise ModelError(f"tune() on the {split} block got rows of split(s) {sorted(set(tuning['split']) - {split})}")
     _check_columns(tuning, [*params.inputs, *params.outputs], "tune")
     graybox = [m for m in GRAYBOX_MODELS if m in params.models]
     if graybox:
@@ -245,6 +249,29 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1
             hyper[model][out] = res.best_params
             trace[model][out] = res.to_dict()
     return hyper, trace
+
+
+class NestedTuned(RegressorMixin, BaseEstimator):
+    """A coupled SVR or gray-box model whose hyperparameters are searched (:func:`tune`) on the rows it is fitted
+    on, then fitted there: the estimator of each CV fold under ``params.tuning == "nested"``, so that no fold's
+    test block has a say in its hyperparameters. ``X`` holds :func:`model_inputs` columns in order, ``y`` the
+    outputs. Fitted: ``hyperparameters_`` (output -> params), ``estimator_``."""
+
+    def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None) -> None:
+        self.model = model
+        self.params = params
+
+    def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
+        params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
+        frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
+        frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
+        hyper, _ = tune(frame, params, n_jobs=1)
+        self.hyperparameters_ = hyper[self.model]
+        self.estimator_ = build_model(self.model, self.hyperparameters_, params, train=frame).fit(X, y)
+        return self
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        return self.estimator_.predict(X)
 
 
 def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[str, dict[str, Any]],
@@ -293,7 +320,10 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     cols = model_inputs(model, params)
     _check_columns(train_test, cols, model)
     X = train_test[cols].to_numpy(float)
-    folds = cross_validate_blocked(est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
+    # nested: each fold searches its own hyperparameters on its training blocks; the final model (below) uses the
+    # tune stage's, searched on the whole train_test block it is fitted on
+    cv_est = NestedTuned(model, params) if params.tuning == "nested" and model not in EXPLICIT_MODELS else est
+    folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
                                    outputs=params.outputs, n_jobs=n_jobs)
     final_est = est.fit(X, y)
     final = None
@@ -307,7 +337,8 @@ def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None 
     """Everything on one table with a ``split`` column: tune, CV, final check (no files). A model that fails
     is left out of ``results`` and named in ``failed`` (``{model: {"error", "reason"}}``); the others stay."""
     blocks = split_blocks(frame)
-    hyper, trace = tune(blocks["tuning"], params, n_jobs=n_jobs)
+    block = "train_test" if params.tuning == "nested" else "tuning"
+    hyper, trace = tune(blocks[block], params, n_jobs=n_jobs, split=block)
     failed: dict[str, dict[str, str]] = {}
     results = evaluate_models(blocks["train_test"], blocks["test"], hyper, params,
                               tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs, failures=failed)

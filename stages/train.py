@@ -36,7 +36,11 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     hp = hyperparameters_path(root)
     if not hp.exists() and any(m not in EXPLICIT_MODELS for m in cp.models):
         raise ModelError("no tuned hyperparameters; run stages.tune first", file=hp)
-    hyper = json.loads(hp.read_text())["hyperparameters"] if hp.exists() else {}
+    tuned = json.loads(hp.read_text()) if hp.exists() else {}
+    if tuned and tuned.get("tuning", "split") != cp.tuning and any(m not in EXPLICIT_MODELS for m in cp.models):
+        raise ModelError(f"hyperparameters were tuned with coupled.tuning={tuned.get('tuning', 'split')!r}, params "
+                         f"now say {cp.tuning!r}; run stages.tune again", file=hp)
+    hyper = tuned.get("hyperparameters", {})
     cols = ["t_ns", *sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.outputs))]
     sd_cols = [f"{d}_smooth_std_{u}" for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps"))] + [
         f"{d}dot_std_{u}2" for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps"))]

@@ -1,4 +1,5 @@
-"""Tune the coupled 3-DOF SVR models on the tuning split: best hyperparameters per model and output + trace."""
+"""Tune the coupled 3-DOF SVR models: best hyperparameters per model and output + trace, searched on the train_test
+block (``coupled.tuning: nested``) or the tuning split (``split``)."""
 
 from __future__ import annotations
 
@@ -21,14 +22,17 @@ def hyperparameters_path(root: Path) -> Path:
 
 
 def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
-    """Search SVR hyperparameters on the tuning split (coupled study, paper 000)."""
+    """Search SVR hyperparameters (coupled study, paper 000): on the train_test block, the rows the final models
+    are fitted on (``coupled.tuning: nested``, the default), or on the tuning split (``split``, the papers')."""
     cp = params.coupled
+    block = "train_test" if cp.tuning == "nested" else "tuning"
     cols = sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.inputs) | set(cp.outputs))
-    frame = store.load(root, vehicle=vehicle.name, split="tuning", columns=[*cols, "split"])
-    hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs)
+    frame = store.load(root, vehicle=vehicle.name, split=block, columns=[*cols, "split"])
+    hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs, split=block)
     out_eval = Path(root) / EVALUATION / "coupled"
     doc = {"vehicle": vehicle.name, "search": cp.search, "seed": cp.seed, "inputs": cp.inputs,
-           "outputs": cp.outputs, "n_tuning_rows": len(frame), "hyperparameters": hyper}
+           "outputs": cp.outputs, "tuning": cp.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
+           "hyperparameters": hyper}
     outputs = [write_json(doc, hyperparameters_path(root)), write_json(trace, out_eval / "search_trace.json"),
                write_json(hyper, out_eval / "table2.json")]
     with atomic_path(out_eval / "table2.md") as tmp:

@@ -15,7 +15,7 @@ from pipeline.models.search import fast_search, grid_search, paper_grid
 def study():
     frame = pd.concat([synthetic_frame(1500, seed=0, tuning_fraction=0.4),
                        synthetic_frame(500, seed=1, trial="syn02", split="test")], ignore_index=True)
-    params = CoupledParams(max_evals=12)
+    params = CoupledParams(max_evals=12, tuning="split")  # the papers' protocol (nested: test_nested_* below)
     return params, run_study(frame, params)
 
 
@@ -83,3 +83,31 @@ def test_smooth_tolerance_picks_the_widest_kernel_among_near_ties():
     near = [t for t in smooth.trace if t["score"] >= best.best_score - 0.05]
     assert smooth.best_params["gamma"] == min(t["params"]["gamma"] for t in near) <= best.best_params["gamma"]
     assert smooth.best_score >= best.best_score - 0.05
+
+
+def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch):
+    """coupled.tuning = nested: every CV fold's hyperparameters come from a search over exactly that fold's
+    training rows (never a row of its test block), and the final model's from the whole train_test block."""
+    from pipeline import coupled
+
+    frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
+                       synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
+    params = CoupledParams(models=["rbf_svr", "mcfarland_whitcomb"], max_evals=3, folds=3, tuning="nested")
+    searched: list[np.ndarray] = []
+    real_tune = coupled.tune
+
+    def spy(rows, p, **kw):
+        searched.append(rows[params.inputs].to_numpy(float))
+        return real_tune(rows, p, **kw)
+
+    monkeypatch.setattr(coupled, "tune", spy)
+    out = run_study(frame, params)
+    train_test = frame[frame["split"] == "train_test"][params.inputs].to_numpy(float)
+    assert len(searched) == 1 + params.folds  # the final model's search, then one per fold (rbf only: MW has none)
+    np.testing.assert_array_equal(searched[0], train_test)
+    fold_results = out["results"]["rbf_svr"]["folds"]
+    for rows, fold in zip(searched[1:], fold_results, strict=True):
+        test_rows = train_test[fold["test_start"]:fold["test_stop"]]
+        train_rows = np.delete(train_test, np.s_[fold["test_start"]:fold["test_stop"]], axis=0)
+        np.testing.assert_array_equal(rows, train_rows)
+        assert not (rows[:, None, :] == test_rows[None, :, :]).all(-1).any()

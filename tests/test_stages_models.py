@@ -65,6 +65,9 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
     assert "WDSE-SVR" in (ev / "table3.md").read_text() and "gamma_n3_rpm" in (ev / "table2.md").read_text()
     hyper = json.loads((md / "hyperparameters.json").read_text())
     assert hyper["n_tuning_rows"] > 0 and set(hyper["hyperparameters"]) == set(MODELS[:3])
+    # nested (the default): searched on the train_test block, the rows the final models are fitted on
+    n_train_test = len(store.load(root, split="train_test", columns=["t_ns"]))
+    assert hyper["tuned_on"] == "train_test" and hyper["n_tuning_rows"] == n_train_test
     for model in MODELS:
         est, card = load_model(md / f"{model}.joblib")  # checks the pickle's sha256 against its card
         assert card["model"] == model and card["outputs"] == ["udot_mps2", "vdot_mps2", "rdot_radps2"]
@@ -132,7 +135,7 @@ def test_simulate_stage_rolls_out_trained_coupled_models(run_root, vehicle: Vehi
 #: the acceptance criterion of the coupled-model study.
 ACCEPTANCE_TRIALS = {"s1": 11, "s2": 12, "s3": 13}
 ACCEPTANCE_DURATION_S, ACCEPTANCE_WARMUP_S = 300.0, 30.0
-ACCEPTANCE_COUPLED = {"folds": 5, "tuning_folds": 5, "max_evals": 20}
+ACCEPTANCE_COUPLED = {"folds": 5, "tuning_folds": 5, "max_evals": 20, "tuning": "split"}  # the papers' protocol
 
 
 def test_acceptance_wdse_beats_rbf_and_explicit_on_test_trial(tmp_path: Path) -> None:
@@ -155,3 +158,14 @@ def test_acceptance_wdse_beats_rbf_and_explicit_on_test_trial(tmp_path: Path) ->
     for out in ("udot_mps2", "vdot_mps2", "rdot_radps2"):
         assert final["wdse_svr"][out] > final["rbf_svr"][out] - 0.03, (out, final)
         assert max(f[out] for f in final.values()) > 0.85, (out, final)
+
+
+def test_train_refuses_hyperparameters_of_the_other_tuning_mode(run_root, vehicle: Vehicle, tmp_path: Path) -> None:
+    """Hyperparameters searched under coupled.tuning=nested are not silently reused by a run that says split."""
+    import shutil
+
+    root, _ = run_root
+    shutil.copytree(root / "data/features", tmp_path / "data/features")
+    shutil.copytree(root / "data/models/coupled", tmp_path / "data/models/coupled")
+    with pytest.raises(ModelError, match="tuning='nested'.*run stages.tune again"):
+        train_stage.run(tmp_path, vehicle, study_params(tuning="split"))
