@@ -7,7 +7,8 @@ signals contract of ``docs/contracts.md``), one DataFrame out (the synced contra
   period (so the grid does not depend on which stream starts first), over the overlap of the streams that
   carry a required signal (:func:`required_signals`). Clock offsets were applied at ingest; none here.
 - **Interpolation** per signal: ``linear`` (measured states, the default), ``zoh`` (zero-order hold:
-  ``*_rpm`` commands), ``nearest`` (``*_flag``); ``params.interpolation`` overrides per signal. Quaternions
+  ``*_rpm`` commands and thrusters' PWM, which the ESCs hold until the next message: interpolating across a step
+  would invent a PWM never sent), ``nearest`` (``*_flag``); ``params.interpolation`` overrides per signal. Quaternions
   (``<name>_quat_w/_x/_y/_z``) are made sign-continuous, then normalized-lerped (nlerp).
 - **Gaps**: a grid sample is valid only if the samples it is computed from are valid and no further apart
   than ``max_gap_s[signal]`` (``max_gap_s['default']`` for the rest). Otherwise it is NaN with
@@ -362,12 +363,13 @@ def synchronize(streams: Mapping[str, pd.DataFrame | pa.Table], vehicle: Vehicle
         raise SyncError(_no_overlap_message(arrays, req_streams, start, end, params.rate_hz, duplicates))
 
     dvl_ok = _dvl_sample_ok(vehicle, signals, arrays)
+    pwm = {t.pwm_signal for t in vehicle.thrusters if t.pwm_signal is not None}  # commands: held
     out: dict[str, np.ndarray] = {"t_ns": grid}
     valid: dict[str, np.ndarray] = {}
     for name, sig in signals.items():
         cols = arrays[sig.stream]
         t = cols["t_ns"]
-        kind = params.interpolation.get(name, default_kind(name))
+        kind = params.interpolation.get(name, "zoh" if name in pwm else default_kind(name))
         gap_s = params.max_gap_s.get(name, params.max_gap_s.get("default", DEFAULT_MAX_GAP_S))
         gap_ns = int(round(gap_s * NS_PER_S))
         if len(sig.columns) == 4:

@@ -59,6 +59,7 @@ PWM_US = np.array([[1500, 1500, 1500, 1500, 1540, 1540],
                    [1600, 1600, 1400, 1400, 1540, 1540],
                    [1400, 1400, 1600, 1600, 1540, 1540]])
 DURATION_S = BLOCK_S * len(PWM_US)
+RC_PHASE_S = 0.025
 # BlueROV2-like geometry (body FRD), written out independently of the YAML
 POSITIONS = np.array([[0.156, 0.111, 0.085], [0.156, -0.111, 0.085], [-0.156, 0.111, 0.085],
                       [-0.156, -0.111, 0.085], [0.0, 0.218, 0.0], [0.0, -0.218, 0.0]])
@@ -99,15 +100,27 @@ def block_of(t_s: np.ndarray) -> np.ndarray:
     return np.minimum((np.asarray(t_s) / BLOCK_S + 1e-9).astype(int), len(PWM_US) - 1)
 
 
+def rc_stamps_s() -> np.ndarray:
+    """The RC override's log times: 10 Hz, 25 ms off the 20 Hz grid (mavros sends on its own clock)."""
+    return RC_PHASE_S + np.arange(int(DURATION_S * 10)) * 0.1
+
+
+def commanded_block(t_s: np.ndarray) -> np.ndarray:
+    """The block of the last RC message at or before ``t_s``: the ESCs hold a PWM until the next message."""
+    rc = rc_stamps_s()
+    return block_of(rc[np.clip(np.searchsorted(rc, np.asarray(t_s) + 1e-9, side="right") - 1, 0, None)])
+
+
 def surge_truth(h_s: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
     """(t, u) of the surge model driven by the blocks' tau_u, RK4 at ``h_s``, from rest."""
     table = t200_kgf_at_16V()
     tau_u = [float(allocation()[0] @ (np.array([table[p] for p in pwm]) * KGF_N)) for pwm in PWM_US]
     t = np.arange(int(round(DURATION_S / h_s)) + 1) * h_s
+    blocks = commanded_block(t)
     u = np.zeros_like(t)
     f = lambda x, tau: (tau - XU * x - XUU * x * abs(x)) / M11  # noqa: E731
     for k in range(t.size - 1):
-        tau = tau_u[block_of(t[k])]
+        tau = tau_u[blocks[k]]
         x = u[k]
         k1 = f(x, tau)
         k2 = f(x + h_s / 2 * k1, tau)
@@ -125,7 +138,7 @@ def write_msg_tree(root: Path) -> None:
 
 
 def write_bag(path: Path, seed: int = 0) -> Path:
-    """The dive: RC override at 20 Hz (log time on the grid), IMU at 50 Hz and DVL at 10 Hz (header stamps, logged
+    """The dive: RC override at 10 Hz (log time, off the grid), IMU at 50 Hz and DVL at 10 Hz (header stamps, logged
     20 ms later), depth at 10 Hz; no message definitions in the bag."""
     from rosbags.rosbag2 import Writer
 
@@ -158,8 +171,7 @@ def write_bag(path: Path, seed: int = 0) -> Path:
                                conn("/dvl/twist", TWIST),
                                conn("/bluerov/depth", "std_msgs/msg/Float64"))
         messages: list[tuple[int, object, bytes]] = []
-        for k in range(int(DURATION_S * 20) + 1):
-            t = k * 0.05
+        for t in rc_stamps_s():
             channels = np.full(18, 65535, dtype=np.uint16)  # the rest: "no change"
             channels[:6] = PWM_US[block_of(t)]
             messages.append((log_ns(t), rc, ts.serialize_cdr(T[RC](channels=channels), RC)))
@@ -220,7 +232,7 @@ def test_the_guides_bluerov2_runs_from_a_bag_without_definitions_to_features_wit
 
     # PWM: us in the bag, s in the store; thrust: the sheet's 16 V rows; tau = B T
     pwm_s = rows[[f"pwm{i}_s" for i in range(1, 7)]].to_numpy()
-    expected_pwm = PWM_US[block_of(t_s)]
+    expected_pwm = PWM_US[commanded_block(t_s)]  # held, not interpolated across a step
     np.testing.assert_allclose(pwm_s, expected_pwm * 1e-6, rtol=1e-12)
     table = t200_kgf_at_16V()
     thrust = rows[[f"T_t{i}_N" for i in range(1, 7)]].to_numpy()
@@ -228,7 +240,7 @@ def test_the_guides_bluerov2_runs_from_a_bag_without_definitions_to_features_wit
     np.testing.assert_allclose(thrust, expected_T, rtol=1e-12, atol=1e-12)
     tau = rows[[f"tau_{d}_{u}" for d, u in zip("uvwpqr", ["N"] * 3 + ["Nm"] * 3, strict=True)]].to_numpy()
     np.testing.assert_allclose(tau, expected_T @ allocation().T, rtol=1e-9, atol=1e-9)
-    strong = block_of(t_s) == 1  # by hand: 2 x 0.7071/|d| x (1.82 + 1.44) kgf of surge, nothing of sway or yaw
+    strong = commanded_block(t_s) == 1  # by hand: 2 x 0.7071/|d| x (1.82 + 1.44) kgf of surge, nothing of sway or yaw
     assert tau[strong, 0] == pytest.approx(2 * np.sqrt(0.5) * (1.82 + 1.44) * KGF_N, rel=1e-12)
     np.testing.assert_allclose(tau[strong][:, [1, 5]], 0.0, atol=1e-12)
     assert tau[:, 2] == pytest.approx(2 * 0.08 * KGF_N, rel=1e-12)  # the vertical pair, 1540 us

@@ -23,7 +23,8 @@ class SyncParams(Frozen):
         description="Largest gap between samples bridged by interpolation, per signal ('default' for the rest).")
     interpolation: dict[str, Literal["linear", "zoh", "nearest"]] = Field(
         default_factory=dict,
-        description="Per signal; default: linear for states, zoh for *_rpm commands, nearest for *_flag.")
+        description="Per signal; default: linear for states, zoh for *_rpm commands and thrusters' PWM, nearest for "
+        "*_flag.")
     min_segment_s: float = Field(5.0, ge=0, description="Shorter valid stretches get no segment id.")
 
 
