@@ -265,3 +265,17 @@ def test_the_guides_bluerov2_runs_from_a_bag_without_definitions_to_features_wit
     assert err("d_u_N", XU * u + XUU * u * np.abs(u)) < 0.03 * M11
     np.testing.assert_allclose(rows[["v_smooth_mps", "w_smooth_mps"]], 0.0, atol=0.005)  # FLU -> FRD: no sway
     assert u.max() > 1.0 and u.min() < -0.3  # a real manoeuvre, both ways
+
+
+def test_the_guides_inspect_commands_decode_the_override_with_the_msg_tree(
+        dive: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from pipeline.cli import main
+
+    bag, msgs = str(dive / "dives" / "dive01"), str(dive / "msgs")
+    assert main(["inspect", bag, "--msgs", msgs]) == 0
+    listing = capsys.readouterr().out
+    assert "mavros_msgs/msg/OverrideRCIn" in listing and "cannot decode" not in listing
+    assert main(["inspect", bag, "--msgs", msgs, "--fields", "/mavros/rc/override"]) == 0
+    assert "channels[i]" in capsys.readouterr().out
+    assert main(["inspect", bag]) == 0  # without the definitions: listed, with what to do
+    assert "`message_definitions`" in capsys.readouterr().out
