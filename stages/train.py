@@ -75,6 +75,11 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
                                "final_check_trials": sorted(te["trial"].unique())}}
             if hasattr(res["estimator"], "coefficients"):
                 card["coefficients"] = res["estimator"].coefficients()
+            if getattr(res["estimator"], "refine", False):  # coupled.explicit_refine
+                cost = res["estimator"].refine_cost_
+                card["refinement"] = {"refined": bool(res["estimator"].refined_),
+                                      "free_run_cost": None if cost is None else {"wtls": cost[0], "refined": cost[1]},
+                                      "horizon_s": cp.refine_horizon_s}
             outputs.extend(save_model(res["estimator"], target, card))
         write_tables(results, failed, cp.outputs, out_eval)
 

@@ -169,3 +169,26 @@ def test_train_refuses_hyperparameters_of_the_other_tuning_mode(run_root, vehicl
     shutil.copytree(root / "data/models/coupled", tmp_path / "data/models/coupled")
     with pytest.raises(ModelError, match="tuning='nested'.*run stages.tune again"):
         train_stage.run(tmp_path, vehicle, study_params(tuning="split"))
+
+
+def test_explicit_refine_refines_from_wtls_and_says_so_on_the_card(run_root, vehicle: Vehicle, tmp_path: Path) -> None:
+    """coupled.explicit_refine: the explicit models' coefficients move from the WTLS fit only where that lowers the
+    free-run error over refine_horizon_s windows at the store's grid step, and the card records it."""
+    import shutil
+
+    root, _ = run_root
+    shutil.copytree(root / "data/features", tmp_path / "data/features")
+    params = study_params(models=["gertler_hagen", "mcfarland_whitcomb"], explicit_refine=True, refine_horizon_s=1.0)
+    train_stage.run(tmp_path, vehicle, params)
+    explicit = ("gertler_hagen", "mcfarland_whitcomb")
+    plain = {m: load_model(root / f"data/models/coupled/{m}.joblib")[1] for m in explicit}
+    for model in explicit:
+        est, card = load_model(tmp_path / f"data/models/coupled/{model}.joblib")
+        ref = card["refinement"]
+        assert est.dt_s == pytest.approx(1.0 / params.sync.rate_hz) and ref["horizon_s"] == 1.0  # the sync grid
+        cost = ref["free_run_cost"]
+        assert cost["refined"] <= cost["wtls"]
+        changed = card["coefficients"] != plain[model]["coefficients"]
+        assert changed == ref["refined"] == (cost["refined"] < cost["wtls"])
+    assert any(load_model(tmp_path / f"data/models/coupled/{m}.joblib")[1]["refinement"]["refined"]
+               for m in explicit)

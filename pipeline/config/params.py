@@ -79,6 +79,11 @@ class CoupledParams(Frozen):
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
     seed: int = 0
+    explicit_refine: bool = Field(
+        False, description="Output-error refinement of the explicit models (Gertler-Hagen, McFarland-Whitcomb): "
+        "from the WTLS fit, coefficients refined by minimizing the free-run velocity error over windows of "
+        "refine_horizon_s (multiple shooting, RK4 at the grid step; kept only if it lowers that error).")
+    refine_horizon_s: float = Field(2.0, gt=0, description="explicit_refine: length of each free-run window (s).")
     tuning: Literal["nested", "split"] = Field(
         "nested", description="Where the SVRs' hyperparameters are searched. nested: on the rows each model is "
         "fitted on: in each CV fold on that fold's training blocks only (so the CV score stays unbiased), for the "
