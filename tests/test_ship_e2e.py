@@ -2,9 +2,11 @@
 
 One propeller (speed logged in rev/s), one rudder (deg), no lateral thruster; earth-frame x/y rates, heading (deg) and
 yaw rate (deg/s) at 20 Hz in a whitespace table with a cp1252 preamble, no header and time rounded to 3 significant
-digits. A hand-built 3-DOF model with known mass, damping, propeller thrust and rudder force makes the truth; the
-vehicle YAML below is all the user writes. The models trained on one zig-zag are scored against the simulator's
-true accelerations on another (seed: the propeller's period and phase), which stays within the first's envelope.
+digits. A hand-built 3-DOF model with known mass, damping, propeller thrust and rudder force makes the truth. All
+the user writes is the vehicle YAML and the params: the blocks of the ship walkthrough in docs/user-guide.md, read
+from the guide, so that the guide and the test cannot drift apart. The models trained on one zig-zag are scored
+against the simulator's true accelerations on another (seed: the propeller's period and phase), which stays within
+the first's envelope.
 """
 
 from __future__ import annotations
@@ -14,9 +16,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from helpers_guide import guide_block
 
 from pipeline import layout, physics, store
-from pipeline.config import Params, load_vehicle
+from pipeline.config import load_params, load_vehicle
 from pipeline.coupled import model_inputs
 from pipeline.layout import MODELS
 from pipeline.models.card import load_model
@@ -29,35 +32,9 @@ from stages import sync as sync_stage
 from stages import train as train_stage
 from stages import tune as tune_stage
 
-VEHICLE_YAML = """\
-name: ship
-rigid_body: {mass_kg: 100.0, inertia_kgm2: [[10, 0, 0], [0, 40, 0], [0, 0, 40]]}
-added_mass: [[10, 0, 0, 0, 0, 0], [0, 80, 0, 0, 0, 0], [0, 0, 80, 0, 0, 0],
-             [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 5, 0], [0, 0, 0, 0, 0, 20]]
-thrusters:
-  - {name: prop, speed_signal: n_prop_rpm, position_m: [-1.0, 0, 0], direction: [1, 0, 0],
-     thrust: {k_fwd_N_per_rpm2: 1.0e-4}}
-control_surfaces:
-  - {name: rudder, angle_signal: rudder_rad}
-sensors:
-  velocity: {frame: earth, signals: [xdot_mps, ydot_mps]}
-  attitude: {yaw: yaw_rad}
-  rates: {r: r_radps}
-streams:
-  tank:
-    file: run*.dat
-    clock: column
-    time: {rate_hz: 20}
-    csv: {time_column: t, header: false, skip_rows: 4, encoding: cp1252,
-          columns: [t, x, y, xdot, ydot, psi, r, delta, n]}
-    signals:
-      xdot_mps: {field: xdot}
-      ydot_mps: {field: ydot}
-      yaw_rad: {field: psi, unit: deg}
-      r_radps: {field: r, unit: deg/s}
-      rudder_rad: {field: delta, unit: deg}
-      n_prop_rpm: {field: n, unit: rps}
-"""
+GUIDE_SECTION = "Walkthrough: a ship model in a towing tank"
+VEHICLE_YAML = guide_block(GUIDE_SECTION, "yaml", "# ship.yaml")
+PARAMS_YAML = guide_block(GUIDE_SECTION, "yaml", "# params.yaml")
 
 M = np.diag([110.0, 180.0, 180.0, 11.0, 45.0, 60.0])
 
@@ -150,10 +127,11 @@ def test_a_ship_zigzag_runs_from_raw_tables_to_coupled_models_with_rudder_and_pr
         text, truths[trial] = simulate_zigzag(seed)
         (tmp_path / "data" / "raw" / trial).mkdir(parents=True)
         (tmp_path / "data" / "raw" / trial / "run01.dat").write_bytes(text.encode("cp1252"))
-    inputs = ["u_mps", "v_mps", "r_radps", "rudder_rad", "n_prop_rpm"]
-    models = ["rbf_svr", "two_weights_svr", "wdse_svr"]
-    params = Params(features={"test_trials": ["z2"], "tuning_fraction": 0.25},
-                    coupled={"inputs": inputs, "models": models, "folds": 3, "max_evals": 6, "max_samples": 300})
+    (tmp_path / "params.yaml").write_text(PARAMS_YAML)
+    params = load_params(tmp_path / "params.yaml")
+    inputs, models = params.coupled.inputs, params.coupled.models
+    assert inputs == ["u_mps", "v_mps", "r_radps", "rudder_rad", "n_prop_rpm"]
+    assert params.coupled.actuators() == ["rudder_rad", "n_prop_rpm"] and params.features.test_trials == ["z2"]
     logs = [tmp_path / "data" / "raw" / t for t in ("z1", "z2")]
     for stage, extra in ((ingest_stage, {"logs": logs}), (sync_stage, {}), (differentiate_stage, {}),
                          (derive_stage, {}), (features_stage, {})):
