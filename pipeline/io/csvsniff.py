@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import gzip
 import re
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.config.sources import CsvOptions
+from pipeline.errors import IngestError
 from pipeline.io.text import is_gzip, sniff_delimiter
 
 HEAD_BYTES = 64 * 1024
@@ -51,8 +53,11 @@ class SniffedCsv:
 
 def _head(path: Path) -> tuple[list[str], str]:
     opener = gzip.open if is_gzip(path) else open
-    with opener(path, "rb") as handle:  # type: ignore[operator]
-        raw = handle.read(HEAD_BYTES)
+    try:
+        with opener(path, "rb") as handle:  # type: ignore[operator]
+            raw = handle.read(HEAD_BYTES)
+    except (gzip.BadGzipFile, EOFError, zlib.error) as err:  # a damaged .gz (file-system errors pass through)
+        raise IngestError(f"gzip stream does not decompress: {err}", file=path) from err
     for encoding in ("utf-8", "cp1252"):
         try:
             text = raw.decode(encoding)

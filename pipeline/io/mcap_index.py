@@ -38,6 +38,7 @@ from pipeline.io.mcap_reader import (
     Damaged,
     Walk,
     _decompress,
+    implausible_chunk,
 )
 
 log = logging.getLogger(__name__)
@@ -99,8 +100,8 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 _s, _e, usize, crc = struct.unpack_from("<QQQI", head, 0)
                 compression, p = _str(head, 28)
                 (rlen,) = struct.unpack_from("<Q", head, p)
-                if p + 8 + rlen > length:
-                    return None
+                if p + 8 + rlen > length or implausible_chunk(compression, rlen, usize) is not None:
+                    return None  # the record walk reports the damage
                 chunks.append(ChunkRef(body + p + 8, rlen, usize, crc, compression, pos))
             elif op == OP_MESSAGE_INDEX:
                 if not chunks:
@@ -265,5 +266,7 @@ def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[i
         raise Damaged("message index points at a message of another channel", at)
     if (length < 22).any() or (offs + 9 + length > end).any():
         raise Damaged("message record overruns its chunk", at)
-    stamps = field_view(head, 15, "<u8").astype(np.int64)
-    return offs + 31, length - 22, stamps
+    stamps = field_view(head, 15, "<u8")
+    if len(stamps) and int(stamps.max()) >= 1 << 63:
+        raise Damaged("message log time beyond int64 nanoseconds", at)
+    return offs + 31, length - 22, stamps.astype(np.int64)

@@ -69,6 +69,27 @@ class Walk:
     kept: int = 0
 
 
+_INT64_LIMIT = 1 << 63
+# The most a chunk can inflate: LZ4 frames at most ~255x, zstd ~32768x (a 3-byte RLE block header per 128 KiB).
+_MAX_RATIO = {"": 1, "lz4": 256, "zstd": 1 << 15}
+
+
+def implausible_chunk(compression: str, rlen: int, usize: int) -> str | None:
+    """Why a chunk's claimed uncompressed size cannot be true for its compressed length, or None.
+
+    Checked before anything is allocated: a damaged size field (2**40, 2**64 - 1) must not become a buffer.
+    """
+    ratio = _MAX_RATIO.get(compression)
+    if ratio is None:
+        return None  # an unknown compression is reported where it is decompressed
+    if compression == "" and usize != rlen:
+        return f"uncompressed chunk claims {usize} bytes but holds {rlen}"
+    if usize > ratio * rlen + 1024:
+        return (f"chunk claims {usize} bytes uncompressed from {rlen} compressed ({compression} inflates at most "
+                f"{ratio}x)")
+    return None
+
+
 def _string(buf: bytes | mmap.mmap, pos: int) -> tuple[str, int]:
     (n,) = _U32.unpack_from(buf, pos)
     return bytes(buf[pos + 4:pos + 4 + n]).decode("utf-8", "replace"), pos + 4 + n
@@ -139,6 +160,8 @@ def _walk_records(
             raise Damaged(f"record (opcode 0x{op:02x}, {length} bytes) cut short", origin + pos)
         if op == OP_MESSAGE:
             ch, _seq, log_ns, _pub = _MSG.unpack_from(buf, body)
+            if log_ns >= _INT64_LIMIT:
+                raise Damaged(f"message log time {log_ns} beyond int64 nanoseconds", origin + pos)
             if ch not in out.channels:
                 raise Damaged(f"message on unknown channel {ch}", origin + pos)
             out.counts[ch] = out.counts.get(ch, 0) + 1
@@ -190,6 +213,9 @@ def _chunk(
     usize, crc, compression, rstart, rlen = _chunk_head(buf, body)
     if rstart + rlen > stop:
         raise Damaged("chunk records overrun the chunk", origin)
+    why = implausible_chunk(compression, rlen, usize)
+    if why is not None:
+        raise Damaged(why, origin)
     try:
         data = _decompress(compression, bytes(buf[rstart:rstart + rlen]), usize, partial=False)
     except Damaged as dmg:

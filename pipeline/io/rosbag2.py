@@ -60,11 +60,7 @@ class Rosbag2Reader(RawReader):
         if files is not None:
             pass
         elif meta.is_file():
-            try:
-                doc = yaml.safe_load(meta.read_text(encoding="utf-8")) or {}
-                self.metadata = doc["rosbag2_bagfile_information"]
-            except (yaml.YAMLError, KeyError, TypeError) as err:
-                raise IngestError(f"metadata.yaml is not a rosbag2 metadata file: {err}", file=meta) from err
+            self.metadata = _load_metadata(meta)
             files = [self._locate(p) for p in self.metadata.get("relative_file_paths") or []]
         else:
             files = storage_files(self.path)
@@ -119,11 +115,15 @@ class Rosbag2Reader(RawReader):
             self._tmp.cleanup()
             self._tmp = None
 
-    def _decompress(self, payload: bytes) -> bytes:
+    def _decompress(self, payload: bytes, path: Path | None = None) -> bytes:
         if self.compression_mode == "MESSAGE" and self.compression_format == "zstd":
             import zstandard
 
-            return zstandard.ZstdDecompressor().decompress(payload, max_output_size=1 << 31)
+            try:  # streaming: allocates what the payload inflates to, not what its header claims
+                return zstandard.ZstdDecompressor().decompressobj().decompress(payload)
+            except zstandard.ZstdError as err:
+                raise IngestError(f"a zstd-compressed message does not decompress: {err}",
+                                  file=path or self.path) from err
         return payload
 
     # -- scanning -------------------------------------------------------------------------------------------
@@ -145,7 +145,7 @@ class Rosbag2Reader(RawReader):
     def _listed_counts(self) -> dict[str, int] | None:
         counts = {}
         for entry in self.metadata.get("topics_with_message_count") or []:
-            name, want = (entry.get("topic_metadata") or {}).get("name"), entry.get("message_count")
+            name, want = entry["topic_metadata"].get("name"), entry.get("message_count")
             if not isinstance(name, str) or not isinstance(want, int) or want < 0:
                 return None
             counts[name] = counts.get(name, 0) + want
@@ -205,8 +205,7 @@ class Rosbag2Reader(RawReader):
     def _check_metadata(self) -> None:
         assert self._infos is not None
         for entry in self.metadata.get("topics_with_message_count") or []:
-            meta = entry.get("topic_metadata", {})
-            name, want = meta.get("name"), entry.get("message_count")
+            name, want = entry["topic_metadata"].get("name"), entry.get("message_count")
             have = self._infos[name].count if name in self._infos else 0
             if want is not None and want != have:
                 log.warning("%s: metadata.yaml says topic %s has %s messages; the storage holds %s",
@@ -225,15 +224,23 @@ class Rosbag2Reader(RawReader):
             if "message_definitions" in tables:
                 for typ, enc, text in con.execute(
                         "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"):
+                    if not (isinstance(typ, str) and isinstance(enc, str) and isinstance(text, str)):
+                        raise IngestError(f"damaged row in table 'message_definitions': type {typ!r}, encoding "
+                                          f"{enc!r} (expected three strings)", file=path)
                     self._types.add(normalize_msgtype(typ), enc, text)  # type: ignore[union-attr]
             counted = {tid: (n, lo, hi) for tid, n, lo, hi in con.execute(
                 "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")} \
                 if stats else {}
             for tid, name, typ, fmt in con.execute("SELECT id, name, type, serialization_format FROM topics"):
+                if not (isinstance(tid, int) and isinstance(name, str) and isinstance(typ, str)
+                        and isinstance(fmt, str)):
+                    raise IngestError(
+                        f"damaged row in table 'topics': id {tid!r}, name {name!r}, type {typ!r}, "
+                        f"serialization_format {fmt!r} (expected an integer id and three strings)", file=path)
                 ids[tid] = name
                 n, lo, hi = counted.get(tid, (0, None, None))
                 add(name, normalize_msgtype(typ), fmt, n, lo, hi)
-        except sqlite3.DatabaseError as err:
+        except (sqlite3.DatabaseError, UnicodeDecodeError) as err:  # damaged pages, names that are not UTF-8
             raise IngestError(f"not a readable rosbag2 sqlite3 storage file: {err}", file=path) from err
         finally:
             con.close()
@@ -292,7 +299,7 @@ class Rosbag2Reader(RawReader):
             def walk_wanted(emit: Any, path: Path = path, wanted: dict[int, str] = wanted) -> None:
                 def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
                     if payload is not None:
-                        emit(wanted[cid], log_ns, self._decompress(payload))
+                        emit(wanted[cid], log_ns, self._decompress(payload, path))
 
                 self._walk_mcap(path, on_message, set(wanted))
 
@@ -320,6 +327,7 @@ class Rosbag2Reader(RawReader):
                     if started:
                         raise Restart from why
         con = self._connect(path)
+        fetched = 0
         try:
             cur = con.execute(sql)
             while True:
@@ -328,17 +336,48 @@ class Rosbag2Reader(RawReader):
                     break
                 tids, stamps, datas = zip(*rows, strict=True)
                 del rows
-                if per_message:
-                    datas = tuple(self._decompress(bytes(d)) for d in datas)
-                lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+                try:
+                    if per_message:
+                        datas = tuple(self._decompress(bytes(d), path) for d in datas)
+                    lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+                    buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
+                    tid_arr = np.fromiter(tids, dtype=np.int64, count=len(tids))
+                    stamp_arr = np.fromiter(stamps, dtype=np.int64, count=len(stamps))
+                except (TypeError, ValueError) as err:  # NULL, text or float where the schema has int / blob
+                    raise IngestError(f"damaged row in table 'messages' after {fetched} rows: {err} (expected "
+                                      "integer topic_id and timestamp, blob data)", file=path) from err
                 starts = np.zeros(len(datas), dtype=np.int64)
                 np.cumsum(lengths[:-1], out=starts[1:])
-                buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
+                fetched += len(datas)
                 del datas
-                yield _batch(wanted, np.fromiter(tids, dtype=np.int64, count=len(tids)),
-                             np.fromiter(stamps, dtype=np.int64, count=len(stamps)), buf, starts, lengths)
+                yield _batch(wanted, tid_arr, stamp_arr, buf, starts, lengths)
+        except sqlite3.DatabaseError as err:  # damaged pages found while fetching (opening was fine)
+            raise IngestError(f"sqlite storage damaged: rows cannot be read after {fetched} rows: {err}",
+                              file=path) from err
         finally:
             con.close()
+
+
+def _load_metadata(meta: Path) -> dict[str, Any]:
+    """``rosbag2_bagfile_information`` of a metadata.yaml, with the shapes the reader relies on checked."""
+    def bad(why: str) -> IngestError:
+        return IngestError(f"metadata.yaml is not a rosbag2 metadata file: {why}", file=meta)
+
+    try:
+        doc = yaml.safe_load(meta.read_text(encoding="utf-8")) or {}
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as err:
+        raise bad(str(err)) from err
+    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        raise bad("no mapping 'rosbag2_bagfile_information' at the top")
+    paths = info.get("relative_file_paths") or []
+    if not isinstance(paths, list) or not all(isinstance(p, str) for p in paths):
+        raise bad(f"relative_file_paths must be a list of strings, found {paths!r:.200}")
+    entries = info.get("topics_with_message_count") or []
+    if not isinstance(entries, list) or not all(
+            isinstance(e, dict) and isinstance(e.get("topic_metadata"), dict) for e in entries):
+        raise bad("topics_with_message_count must be a list of mappings with a 'topic_metadata' mapping")
+    return info
 
 
 def _read_only_uri(path: Path) -> str:

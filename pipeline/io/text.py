@@ -24,6 +24,7 @@ from __future__ import annotations
 import gzip
 import logging
 import re
+import zlib
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
@@ -45,6 +46,7 @@ _CANDIDATE_DELIMITERS = (",", "\t", ";")
 _WHITESPACE = r"\s+"
 _SNIFF_LINES = 20
 _MAX_REPORTED_LINES = 50
+_INT64_MAX = (1 << 63) - 1
 _DECIMAL = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
 
 
@@ -167,7 +169,7 @@ class TextLogReader:
                     lines.append(line.rstrip("\r\n"))
                     if len(lines) >= n_lines:
                         break
-        except (UnicodeDecodeError, OSError, EOFError) as err:
+        except (UnicodeDecodeError, OSError, EOFError, zlib.error) as err:
             raise IngestError(f"cannot read as {encoding} text: {err}", file=path) from err
         return lines
 
@@ -182,7 +184,7 @@ class TextLogReader:
                 for i, line in enumerate(handle):
                     if i >= skip and line.strip():
                         count += 1
-        except (OSError, EOFError) as err:
+        except (OSError, EOFError, zlib.error) as err:  # zlib.error: a corrupt deflate stream in a .gz
             raise IngestError(f"cannot read: {err}", file=path) from err
         return count
 
@@ -223,7 +225,7 @@ class TextLogReader:
             frame = pd.read_csv(path, nrows=0, **kwargs)  # type: ignore[call-overload]
         except pd.errors.EmptyDataError as err:
             raise IngestError("empty file (no header or data lines)", file=path) from err
-        except (ValueError, UnicodeDecodeError, OSError, EOFError) as err:
+        except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error) as err:
             raise IngestError(f"cannot parse as delimited text: {err}", file=path) from err
         raw = [str(c) for c in frame.columns]
         return raw, [c.strip() for c in raw]
@@ -242,7 +244,7 @@ class TextLogReader:
         dtype = {by_name[opts.time_column.strip()]: str} if opts else None
         try:
             frame = pd.read_csv(path, usecols=use, dtype=dtype, **kwargs)  # type: ignore[call-overload]
-        except (ValueError, UnicodeDecodeError, OSError, EOFError, pd.errors.ParserError) as err:
+        except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error, pd.errors.ParserError) as err:
             raise IngestError(f"cannot parse as delimited text: {err}", file=path, topic=name) from err
         frame.columns = [str(c).strip() for c in frame.columns]
         first_line = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0) + 1
@@ -304,7 +306,11 @@ def _epoch_ns(epoch_s: float) -> int:
 
 def time_to_ns(raw: pd.Series, opts: CsvOptions, *, path: Path | str, topic: str,
                lines: np.ndarray) -> np.ndarray:
-    """Exact decimal text -> int64 ns in the configured unit and origin; bad stamps raise IngestError."""
+    """Exact decimal text -> int64 ns in the configured unit and origin; bad stamps raise IngestError.
+
+    A stamp beyond int64 nanoseconds (past the year 2262, e.g. ``99999999999`` s or ``1e300``) is an error
+    naming its lines, never a wrapped value; negative absolute stamps (before 1970) are logged.
+    """
     unit_ns = TIME_UNITS_NS[opts.time_unit]
     digits = len(str(unit_ns)) - 1
     text = raw.astype("string").str.strip().fillna("")
@@ -313,13 +319,21 @@ def time_to_ns(raw: pd.Series, opts: CsvOptions, *, path: Path | str, topic: str
     ok &= text.ne("")
     ns = np.zeros(len(text), dtype=np.int64)
     okv = ok.to_numpy(dtype=bool)
+    out_of_range = np.zeros(len(text), dtype=bool)
+    max_whole = _INT64_MAX // unit_ns - 1  # whole units that still leave room for the fraction
     if okv.any():
         sign = np.where(parts[0][ok].fillna("").to_numpy(dtype=object) == "-", -1, 1).astype(np.int64)
-        whole = parts[1][ok].fillna("").replace("", "0").astype("int64").to_numpy(dtype=np.int64)
+        whole_text = parts[1][ok].fillna("").str.lstrip("0").replace("", "0")
+        # up to 19 digits fit uint64 exactly; longer ones are out of range whatever they hold
+        long = (whole_text.str.len() > 19).to_numpy(dtype=bool)
+        whole_u = whole_text.where(~long, "0").astype("uint64").to_numpy(dtype=np.uint64)
+        big = long | (whole_u > np.uint64(max_whole))
+        whole = np.where(big, 0, whole_u).astype(np.int64)
         frac = parts[2][ok].fillna("").str.ljust(digits + 1, "0").str.slice(0, digits + 1)
         frac_int = frac.astype("int64").to_numpy(dtype=np.int64)
         frac_ns = (frac_int + 5) // 10  # round half up at the nanosecond
         ns[okv] = sign * (whole * unit_ns + frac_ns)
+        out_of_range[np.flatnonzero(okv)[big]] = True
     rest = ~okv
     if rest.any():  # exponent notation and the like: through float, then check
         floats = pd.to_numeric(text[rest], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
@@ -328,7 +342,28 @@ def time_to_ns(raw: pd.Series, opts: CsvOptions, *, path: Path | str, topic: str
             bad_lines = lines[rest][bad].tolist()
             raise IngestError(f"unparseable or empty time stamp at line(s) {bad_lines[:_MAX_REPORTED_LINES]} "
                               f"({len(bad_lines)} in all)", file=path, topic=topic, field=opts.time_column)
-        ns[rest] = np.round(floats * unit_ns).astype(np.int64)
-    if opts.time_origin == "relative":
-        ns = ns + _epoch_ns(opts.epoch_s)
+        with np.errstate(over="ignore"):
+            scaled = floats * unit_ns
+        big = np.abs(scaled) >= 2.0**63 - 1024  # the largest float64 below 2**63 is 2**63 - 1024
+        ns[rest] = np.round(np.where(big, 0.0, scaled)).astype(np.int64)
+        out_of_range[np.flatnonzero(rest)[big]] = True
+    offset = _epoch_ns(opts.epoch_s) if opts.time_origin == "relative" else 0
+    if abs(offset) > _INT64_MAX:
+        raise IngestError(f"epoch_s {opts.epoch_s!r} is beyond the int64 nanosecond range (year 1678..2262)",
+                          file=path, topic=topic, field="epoch_s")
+    if len(ns) and not out_of_range.all():
+        lo, hi = int(ns[~out_of_range].min()), int(ns[~out_of_range].max())
+        if not (-_INT64_MAX <= lo + offset and hi + offset <= _INT64_MAX):
+            out_of_range |= (ns.astype(object) + offset > _INT64_MAX) | (ns.astype(object) + offset < -_INT64_MAX)
+    if out_of_range.any():
+        bad_lines = lines[out_of_range].tolist()
+        raise IngestError(f"time stamp beyond the int64 nanosecond range (year 1678..2262) at line(s) "
+                          f"{bad_lines[:_MAX_REPORTED_LINES]} ({len(bad_lines)} in all)", file=path, topic=topic,
+                          field=opts.time_column)
+    if offset:
+        ns = ns + np.int64(offset)
+    if opts.time_origin == "absolute" and len(ns) and (ns < 0).any():
+        neg = lines[ns < 0].tolist()
+        log.warning("%s: %s: absolute time stamp before 1970 at line(s) %s (%d in all)", path, topic,
+                    neg[:10], len(neg))
     return ns

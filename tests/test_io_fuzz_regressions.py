@@ -1,0 +1,216 @@
+"""Damaged inputs found by the fuzz campaign (bench/fuzz_ingest.py, issue 17), rebuilt deterministically.
+
+Each test writes an intact log with the libraries' own writers, damages one field the way a mutation did, and
+checks that the reader answers with a clean :class:`~pipeline.errors.IngestError` naming the file (or a salvage
+report), never a traceback from deep inside a library, and never a buffer of the size a damaged field claims.
+"""
+
+from __future__ import annotations
+
+import gzip
+import logging
+import sqlite3
+import struct
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from io_helpers import REQUESTS, trial, write_mcap, write_rosbag2
+
+from pipeline.config.sources import CsvOptions
+from pipeline.errors import IngestError
+from pipeline.io import open_log
+from pipeline.io.csvsniff import sniff_csv
+from pipeline.io.text import open_text, time_to_ns
+
+MSGS = trial(n=10, seed=7)
+
+
+def _read(path: Path):  # noqa: ANN202
+    with open_log(path) as reader:
+        listed = reader.topics()
+        return reader.read({t: f for t, f in REQUESTS.items() if t in listed})
+
+
+def _records(data: bytes | bytearray, start: int = 8) -> list[tuple[int, int, int]]:
+    """(opcode, record offset, body offset) of the MCAP records from ``start`` up to the footer."""
+    out, pos = [], start
+    while pos + 9 <= len(data):
+        op, length = struct.unpack_from("<BQ", data, pos)
+        out.append((op, pos, pos + 9))
+        if op == 0x02:
+            break
+        pos += 9 + length
+    return out
+
+
+# -- MCAP ----------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("claimed", [1 << 40, (1 << 64) - 1])
+@pytest.mark.parametrize("indexes", [True, False])
+def test_mcap_chunk_claiming_a_huge_size_allocates_nothing(tmp_path: Path, claimed: int, indexes: bool) -> None:
+    path = write_mcap(tmp_path / "t.mcap", MSGS, indexes=indexes)
+    data = bytearray(path.read_bytes())
+    chunks = [body for op, _, body in _records(data) if op == 0x06]
+    assert len(chunks) > 2
+    second = chunks[1]
+    data[second + 16:second + 24] = claimed.to_bytes(8, "little")  # uncompressed_size
+    path.write_bytes(bytes(data))
+    result = _read(path)  # before the fix: MemoryError / ValueError from np.empty(claimed)
+    assert result.salvage is not None
+    assert "claims" in result.salvage.reason
+    assert 0 < result.salvage.kept < len(MSGS)
+
+
+def _message_in_plain_chunk(data: bytearray) -> int:
+    """Body offset of the first message record inside the first (uncompressed) chunk; its CRC is cleared."""
+    body = next(body for op, _, body in _records(data) if op == 0x06)
+    data[body + 24:body + 28] = bytes(4)  # crc 0: not checked
+    (n,) = struct.unpack_from("<I", data, body + 28)
+    records = body + 28 + 4 + n + 8
+    return next(b for op, _, b in _records(data, records) if op == 0x05)
+
+
+@pytest.mark.parametrize("kind", ["unchunked", "indexed-chunks"])
+def test_mcap_log_time_beyond_int64_is_damage(tmp_path: Path, kind: str) -> None:
+    if kind == "unchunked":
+        path = write_mcap(tmp_path / "t.mcap", MSGS, chunked=False, summary=False, indexes=False)
+        data = bytearray(path.read_bytes())
+        msgs = [body for op, _, body in _records(data) if op == 0x05]
+        body = msgs[4]
+        kept = 4
+    else:
+        path = write_mcap(tmp_path / "t.mcap", MSGS, compression="none")
+        data = bytearray(path.read_bytes())
+        body = _message_in_plain_chunk(data)
+        kept = 0
+    data[body + 6:body + 14] = ((1 << 63) + 5).to_bytes(8, "little")  # log_time
+    path.write_bytes(bytes(data))
+    # before the fix: OverflowError in the batcher (record walk), or a silently wrapped negative time (index)
+    result = _read(path)
+    assert result.salvage is not None and "int64" in result.salvage.reason
+    assert result.salvage.kept == kept
+    for data_ in result.topics.values():
+        assert (data_.log_ns > 0).all()
+
+
+# -- CSV -----------------------------------------------------------------------------------------------------
+def _csv_trial(tmp_path: Path, times: list[str]) -> Path:
+    trial_dir = tmp_path / "trial"
+    trial_dir.mkdir()
+    lines = ["t,u"] + [f"{t},{i * 0.5}" for i, t in enumerate(times)]
+    (trial_dir / "dvl.csv").write_text("\n".join(lines) + "\n")
+    return trial_dir
+
+
+def _read_csv(trial_dir: Path):  # noqa: ANN202
+    with open_text(trial_dir) as reader:
+        return reader.read({"dvl.csv": ["u"]}, csv_options={"dvl.csv": CsvOptions(time_column="t")})
+
+
+@pytest.mark.parametrize("stamp", ["99999999999999999999", "99999999999", "1e300", "-1e300"])
+def test_csv_time_beyond_int64_names_the_line(tmp_path: Path, stamp: str) -> None:
+    trial_dir = _csv_trial(tmp_path, ["1700000000.0", "1700000000.1", stamp, "1700000000.3"])
+    # before the fix: OverflowError, or a value wrapped to another int64 / clipped to -2**63 without an error
+    with pytest.raises(IngestError, match=r"int64 nanosecond range.*line\(s\) \[4\]") as info:
+        _read_csv(trial_dir)
+    assert info.value.file is not None and info.value.file.endswith("dvl.csv") and info.value.field == "t"
+
+
+def test_csv_time_near_the_int64_limit_is_exact() -> None:
+    opts = CsvOptions(time_column="t", time_unit="ns")
+    raw = pd.Series(["9223372036854775806", "-9223372036854775806"], dtype=object)
+    ns = time_to_ns(raw, opts, path="x.csv", topic="x", lines=np.array([2, 3]))
+    assert ns.tolist() == [9223372036854775806, -9223372036854775806]
+
+
+def test_csv_time_before_1970_is_logged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    trial_dir = _csv_trial(tmp_path, ["-1", "0.5"])
+    with caplog.at_level(logging.WARNING):
+        result = _read_csv(trial_dir)
+    assert result.topics["dvl.csv"].log_ns.tolist() == [-1_000_000_000, 500_000_000]
+    assert "before 1970 at line(s) [2]" in caplog.text
+
+
+def test_csv_relative_epoch_beyond_int64_is_an_error(tmp_path: Path) -> None:
+    opts = CsvOptions(time_column="t", time_origin="relative", epoch_s=1e300)
+    with pytest.raises(IngestError, match="epoch_s"):
+        time_to_ns(pd.Series(["1"], dtype=object), opts, path="x.csv", topic="x", lines=np.array([2]))
+
+
+def test_gzip_csv_with_a_corrupt_deflate_stream(tmp_path: Path) -> None:
+    trial_dir = tmp_path / "trial"
+    trial_dir.mkdir()
+    text = "t,u\n" + "".join(f"{1700000000 + i / 10:.1f},{i}\n" for i in range(300))
+    data = bytearray(gzip.compress(text.encode(), mtime=0))
+    data[40] ^= 0xFF  # inside the deflate stream: zlib.error, which is not an OSError
+    path = trial_dir / "dvl.csv.gz"
+    path.write_bytes(bytes(data))
+    with pytest.raises(IngestError, match="dvl.csv.gz") as info:
+        _read_csv(trial_dir)
+    assert info.value.file is not None
+    with pytest.raises(IngestError, match="does not decompress"):
+        sniff_csv(path)  # auvid inspect / init
+
+
+# -- ROS 2 ---------------------------------------------------------------------------------------------------
+def _bag(tmp_path: Path, n: int = 10) -> tuple[Path, Path]:
+    bag = write_rosbag2(tmp_path / "bag", trial(n=n, seed=7) if n != 10 else MSGS)
+    return bag, next(bag.glob("*.db3"))
+
+
+@pytest.mark.parametrize("text", [
+    b"rosbag2_bagfile_information:\n  version: 9\n  topics_with_message_count:\n    - oops\n",
+    b"rosbag2_bagfile_information:\n  relative_file_paths: [3]\n",
+    b"rosbag2_bagfile_information: just a string\n",
+    b"rosbag2_bagfile_information:\n  storage_identifier: sqlite3\xff\n",
+])
+def test_rosbag2_malformed_metadata_yaml(tmp_path: Path, text: bytes) -> None:
+    bag, _ = _bag(tmp_path)
+    (bag / "metadata.yaml").write_bytes(text)
+    # before the fix: AttributeError / TypeError / UnicodeDecodeError
+    with pytest.raises(IngestError, match="metadata.yaml") as info:
+        _read(bag)
+    assert info.value.file is not None and info.value.file.endswith("metadata.yaml")
+
+
+def test_rosbag2_damaged_topics_row(tmp_path: Path) -> None:
+    bag, db = _bag(tmp_path)
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE topics SET type = X'00ff' WHERE id = 1")  # a blob where text belongs
+    con.close()
+    with pytest.raises(IngestError, match="damaged row in table 'topics'") as info:
+        _read(bag)  # before the fix: AttributeError / TypeError in normalize_msgtype
+    assert info.value.file == str(db)
+
+
+def test_rosbag2_schema_name_not_utf8(tmp_path: Path) -> None:
+    bag, db = _bag(tmp_path)
+    data = bytearray(db.read_bytes())
+    at = data.find(b"tablemetadatametadata")  # the sqlite_master row of table 'metadata': type, name, tbl_name
+    assert at > 0
+    data[at + len(b"table")] = 0xFF
+    db.write_bytes(bytes(data))
+    with pytest.raises(IngestError, match="utf-8") as info:
+        _read(bag)  # before the fix: UnicodeDecodeError from the sqlite3 module
+    assert info.value.file == str(db)
+
+
+def test_rosbag2_damaged_messages_row(tmp_path: Path) -> None:
+    bag, db = _bag(tmp_path)
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE messages SET timestamp = 'soon' WHERE id = 5")
+    con.close()
+    with pytest.raises(IngestError, match="damaged row in table 'messages'") as info:
+        _read(bag)  # before the fix: ValueError from numpy
+    assert info.value.file == str(db)
+
+
+def test_rosbag2_damaged_page_found_while_fetching(tmp_path: Path) -> None:
+    bag, db = _bag(tmp_path, n=300)
+    data = bytearray(db.read_bytes())
+    data[-4096:] = b"\xff" * 4096  # the last page holds message rows; topics and metadata.yaml are intact
+    db.write_bytes(bytes(data))
+    with open_log(bag) as reader, pytest.raises(IngestError, match="sqlite storage damaged") as info:
+        reader.read(REQUESTS)  # counts from metadata.yaml; before the fix: sqlite3.DatabaseError from the fetch
+    assert info.value.file == str(db)
