@@ -214,3 +214,19 @@ def test_rosbag2_damaged_page_found_while_fetching(tmp_path: Path) -> None:
     with open_log(bag) as reader, pytest.raises(IngestError, match="sqlite storage damaged") as info:
         reader.read(REQUESTS)  # counts from metadata.yaml; before the fix: sqlite3.DatabaseError from the fetch
     assert info.value.file == str(db)
+
+
+@pytest.mark.parametrize("listed_first", [True, False])
+def test_rosbag2_rows_missing_from_the_storage_are_reported(tmp_path: Path, listed_first: bool) -> None:
+    bag, db = _bag(tmp_path)
+    with sqlite3.connect(db) as con:  # what damaged pages do: rows gone, no sqlite error
+        con.execute("DELETE FROM messages WHERE id IN (4, 5)")
+    con.close()
+    with open_log(bag) as reader:
+        if listed_first:
+            reader.topics()  # the exact scan first: compared with metadata.yaml there
+        result = reader.read(REQUESTS)  # else counts from metadata.yaml, recounted when the read disagrees
+    # before the fix: 28 messages read, a log line, and salvage None (a silent loss for the ingest report)
+    assert sum(d.read for d in result.topics.values()) == len(MSGS) - 2
+    assert result.salvage is not None and result.salvage.kept == len(MSGS) - 2
+    assert "fewer messages than metadata.yaml lists" in result.salvage.reason

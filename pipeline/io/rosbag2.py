@@ -21,7 +21,17 @@ import numpy as np
 import yaml
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, RawReader, Restart, Rows, SalvageInfo, TopicData, TopicInfo, stream_walk
+from pipeline.io.base import (
+    Batch,
+    RawReader,
+    ReadResult,
+    Restart,
+    Rows,
+    SalvageInfo,
+    TopicData,
+    TopicInfo,
+    stream_walk,
+)
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, walk
@@ -81,6 +91,7 @@ class Rosbag2Reader(RawReader):
         self._indexes: list[IndexedFile | None] = []  # per MCAP file: its chunk indexes, when intact and indexed
         self._no_index = False
         self._no_adbc = False
+        self._short: dict[str, tuple[int, int]] = {}  # topic -> (metadata.yaml's count, the storage's): rows lost
 
     @classmethod
     def from_files(cls, files: list[Path]) -> Rosbag2Reader:
@@ -186,13 +197,29 @@ class Rosbag2Reader(RawReader):
             self._check_metadata()
 
     def _recount(self, topic: str, read: int, listed: int) -> int:
-        if topic not in self._provisional:
-            return listed
-        counts = self.topics()  # the exact scan
-        have = counts[topic].count if topic in counts else 0
+        if topic in self._provisional:
+            self.topics()  # the exact scan; it compares every topic with metadata.yaml
+        # after the exact scan (maybe done for another topic of this read) the catalog holds the storage's counts
+        assert self._infos is not None
+        return self._infos[topic].count if topic in self._infos else 0
+
+    def _disagrees(self, topic: str, listed: int, have: int) -> None:
         log.warning("%s: metadata.yaml says topic %s has %s messages; the storage holds %s", self.path, topic,
                     listed, have)
-        return have
+        if have < listed:
+            self._short[topic] = (listed, have)
+
+    def read(self, requests: dict[str, list[str]]) -> ReadResult:
+        """As :meth:`RawReader.read`; rows that metadata.yaml counts but the storage lacks (damaged sqlite pages
+        drop them without an error) are a loss, reported like a salvage."""
+        result = super().read(requests)
+        short = {t: c for t, c in self._short.items() if t in result.topics}
+        if short and result.salvage is None:
+            lost = "; ".join(f"{t}: {have} of {listed}" for t, (listed, have) in sorted(short.items()))
+            result.salvage = SalvageInfo(
+                kept=sum(d.read for d in result.topics.values()), stopped_at_byte=None,
+                reason=f"the storage holds fewer messages than metadata.yaml lists ({lost})")
+        return result
 
     def _was_read(self, topic: str, data: TopicData) -> None:
         if topic in self._provisional and self._infos is not None and data.read == self._infos[topic].count:
@@ -207,9 +234,8 @@ class Rosbag2Reader(RawReader):
         for entry in self.metadata.get("topics_with_message_count") or []:
             name, want = entry["topic_metadata"].get("name"), entry.get("message_count")
             have = self._infos[name].count if name in self._infos else 0
-            if want is not None and want != have:
-                log.warning("%s: metadata.yaml says topic %s has %s messages; the storage holds %s",
-                            self.path, name, want, have)
+            if isinstance(want, int) and want != have:
+                self._disagrees(name, want, have)
 
     def _connect(self, path: Path) -> sqlite3.Connection:
         try:
