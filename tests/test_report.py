@@ -15,7 +15,7 @@ import pytest
 from fakestages import VEHICLE_YAML
 
 from pipeline.config import load_params, load_vehicle
-from pipeline.report import figures
+from pipeline.report import figures, html
 from stages import report as report_stage
 
 
@@ -76,6 +76,55 @@ def run_dir(tmp_path: Path) -> Path:
     return root
 
 
+def _write(path: Path, doc: object) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc))
+
+
+@pytest.fixture
+def study_dir(run_dir: Path) -> Path:
+    """The run plus the files the coupled, decoupled and simulate stages write (their real names and shapes)."""
+    ev = run_dir / "data/evaluation/coupled"
+    outs = ["udot_mps2", "rdot_radps2"]
+    _write(run_dir / "data/models/coupled/hyperparameters.json", {
+        "tuning": "nested", "tuned_on": "train_test", "n_tuning_rows": 2367, "outputs": outs,
+        "inputs": ["u_mps", "n1_rpm"], "hyperparameters": {}})
+    hyper = {"rbf_svr": {o: {"C": 1.0, "epsilon": 0.01, "gamma": 0.1} for o in outs},
+             "wdse_svr": {o: {"C": 2.0, "epsilon": 0.02, "gammas": [0.5, 0.25]} for o in outs}}
+    _write(ev / "table2.json", hyper)
+    (ev / "table2.md").write_text("| Regressor | Hyperparameter | udot_mps2 |\n| --- | --- | ---: |\n"
+                                  "| RBF-SVR | C | 1 |\n")
+
+    def scores(r2: float) -> dict:
+        cv = {o: {k: {"mean": r2, "sd": 0.05} for k in ("test_r2", "train_r2", "test_mae", "train_mae")}
+              for o in outs}
+        return {"cv": cv, "final": {o: {"r2": r2, "mae": 0.01} for o in outs}}
+
+    _write(ev / "table3.json", {"rbf_svr": scores(0.7), "wdse_svr": scores(0.8), "mcfarland_whitcomb": scores(0.9),
+                                "gertler_hagen": {"failed": {"error": "ModelError", "reason": "singular <x>"}}})
+    (ev / "table3.md").write_text("| Model | Output | R2 |\n| --- | --- | ---: |\n| RBF-SVR | udot_mps2 | 0.7 |\n")
+    _write(ev / "fold_scores.json", {"rbf_svr": [{"fold": 0, "test": {"udot_mps2": {"r2": 0.7}}}]})
+    (ev / "fold_test_r2.png").write_bytes(_png())
+    curve = {"train_sizes": [40, 220, 400], "test_mae_mean": [3.0, 0.8, 0.7], "train_mae_mean": [0.5, 0.7, 0.7]}
+    cv = {"test_mae_mean": 0.7, "test_mae_sd": 0.1, "test_r2_mean": 0.94, "test_r2_sd": 0.02, "train_mae_mean": 0.68}
+    _write(run_dir / "data/evaluation/decoupled/metrics.json", {"results": {
+        "u": {"ls": {"cv": cv, "best_params": {}, "search_mae": 0.7, "learning_curve": curve},
+              "gp": {"cv": {**cv, "test_mae_mean": 0.6}, "best_params": {}, "search_mae": 0.8,
+                     "learned": {"kernel": "RBF([1, 2])"}, "learning_curve": curve}}}})
+    sim = run_dir / "data/simulation/trial02"
+    _write(sim / "free_run.json", [
+        {"model": "gp", "status": "ok", "diverged_at_s": None, "band_coverage": {"u": 0.5},
+         "metrics": {"u": {"r2": 0.97, "mae": 0.02}}},
+        {"model": "coupled_wdse_svr", "status": "diverged", "diverged_at_s": 7.5,
+         "metrics": {"u": {"r2": 0.5, "mae": 0.04}}}])
+    _write(sim / "bridging.json", [
+        {"window_s": 10.0, "model": "hold_last", "n_windows": 3, "n_diverged": 0, "mean_error_m": 2.0},
+        {"window_s": 10.0, "model": "gp", "n_windows": 3, "n_diverged": 0, "mean_error_m": 0.5}])
+    (sim / "bridging.md").write_text("| outage (s) | model |\n| ---: | --- |\n| 10 | gp |\n")
+    (sim / "free_run.png").write_bytes(_png())
+    return run_dir
+
+
 def _build(root: Path) -> Path:
     vehicle = load_vehicle(root / "vehicle.yaml")
     result = report_stage.run(root, vehicle, load_params(None))
@@ -115,22 +164,82 @@ def test_report_of_an_empty_run_says_so(tmp_path: Path) -> None:
     assert "No synced trial found" in text and "stage not run" in text
 
 
+def _section(text: str, anchor: str) -> str:
+    return text.split(f'<section id="{anchor}">', 1)[1].split("</section>", 1)[0]
+
+
+def test_study_tables_have_paper_titles_and_show_each_artifact_once(study_dir: Path) -> None:
+    text = _build(study_dir).read_text()
+    for title in ("Table II — hyperparameters (paper 000)", "Table III — cross-validation and final check",
+                  "Table I — the damping study (paper 001)", "Fig. 2 — learning curves", "Fig. 4 — free runs"):
+        assert text.count(title) == 1, title
+    # each table once: no heading per file name, no Markdown + JSON twins; the JSON is a download link
+    for name in ("table2.md", "table2.json", "table3.md", "table3.json", "fold_scores.json", "metrics.json",
+                 "trial02/bridging.md", "trial02/bridging.json", "trial02/free_run.json"):
+        assert f"<h4>{name}</h4>" not in text, name
+    assert 'href="../data/evaluation/coupled/table3.json"' in text
+    assert 'href="../data/simulation/trial02/bridging.json"' in text
+    # the generic renderer (files no study renderer knows) still shows a Markdown/JSON pair once
+    assert "<h4>table.md</h4>" in text and "<h4>cv_summary.json</h4>" in text
+    coupled = _section(text, "coupled")
+    assert coupled.index("RBF-SVR") < coupled.index("WDSE-SVR") < coupled.index("McFarland–Whitcomb")
+    assert "gamma_n1_rpm" in coupled and "0.800 ± 0.050" in coupled  # WDSE's γ per input; mean ± sd
+
+
+def test_report_names_the_tuning_protocol_and_the_ranking_that_contradicts_the_paper(study_dir: Path) -> None:
+    text = _build(study_dir).read_text()
+    assert "Tuning protocol: nested" in _section(text, "summary")
+    assert "Differs from paper 000" in text and "McFarland–Whitcomb" in _section(text, "summary")
+    hyper = study_dir / "data/models/coupled/hyperparameters.json"
+    _write(hyper, {**json.loads(hyper.read_text()), "tuning": "split", "tuned_on": "tuning"})
+    text = _build(study_dir).read_text()
+    assert "Tuning protocol: split" in text and "the papers&#x27; protocol" in text
+    t3 = study_dir / "data/evaluation/coupled/table3.json"
+    doc = json.loads(t3.read_text())
+    doc["mcfarland_whitcomb"]["final"] = {o: {"r2": 0.1, "mae": 1.0} for o in doc["mcfarland_whitcomb"]["final"]}
+    t3.write_text(json.dumps(doc))
+    assert "Differs from paper 000" not in _build(study_dir).read_text()
+
+
+def test_free_run_table_has_a_model_column_and_failures_are_listed(study_dir: Path) -> None:
+    text = _build(study_dir).read_text()
+    sim = _section(text, "simulation")
+    head = sim.split("<thead>", 1)[1].split("</thead>", 1)[0]
+    assert ">model</th>" in head and ">u MAE [m/s]</th>" in head and ">2σ band coverage</th>" in head
+    assert "coupled_wdse_svr" in sim and "diverged" in sim and "0.25×" in sim  # bridging vs hold-last
+    quarantine = _section(text, "quarantine")
+    assert "Gertler–Hagen" in quarantine and "singular &lt;x&gt;" in quarantine and "truncated" in quarantine
+
+
+def test_cells_never_show_raw_json(study_dir: Path) -> None:
+    assert html.fmt({"a": 1.23456, "b": [1, 2]}) == "a: 1.235; b: 1, 2"
+    assert html.fmt([{"x": 1}, {"x": 2}]) == "2 records"
+    text = _build(study_dir).read_text()
+    visible = re.sub(r"<[^>]+>", " ", text.split("<main>", 1)[1])
+    assert not re.search(r"[{\[]\s*&quot;", visible), "JSON text in the report"
+
+
 CHECK = """<script>
 window.addEventListener('load', function () {
   var imgs = Array.from(document.images);
   var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
   var tables = Array.from(document.querySelectorAll('table'));
   var rendered = tables.filter(function (t) { return t.rows.length > 0 && t.getBoundingClientRect().height > 0; });
+  var wide = Array.from(document.querySelectorAll('.tw')).filter(function (e) {
+    return e.scrollWidth > e.clientWidth + 1; }).length;
   var m = document.createElement('div');
   m.id = 'auvid-check';
   m.textContent = 'images=' + imgs.length + ' decoded=' + ok +
-    ' tables=' + tables.length + ' rendered=' + rendered.length;
+    ' tables=' + tables.length + ' rendered=' + rendered.length +
+    ' page=' + document.documentElement.scrollWidth + '/' + window.innerWidth + ' wide=' + wide;
   document.body.appendChild(m);
 });
 </script>"""
 
 
-def test_report_renders_in_a_headless_browser(run_dir: Path, tmp_path: Path) -> None:
+def test_report_renders_in_a_headless_browser(study_dir: Path, tmp_path: Path) -> None:
+    """Every image decodes, every table renders, and at 1400 px nothing scrolls sideways (page or table box)."""
+    run_dir = study_dir
     browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
     assert browser, "chromium is required for this test (apt-get install -y chromium; see .ci/run)"
     page = tmp_path / "checked.html"
@@ -138,11 +247,14 @@ def test_report_renders_in_a_headless_browser(run_dir: Path, tmp_path: Path) -> 
     profile = tmp_path / "profile"
     cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
            "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           "--disable-dev-shm-usage", f"--user-data-dir={profile}", "--virtual-time-budget=5000", "--dump-dom",
+           "--disable-dev-shm-usage", f"--user-data-dir={profile}", "--virtual-time-budget=5000",
+           "--window-size=1400,900", "--dump-dom",
            page.as_uri()]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env={**os.environ, "HOME": str(tmp_path)})
-    match = re.search(r"images=(\d+) decoded=(\d+) tables=(\d+) rendered=(\d+)", proc.stdout)
+    match = re.search(r"images=(\d+) decoded=(\d+) tables=(\d+) rendered=(\d+) page=(\d+)/(\d+) wide=(\d+)",
+                      proc.stdout)
     assert match, f"no check marker in the DOM; rc={proc.returncode} stderr={proc.stderr[-2000:]}"
-    images, decoded, tables, rendered = map(int, match.groups())
+    images, decoded, tables, rendered, page_w, view_w, wide = map(int, match.groups())
     assert images >= 6 and decoded == images
     assert tables >= 6 and rendered == tables
+    assert page_w <= view_w and wide == 0, f"horizontal scrolling at {view_w} px: page {page_w}, {wide} table(s)"

@@ -19,7 +19,7 @@ import pandas as pd
 
 from pipeline import __version__, layout
 from pipeline.config import Params, Vehicle, config_hash
-from pipeline.report import figures
+from pipeline.report import figures, studies
 from pipeline.report import html as H
 
 log = logging.getLogger(__name__)
@@ -116,18 +116,27 @@ def _ingest_section(root: Path, trials: list[str], metrics: dict[str, Any],
             parts.append("<details><summary>all topics read</summary>"
                          + H.table([{"topic": t, **{k: v for k, v in d.items() if not isinstance(v, (dict, list))}}
                                     for t, d in topics.items()]) + "</details>")
+    metrics["_trials"] = len(trials)
     plots["ingest_rates"] = [{"trial": r["trial"], "stream": r["stream"], "mean_rate_hz": r["mean_rate_hz"],
                               "largest_gap_s": r["largest_gap_s"]} for r in rows_rates]
+    return "".join(parts) or "<p class='muted'>No ingest report found (data/signals/*/ingest_report.json).</p>"
+
+
+def _quarantine_section(root: Path, metrics: dict[str, Any], failed: list[dict[str, Any]]) -> str:
+    """Inputs the ingest stage set aside, and models that failed in a study (the others went on)."""
     quarantine = _read_json(root / layout.SIGNALS / "quarantine.json") or {}
     entries = quarantine.get("quarantined", []) if isinstance(quarantine, dict) else []
-    metrics["ingest"] = {"trials": len(trials), "quarantined": len(entries)}
-    qhtml = "<h3>Quarantine</h3>"
+    metrics["ingest"] = {"trials": metrics.pop("_trials"), "quarantined": len(entries)}
     if entries:
-        qhtml += H.table([{k: e.get(k) for k in ("trial", "file", "error", "reason", "topic", "field")}
-                          for e in entries])
+        out = H.table([{k: e.get(k) for k in ("trial", "file", "error", "reason", "topic", "field")}
+                       for e in entries], caption="Quarantined inputs: logs (or topics) the ingest stage set aside")
     else:
-        qhtml += "<p>No input was quarantined.</p>"
-    return qhtml + "".join(parts)
+        out = "<p>No input was quarantined.</p>"
+    if failed:
+        out += H.table(failed, caption="Failed models: left out of their study's tables; the other models went on")
+    else:
+        out += "<p>No model failed.</p>"
+    return out
 
 
 def _signals_section(root: Path, trials: list[str], metrics: dict[str, Any],
@@ -197,51 +206,66 @@ def _estimation_section(root: Path, trials: list[str], metrics: dict[str, Any], 
     return "".join(parts) or "<p class='muted'>No estimation report found (data/kinematics/*.estimation.json).</p>"
 
 
-def _artifact_section(root: Path, base: str, metrics: dict[str, Any], figs: dict[str, bytes]) -> str:
-    """Everything a model stage wrote under ``base``: PNGs, JSON (as tables), Markdown tables, CSV heads."""
+def _collect_metrics(root: Path, base: str, metrics: dict[str, Any]) -> None:
+    """metrics.json goes by the files a stage calls metrics (metrics*.json / summary*.json); failing those, every
+    JSON but timings. Per-fold scores and search traces stay in the report's tables."""
+    directory = root / base
+    if not directory.is_dir():
+        return
+    jsons = sorted(p.name for p in directory.rglob("*.json"))
+    metric_files = {n for n in jsons if n.startswith(("metrics", "summary"))} or \
+        {n for n in jsons if "timing" not in n and "fold" not in n and "trace" not in n}
+    for path in sorted(directory.rglob("*.json")):
+        if path.name not in metric_files:
+            continue
+        doc = _read_json(path)
+        found: dict[str, float] = {}
+        _flatten_numbers(doc, "", found)
+        if found:
+            rel = path.relative_to(directory).as_posix()
+            metrics[f"{base.split('/')[-1]}/{rel[: -len('.json')]}"] = dict(list(found.items())[:MAX_METRICS_PER_FILE])
+
+
+def _artifact_section(root: Path, base: str, figs: dict[str, bytes], used: set[str] = frozenset()) -> str:
+    """The files of ``base`` no study renderer used: PNGs, Markdown tables, JSON (as tables, when it has no
+    Markdown twin of the same name), CSV heads; each once, JSON also as a download link."""
     directory = root / base
     if not directory.is_dir():
         return f"<p class='warn'>Nothing under {H.esc(base)}/ (stage not run?).</p>"
     parts = []
-    # metrics.json goes by the files a stage calls metrics (metrics*.json / summary*.json); failing those, every
-    # JSON but timings. Per-fold scores and search traces stay in the report's tables.
-    jsons = sorted(p.name for p in directory.rglob("*.json"))
-    metric_files = {n for n in jsons if n.startswith(("metrics", "summary"))} or \
-        {n for n in jsons if "timing" not in n and "fold" not in n and "trace" not in n}
-    # The paper-style tables (Markdown) first, then figures, then the JSON behind them, then CSV heads.
     order = {".md": 0, ".png": 1, ".json": 2, ".csv": 3}
-    files = sorted((p for p in directory.rglob("*") if p.is_file() and not p.name.startswith(".")),
+    files = sorted((p for p in directory.rglob("*") if p.is_file() and not p.name.startswith(".")
+                    and p.relative_to(root).as_posix() not in used),
                    key=lambda p: (p.relative_to(directory).parent.as_posix(), order.get(p.suffix.lower(), 9), p.name))
     for path in files:
         rel = path.relative_to(directory).as_posix()
+        href = "../" + path.relative_to(root).as_posix()
         suffix = path.suffix.lower()
         if suffix == ".png":
             data = path.read_bytes()
             figs[f"{base.split('/')[-1]}_{rel}"] = data
             parts.append(f"<h4>{H.esc(rel)}</h4>" + H.image(data, rel))
         elif suffix == ".json":
+            twin = path.with_suffix(".md")
+            if twin.is_file() and H.markdown_tables(twin.read_text(encoding="utf-8", errors="replace")):
+                continue  # shown as its Markdown table; the JSON is linked there
             doc = _read_json(path)
-            if doc is None:
-                continue
-            found: dict[str, float] = {}
-            if path.name in metric_files:
-                _flatten_numbers(doc, "", found)
-            if found:
-                key = f"{base.split('/')[-1]}/{rel[: -len('.json')]}"
-                metrics[key] = dict(list(found.items())[:MAX_METRICS_PER_FILE])
-            parts.append(f"<h4>{H.esc(rel)}</h4>" + "".join(H.json_tables(doc)))
+            if doc is not None:
+                parts.append(f"<h4>{H.esc(rel)}</h4>" + "".join(H.json_tables(doc)) + H.links([(href, path.name)]))
         elif suffix == ".md":
             tables = H.markdown_tables(path.read_text(encoding="utf-8", errors="replace"))
+            twin = path.with_suffix(".json")
             if tables:
-                parts.append(f"<h4>{H.esc(rel)}</h4>" + "".join(tables))
+                parts.append(f"<h4>{H.esc(rel)}</h4>" + "".join(tables) + (
+                    H.links([("../" + twin.relative_to(root).as_posix(), twin.name)]) if twin.is_file() else ""))
         elif suffix == ".csv":
             try:
                 frame = pd.read_csv(path, nrows=MAX_CSV_ROWS)
             except (ValueError, OSError):
                 continue
             parts.append(f"<h4>{H.esc(rel)} <span class='muted'>(first {MAX_CSV_ROWS} rows)</span></h4>"
-                         + H.table(frame.to_dict("records")))
-    return "".join(parts) or f"<p class='muted'>No readable file under {H.esc(base)}/.</p>"
+                         + H.table(frame.to_dict("records")) + H.links([(href, path.name)]))
+    return "".join(parts)
 
 
 def _provenance_section(root: Path, vehicle: Vehicle, params: Params, trials: list[str]) -> str:
@@ -253,22 +277,18 @@ def _provenance_section(root: Path, vehicle: Vehicle, params: Params, trials: li
     info = {"auvid version": __version__, "vehicle": vehicle.name, "vehicle config hash": config_hash(vehicle),
             "params hash": config_hash(params)}
     return (H.kv_table(info) + "<h3>Inputs</h3>" + H.table(inputs, ["trial", "file", "sha256"])
-            + "<h3>Params</h3><pre>" + H.esc(json.dumps(params.model_dump(mode="json"), indent=2, sort_keys=True))
-            + "</pre>")
+            + "<h3>Params</h3><details><summary>every parameter of the run</summary>"
+            + H.kv_table(_flat_params(params.model_dump(mode="json")), key="parameter") + "</details>")
 
 
-def _headline(metrics: dict[str, Any]) -> str:
-    """Per results file, its best R² (the key says which model / output / split)."""
-    rows = []
-    for group, values in metrics.items():
-        if not isinstance(values, dict) or "/" not in group:
-            continue
-        r2 = {k: v for k, v in values.items()
-              if "r2" in k.rsplit(".", 1)[-1] and not k.endswith(("_sd", "_std")) and "fold" not in k}
-        if r2:
-            key = max(r2, key=lambda k: r2[k])
-            rows.append({"results": group, "best R²": r2[key], "where": key, "scores": len(values)})
-    return ("<h3>Best R² per results file</h3>" + H.table(rows)) if rows else ""
+def _flat_params(obj: Any, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in sorted(obj.items()) if isinstance(obj, dict) else []:
+        if isinstance(v, dict) and v:
+            out.update(_flat_params(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
@@ -278,27 +298,42 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
     metrics: dict[str, Any] = {"package_version": __version__}
     plots: dict[str, list[dict[str, Any]]] = {}
     figs: dict[str, bytes] = {}
-    sections = [
-        ("ingest", "Ingest, sensor rates and quarantine", _ingest_section(root, trials, metrics, plots, figs)),
-        ("signals", "Signals and validity", _signals_section(root, trials, metrics, plots, figs)),
-        ("estimation", "Motion estimation: noise, smoother, usable data",
-         _estimation_section(root, trials, metrics, figs)),
-        ("coupled", "Coupled models (acceleration, SVR vs explicit)",
-         _artifact_section(root, f"{layout.EVALUATION}/coupled", metrics, figs)),
-        ("decoupled", "Decoupled damping models",
-         _artifact_section(root, f"{layout.EVALUATION}/decoupled", metrics, figs)),
-        ("simulation", "Free-run rollouts and DVL-outage bridging",
-         _artifact_section(root, layout.SIMULATION, metrics, figs)),
-        ("provenance", "Provenance", _provenance_section(root, vehicle, params, trials)),
-    ]
+    bases = {"coupled": studies.COUPLED, "decoupled": studies.DECOUPLED, "simulation": layout.SIMULATION}
     other = root / layout.EVALUATION
-    if other.is_dir():
-        for sub in sorted(p for p in other.iterdir() if p.is_dir() and p.name not in ("coupled", "decoupled")):
-            sections.insert(-1, (sub.name, f"Evaluation: {sub.name}",
-                                 _artifact_section(root, f"{layout.EVALUATION}/{sub.name}", metrics, figs)))
-    summary = H.kv_table({"trials": len(trials), "quarantined inputs": metrics["ingest"]["quarantined"],
-                          "figures": len(figs)}) + _headline(metrics)
-    sections.insert(0, ("summary", "Summary", summary))
+    extra = sorted(p.name for p in other.iterdir() if p.is_dir() and p.name not in ("coupled", "decoupled")) \
+        if other.is_dir() else []
+    for base in [*bases.values(), *(f"{layout.EVALUATION}/{n}" for n in extra)]:
+        _collect_metrics(root, base, metrics)
+    ingest = _ingest_section(root, trials, metrics, plots, figs)
+    signals = _signals_section(root, trials, metrics, plots, figs)
+    estimation = _estimation_section(root, trials, metrics, figs)
+    parts = {"coupled": studies.coupled(root, figs), "decoupled": studies.decoupled(root, figs),
+             "simulation": studies.simulation(root, figs)}
+    failed = parts["coupled"].failed + parts["decoupled"].failed
+    quarantine = _quarantine_section(root, metrics, failed)
+    bodies = {}
+    for name, base in bases.items():
+        rest = _artifact_section(root, base, figs, parts[name].used)
+        if parts[name].html and rest and not rest.startswith("<p class='warn'>"):
+            rest = "<h3>Other files</h3>" + rest
+        bodies[name] = (parts[name].html + rest) if parts[name].html else (
+            rest or f"<p class='muted'>No readable file under {H.esc(base)}/.</p>")
+    sections = [
+        ("summary", "Summary", studies.headline(parts["coupled"], parts["decoupled"], parts["simulation"],
+                                                metrics["ingest"]["quarantined"], len(failed),
+                                                parts["coupled"].protocol)),
+        ("quarantine", "Quarantine and failures", quarantine),
+        ("ingest", "Ingest and sensor rates", ingest),
+        ("signals", "Signals and validity", signals),
+        ("estimation", "Motion estimation: noise, smoother, usable data", estimation),
+        ("coupled", "Coupled models, paper 000: Tables II and III, Fig. 4", bodies["coupled"]),
+        ("decoupled", "Damping study, paper 001: Table I, learning curves, damping curves", bodies["decoupled"]),
+        ("simulation", "Free runs and DVL-outage bridging", bodies["simulation"]),
+    ]
+    for sub in extra:
+        sections.append((sub, f"Evaluation: {sub}", _artifact_section(root, f"{layout.EVALUATION}/{sub}", figs)
+                         or f"<p class='muted'>No readable file under {H.esc(sub)}/.</p>"))
+    sections.append(("provenance", "Provenance", _provenance_section(root, vehicle, params, trials)))
     text = H.page(f"auvid report: {vehicle.name}", sections,
                   subtitle=f"auvid {__version__} · config {config_hash(vehicle)[:12]} · params "
                            f"{config_hash(params)[:12]}")

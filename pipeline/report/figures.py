@@ -130,3 +130,31 @@ def estimated_velocities(kin: pd.DataFrame, trial: str, window_s: float = 120.0)
     axes[-1, 0].set_xlabel("time since the first usable sample [s]")
     axes[0, 0].set_title(f"{trial}: measured vs estimated velocity (orange: bridged, no measurement)", fontsize=9)
     return png_bytes(fig)
+
+
+def learning_curves(curves: dict[str, dict[str, dict[str, Any]]], units: dict[str, str]) -> bytes | None:
+    """Paper 001's Fig. 2 with units: per DOF, validation (solid) and training (dashed) MAE of the damping
+    against the number of training samples; ``curves[dof][model]`` holds ``train_sizes``, ``test_mae_mean``,
+    ``train_mae_mean`` (the decoupled stage's ``learning_curve``)."""
+    dofs = [d for d, per in curves.items() if any(c.get("train_sizes") for c in per.values())]
+    if not dofs:
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(dofs), figsize=(4.2 * len(dofs), 3.4), squeeze=False)
+    for ax, dof in zip(axes[0], dofs, strict=True):
+        for i, (model, c) in enumerate(sorted(curves[dof].items())):
+            sizes = c.get("train_sizes") or []
+            color = f"C{i}"
+            if c.get("test_mae_mean"):
+                ax.plot(sizes, c["test_mae_mean"], "o-", color=color, ms=3, lw=1.2, label=f"{model}")
+            if c.get("train_mae_mean"):
+                ax.plot(sizes, c["train_mae_mean"], "--", color=color, lw=0.9)
+        ax.set_yscale("log")
+        ax.set_xlabel("training samples [rows]", fontsize=8)
+        ax.set_ylabel(f"MAE of d_{dof} [{units.get(dof, '?')}]", fontsize=8)
+        ax.set_title(f"DOF {dof}", fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, title="solid: validation, dashed: training", title_fontsize=7)
+    fig.tight_layout()
+    return png_bytes(fig)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -14,12 +13,18 @@ body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:0;col
 header{background:#1f4e79;color:#fff;padding:1.2em 2em}header h1{margin:0;font-size:1.5em}
 main{padding:1em 2em;max-width:1200px}nav a{margin-right:1em;color:#cfe3f5}
 h2{border-bottom:2px solid #1f4e79;padding-bottom:.2em;margin-top:2em}h3{margin-top:1.4em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.85em;background:#fff}
-th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right;vertical-align:top}
-th{background:#e8eef5}td.k,th.k{text-align:left}
+table{border-collapse:collapse;margin:.6em 0;font-size:.85em;background:#fff;max-width:100%}
+th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right;vertical-align:top;overflow-wrap:break-word}
+th{background:#e8eef5}td.k,th.k{text-align:left}p.cap{font-size:.85em;margin:.8em 0 .2em;max-width:60em}
 img{max-width:100%;border:1px solid #ddd;background:#fff;margin:.4em 0}
 .warn{color:#a40000}.muted{color:#666;font-size:.85em}pre{background:#f0f0f0;padding:.6em;overflow:auto}
-figure{margin:.6em 0}figcaption{font-size:.8em;color:#555}.tw{overflow-x:auto;max-width:100%}
+figure{margin:.6em 0}figcaption{font-size:.85em;color:#333}figcaption b,p.cap b{color:#1f4e79}
+.tw{overflow-x:auto;max-width:100%}.box{border:2px solid #1f4e79;background:#fff;padding:.4em 1em;margin:1em 0}
+.note{border-left:4px solid #e0a000;background:#fff8e1;padding:.4em .8em;margin:.6em 0}
+.files a{margin-right:.8em}
+@media print{header{background:none;color:#000}nav,.files{display:none}main{max-width:none;padding:0}
+.tw{overflow:visible}table{font-size:.7em;width:100%}th,td{padding:.1em .3em}
+figure,table,.box{break-inside:avoid}p.cap{break-after:avoid}h2,h3{break-after:avoid}img{max-width:100%}}
 """
 
 
@@ -28,7 +33,8 @@ def esc(value: Any) -> str:
 
 
 def fmt(value: Any) -> str:
-    """A cell: numbers with 4 significant digits, None as an em dash, lists and dicts as compact JSON."""
+    """A cell: numbers with 4 significant digits, None as an em dash, dicts as ``key: value; …``, lists of
+    scalars comma-separated, lists of records counted (never raw JSON)."""
     if value is None:
         return "—"
     if isinstance(value, bool):
@@ -37,9 +43,14 @@ def fmt(value: Any) -> str:
         if math.isnan(value):
             return "NaN"
         return f"{value:.4g}"
-    if isinstance(value, (list, dict)):
-        text = json.dumps(value, default=str, sort_keys=True)
-        return text if len(text) <= 120 else text[:117] + "..."
+    if isinstance(value, dict):
+        text = "; ".join(f"{k}: {fmt(v)}" for k, v in value.items())
+        return text if len(text) <= 160 else text[:157] + "…"
+    if isinstance(value, list):
+        if value and all(isinstance(v, dict) for v in value):
+            return f"{len(value)} records"
+        text = ", ".join(fmt(v) for v in value)
+        return text if len(text) <= 160 else text[:157] + "…"
     return str(value)
 
 
@@ -55,17 +66,42 @@ def table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None, 
         cells = "".join(f'<td class="{"k" if i == 0 else ""}">{esc(fmt(row.get(c)))}</td>'
                         for i, c in enumerate(columns))
         body.append(f"<tr>{cells}</tr>")
-    cap = f"<caption>{esc(caption)}</caption>" if caption else ""
-    return f"<div class='tw'><table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table></div>"
+    cap = f"<p class='cap'>{_caption(caption)}</p>" if caption else ""  # not <caption>: it widens the table
+    return f"{cap}<div class='tw'><table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table></div>"
 
 
 def kv_table(mapping: dict[str, Any], key: str = "key", value: str = "value") -> str:
     return table([{key: k, value: v} for k, v in mapping.items()], [key, value])
 
 
+def _caption(text: str) -> str:
+    """A caption; a leading ``Table II — …:`` or ``Fig. 4 — …:`` title (up to the first colon) is set in bold."""
+    head, sep, rest = text.partition(": ")
+    if sep and (head.startswith(("Table ", "Fig. ")) or "—" in head):
+        return f"<b>{esc(head)}.</b> {esc(rest)}"
+    return esc(text)
+
+
+def mean_sd(mean: Any, sd: Any, digits: int = 3) -> str | None:
+    """``0.820 ± 0.133`` (None when there is no mean)."""
+    if not isinstance(mean, (int, float)) or isinstance(mean, bool):
+        return None
+    if isinstance(sd, (int, float)) and not isinstance(sd, bool) and math.isfinite(sd):
+        return f"{mean:.{digits}f} ± {sd:.{digits}f}"
+    return f"{mean:.{digits}f}"
+
+
+def links(paths: Sequence[tuple[str, str]]) -> str:
+    """Links to the artifacts on disk (relative to the report), for download; hidden in print."""
+    if not paths:
+        return ""
+    items = "".join(f'<a href="{esc(href)}">{esc(label)}</a>' for href, label in paths)
+    return f"<p class='files muted'>Data: {items}</p>"
+
+
 def image(png: bytes, alt: str, caption: str | None = None) -> str:
     data = base64.b64encode(png).decode("ascii")
-    cap = f"<figcaption>{esc(caption)}</figcaption>" if caption else ""
+    cap = f"<figcaption>{_caption(caption)}</figcaption>" if caption else ""
     return f'<figure><img alt="{esc(alt)}" src="data:image/png;base64,{data}">{cap}</figure>'
 
 
@@ -89,7 +125,7 @@ def json_tables(doc: Any, max_rows: int = 60) -> list[str]:
     if isinstance(doc, list) and doc and all(isinstance(r, dict) for r in doc):
         return [table([_flat(r) for r in doc[:max_rows]])]
     if not isinstance(doc, dict):
-        return [f"<pre>{esc(json.dumps(doc, indent=1, default=str)[:4000])}</pre>"]
+        return [f"<p>{esc(fmt(doc))}</p>"]
     scalars = {k: v for k, v in doc.items() if not isinstance(v, (dict, list))}
     nested = {k: v for k, v in doc.items() if isinstance(v, dict)}
     lists = {k: v for k, v in doc.items() if isinstance(v, list)}

@@ -1,0 +1,443 @@
+"""The papers' artefacts as a document: the coupled study (paper 000), the damping study (paper 001), the free runs
+and the headline box, each read from the JSON the stages wrote (docs/contracts.md) and shown once, with a caption.
+
+Every renderer returns its HTML and the names of the files it used (relative to the run root); the build shows the
+remaining files of a stage's directory with the generic renderer, so nothing a stage wrote is lost and nothing is
+shown twice.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline import layout
+from pipeline.report import figures
+from pipeline.report import html as H
+
+log = logging.getLogger(__name__)
+
+COUPLED = f"{layout.EVALUATION}/coupled"
+DECOUPLED = f"{layout.EVALUATION}/decoupled"
+# The labels of paper 000 (pipeline.coupled.MODEL_LABELS, repeated so the report imports no model code).
+LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
+          "gertler_hagen": "Gertler–Hagen", "mcfarland_whitcomb": "McFarland–Whitcomb", "graybox": "gray-box"}
+SVRS = ("rbf_svr", "two_weights_svr", "wdse_svr")
+OUTPUT_LABELS = {"udot_mps2": "u̇ [m/s²]", "vdot_mps2": "v̇ [m/s²]", "rdot_radps2": "ṙ [rad/s²]"}
+DAMPING_UNIT = {"u": "N", "v": "N", "r": "N·m"}
+VELOCITY_UNIT = {"u": "m/s", "v": "m/s", "r": "rad/s"}
+DAMPING_ORDER = ("ls", "mlp", "krr", "svr", "gp")  # paper 001's order
+
+
+@dataclass
+class Part:
+    """HTML of a study's section, the files it used (run-relative paths) and what the headline box needs."""
+    html: str = ""
+    used: set[str] = field(default_factory=set)
+    headline: list[dict[str, Any]] = field(default_factory=list)
+    failed: list[dict[str, Any]] = field(default_factory=list)
+    protocol: str = ""
+
+
+def label(model: str) -> str:
+    return LABELS.get(model, model)
+
+
+def _read(root: Path, rel: str, used: set[str]) -> Any:
+    path = root / rel
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        log.warning("report: cannot read %s: %s", path, err)
+        return None
+    used.add(rel)
+    return doc
+
+
+def _href(rel: str) -> str:
+    """A run-relative path as seen from reports/report.html."""
+    return "../" + rel
+
+
+def _png(root: Path, rel: str, used: set[str], figs: dict[str, bytes], key: str) -> bytes | None:
+    path = root / rel
+    if not path.is_file():
+        return None
+    used.add(rel)
+    data = path.read_bytes()
+    figs[key] = data
+    return data
+
+
+# ------------------------------------------------------------------------------------------- paper 000 (coupled)
+
+def protocol_line(hyper_doc: dict[str, Any] | None) -> str:
+    """Which tuning protocol produced the tables (``hyperparameters.json``: ``tuning`` / ``tuned_on``)."""
+    if not hyper_doc:
+        return "Tuning protocol: unknown (no data/models/coupled/hyperparameters.json)."
+    mode = hyper_doc.get("tuning", "split")
+    block = hyper_doc.get("tuned_on", "tuning" if mode == "split" else "train_test")
+    rows = hyper_doc.get("n_tuning_rows")
+    where = f"on the {block} block" + (f" ({rows} rows)" if rows is not None else "")
+    if mode == "nested":
+        return (f"Tuning protocol: nested (coupled.tuning: nested, the default). Table II was searched {where}; in "
+                "the cross-validation each fold searched its own training blocks again, so no test block chose the "
+                "hyperparameters it is scored with. This is not the papers' protocol.")
+    return (f"Tuning protocol: split (coupled.tuning: split, the papers' protocol). Hyperparameters were searched "
+            f"once {where} and kept fixed for the cross-validation and the final model.")
+
+
+def _named(values: dict[str, Any], inputs: Sequence[str]) -> dict[str, Any]:
+    """WDSE's ``gammas`` list as one ``gamma_<input>`` entry per input (when the lengths agree)."""
+    out = {k: v for k, v in values.items() if k != "gammas"}
+    gammas = values.get("gammas")
+    if isinstance(gammas, list) and len(gammas) == len(inputs):
+        out.update({f"gamma_{name}": g for name, g in zip(inputs, gammas, strict=True)})
+    elif gammas is not None:
+        out["gammas"] = gammas
+    return out
+
+
+def _table2(doc: dict[str, Any], outputs: Sequence[str], inputs: Sequence[str]) -> str:
+    rows = []
+    for model in sorted(doc, key=lambda m: (list(LABELS).index(m) if m in LABELS else 99, m)):
+        per_out = doc[model]
+        if not isinstance(per_out, dict):
+            continue
+        per_out = {o: _named(v, inputs) if isinstance(v, dict) else v for o, v in per_out.items()}
+        names = list(dict.fromkeys(k for out in outputs for k in (per_out.get(out) or {})))
+        for i, name in enumerate(names):
+            rows.append({"regressor": label(model) if i == 0 else "", "hyperparameter": name,
+                         **{OUTPUT_LABELS.get(o, o): (per_out.get(o) or {}).get(name) for o in outputs}})
+    return H.table(rows, caption="Table II — hyperparameters (paper 000): the SVRs' hyperparameters per output "
+                                 "(γ on standardized inputs; C and ε in the output's unit)")
+
+
+def _table3(doc: dict[str, Any], outputs: Sequence[str]) -> tuple[str, list[dict[str, Any]]]:
+    rows, failed = [], []
+    for model in sorted(doc, key=lambda m: (list(LABELS).index(m) if m in LABELS else 99, m)):
+        entry = doc[model]
+        if not isinstance(entry, dict):
+            continue
+        if "failed" in entry:
+            failed.append({"model": label(model), **(entry["failed"] if isinstance(entry["failed"], dict)
+                                                     else {"reason": entry["failed"]})})
+            continue
+        cv, final = entry.get("cv", {}), entry.get("final", {})
+        for i, out in enumerate(o for o in outputs if o in cv or o in final):
+            c, f = cv.get(out, {}), final.get(out, {})
+            rows.append({"model": label(model) if i == 0 else "", "output": OUTPUT_LABELS.get(out, out),
+                         "CV test R² (mean ± sd)": H.mean_sd(c.get("test_r2", {}).get("mean"),
+                                                             c.get("test_r2", {}).get("sd")),
+                         "CV test MAE (mean ± sd)": H.mean_sd(c.get("test_mae", {}).get("mean"),
+                                                              c.get("test_mae", {}).get("sd"), 4),
+                         "CV train R² (mean ± sd)": H.mean_sd(c.get("train_r2", {}).get("mean"),
+                                                              c.get("train_r2", {}).get("sd")),
+                         "final check R² (unseen trial)": f.get("r2"), "final check MAE": f.get("mae")})
+    html = H.table(rows, caption="Table III — cross-validation and final check (paper 000): blocked k-fold CV on "
+                                 "the train_test block (mean ± sd over folds), then the model fitted on all of it "
+                                 "scored on the unseen test trial(s)")
+    return html, failed
+
+
+def _best_per_output(doc: dict[str, Any], outputs: Sequence[str]) -> dict[str, tuple[str, float]]:
+    best: dict[str, tuple[str, float]] = {}
+    for out in outputs:
+        scores = {m: e["final"][out]["r2"] for m, e in doc.items()
+                  if isinstance(e, dict) and isinstance(e.get("final", {}).get(out, {}).get("r2"), (int, float))}
+        if scores:
+            model = max(scores, key=lambda m: (scores[m], m))
+            best[out] = (model, float(scores[model]))
+    return best
+
+
+def ranking_note(best: dict[str, tuple[str, float]], hyper_doc: dict[str, Any] | None) -> str:
+    """One sentence where the measured ranking contradicts paper 000 (an SVR, WDSE-SVR first, best on every
+    output), and why that happens on realistic data."""
+    contra = {out: model for out, (model, _) in best.items() if model not in SVRS}
+    if not contra:
+        return ""
+    which = ", ".join(f"{OUTPUT_LABELS.get(o, o)}: {label(m)}" for o, m in contra.items())
+    mode = (hyper_doc or {}).get("tuning", "split")
+    why = ("Under the papers' split protocol the SVRs' hyperparameters come from a short tuning block whose CV "
+           "does not rank them the way the whole training set needs them; coupled.tuning: nested (the default) "
+           "searches on the rows each model is fitted on." if mode == "split" else
+           "These tables come from nested tuning, which removes that cause (the SVRs are tuned on the rows they "
+           "are fitted on); what can remain is extrapolation: an explicit model's parametric structure carries "
+           "over to states of the unseen trial that a kernel model fitted on a few minutes of data has not seen.")
+    return (f"<p class='note'><b>Differs from paper 000:</b> there the SVRs (WDSE-SVR first) beat the explicit "
+            f"models; here an explicit model is best on the unseen trial for {H.esc(which)}. {H.esc(why)} "
+            "See docs/models.md, “On realistic data”.</p>")
+
+
+def coupled(root: Path, figs: dict[str, bytes]) -> Part:
+    part = Part()
+    used = part.used
+    hyper_doc = _read(root, f"{layout.MODELS}/coupled/hyperparameters.json", used)
+    t2 = _read(root, f"{COUPLED}/table2.json", used)
+    t3 = _read(root, f"{COUPLED}/table3.json", used)
+    timings = _read(root, f"{COUPLED}/timings.json", used)
+    if t2 is None and t3 is None and hyper_doc is None:
+        return part
+    outputs = list((hyper_doc or {}).get("outputs") or [])
+    if not outputs:
+        found = [o for e in (t3 or {}).values() if isinstance(e, dict) for o in e.get("final", {})]
+        outputs = list(dict.fromkeys(o for o in OUTPUT_LABELS if o in found)) or sorted(set(found))
+    part.protocol = protocol_line(hyper_doc)
+    parts = [f"<p class='box'>{H.esc(part.protocol)}</p>"]
+    if isinstance(t2, dict) and t2:
+        parts.append(_table2(t2, outputs, list((hyper_doc or {}).get("inputs") or [])))
+    used.add(f"{COUPLED}/table2.md")
+    failed: list[dict[str, Any]] = []
+    if isinstance(t3, dict):
+        html, failed = _table3(t3, outputs)
+        parts.append(html)
+        best = _best_per_output(t3, outputs)
+        parts.append(ranking_note(best, hyper_doc))
+        part.headline = [{"output": OUTPUT_LABELS.get(o, o), "best model": label(m),
+                          "R² on the unseen trial": r2} for o, (m, r2) in best.items()]
+    used.add(f"{COUPLED}/table3.md")
+    if failed:
+        part.failed = [{"study": "coupled", **f} for f in failed]
+        parts.append("<p class='warn'>Failed, not in Table III (see Quarantine and failures).</p>")
+    png = _png(root, f"{COUPLED}/fold_test_r2.png", used, figs, "coupled_fold_test_r2.png")
+    if png:
+        parts.append(H.image(png, "fold test R² per model", "Fig. 4 — test R² per CV fold (paper 000): one box per "
+                                                               "model and output; higher is better"))
+    if isinstance(timings, dict) and timings:
+        rows = []
+        for model, t in timings.items():
+            fits = [v for v in (t or {}).get("fit_time_s", []) if isinstance(v, (int, float))]
+            if fits:
+                rows.append({"model": label(model), "folds": len(fits), "mean fit time [s]": sum(fits) / len(fits),
+                             "longest fit [s]": max(fits)})
+        parts.append(H.table(rows, caption="Fit time per CV fold (wall clock on this machine)"))
+    rels = [f"{layout.MODELS}/coupled/hyperparameters.json"] + [
+        f"{COUPLED}/{n}" for n in ("table2.json", "table3.json", "fold_scores.json", "search_trace.json",
+                                   "metrics.json", "timings.json")]
+    used.update(r for r in rels if (root / r).is_file())
+    parts.append(H.links([(_href(r), Path(r).name) for r in rels if (root / r).is_file()]))
+    part.html = "".join(parts)
+    return part
+
+
+# --------------------------------------------------------------------------------------- paper 001 (decoupled)
+
+def decoupled(root: Path, figs: dict[str, bytes]) -> Part:
+    part = Part()
+    used = part.used
+    doc = _read(root, f"{DECOUPLED}/metrics.json", used)
+    timings = _read(root, f"{DECOUPLED}/timings.json", used) or {}
+    results = (doc or {}).get("results") if isinstance(doc, dict) else None
+    if not isinstance(results, dict):
+        return Part()
+    rows, failed, curves = [], [], {}
+    for dof in sorted(results, key=_dof_key):
+        per_model = results[dof]
+        unit = DAMPING_UNIT.get(dof, "")
+        for model in sorted(per_model, key=lambda m: (DAMPING_ORDER.index(m) if m in DAMPING_ORDER else 9, m)):
+            r = per_model[model]
+            if not isinstance(r, dict) or "failed" in r:
+                failed.append({"DOF": dof, "model": model, "reason": (r or {}).get("failed") if isinstance(r, dict)
+                               else r})
+                continue
+            cv = r.get("cv", {})
+            learned = r.get("learned") or {}
+            params = r.get("best_params") or ({"kernel": learned["kernel"]} if "kernel" in learned else {})
+            t = timings.get(f"{dof}/{model}", {}) if isinstance(timings, dict) else {}
+            rows.append({"DOF": dof, "model": model, "MAE unit": unit, "best hyperparameters": params or "—",
+                         "search MAE": r.get("search_mae"),
+                         "CV test MAE (mean ± sd)": H.mean_sd(cv.get("test_mae_mean"), cv.get("test_mae_sd")),
+                         "CV test R² (mean ± sd)": H.mean_sd(cv.get("test_r2_mean"), cv.get("test_r2_sd")),
+                         "CV train MAE": cv.get("train_mae_mean"),
+                         "fit time [ms]": 1e3 * t["fit_time_s"] if isinstance(t.get("fit_time_s"), float) else None})
+            if isinstance(r.get("learning_curve"), dict):
+                curves.setdefault(dof, {})[model] = r["learning_curve"]
+            if model != "ls" and isinstance(cv.get("test_mae_mean"), (int, float)):
+                ls = per_model.get("ls", {}).get("cv", {}).get("test_mae_mean") if isinstance(
+                    per_model.get("ls"), dict) else None
+                if isinstance(ls, (int, float)):
+                    part.headline.append({"dof": dof, "model": model, "mae": cv["test_mae_mean"], "ls": ls,
+                                          "unit": unit})
+    parts = [H.table(rows, caption="Table I — the damping study (paper 001): per DOF, each model's search result "
+                                   "and its blocked-CV scores on the train_test rows; MAE of the damping d_i(ν_i)")]
+    if failed:
+        part.failed = [{"study": "decoupled", "model": f"{f['DOF']}/{f['model']}", "reason": f["reason"]}
+                       for f in failed]
+        parts.append("<p class='warn'>Failed, not in Table I (see Quarantine and failures).</p>")
+    png = figures.learning_curves(curves, DAMPING_UNIT)
+    if png:
+        figs["decoupled_learning_curves.png"] = png
+        parts.append(H.image(png, "learning curves", "Fig. 2 — learning curves (paper 001): validation (solid) and "
+                                                     "training (dashed) MAE of the damping vs training samples"))
+        used.add(f"{DECOUPLED}/learning_curves.png")  # the report draws it again, with units
+    else:
+        data = _png(root, f"{DECOUPLED}/learning_curves.png", used, figs, "decoupled_learning_curves.png")
+        if data:
+            parts.append(H.image(data, "learning curves", "Fig. 2 — learning curves (paper 001)"))
+    data = _png(root, f"{DECOUPLED}/damping.png", used, figs, "decoupled_damping.png")
+    if data:
+        parts.append(H.image(data, "damping curves", "Fig. 3 — damping curves (paper 001): each model's d_i(ν_i) "
+                                                     "over the measured range [N or N·m vs m/s or rad/s], GP with "
+                                                     "its 2σ band, the training data in grey"))
+    data = _png(root, f"{DECOUPLED}/timings.png", used, figs, "decoupled_timings.png")
+    if data:
+        parts.append(H.image(data, "timings", "Timings (paper 001): fit and predict time per CV fold [s], log scale"))
+    rels = [f"{DECOUPLED}/{n}" for n in ("metrics.json", "curves.json", "timings.json", "table.md")]
+    used.update(r for r in rels if (root / r).is_file())
+    parts.append(H.links([(_href(r), Path(r).name) for r in rels if (root / r).is_file()]))
+    part.html = "".join(parts)
+    return part
+
+
+# ------------------------------------------------------------------------------------------------- free runs
+
+def _free_run_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for run in runs:
+        metrics = run.get("metrics") or {}
+        row: dict[str, Any] = {"model": run.get("model"), "status": run.get("status"),
+                               "diverged at [s]": run.get("diverged_at_s")}
+        for dof in sorted(metrics, key=_dof_key):
+            m, unit = metrics[dof], VELOCITY_UNIT.get(dof, "")
+            row[f"{dof} R²"] = (m or {}).get("r2")
+            row[f"{dof} MAE [{unit}]"] = (m or {}).get("mae")
+        cover = run.get("band_coverage")
+        row["2σ band coverage"] = ("; ".join(f"{d}: {cover[d]:.0%}" for d in sorted(cover, key=_dof_key)
+                                             if isinstance(cover[d], float))
+                                   if isinstance(cover, dict) else "—")
+        rows.append(row)
+    return rows
+
+
+def _horizon_rows(doc: dict[str, Any]) -> list[dict[str, Any]]:
+    rows = []
+    for model, per_h in doc.items():
+        if not isinstance(per_h, dict):
+            continue
+        for h in sorted(per_h, key=lambda k: float(k) if k.replace(".", "", 1).isdigit() else 0.0):
+            e = per_h[h] or {}
+            row: dict[str, Any] = {"model": model, "horizon [s]": h, "windows": e.get("n_windows"),
+                                   "diverged": e.get("n_diverged")}
+            for dof, v in (e.get("mae_end") or {}).items():
+                row[f"{dof} MAE at end [{VELOCITY_UNIT.get(dof, '')}]"] = v
+            rows.append(row)
+    return rows
+
+
+def _bridging_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    hold = {r.get("window_s"): r.get("mean_error_m") for r in rows if r.get("model") == "hold_last"}
+    out = []
+    for r in rows:
+        base = hold.get(r.get("window_s"))
+        mean = r.get("mean_error_m")
+        ratio = mean / base if isinstance(mean, (int, float)) and isinstance(base, (int, float)) and base else None
+        out.append({"outage [s]": r.get("window_s"), "model": r.get("model"), "windows": r.get("n_windows"),
+                    "diverged": r.get("n_diverged"), "mean error [m]": mean, "median [m]": r.get("median_error_m"),
+                    "max [m]": r.get("max_error_m"), "distance travelled [m]": r.get("mean_distance_m"),
+                    "vs hold-last": None if ratio is None else f"{ratio:.2f}×"})
+    return out
+
+
+def simulation(root: Path, figs: dict[str, bytes]) -> Part:
+    part = Part()
+    used = part.used
+    base = root / layout.SIMULATION
+    if not base.is_dir():
+        return part
+    parts = []
+    for trial_dir in sorted(p for p in base.iterdir() if p.is_dir() and (p / "free_run.json").is_file()):
+        trial = trial_dir.name
+        rel = f"{layout.SIMULATION}/{trial}"
+        runs = _read(root, f"{rel}/free_run.json", used)
+        parts.append(f"<h3>{H.esc(trial)} (unseen trial)</h3>")
+        if isinstance(runs, list):
+            parts.append(H.table(_free_run_rows([r for r in runs if isinstance(r, dict)]),
+                                 caption=f"Free runs on {trial}: each model rolled out from the measured initial "
+                                         "velocity over the whole trial; R² and MAE of the velocity; coverage: "
+                                         "share of measured samples inside the model's 2σ band"))
+        banded = [r.get("model") for r in runs or [] if isinstance(r, dict) and r.get("band_coverage")]
+        data = _png(root, f"{rel}/free_run.png", used, figs, f"simulation_{trial}_free_run.png")
+        if data:
+            band = (f"the shaded band is the 2σ band of {', '.join(map(str, banded))} (posterior samples)"
+                    if banded else "no model of this run has a band")
+            parts.append(H.image(data, f"free runs of {trial}", f"Fig. 4 — free runs (paper 001) on {trial}: "
+                                                                f"measured (black) vs predicted velocity "
+                                                                f"[m/s, rad/s] over time [s]; {band}; × marks "
+                                                                "where a model diverged"))
+        horizons = _read(root, f"{rel}/horizons.json", used)
+        if isinstance(horizons, dict) and horizons:
+            parts.append(H.table(_horizon_rows(horizons), caption="Rollouts from every window start over fixed "
+                                                                 "horizons: velocity MAE at the horizon's end"))
+        bridging = _read(root, f"{rel}/bridging.json", used)
+        used.add(f"{rel}/bridging.md")
+        if isinstance(bridging, list) and bridging:
+            rows = _bridging_rows([r for r in bridging if isinstance(r, dict)])
+            parts.append(H.table(rows, caption="DVL-outage bridging: dead reckoning with each damping model's "
+                                               "velocity vs holding the last DVL velocity; position error at "
+                                               "the end of the outage"))
+            for r in rows:
+                if r["model"] != "hold_last" and isinstance(r["mean error [m]"], (int, float)):
+                    part.headline.append({"trial": trial, **r})
+        data = _png(root, f"{rel}/bridging.png", used, figs, f"simulation_{trial}_bridging.png")
+        if data:
+            parts.append(H.image(data, "bridging error", "Bridging: mean position error at the end of the outage "
+                                                         "[m, log scale] vs outage length [s]"))
+        rels = [f"{rel}/{n}" for n in ("free_run.json", "horizons.json", "bridging.json")]
+        parts.append(H.links([(_href(r), Path(r).name) for r in rels if (root / r).is_file()]))
+    if (base / "metrics.json").is_file():
+        used.add(f"{layout.SIMULATION}/metrics.json")
+        parts.append(H.links([(_href(f"{layout.SIMULATION}/metrics.json"), "metrics.json")]))
+    part.html = "".join(parts)
+    return part
+
+
+# -------------------------------------------------------------------------------------------------- headline
+
+def _dof_key(dof: str) -> tuple[int, str]:
+    return ("uvwpqr".find(dof) if len(dof) == 1 and dof in "uvwpqr" else 9, dof)
+
+
+def headline(coupled_part: Part, decoupled_part: Part, sim_part: Part, quarantined: int, failed: int,
+             protocol: str = "") -> str:
+    """The box at the top: best model per output, damping MAE vs LS, bridging vs hold-last (among the models that
+    did not diverge), what was left out, and the tuning protocol behind Tables II and III."""
+    parts = [f"<p>{H.esc(protocol)}</p>"] if protocol else []
+    if coupled_part.headline:
+        parts.append(H.table(coupled_part.headline, caption="Best coupled model per output: R² on the unseen "
+                                                            "trial (Table III's final check)"))
+    if decoupled_part.headline:
+        best: dict[str, dict[str, Any]] = {}
+        for h in decoupled_part.headline:
+            if h["dof"] not in best or h["mae"] < best[h["dof"]]["mae"]:
+                best[h["dof"]] = h
+        parts.append(H.table([{"DOF": d, "best damping model": h["model"],
+                               "CV test MAE": f"{h['mae']:.4g} {h['unit']}",
+                               "LS (reference)": f"{h['ls']:.4g} {h['unit']}",
+                               "vs LS": f"{h['mae'] / h['ls']:.2f}×" if h["ls"] else "—"}
+                              for d, h in sorted(best.items(), key=lambda kv: _dof_key(kv[0]))],
+                             caption="Damping models (paper 001): the best CV test MAE per DOF against least squares"))
+    if sim_part.headline:
+        best_b: dict[tuple[str, Any], dict[str, Any]] = {}
+        for h in sim_part.headline:
+            if h.get("diverged"):
+                continue  # its mean is over the windows it survived
+            key = (h["trial"], h["outage [s]"])
+            if key not in best_b or h["mean error [m]"] < best_b[key]["mean error [m]"]:
+                best_b[key] = h
+        parts.append(H.table([{"trial": t, "outage [s]": w, "best model": h["model"],
+                               "mean error [m]": h["mean error [m]"], "vs hold-last": h["vs hold-last"]}
+                              for (t, w), h in best_b.items()],
+                             caption="DVL-outage bridging: the best model's position error against holding the "
+                                     "last velocity"))
+    left = (f"{quarantined} input(s) quarantined, {failed} model(s) failed"
+            if quarantined or failed else "Nothing was quarantined and no model failed.")
+    cls = "warn" if quarantined or failed else "muted"
+    parts.append(f"<p class='{cls}'>{H.esc(left)} (see <a href='#quarantine'>Quarantine and failures</a>).</p>")
+    return "<div class='box'>" + "".join(parts) + "</div>"
