@@ -17,10 +17,13 @@ Two pure steps (the differentiate stage calls both):
      zero within noise. The derive stage then sees zeros for those DOFs (see :mod:`pipeline.derive`).
    - **DVL**: v_ref = R v_dvl - omega x r_dvl, with R the mounting rotation (``rotation_rpy_deg``, ZYX:
      R = Rz(yaw) Ry(pitch) Rx(roll), DVL frame -> body) and r_dvl the DVL position in body axes.
-   - **Other velocity sources** (``sensors.velocity``): body-frame velocities as they are (R = I); earth-frame
+   - **Other velocity sources** (``sensors.velocity``): body-frame velocities as they are (R = I; ``axes: flu``,
+     ROS axes such as an Odometry twist in its child frame: R = diag(1, -1, -1)); earth-frame
      velocities (towing-tank x/y rates, GNSS) rotated at each sample by the logged attitude, v_body = R_nb^T v_ned
      (ENU axes converted to NED first), then the same lever-arm term. Two signals make a planar source: u, v
      only (w = 0, not measured), and earth x/y rates are rotated by the heading alone (:func:`sensor_to_body`).
+   - **Positions** (``sensors.position``): differentiated per earth axis by the white-jerk smoother first
+     (:mod:`pipeline.estimation.position`), their rates then rotated as earth-frame velocities.
 
 2. :func:`differentiate` (that table + DifferentiateParams) -> adds ``u_smooth_mps`` ... and
    ``udot_mps2`` ... ``rdot_radps2``, per segment, and drops the samples near each segment's edges.
@@ -154,7 +157,11 @@ def body_kinematics(synced: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
             omega[:, j] = sign * _column(synced, name, f"sensors.rates.{'pqr'[j]}")
 
     source = sensors.linear_velocity()
-    v_sensor = np.stack([_column(synced, s, f"{source.key}.velocity") for s in source.velocity], axis=1)
+    if source.differentiated and not all(c in synced.columns for c in source.velocity_columns):
+        raise SchemaError(f"{source.key}: the positions' rates {list(source.velocity_columns)} are not in the table; "
+                          "positions are differentiated first (pipeline.kinematics.kinematics_report does it)",
+                          field=source.velocity_columns[0])
+    v_sensor = np.stack([_column(synced, s, f"{source.key}.velocity") for s in source.velocity_columns], axis=1)
     v_ref = velocity_to_body(v_sensor, source, roll, pitch, unwrap_finite(yaw), omega)
 
     for j, name in enumerate(VELOCITY[:3]):
@@ -172,6 +179,17 @@ def body_kinematics(synced: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+def mounting_matrix(source: LinearVelocity) -> np.ndarray:
+    """The constant rotation (3, 3) of a body-frame source into body FRD axes: the mounting R (``rotation_rpy_deg``,
+    ZYX; a DVL's), times the axes map F = diag(1, -1, -1) for ROS FLU axes (``axes: flu``, an Odometry twist)."""
+    R = rpy_matrix(*np.deg2rad(source.rotation_rpy_deg))
+    if source.axes == "flu":
+        return R @ _FRD_TO_FLU  # F is its own inverse: FLU -> FRD
+    if source.axes != "frd":
+        raise ValueError(f"unknown body axes {source.axes!r}; expected frd or flu")
+    return R
+
+
 def sensor_to_body(source: LinearVelocity, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Per sample (n, 3, 3), the rotation taking the velocity sensor's vector (padded with 0 to three components
     when planar) into body FRD axes.
@@ -183,7 +201,7 @@ def sensor_to_body(source: LinearVelocity, roll: np.ndarray, pitch: np.ndarray, 
     """
     n = np.shape(yaw)[0]
     if source.frame == "body":
-        return np.broadcast_to(rpy_matrix(*np.deg2rad(source.rotation_rpy_deg)), (n, 3, 3))
+        return np.broadcast_to(mounting_matrix(source), (n, 3, 3))
     if source.frame != "earth":
         raise ValueError(f"unknown velocity frame {source.frame!r}; expected body or earth")
     planar = len(source.velocity) == 2
@@ -205,7 +223,7 @@ def velocity_to_body(v_sensor: np.ndarray, source: LinearVelocity, roll: np.ndar
         v = np.column_stack([v, np.zeros(len(v))])
     r = np.asarray(source.position_m, dtype=float)
     if source.frame == "body":  # one constant rotation (the DVL's mounting): the plain product
-        v_ref = v @ rpy_matrix(*np.deg2rad(source.rotation_rpy_deg)).T - np.cross(omega, r)
+        v_ref = v @ mounting_matrix(source).T - np.cross(omega, r)
     else:
         v_ref = np.einsum("nij,nj->ni", sensor_to_body(source, roll, pitch, yaw), v) - np.cross(omega, r)
     if len(source.velocity) == 2:
@@ -401,8 +419,17 @@ def kinematics_report(synced: pd.DataFrame, vehicle: Vehicle, params: Differenti
         from pipeline.estimation.motion import estimate_motion
 
         return estimate_motion(synced, vehicle, params, streams)
-    body = body_kinematics(synced, vehicle)
     auto = (params.sigma_s if params.method == "gaussian" else params.savgol_window_s) == "auto"
+    source = vehicle.sensors.linear_velocity()
+    if source.differentiated:  # positions: earth velocities from the white-jerk smoother, then as any source
+        from pipeline.estimation.position import smooth_positions, with_position_rates
+
+        if auto:
+            raise SchemaError(f"{params.method}: width 'auto' is not available for {source.key} (the positions "
+                              "are differentiated by the smoother first); give the width, or method: kalman",
+                              field="sigma_s")
+        synced = with_position_rates(synced, source, smooth_positions(synced, source, params, streams, {}))
+    body = body_kinematics(synced, vehicle)
     widths, report = auto_widths(body, synced, vehicle, params, streams) if auto else (None, {
         "method": params.method, "widths_s": _widths(params, None), "noise": {}})
     out = differentiate(body, params, widths)

@@ -175,6 +175,37 @@ class VelocitySource(Frozen):
         "Body-axes position of the point whose velocity is measured (GNSS antenna); the reference point's velocity "
         "is v - omega x r."))
     valid: str | None = Field(None, description="Validity flag signal (nonzero = valid); None: always valid.")
+    axes: Literal["frd", "flu"] = Field("frd", description=(
+        "body frame only: frd (x forward, y starboard, z down: the project's body axes) or flu (x forward, y left, "
+        "z up: ROS REP-103, e.g. the twist of a nav_msgs/Odometry in its child frame), converted to FRD: "
+        "u = x, v = -y, w = -z."))
+
+    @model_validator(mode="after")
+    def _axes_in_body_frame(self) -> VelocitySource:
+        if self.frame == "earth" and self.axes != "frd":
+            raise ValueError("`axes` names body axes (frame: body); for earth-frame velocities give `earth_axes`")
+        return self
+
+
+class PositionSource(Frozen):
+    """Positions in a local earth frame (motion capture, GNSS in local coordinates), differentiated into velocities:
+    per earth axis, the white-jerk smoother of the kalman method (positions at their own stamps, noise estimated
+    from the data) gives the earth-frame velocity and acceleration; they are rotated into body axes by the logged
+    attitude (the heading alone when planar), as an earth-frame velocity source is.
+    """
+
+    signals: list[str] = Field(min_length=2, max_length=3, description=(
+        "Signals of the position components in m: 2 (planar: x, y) or 3 (with z)."))
+    earth_axes: Literal["ned", "enu"] = Field("ned", description=(
+        "ned (x north, y east, z down) or enu (x east, y north, z up; ROS), converted to NED explicitly."))
+    position_m: Vec3 = Field((0.0, 0.0, 0.0), description=(
+        "Body-axes position of the tracked point (marker set origin, GNSS antenna) relative to the reference point."))
+    valid: str | None = Field(None, description="Validity flag signal (nonzero = valid); None: always valid.")
+
+
+def position_rate_column(signal: str) -> str:
+    """The column holding the smoothed time derivative (m/s) of the position signal ``signal``."""
+    return f"{signal}_rate_mps"
 
 
 @dataclass(frozen=True)
@@ -189,26 +220,37 @@ class LinearVelocity:
     position_m: Vec3
     rotation_rpy_deg: Vec3        # constant sensor -> body rotation (DVL mounting); zero otherwise
     earth_axes: str = "ned"
+    axes: str = "frd"             # body frame: frd, or flu (ROS), converted to FRD
+    differentiated: bool = False  # sensors.position: ``velocity`` holds positions, differentiated by the smoother
 
     @property
     def dofs(self) -> tuple[str, ...]:
         """The body DOFs it measures: u, v (planar) or u, v, w."""
         return ("u", "v", "w")[: len(self.velocity)]
 
+    @property
+    def velocity_columns(self) -> tuple[str, ...]:
+        """The columns holding the velocity components: the signals, or, for positions, their smoothed rates
+        (:func:`position_rate_column`)."""
+        return tuple(position_rate_column(s) for s in self.velocity) if self.differentiated else self.velocity
+
 
 class Sensors(Frozen):
     dvl: DvlMount | None = Field(None, description="A DVL (body-frame velocity after a constant mounting rotation).")
     velocity: VelocitySource | None = Field(None, description=(
-        "Velocities from another source: body or earth frame (give this or `dvl`)."))
+        "Velocities from another source: body or earth frame (give one of `dvl`, `velocity`, `position`)."))
+    position: PositionSource | None = Field(None, description=(
+        "Positions in a local earth frame (motion capture, GNSS), differentiated into velocities."))
     attitude: AttitudeSource
     rates: RateSource = RateSource()
     depth: str | None = None
 
     @model_validator(mode="after")
     def _one_velocity_source(self) -> Sensors:
-        if (self.dvl is None) == (self.velocity is None):
-            raise ValueError("give exactly one velocity source: `dvl` (a DVL with its mounting) or `velocity` "
-                             "(frame: body or earth, with its signals)")
+        if sum(x is not None for x in (self.dvl, self.velocity, self.position)) != 1:
+            raise ValueError("give exactly one velocity source: `dvl` (a DVL with its mounting), `velocity` "
+                             "(frame: body or earth, with its signals) or `position` (earth-frame positions, "
+                             "differentiated)")
         return self
 
     def linear_velocity(self) -> LinearVelocity:
@@ -216,10 +258,14 @@ class Sensors(Frozen):
             d = self.dvl
             return LinearVelocity("sensors.dvl", "body", tuple(d.velocity), d.valid, d.zero_is_invalid,
                                   d.position_m, d.rotation_rpy_deg)
+        if self.position is not None:
+            x = self.position
+            return LinearVelocity("sensors.position", "earth", tuple(x.signals), x.valid, False, x.position_m,
+                                  (0.0, 0.0, 0.0), x.earth_axes, differentiated=True)
         v = self.velocity
         assert v is not None
         return LinearVelocity("sensors.velocity", v.frame, tuple(v.signals), v.valid, False, v.position_m,
-                              (0.0, 0.0, 0.0), v.earth_axes)
+                              (0.0, 0.0, 0.0), v.earth_axes, axes=v.axes)
 
 
 class Vehicle(Frozen):

@@ -10,6 +10,8 @@ velocity and rate sensor at its own stamps, each with its own noise.
   so the variance sum_j S_ij^2 sigma_j^2 varies per sample as the vehicle turns. One measurement of u, v (and w,
   unless the source is planar) each. Each configured rate signal (FOG, gyro) at its own stamps, times its sign.
   Without native streams (a table built in memory), the synced grid's valid samples stand in.
+- **Positions** (``sensors.position``): differentiated per earth axis by the same smoother, then rotated into
+  body axes with their accelerations and SDs (:mod:`pipeline.estimation.position`); not smoothed again.
 - **Noise.** Each signal's SD and outlier rate estimated from the data (:mod:`pipeline.estimation.noise`),
   unless ``noise_sd`` in params gives it.
 - **Smoother.** Per DOF, :func:`pipeline.estimation.smoother.smooth`: white-jerk process, process noise by
@@ -91,9 +93,13 @@ def _velocity_measurements(synced: pd.DataFrame, body: pd.DataFrame, streams, ve
                            params: DifferentiateParams, noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
     """The linear-velocity sensor's samples at their own stamps, in body axes at the reference point: one
     measurement of each DOF it measures (u, v; and w unless planar), with its variance per sample."""
-    from pipeline.kinematics import rpy_matrix, sensor_to_body, velocity_to_body
+    from pipeline.kinematics import mounting_matrix, sensor_to_body, velocity_to_body
 
     source = vehicle.sensors.linear_velocity()
+    if source.differentiated:
+        raise SchemaError(f"{source.key}: positions have no velocity measurements of their own (they are "
+                          "differentiated by pipeline.estimation.position); a width 'auto' needs them",
+                          field=source.key)
     native = _native(streams, source.velocity[0])
     if native is not None and all(s in native[1] for s in source.velocity):
         t, cols = native
@@ -125,7 +131,7 @@ def _velocity_measurements(synced: pd.DataFrame, body: pd.DataFrame, streams, ve
         roll = pitch = yaw = np.zeros(t.size)
     v_ref = velocity_to_body(v, source, roll, pitch, yaw, omega)
     if source.frame == "body":
-        R = rpy_matrix(*np.deg2rad(source.rotation_rpy_deg))
+        R = mounting_matrix(source)
         var = (R**2) @ (sd**2)  # constant: one value per DOF, as the DVL always had
         return {d: Measurements(t, v_ref[:, j], var[j]) for j, d in enumerate(source.dofs)}
     var_n = (sensor_to_body(source, roll, pitch, yaw) ** 2) @ (sd**2)  # per sample: the rotation changes
@@ -186,6 +192,12 @@ def _other_required_valid(synced: pd.DataFrame, vehicle: Vehicle) -> np.ndarray:
     return ok
 
 
+def _process_noise_source(dof: str, res: Smoothed, key: str, params: DifferentiateParams) -> str:
+    if np.isnan(res.q):  # from positions: each earth axis has its own
+        return f"{key} (positions smoothed per earth axis)"
+    return "config" if dof in params.process_noise else "maximum likelihood"
+
+
 def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
                     streams: Mapping[str, pd.DataFrame | pa.Table] | None = None
                     ) -> tuple[pd.DataFrame, dict[str, Any]]:
@@ -193,6 +205,13 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     from pipeline.kinematics import ACCELERATION, SMOOTH, VELOCITY, body_kinematics
     from pipeline.sync import segments
 
+    source = vehicle.sensors.linear_velocity()
+    noise: dict[str, NoiseEstimate] = {}
+    if source.differentiated:  # positions: earth velocity and acceleration per axis from the smoother
+        from pipeline.estimation.position import body_motion_from_positions, smooth_positions, with_position_rates
+
+        positions = smooth_positions(synced, source, params, streams, noise)
+        synced = with_position_rates(synced, source, positions)
     body = body_kinematics(synced, vehicle)
     for dof, col in zip(DOFS, VELOCITY, strict=True):
         body[meas_column(dof)] = body[col]
@@ -202,8 +221,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         raise SchemaError("the synced grid must be uniform with at least 3 samples", field="t_ns")
     h_s = float(steps[0]) / 1e9
 
-    noise: dict[str, NoiseEstimate] = {}
-    meas = _velocity_measurements(synced, body, streams, vehicle, params, noise)
+    meas = {} if source.differentiated else _velocity_measurements(synced, body, streams, vehicle, params, noise)
     meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
 
     results: dict[str, Smoothed] = {}
@@ -215,6 +233,14 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         except ValueError as err:
             raise SyncError(f"cannot smooth {dof}: {err}", field=dof) from err
     smoothed_variances(list(results.values()))
+    if source.differentiated:
+        omega, omega_dot = np.zeros((len(grid), 3)), np.zeros((len(grid), 3))
+        for j, dof in enumerate("pqr"):
+            if dof in results:
+                omega[:, j], omega_dot[:, j] = results[dof].x, results[dof].xdot
+        results.update(body_motion_from_positions(
+            positions, source, body["roll_rad"].to_numpy(dtype=float), body["pitch_rad"].to_numpy(dtype=float),
+            body["yaw_rad"].to_numpy(dtype=float), omega, omega_dot))
 
     usable = _other_required_valid(synced, vehicle)
     for dof, res in results.items():
@@ -249,8 +275,9 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         "synced_segment_fraction": float(np.mean(synced["segment"].to_numpy() >= 0)),
         "segments": int(seg.max()) + 1,
         "noise": {name: est.as_dict() for name, est in sorted(noise.items())},
-        "dofs": {dof: {"process_noise": res.q, "process_noise_source": "config" if dof in params.process_noise
-                       else "maximum likelihood", "measurements": res.used + res.gated, "gated": res.gated,
+        "dofs": {dof: {"process_noise": None if np.isnan(res.q) else res.q,
+                       "process_noise_source": _process_noise_source(dof, res, source.key, params),
+                       "measurements": res.used + res.gated, "gated": res.gated,
                        "gated_fraction": res.gated / max(res.used + res.gated, 1),
                        "median_velocity_sd": float(np.median(res.x_sd)),
                        "median_acceleration_sd": float(np.median(res.xdot_sd))}

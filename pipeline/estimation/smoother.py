@@ -72,7 +72,7 @@ class Measurements:
 
 @dataclass
 class Smoothed:
-    """The smoother's output on the grid: x, x' (and their SDs, filled by :func:`smoothed_variances`), the
+    """The smoother's output on the grid: x, x', x'' (and their SDs, filled by :func:`smoothed_variances`), the
     process noise used, the log-likelihood and which measurements the gate rejected."""
 
     x: np.ndarray
@@ -86,6 +86,8 @@ class Smoothed:
     # kept for the variance recursion: measurement information per step (N, 3, 3) and the process precision
     info: np.ndarray | None = None
     h_s: float = 0.0
+    xddot: np.ndarray | None = None
+    xddot_sd: np.ndarray | None = None
 
 
 class _Problem:
@@ -244,12 +246,13 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
         z, m2ll, info = problem.solve(q_fit)
     h = problem.h_s
     return Smoothed(x=z[:, 0], xdot=z[:, 1] / h, q=q_fit, loglik=-0.5 * m2ll, used=int(problem.keep.sum()),
-                    gated=int((~problem.keep).sum()), info=info, h_s=h)
+                    gated=int((~problem.keep).sum()), info=info, h_s=h, xddot=z[:, 2] / h**2)
 
 
 def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_intervals: float = 40.0,
                        chunk_factor: float = 2.0) -> None:
-    """Fill ``x_sd`` and ``xdot_sd`` of smoother results on the same grid with the diagonal blocks of A^-1.
+    """Fill ``x_sd``, ``xdot_sd`` and ``xddot_sd`` of smoother results on the same grid with the diagonal blocks
+    of A^-1.
 
     The block-tridiagonal recursion (forward S_k = D_k - L S_{k-1}^-1 L^T, backward
     Sigma_k = S_k^-1 + G_k^T Sigma_{k+1} G_k with G_k = L S_k^-1) runs, to keep the number of Python-level steps
@@ -309,16 +312,16 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
         si = _inv3_soa(S)
         sinv[:, :, k] = si
         gmat[:, :, k] = np.einsum("imb,mjb->ijb", Lb, si, optimize=False)  # G = L S^-1
-    var = np.empty((2, length, batch))
+    var = np.empty((3, length, batch))
     sigma = sinv[:, :, length - 1]
-    var[0, length - 1], var[1, length - 1] = sigma[0, 0], sigma[1, 1]
+    var[0, length - 1], var[1, length - 1], var[2, length - 1] = sigma[0, 0], sigma[1, 1], sigma[2, 2]
     for k in range(length - 2, -1, -1):  # Sigma_k = S_k^-1 + G_k^T Sigma_{k+1} G_k
         g = gmat[:, :, k]
         u = np.einsum("imb,mjb->ijb", sigma, g, optimize=False)
         sigma = sinv[:, :, k] + np.einsum("mib,mjb->ijb", g, u, optimize=False)
-        var[0, k], var[1, k] = sigma[0, 0], sigma[1, 1]
-    var = np.moveaxis(var.reshape(2, length, len(starts), dofs), (0, 1, 2), (3, 1, 0))  # (chunks, length, dofs, 2)
-    out = np.empty((n, dofs, 2))
+        var[0, k], var[1, k], var[2, k] = sigma[0, 0], sigma[1, 1], sigma[2, 2]
+    var = np.moveaxis(var.reshape(3, length, len(starts), dofs), (0, 1, 2), (3, 1, 0))  # (chunks, length, dofs, 3)
+    out = np.empty((n, dofs, 3))
     # each step from the chunk whose window centre is nearest (its burn-in on both sides)
     centre = starts + length / 2.0
     owner = np.searchsorted((centre[1:] + centre[:-1]) / 2.0, np.arange(n), side="right")
@@ -327,6 +330,7 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
     for j, res in enumerate(results):
         res.x_sd = np.sqrt(out[:, j, 0])
         res.xdot_sd = np.sqrt(out[:, j, 1]) / h
+        res.xddot_sd = np.sqrt(out[:, j, 2]) / h**2
 
 
 def _inv3_soa(S: np.ndarray) -> np.ndarray:
