@@ -10,8 +10,8 @@ Seeds: the synthetic trial of ``tests/io_helpers.py`` (a custom DVL type, an Imu
 (zstd, lz4, none, unchunked, no summary), ROS 1 (none, bz2, lz4, unindexed), ROS 2 (sqlite3, file-compressed
 zstd, MCAP storage) and CSV (plain, gzip). Each case applies one mutation, drawn from ``random.Random`` seeded
 with ``"{seed}:{format}:{index}"`` (so any case can be replayed alone): bit flips, a run of random bytes, a
-zeroed region, an inserted or duplicated region, truncation, a huge value written over a plausible length field,
-and for CSV a nasty number written over a value or a time stamp.
+zeroed region, an inserted or duplicated region, a whole record (MCAP, ROS 1) written twice, truncation, a huge
+value written over a plausible length field, and for CSV a nasty number written over a value or a time stamp.
 
 Each case is read (``open_log`` / ``open_text``, ``topics()``, ``read()`` of the test requests) in a forked child
 with an address-space limit (``RLIMIT_AS``: the parent's size + ``--mem-mib``) and a wall-clock timeout. Outcome:
@@ -102,6 +102,27 @@ def write_seed(fmt: str, where: Path) -> tuple[Path, Path]:
 
 
 # -- mutations -----------------------------------------------------------------------------------------------
+def records(data: bytes) -> list[tuple[int, int]]:
+    """(offset, length) of the top-level records of an MCAP file or a ROS 1 bag; [] for other data."""
+    out: list[tuple[int, int]] = []
+    if data.startswith(b"\x89MCAP0\r\n"):
+        pos = 8
+        while pos + 9 <= len(data) - 8:
+            length = int.from_bytes(data[pos + 1:pos + 9], "little")
+            out.append((pos, 9 + length))
+            pos += 9 + length
+    elif data.startswith(b"#ROSBAG V2.0\n"):
+        pos = 13
+        while pos + 4 <= len(data):
+            head = int.from_bytes(data[pos:pos + 4], "little")
+            if pos + 8 + head > len(data):
+                break
+            body = int.from_bytes(data[pos + 4 + head:pos + 8 + head], "little")
+            out.append((pos, 8 + head + body))
+            pos += 8 + head + body
+    return [(at, size) for at, size in out if at + size <= len(data)]
+
+
 def mutate(data: bytes, rng: random.Random, *, text: bool) -> tuple[bytes, str]:
     """One seeded mutation of ``data``: (new bytes, a short description)."""
     buf = bytearray(data)
@@ -109,8 +130,15 @@ def mutate(data: bytes, rng: random.Random, *, text: bool) -> tuple[bytes, str]:
     kinds = ["bitflip", "bitflip", "run", "zero", "truncate", "huge", "huge", "insert", "duplicate"]
     if text:
         kinds += ["number", "number", "number"]
+    recs = records(data)
+    if recs:
+        kinds += ["record"]
     kind = rng.choice(kinds)
     at = rng.randrange(n)
+    if kind == "record":  # one whole record written twice (a chunk, a chunk info, a message index ...)
+        at, size = rng.choice(recs)
+        return bytes(buf[:at + size]) + bytes(buf[at:at + size]) + bytes(buf[at + size:]), \
+            f"record of {size} B at {at} duplicated"
     if kind == "bitflip":
         spots = sorted(rng.randrange(n * 8) for _ in range(rng.randint(1, 4)))
         for bit in spots:
