@@ -21,7 +21,7 @@ from pipeline.kinematics import body_kinematics
 from pipeline.store import features_table
 from pipeline.sync import required_signals
 
-T200 = Path("/work/shared/fixtures/csv/bluerobotics_t200_performance_10-20V.csv")
+T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF = 9.80665
 
 

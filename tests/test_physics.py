@@ -10,7 +10,7 @@ from pipeline import physics
 from pipeline.config import Vehicle, parse
 from pipeline.errors import ConfigError
 
-T200 = Path("/work/shared/fixtures/csv/bluerobotics_t200_performance_10-20V.csv")
+T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF = 9.80665
 
 

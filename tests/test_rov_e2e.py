@@ -36,7 +36,7 @@ from stages import ingest as ingest_stage
 from stages import sync as sync_stage
 
 GUIDE = Path(__file__).resolve().parents[1] / "docs" / "user-guide.md"
-T200 = Path("/work/shared/fixtures/csv/bluerobotics_t200_performance_10-20V.csv")
+T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF_N = 9.80665
 
 # mavros_msgs/msg/OverrideRCIn.msg as mavros 2.x ships it
