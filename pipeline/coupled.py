@@ -34,6 +34,7 @@ from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhi
 from pipeline.models.graybox import GrayBox
 from pipeline.models.search import SVR_MODELS, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
+from pipeline.units import axis_label
 
 log = logging.getLogger(__name__)
 
@@ -419,8 +420,8 @@ def fold_boxplot(results: dict[str, Any], outputs: Sequence[str], target: Any) -
         ax.boxplot(data, whis=(0, 100))
         ax.set_xticks(range(1, len(models) + 1), [MODEL_LABELS.get(m, m) for m in models], rotation=35,
                       ha="right", fontsize=8)
-        ax.set_title(out)
-        ax.set_ylabel("fold test R²")
+        ax.set_title(axis_label(out))
+        ax.set_ylabel("fold test R² [-]")
         ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     with atomic_path(target) as tmp:

@@ -35,6 +35,7 @@ from pipeline.errors import ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
 from pipeline.simulate import DAMPING_COLUMNS, VELOCITY_COLUMNS
+from pipeline.units import axis_label
 
 log = logging.getLogger(__name__)
 
@@ -305,8 +306,8 @@ def plot_learning_curves(study: StudyResult, target: Path) -> Path:
             line, = ax.plot(lc["train_sizes"], lc["test_mae_mean"], "o-", label=f"{r.model} validation")
             ax.plot(lc["train_sizes"], lc["train_mae_mean"], "--", color=line.get_color(), label=f"{r.model} training")
         ax.set_title(f"DOF {dof}")
-        ax.set_xlabel("training samples")
-        ax.set_ylabel("MAE")
+        ax.set_xlabel("training samples [rows]")
+        ax.set_ylabel(f"MAE of {axis_label(dof_columns(dof)[1])}")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7, ncol=2)
     return _save(fig, target)
@@ -322,7 +323,7 @@ def plot_timings(timings: dict[str, Any], target: Path) -> Path:
     ax.bar(x + 0.2, [timings[k]["predict_time_s"] for k in keys], 0.4, label="predict")
     ax.set_xticks(x, keys, rotation=60, ha="right", fontsize=8)
     ax.set_yscale("log")
-    ax.set_ylabel("time per fold (s)")
+    ax.set_ylabel("time per fold [s]")
     ax.legend()
     return _save(fig, target)
 
@@ -343,11 +344,12 @@ def plot_damping(study: StudyResult, data: pd.DataFrame, target: Path,
             if r.model == "gp":
                 mean, std = r.estimator.predict(grid[:, None], return_std=True)
                 line, = ax.plot(grid, mean, label="gp")
-                ax.fill_between(grid, mean - 2 * std, mean + 2 * std, color=line.get_color(), alpha=0.25, lw=0)
+                ax.fill_between(grid, mean - 2 * std, mean + 2 * std, color=line.get_color(), alpha=0.25, lw=0,
+                                label="gp 2σ band")
             else:
                 ax.plot(grid, r.estimator.predict(grid[:, None]), label=r.model)
-        ax.set_xlabel(dof_columns(dof)[0])
-        ax.set_ylabel(dof_columns(dof)[1])
+        ax.set_xlabel(axis_label(dof_columns(dof)[0]))
+        ax.set_ylabel(axis_label(dof_columns(dof)[1]))
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)
     return _save(fig, target)

@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.units import axis_label
+
 log = logging.getLogger(__name__)
 
 DOFS = ("u", "v", "w", "p", "q", "r")
@@ -463,17 +465,19 @@ def plot_free_runs(runs: Sequence[FreeRun], target: Any, title: str = "") -> Any
             line, = ax.plot(run.t_s, run.predicted[:, j], lw=0.9,
                             label=f"{run.name}" + (f" (diverged at {run.diverged_at_s:.1f} s)"
                                                    if run.status == "diverged" else ""))
-            if run.band is not None:
-                ax.fill_between(run.t_s, run.band[0][:, j], run.band[1][:, j], color=line.get_color(), alpha=0.2,
-                                lw=0)
+            if run.band is not None:  # drawn with its edges, so that it shows among the other models' lines
+                ax.fill_between(run.t_s, run.band[0][:, j], run.band[1][:, j], color=line.get_color(), alpha=0.3,
+                                lw=0, label=f"{run.name} 2σ band")
+                for edge in run.band:
+                    ax.plot(run.t_s, edge[:, j], color=line.get_color(), lw=0.6, ls="--")
             if run.status == "diverged" and run.diverged_at_s is not None:
                 last = np.flatnonzero(np.isfinite(run.predicted[:, j]) & (run.t_s <= run.diverged_at_s))
                 if last.size:
                     ax.plot(run.t_s[last[-1]], run.predicted[last[-1], j], "x", ms=9, color=line.get_color())
-        ax.set_ylabel(VELOCITY_COLUMNS[d])
+        ax.set_ylabel(axis_label(VELOCITY_COLUMNS[d]))
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7, ncol=3, loc="upper right")
-    axes[-1, 0].set_xlabel("time (s)")
+    axes[-1, 0].set_xlabel("time [s]")
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -106,6 +106,22 @@ def suffix_of(name: str) -> str:
     raise ConfigError(f"signal name {name!r} must end with a unit suffix; known: {known}", field=name)
 
 
+_PRETTY = {"m/s^2": "m/s²", "rad/s^2": "rad/s²", "N*m": "N·m", "degC": "°C"}
+
+
+def axis_label(column: str) -> str:
+    """A figure axis label from a column name: ``udot_mps2`` -> ``u̇ [m/s²]``, ``d_u_N`` -> ``d_u [N]``,
+    ``r_radps`` -> ``r [rad/s]``. A name without a known unit suffix is returned unchanged."""
+    for suffix in sorted(SUFFIXES, key=len, reverse=True):
+        if column.endswith("_" + suffix) and len(column) > len(suffix) + 1:
+            name = column[: -len(suffix) - 1]
+            if len(name) > 3 and name.endswith("dot") and "_" not in name:
+                name = name[:-3] + "\u0307"  # combining dot above: u̇
+            unit = SUFFIXES[suffix][1]
+            return f"{name} [{_PRETTY.get(unit, unit)}]"
+    return column
+
+
 def conversion(signal: str, source_unit: str | None) -> Unit:
     """The affine map from ``source_unit`` to the unit named by ``signal``'s suffix.
 

@@ -139,3 +139,13 @@ def test_coupled_protocol_free_run(trial: pd.DataFrame) -> None:
     rpm = trial[["n1_rpm", "n2_rpm", "n3_rpm"]].to_numpy()
     run = free_run("coupled", CoupledDynamics(TruthAcceleration()), t_ns, nu, rpm, DOFS, segment=seg)
     assert run.status == "ok" and run.metrics["u"]["mae"] < 0.01
+
+
+def test_figure_axis_labels_name_the_unit() -> None:
+    """Every study figure labels its axes from the column's unit suffix (issue 16: "u [m/s]", not u_mps)."""
+    from pipeline.units import axis_label
+
+    assert axis_label("u_mps") == "u [m/s]" and axis_label("r_radps") == "r [rad/s]"
+    assert axis_label("udot_mps2") == "u\u0307 [m/s²]" and axis_label("rdot_radps2") == "r\u0307 [rad/s²]"
+    assert axis_label("d_u_N") == "d_u [N]" and axis_label("d_r_Nm") == "d_r [N·m]"
+    assert axis_label("segment") == "segment"  # no unit suffix: unchanged
