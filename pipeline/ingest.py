@@ -219,7 +219,8 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
             else:
                 out.quarantine.append({"stream": name, "topic": source, "reason": reason})
         if out.quarantine:  # a needed stream cannot be decoded: the trial is quarantined without a long read
-            log.warning("%s (%s): %s", out.trial, path.name, "; ".join(q["reason"] for q in out.quarantine))
+            # debug: the reasons go into the quarantine entry, which the shell prints once
+            log.debug("%s (%s): %s", out.trial, path.name, "; ".join(q["reason"] for q in out.quarantine))
             out.report = {"trial": out.trial, "source_file": source_name if source_name is not None else str(path),
                           "format": reader.format, "absent_streams": absent, "skipped_streams": skipped,
                           "quarantine": out.quarantine}

@@ -3,7 +3,8 @@
 A stage module defines ``run(root, vehicle, params, **kw) -> StageResult`` (reads inputs, calls the
 library, writes outputs) and ``main(argv) = stage_main(NAME, run, argv)``. Exit codes: 0 done, 1 done
 with quarantined inputs or failed models (a model stage lists each failed model in ``quarantined`` with its
-``model`` and ``reason``; the others are written), 2 usage or config error, 3 a stage failed (PipelineError).
+``model`` and ``reason``; the others are written), 2 usage or config error, 3 a stage failed (PipelineError);
+130 interrupted (Ctrl-C), 141 output pipe closed (``auvid ... | head``), both without a traceback.
 
 The registry of stages (``STAGE_ORDER``, ``load_stage``) and the DAG runner without DVC (``run_stages``) live
 here too: the ``auvid`` CLI, ``auvid retrain`` and the tests (with fake stages) all go through them.
@@ -36,6 +37,7 @@ from pipeline.parallel import backend
 log = logging.getLogger(__name__)
 
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED, EXIT_PIPE = 130, 141  # 128 + SIGINT, 128 + SIGPIPE, as a shell reports them
 
 #: The DAG in execution order (``auvid run`` and ``dvc.yaml`` follow it).
 STAGE_ORDER: tuple[str, ...] = ("ingest", "sync", "differentiate", "derive", "features", "tune", "train",
@@ -95,6 +97,9 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
     except PipelineError as err:
         print(f"{name} failed: {err}", file=sys.stderr)
         return EXIT_FAILED
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(f"{name}: {len(result.outputs)} output(s), {len(result.quarantined)} quarantined")
     for entry in result.quarantined:
         print(f"  quarantined {entry.get('file')}: {entry.get('reason')}", file=sys.stderr)
@@ -221,7 +226,8 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
     """Run ``stages`` in DAG order without DVC. Checks that every stage exists before running any.
 
     ``progress_factory(stage)`` gives the progress callback for a stage (or None); ``on_stage(stage, result,
-    seconds)`` is called before (result None) and after each stage. A PipelineError stops the run.
+    seconds)`` is called before (result None) and after each stage. A PipelineError stops the run; so does an
+    ingest that leaves no trial at all (every log quarantined): the list is then shorter than ``stages``.
     """
     import time
 
@@ -242,6 +248,9 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
         results.append(result)
         if on_stage is not None:
             on_stage(name, result, time.perf_counter() - start)
+        if name == "ingest" and name != ordered[-1] and not discover_trials(root):
+            log.warning("every log was quarantined and no trial is left: stopping after ingest")
+            break
     return results
 
 

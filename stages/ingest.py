@@ -14,6 +14,7 @@ moved into place with ``os.replace``. ``python -m stages.ingest --root RUN --veh
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import shutil
@@ -25,7 +26,7 @@ from typing import Any
 
 from pipeline import layout
 from pipeline.config import Params, Vehicle
-from pipeline.errors import PipelineError
+from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import ingest_log, trial_id
 from pipeline.parallel import usable_cpus
 from pipeline.tableio import write_json, write_parquet
@@ -105,7 +106,7 @@ def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bo
                  "file": shown, "trial": trial, "topic": first.get("topic"), "field": None, "report": out.report}
         return {"trial": trial, "quarantine": entry}
     outputs = write_trial(root, trial, out.tables, out.provenance, out.report)
-    return {"trial": trial, "outputs": outputs}
+    return {"trial": trial, "outputs": outputs, "salvage": out.report.get("salvage"), "file": shown}
 
 
 def _cleanup_stale(root: Path) -> None:
@@ -148,11 +149,12 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
 
         outcomes = Parallel(n_jobs=n_jobs, return_as="generator")(
             delayed(ingest_one)(root, vehicle, p, t, salvage) for p, t in jobs)
+    salvaged: list[dict[str, Any]] = []
     for outcome in outcomes:
         trial = outcome["trial"]
         if "quarantine" in outcome:
             entry = outcome["quarantine"]
-            log.warning("quarantined %s: %s", entry["file"], entry["reason"])
+            log.debug("quarantined %s: %s", entry["file"], entry["reason"])  # the shell prints it, once
             result.quarantined.append(entry)
             stale = layout.signals_dir(root, trial)
             if stale.exists():
@@ -161,17 +163,65 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
         else:
             result.outputs.extend(outcome["outputs"])
             status = f"{trial}: {len(outcome['outputs']) - 1} stream(s)"
+            if outcome.get("salvage"):
+                salvaged.append({"trial": trial, "file": outcome["file"], **outcome["salvage"]})
+                status += " (salvaged)"
         log.info("ingest %s", status)
         if progress is not None:
             progress(status)
 
     ok = sorted(o.parent.name for o in result.outputs if o.name == "ingest_report.json")
+    _raise_if_config_sinks_every_log(result.quarantined, ok, len(paths))
     result.summary = {"logs": len(paths), "trials_written": ok,
-                      "quarantined": sorted(e["trial"] for e in result.quarantined)}
-    qpath = Path(root) / layout.SIGNALS / QUARANTINE_FILE
-    write_json({"quarantined": sorted(result.quarantined, key=lambda e: (e["trial"], e["file"])),
-                "trials_written": ok}, qpath)
+                      "quarantined": sorted(e["trial"] for e in result.quarantined),
+                      "salvaged": sorted(e["trial"] for e in salvaged)}
+    update_quarantine_file(root, [_display(p, root) for p in paths], ok, result.quarantined, salvaged)
     return result
+
+
+def _raise_if_config_sinks_every_log(quarantined: list[dict[str, Any]], written: list[str], n_logs: int) -> None:
+    """Two or more logs, none written, every one stopped by the same configured topic / field: the config is wrong.
+
+    (With one log the log may be the odd one out, so it is quarantined.) Raised as a ConfigError so that the
+    shell exits 2 with the cause instead of writing one quarantine entry per log.
+    """
+    if written or n_logs < 2 or len(quarantined) != n_logs:
+        return
+    keys = {(e.get("error"), e.get("topic"), e.get("field")) for e in quarantined}
+    if len(keys) != 1:
+        return
+    error, topic, fld = next(iter(keys))
+    if error != "IngestError" or topic is None or any("report" in e for e in quarantined):
+        return
+    raise ConfigError(f"every log ({n_logs}) fails on the same configured source; fix the vehicle config's "
+                      f"streams: {quarantined[0]['reason']}", topic=topic, field=fld)
+
+
+def update_quarantine_file(root: Path, files: list[str], written: list[str], quarantined: list[dict[str, Any]],
+                           salvaged: list[dict[str, Any]]) -> Path:
+    """Merge this call into ``data/signals/quarantine.json``: entries accumulate per log and are replaced only
+    when that log (same file) or its trial is ingested again."""
+    qpath = Path(root) / layout.SIGNALS / QUARANTINE_FILE
+    old: dict[str, Any] = {}
+    if qpath.exists():
+        try:
+            old = json.loads(qpath.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            log.warning("%s is unreadable; starting a new one", qpath)
+    again = set(files)
+    redone = set(written) | {e["trial"] for e in quarantined}
+
+    def kept(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [e for e in entries if e.get("file") not in again and e.get("trial") not in redone]
+
+    def order(e: dict[str, Any]) -> tuple[str, str]:
+        return (str(e.get("trial")), str(e.get("file")))
+
+    doc = {"quarantined": sorted(kept(old.get("quarantined", [])) + quarantined, key=order),
+           "salvaged": sorted(kept(old.get("salvaged", [])) + salvaged, key=order),
+           "trials_written": sorted((set(old.get("trials_written", [])) - redone) | set(written))}
+    write_json(doc, qpath)
+    return qpath
 
 
 def _extra(parser: argparse.ArgumentParser) -> None:
