@@ -1,7 +1,9 @@
 """The ``auvid`` command: the only place that prints, shows progress bars and chooses exit codes.
 
 Exit codes: 0 done; 1 done, but some inputs were quarantined or some models failed (each named; see the report);
-2 usage or config error; 3 a stage failed (nothing half-written: every output is written atomically).
+2 usage or config error (missing paths, nothing to process, a config mistake that stops every log), found before
+any stage runs; 3 a stage failed (nothing half-written: every output is written atomically); 130 interrupted
+(Ctrl-C); 141 output pipe closed (``auvid inspect ... | head``). Neither of the last two prints a traceback.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -19,6 +22,11 @@ from pipeline import __version__
 from pipeline.errors import ConfigError, PipelineError
 
 EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED, EXIT_PIPE = 130, 141  # 128 + SIGINT, 128 + SIGPIPE, as a shell reports them
+
+
+class UsageError(Exception):
+    """A command line that cannot be run: a path that does not exist, nothing to process (exit 2)."""
 
 STAGE_HELP = {
     "ingest": "read trial logs (MCAP, ROS 1/2 bags, CSV) into per-stream Parquet at native rate",
@@ -44,7 +52,9 @@ examples:
   auvid retrain --root /srv/auvid --inbox /srv/incoming --vehicle dagon.yaml
   AUVID_SCHEDULER=tcp://scheduler:8786 auvid run ...   # fan-out on a Dask cluster (or --scheduler)
 
-exit codes: 0 done, 1 done with quarantined inputs or failed models, 2 usage or config error, 3 a stage failed.
+exit codes: 0 done, 1 done with quarantined inputs or failed models, 2 usage or config error (before any stage
+  runs), 3 a stage failed, 130 interrupted, 141 output pipe closed (e.g. `| head`).
+-q: no progress, no per-stage lines, library warnings off: one summary line per run (cron).
 DVC: `dvc repro` runs the same stages from dvc.yaml (pip install -e '.[dvc]'). See docs/user-guide.md.
 """
 
@@ -124,7 +134,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:8786) for per-trial and CV/search fan-out "
                         "(default: $AUVID_SCHEDULER, else local processes)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", action="store_true", help="one summary line per run: no progress bars, "
+                   "no per-stage lines, no warnings")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
@@ -237,39 +248,101 @@ def _load(args: argparse.Namespace) -> tuple[Any, Any]:
     return load_configs(args.root, _vehicle_path(args), args.params)
 
 
+def _salvaged(result: Any) -> list[str]:
+    summary = result.summary if isinstance(getattr(result, "summary", None), dict) else {}
+    return [str(t) for t in summary.get("salvaged", [])]
+
+
 def _print_stage(stage: str, result: Any, seconds: float) -> None:
+    """The per-stage lines (not with -q): one when a stage starts, one when it ends, then each quarantine
+    reason once on stderr."""
     if result is None:
         print(f"[{stage}] ...", flush=True)
         return
     line = f"[{stage}] {len(result.outputs)} output(s) in {seconds:.1f} s"
     if result.quarantined:
         line += f", {len(result.quarantined)} quarantined"
+    if _salvaged(result):
+        line += f", {len(_salvaged(result))} salvaged (damaged, partly read: see the ingest report)"
     print(line, flush=True)
     for entry in result.quarantined:
-        print(f"  quarantined {entry.get('file')}: {entry.get('reason')}", file=sys.stderr)
+        print(f"  quarantined {entry.get('file') or entry.get('model')}: {entry.get('reason')}", file=sys.stderr)
+
+
+def _on_stage(args: argparse.Namespace) -> Callable[[str, Any, float], None] | None:
+    return None if getattr(args, "quiet", False) else _print_stage
 
 
 def _exit_code(results: list[Any]) -> int:
     return EXIT_QUARANTINED if any(r.quarantined for r in results) else EXIT_OK
 
 
+def _summary(command: str, stages: list[str], results: list[Any], seconds: float, report: Path | None = None) -> str:
+    """The one line every stage-running command ends with (the only line with -q)."""
+    code = _exit_code(results)
+    parts = [f"{len(results)} stage(s) in {seconds:.1f} s"]
+    if len(results) < len(stages):
+        parts.append(f"stopped after {results[-1].stage if results else 'nothing'}: no trial left to process")
+    for r in results:
+        if r.quarantined:
+            names = [str(e.get("trial") or e.get("model") or e.get("file")) for e in r.quarantined]
+            parts.append(f"{r.stage}: {len(names)} quarantined ({', '.join(names)})")
+        if _salvaged(r):
+            parts.append(f"{r.stage}: {len(_salvaged(r))} salvaged ({', '.join(_salvaged(r))})")
+    if report is not None:
+        parts.append(f"report: {report}")
+    status = "done" if code == EXIT_OK else "done with quarantined inputs or failed models"
+    return f"auvid {command}: {status} (exit {code}): " + "; ".join(parts)
+
+
+def _check_paths(paths: list[Path], what: str) -> None:
+    missing = [str(p) for p in paths if not Path(p).exists()]
+    if missing:
+        raise UsageError(f"{what} not found: {', '.join(missing)}")
+
+
+def _check_inputs(args: argparse.Namespace, stages: list[str]) -> None:
+    """Usage errors found before any stage runs: missing logs, nothing to process, an unknown --trial."""
+    from stages.common import PER_TRIAL, trials_for
+
+    root = Path(args.root)
+    logs = list(getattr(args, "logs", None) or [])
+    _check_paths(logs, "log(s)")
+    if stages[0] == "ingest" and not logs:
+        from stages.ingest import discover_logs
+
+        if not discover_logs(root):
+            raise UsageError(f"nothing to process: no log given and none under {root / 'data' / 'raw'}")
+    elif stages[0] in PER_TRIAL:
+        have = trials_for(stages[0], root)
+        trial = getattr(args, "trial", None)
+        if not have:
+            raise UsageError(f"nothing to process: stage {stages[0]} has no input trial under {root} "
+                             "(run the stages before it first)")
+        if trial is not None and trial not in have:
+            raise UsageError(f"stage {stages[0]} has no input for trial {trial!r}; available: {have}")
+
+
 def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
     from stages.common import run_stages
 
+    _check_inputs(args, stages)
     vehicle, params = _load(args)
     logs = list(getattr(args, "logs", None) or []) or None
+    start = time.perf_counter()
     if getattr(args, "trial", None):
         from stages.common import call_stage
 
-        start = time.perf_counter()
         result = call_stage(stages[0], args.root, vehicle, params, trial=args.trial)
-        _print_stage(stages[0], result, time.perf_counter() - start)
-        return _exit_code([result])
-    results = run_stages(args.root, vehicle, params, stages, logs=logs, progress_factory=_progress_factory(args),
-                         on_stage=_print_stage)
+        results = [result]
+        if not args.quiet:
+            _print_stage(stages[0], result, time.perf_counter() - start)
+    else:
+        results = run_stages(args.root, vehicle, params, stages, logs=logs,
+                             progress_factory=_progress_factory(args), on_stage=_on_stage(args))
     report = Path(args.root) / "reports" / "report.html"
-    if "report" in stages and report.exists():
-        print(f"report: {report.resolve()}")
+    shown = report.resolve() if "report" in stages and report.exists() else None
+    print(_summary(args.command, stages, results, time.perf_counter() - start, shown), flush=True)
     return _exit_code(results)
 
 
@@ -291,16 +364,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     require_stages(STAGE_ORDER)  # before minutes of simulation
     out = args.out.resolve()
     start = time.perf_counter()
-    print(f"auvid demo: simulating the example vehicle into {out}", flush=True)
+    say = (lambda *_a, **_k: None) if args.quiet else print
+    say(f"auvid demo: simulating the example vehicle into {out}", flush=True)
     setup = demo.prepare(out, duration_s=args.duration_s)
-    print(f"  {len(setup.logs)} trial log(s): {', '.join(p.name for p in setup.logs)}")
-    print(f"  vehicle config: {setup.vehicle_path}\n  params: {setup.params_path}", flush=True)
+    say(f"  {len(setup.logs)} trial log(s): {', '.join(p.name for p in setup.logs)}")
+    say(f"  vehicle config: {setup.vehicle_path}\n  params: {setup.params_path}", flush=True)
     vehicle, params = load_configs(out, setup.vehicle_path, setup.params_path)
     results = run_stages(out, vehicle, params, STAGE_ORDER, logs=setup.logs,
-                         progress_factory=_progress_factory(args), on_stage=_print_stage)
+                         progress_factory=_progress_factory(args), on_stage=_on_stage(args))
     report = out / "reports" / "report.html"
-    print(f"demo finished in {time.perf_counter() - start:.0f} s")
-    print(f"report: {report}")
+    say(f"demo finished in {time.perf_counter() - start:.0f} s")
+    print(_summary("demo", list(STAGE_ORDER), results, time.perf_counter() - start, report), flush=True)
+    say(f"report: {report}")
     return _exit_code(results)
 
 
@@ -330,6 +405,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         from pipeline.io.inspect import format_fields, format_inspect, inspect_log, topic_fields
     except ImportError as err:
         raise PipelineError(f"`auvid inspect` is not available in this build: {err}") from None
+    _check_paths([args.log], "log")
     definitions, csv_options = _definitions(args)
     if args.fields is not None:
         fields = topic_fields(args.log, args.fields, definitions=definitions, csv_options=csv_options)
@@ -346,6 +422,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 def cmd_init(args: argparse.Namespace) -> int:
     from pipeline.starter import starter_config
 
+    _check_paths(args.logs, "log(s)")
     definitions, _ = _definitions(args)
     out = args.out
     if str(out) != "-" and out.exists() and not args.force:
@@ -367,36 +444,61 @@ def cmd_retrain(args: argparse.Namespace) -> int:
     from pipeline.retrain import RetrainOptions, retrain
 
     root = args.root.resolve()
+    if not args.inbox.is_dir():
+        raise UsageError(f"inbox {args.inbox} is not a directory")
     options = RetrainOptions(root=root, inbox=args.inbox.resolve(),
                              vehicle_path=(args.vehicle or root / "vehicle.yaml").resolve(),
                              params_path=args.params.resolve() if args.params else None,
-                             progress_factory=_progress_factory(args), on_stage=_print_stage)
+                             progress_factory=_progress_factory(args), on_stage=_on_stage(args))
     outcome = retrain(options)
     print(f"retrain: {outcome.message}")
     return EXIT_QUARANTINED if outcome.quarantined else EXIT_OK
 
 
+def _dispatch(args: argparse.Namespace) -> int:
+    from pipeline.parallel import backend
+
+    with backend(getattr(args, "scheduler", None)):
+        if args.command == "demo":
+            return cmd_demo(args)
+        if args.command == "run":
+            return cmd_run(args)
+        if args.command == "inspect":
+            return cmd_inspect(args)
+        if args.command == "init":
+            return cmd_init(args)
+        if args.command == "retrain":
+            return cmd_retrain(args)
+        return cmd_stages(args, [args.command])
+
+
+def _stdout_to_devnull() -> None:
+    """After a broken pipe: the interpreter's final flush of stdout must not raise again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # stdout replaced by something without a descriptor
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    scheduler = getattr(args, "scheduler", None)
+    if getattr(args, "verbose", False):
+        level = logging.DEBUG
+    else:
+        level = logging.ERROR if getattr(args, "quiet", False) else logging.WARNING
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
-        from pipeline.parallel import backend
-
-        with backend(scheduler):
-            if args.command == "demo":
-                return cmd_demo(args)
-            if args.command == "run":
-                return cmd_run(args)
-            if args.command == "inspect":
-                return cmd_inspect(args)
-            if args.command == "init":
-                return cmd_init(args)
-            if args.command == "retrain":
-                return cmd_retrain(args)
-            return cmd_stages(args, [args.command])
+        code = _dispatch(args)
+        sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_PIPE
+    except UsageError as err:
+        print(f"auvid: usage error: {err}", file=sys.stderr)
+        return EXIT_USAGE
     except ConfigError as err:
         print(f"auvid: config error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -408,7 +510,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("auvid: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -38,7 +38,7 @@ def test_run_executes_the_dag_in_order(tmp_path: Path, monkeypatch: pytest.Monke
                                        capsys: pytest.CaptureFixture[str]) -> None:
     dag = FakeDag().install(monkeypatch)
     root = make_run_dir(tmp_path)
-    code = cli.main(["run", "--root", str(root), "--vehicle", str(root / "vehicle.yaml"), "-q"])
+    code = cli.main(["run", "--root", str(root), "--vehicle", str(root / "vehicle.yaml")])
     assert code == 0
     stages = [name for name, _ in dag.calls]
     assert stages == ["ingest", "sync", "sync", "differentiate", "differentiate", "derive", "derive",
@@ -73,7 +73,8 @@ def test_quarantine_exits_1(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     root = make_run_dir(tmp_path)
     code = cli.main(["run", "--root", str(root), "--vehicle", str(root / "vehicle.yaml"), "-q"])
     assert code == 1
-    assert "quarantined" in capsys.readouterr().err
+    out = capsys.readouterr().out
+    assert "ingest: 1 quarantined (trial02)" in out and "(exit 1)" in out
 
 
 def test_missing_stage_fails_clearly_before_running_anything(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -140,6 +141,7 @@ def test_inspect_json(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: p
     fake.topic_fields = lambda path, topic, **kw: {"topic": topic, "msgtype": "x/msg/Y", "fields": ["a.b"]}
     fake.format_fields = lambda fields: f"{fields['topic']}: {fields['fields']}"
     monkeypatch.setitem(sys.modules, "pipeline.io.inspect", fake)
+    (tmp_path / "x.mcap").write_bytes(b"")
     assert cli.main(["inspect", str(tmp_path / "x.mcap"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["topics"][0]["topic"] == "/dvl"
     assert cli.main(["inspect", str(tmp_path / "x.mcap")]) == 0
