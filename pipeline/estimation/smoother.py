@@ -4,7 +4,9 @@ Model (per DOF, a white-jerk or "constant acceleration" process): the state at g
 (x, x', x''); between grid steps (uniform, h) the jerk is white noise of spectral density ``q``. Measurements
 come at their own stamps, anywhere between grid steps: one at t_k + delta sees
 ``x + delta x' + delta^2/2 x''`` of the state at t_k, with its own variance (the sensor's noise, plus the
-jerk's contribution over delta, q delta^5/20). Several measurements per step, or none, are both fine: lost
+jerk's contribution over delta, q delta^5/20); a measurement of the derivative (``order`` 1: an accelerometer's
+acceleration for a velocity DOF) sees ``x' + delta x''``, with the jerk's contribution q delta^3/3. Several
+measurements per step, or none, are both fine: lost
 bottom lock is a stretch of steps without measurements, bridged with a variance that grows with the gap.
 
 The RTS smoother's estimate is the posterior mean of all states given all measurements, which is the solution
@@ -55,19 +57,30 @@ def white_jerk(h_s: float, q: float) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class Measurements:
-    """One DOF's measurements: stamps (int64 ns), values and variances (per sample)."""
+    """One DOF's measurements: stamps (int64 ns), values and variances (per sample); ``order`` (per sample, or
+    one for all): 0 measures the DOF's value x, 1 its derivative x'."""
 
     t_ns: np.ndarray
     y: np.ndarray
     var: np.ndarray
+    order: np.ndarray | int = 0
 
     def __post_init__(self) -> None:
         self.t_ns = np.asarray(self.t_ns, dtype=np.int64)
         self.y = np.asarray(self.y, dtype=float)
         self.var = np.broadcast_to(np.asarray(self.var, dtype=float), self.y.shape).copy()
+        self.order = np.broadcast_to(np.asarray(self.order, dtype=np.int64), self.y.shape).copy()
+        if not np.isin(self.order, (0, 1)).all():
+            raise ValueError("a measurement's order is 0 (the value) or 1 (its derivative)")
         ok = np.isfinite(self.y) & np.isfinite(self.var) & (self.var > 0)
         if not ok.all():
-            self.t_ns, self.y, self.var = self.t_ns[ok], self.y[ok], self.var[ok]
+            self.t_ns, self.y, self.var, self.order = self.t_ns[ok], self.y[ok], self.var[ok], self.order[ok]
+
+    @classmethod
+    def concat(cls, *parts: Measurements) -> Measurements:
+        """Several sources of one DOF as one set (any order of stamps)."""
+        return cls(np.concatenate([m.t_ns for m in parts]), np.concatenate([m.y for m in parts]),
+                   np.concatenate([m.var for m in parts]), np.concatenate([m.order for m in parts]))
 
 
 @dataclass
@@ -108,14 +121,20 @@ class _Problem:
         self.delta = (rel - self.k * self.h_ns) / self.h_ns            # in steps, 0 <= delta < 1
         self.y = meas.y[inside]
         self.var0 = meas.var[inside]
-        self.H = np.stack([np.ones_like(self.delta), self.delta, 0.5 * self.delta**2], axis=1)
+        self.rate = meas.order[inside] == 1                             # measures x', not x
+        # design rows in scaled states z = (x, h x', h^2 x''): x + delta x' + delta^2/2 x'' -> (1, delta,
+        # delta^2/2); x' + delta x'' -> (0, 1, delta) / h
+        value = np.stack([np.ones_like(self.delta), self.delta, 0.5 * self.delta**2], axis=1)
+        rate = np.stack([np.zeros_like(self.delta), np.ones_like(self.delta), self.delta], axis=1) / self.h_s
+        self.H = np.where(self.rate[:, None], rate, value)
         self.keep = np.ones(self.y.size, dtype=bool)
         self._pairs = [(a, c) for a in range(3) for c in range(a, 3)]
         self._HH = np.stack([self.H[:, a] * self.H[:, c] for a, c in self._pairs], axis=1)
         self._Hy = self.H * self.y[:, None]
 
     def variances(self, q: float) -> np.ndarray:
-        return self.var0 + q * (self.delta * self.h_s) ** 5 / 20.0
+        d = self.delta * self.h_s
+        return self.var0 + q * np.where(self.rate, d**3 / 3.0, d**5 / 20.0)
 
     def information(self, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per step (N, 3, 3) information and (N, 3) vector of the kept measurements; their variances."""
@@ -219,7 +238,8 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
     problem = _Problem(grid_ns, meas)
     if problem.y.size < 3:
         raise ValueError(f"the smoother needs at least 3 measurements within the grid, got {problem.y.size}")
-    unit = float(np.median(problem.var0)) / problem.h_s**5
+    values = problem.var0[~problem.rate] if (~problem.rate).any() else problem.var0 * problem.h_s**2
+    unit = float(np.median(values)) / problem.h_s**5
     q_bounds = (q_bounds[0] * unit, q_bounds[1] * unit)
     rounds = gate_rounds if gate > 0 else 0
     if q is None:
