@@ -154,8 +154,14 @@ def simulate_trial(
         "position_m": np.asarray(vehicle.sensors.dvl.position_m, dtype=float),
         "rotation": dvl_rotation(vehicle.sensors.dvl.rotation_rpy_deg),
         "joint_names": [t.name for t in vehicle.thrusters],
+        "gravity_mps2": vehicle.rigid_body.gravity_mps2,
     }
-    streams = make_streams({**states, "t_ns": t_ns, "grid_hz": rate_hz}, mount, sensors, rng_sensor)
+    if vehicle.sensors.accelerometer is not None:
+        mount["imu_position_m"] = np.asarray(vehicle.sensors.accelerometer.position_m, dtype=float)
+    nu_dot = table[[f"{dof}dot_{unit}2" for dof, unit in zip(physics.DOFS, ("mps",) * 3 + ("radps",) * 3,
+                                                                strict=True)]].to_numpy()
+    streams = make_streams({**states, "t_ns": t_ns, "grid_hz": rate_hz, "nu_dot": nu_dot}, mount, sensors,
+                           rng_sensor)
     log.info("simulated %s for %.1f s (seed %d): %d truth rows, %s", vehicle.name, duration_s, seed, len(table),
              {k: len(s) for k, s in streams.items()})
     return SimTrial(table, streams, vehicle, truth, seed, duration_s, sensors)

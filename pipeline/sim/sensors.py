@@ -5,6 +5,11 @@ each the average velocity over 0.1 s, white noise 0.02 m/s per axis, 0.5 % outli
 scale error, its true mount turned 1 deg in yaw from the configured one, and bottom lock lost on about 20 % of
 the pings in bursts of 6 pings on average (a two-state Markov chain), velocity zero while lost.
 
+The AHRS's ``linear_acceleration`` is the specific force (acceleration less gravity) at the IMU's position
+(``mount["imu_position_m"]``, else ``imu_position_m``), in the AHRS's convention, with white noise 0.02 m/s^2
+and a constant bias per axis (a MEMS IMU's); drawn after every other stream, so the other streams are the same
+with or without it.
+
 Sample times are the nominal times ``k / rate_hz`` snapped to the integration grid, so a noise-free stream
 equals the truth at those rows exactly. Every message has a log time (``t + latency_s``) and a header stamp
 (``t + clock_offset_s``, the sensor's own clock); the vehicle config's ``offset_s`` undoes the one its
@@ -41,6 +46,9 @@ class SensorOptions:
     ahrs: StreamSpec = StreamSpec(120.0, 0.003, 0.010, math.radians(0.1))   # noise: angles (rad)
     ahrs_rate_noise_radps: float = 0.002
     ahrs_convention: str = "frd_ned"                                        # or "flu_enu"
+    accel_noise_mps2: float = 0.02                                          # IMU accelerometers: white, per axis
+    accel_bias_mps2: tuple[float, float, float] = (0.02, -0.015, 0.025)     # constant, in the IMU's axes
+    imu_position_m: tuple[float, float, float] = (0.2, 0.1, -0.1)           # unless the mount gives it
     fog: StreamSpec = StreamSpec(100.0, 0.002, 0.0, 2e-4)
     depth: StreamSpec = StreamSpec(10.0, 0.005, 0.0, 0.01)
     dvl: StreamSpec = StreamSpec(3.6, 0.020, -0.05, 0.02)                 # noise: white, m/s per axis
@@ -112,6 +120,17 @@ def dvl_measurement(nu: np.ndarray, position_m: np.ndarray, rot_dvl_to_body: np.
     return v_body @ rot_dvl_to_body  # rows: (R^T v)^T = v^T R
 
 
+def specific_force(nu: np.ndarray, nu_dot: np.ndarray, roll: np.ndarray, pitch: np.ndarray,
+                   position_m: np.ndarray, g_mps2: float) -> np.ndarray:
+    """True specific force (n, 3) in body FRD axes at ``position_m``: a - g_b, with the point's acceleration
+    a = v_dot + omega x v + omega_dot x r + omega x (omega x r) and gravity g_b = R^T (0, 0, g)."""
+    v, w, v_dot, w_dot = nu[:, :3], nu[:, 3:], nu_dot[:, :3], nu_dot[:, 3:]
+    r = np.broadcast_to(np.asarray(position_m, dtype=float), v.shape)
+    a = v_dot + np.cross(w, v) + np.cross(w_dot, r) + np.cross(w, np.cross(w, r))
+    g_b = g_mps2 * np.stack([-np.sin(pitch), np.cos(pitch) * np.sin(roll), np.cos(pitch) * np.cos(roll)], axis=1)
+    return a - g_b
+
+
 def ping_rows(n_rows: int, grid_hz: float, interval_s: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
     """Truth rows of irregular pings: intervals uniform in ``interval_s``, snapped to the truth grid."""
     lo, hi = interval_s
@@ -171,7 +190,7 @@ def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: Sensor
         w = w @ _FRD_FLU
     fields = {f"orientation.{a}": q[:, j] for j, a in enumerate("xyzw")}
     fields.update({f"angular_velocity.{a}": w[:, j] for j, a in enumerate("xyz")})
-    fields.update({f"linear_acceleration.{a}": np.zeros(i.size) for a in "xyz"})
+    fields.update({f"linear_acceleration.{a}": np.zeros(i.size) for a in "xyz"})  # filled last (below)
     log_ns, hdr_ns = _stamps(t_ns[i], opts.ahrs)
     frame = "ahrs_link_frd" if opts.ahrs_convention == "frd_ned" else "ahrs_link"
     out["ahrs"] = Stream("ahrs", "/ahrs/imu", "sensor_msgs/msg/Imu", log_ns, hdr_ns, fields, frame, index=i)
@@ -226,4 +245,14 @@ def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: Sensor
     names = tuple(vehicle_mount["joint_names"])
     out["thrusters"] = Stream("thrusters", "/thrusters/joint_states", "sensor_msgs/msg/JointState", log_ns, hdr_ns,
                               {"velocity": speed}, "", names, index=i)
+
+    if "nu_dot" in truth:  # the accelerometers, drawn last so that every other stream is as without them
+        i = out["ahrs"].index
+        imu_r = np.asarray(vehicle_mount.get("imu_position_m", opts.imu_position_m), dtype=float)
+        f = specific_force(nu[i], truth["nu_dot"][i], eta[i, 3], eta[i, 4], imu_r,
+                           float(vehicle_mount.get("gravity_mps2", 9.81)))
+        if opts.ahrs_convention == "flu_enu":
+            f = f @ _FRD_FLU
+        f = f + scale * (np.asarray(opts.accel_bias_mps2) + opts.accel_noise_mps2 * rng.standard_normal(f.shape))
+        out["ahrs"].fields.update({f"linear_acceleration.{a}": f[:, j] for j, a in enumerate("xyz")})
     return out
