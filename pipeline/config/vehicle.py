@@ -203,6 +203,20 @@ class PositionSource(Frozen):
     valid: str | None = Field(None, description="Validity flag signal (nonzero = valid); None: always valid.")
 
 
+class AccelerometerSource(Frozen):
+    """An IMU's accelerometers: specific force f = a - g (the point's acceleration less gravity; at rest and level
+    an FRD IMU reads (0, 0, -g)) along three body axes, at the IMU's position. The kalman method turns it into
+    measurements of the reference point's body accelerations (u_dot, v_dot, w_dot) with the attitude and the
+    smoothed rates and velocities, estimating a constant bias per axis (pipeline.estimation.accelerometer)."""
+
+    signals: tuple[str, str, str] = Field(description="Signals of the specific force along x, y, z (m/s^2).")
+    position_m: Vec3 = Field((0.0, 0.0, 0.0), description=(
+        "Body-axes position of the IMU relative to the reference point (its lever arm)."))
+    axes: Literal["frd", "flu"] = Field("frd", description=(
+        "frd (x forward, y starboard, z down: the project's body axes) or flu (x forward, y left, z up: ROS "
+        "REP-103, a sensor_msgs/Imu in its own frame), converted to FRD: x, -y, -z."))
+
+
 def position_rate_column(signal: str) -> str:
     """The column holding the smoothed time derivative (m/s) of the position signal ``signal``."""
     return f"{signal}_rate_mps"
@@ -243,6 +257,8 @@ class Sensors(Frozen):
         "Positions in a local earth frame (motion capture, GNSS), differentiated into velocities."))
     attitude: AttitudeSource
     rates: RateSource = RateSource()
+    accelerometer: AccelerometerSource | None = Field(None, description=(
+        "IMU accelerometers (optional): extra measurements of the body accelerations for the kalman method."))
     depth: str | None = None
 
     @model_validator(mode="after")
@@ -330,6 +346,8 @@ class Vehicle(Frozen):
                                                            ("pitch", att.pitch), ("yaw", att.yaw)) if n]
         refs += [(f"sensors.rates.{k}", n) for k, n in zip("pqr", (s.rates.p, s.rates.q, s.rates.r), strict=True)
                  if n]
+        if s.accelerometer is not None:
+            refs += [(f"sensors.accelerometer.signals[{j}]", n) for j, n in enumerate(s.accelerometer.signals)]
         if s.depth:
             refs.append(("sensors.depth", s.depth))
         return refs

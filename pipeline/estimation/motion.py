@@ -12,6 +12,9 @@ velocity and rate sensor at its own stamps, each with its own noise.
   Without native streams (a table built in memory), the synced grid's valid samples stand in.
 - **Positions** (``sensors.position``): differentiated per earth axis by the same smoother, then rotated into
   body axes with their accelerations and SDs (:mod:`pipeline.estimation.position`); not smoothed again.
+- **Accelerometers** (``sensors.accelerometer``, optional): a second pass adds, per velocity DOF, the IMU's
+  specific force turned into the reference point's acceleration with the first pass's rates and velocities and
+  the AHRS attitude, a constant bias per axis removed and reported (:mod:`pipeline.estimation.accelerometer`).
 - **Noise.** Each signal's SD and outlier rate estimated from the data (:mod:`pipeline.estimation.noise`),
   unless ``noise_sd`` in params gives it.
 - **Smoother.** Per DOF, :func:`pipeline.estimation.smoother.smooth`: white-jerk process, process noise by
@@ -233,6 +236,22 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         except ValueError as err:
             raise SyncError(f"cannot smooth {dof}: {err}", field=dof) from err
     smoothed_variances(list(results.values()))
+    accelerometer = None
+    if vehicle.sensors.accelerometer is not None:
+        if source.differentiated:
+            log.warning("sensors.accelerometer is not used with sensors.position (positions are differentiated "
+                        "per earth axis)")
+        else:  # a second pass: the accelerometers' accelerations beside the velocity measurements
+            from pipeline.estimation.accelerometer import accelerometer_measurements
+
+            acc, accelerometer = accelerometer_measurements(synced, body, streams, vehicle, params, results, noise)
+            for dof, extra in acc.items():
+                try:
+                    results[dof] = smooth(grid, Measurements.concat(meas[dof], extra),
+                                          q=params.process_noise.get(dof), gate=params.gate_sigmas)
+                except ValueError as err:
+                    raise SyncError(f"cannot smooth {dof} with the accelerometer: {err}", field=dof) from err
+            smoothed_variances([results[dof] for dof in acc])
     if source.differentiated:
         omega, omega_dot = np.zeros((len(grid), 3)), np.zeros((len(grid), 3))
         for j, dof in enumerate("pqr"):
@@ -283,6 +302,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
                        "median_acceleration_sd": float(np.median(res.xdot_sd))}
                  for dof, res in results.items()},
     }
+    if accelerometer is not None:
+        report["accelerometer"] = accelerometer
     log.info("kalman: %d of %d grid samples usable (%.0f %%, sync's segments alone: %.0f %%), %d segment(s)",
              len(kept), len(grid), 100 * report["usable_fraction"], 100 * report["synced_segment_fraction"],
              report["segments"])
