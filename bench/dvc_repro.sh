@@ -2,7 +2,7 @@
 # Check dvc.yaml with a real DVC in a scratch clone (needs `pip install -e '.[dvc]'`; minutes of compute):
 #   1. `dvc repro` on a fresh clone runs every stage;
 #   2. a second `dvc repro` runs nothing;
-#   3. changing one param (differentiate.sigma_s) reruns differentiate and what is downstream, not ingest/sync.
+#   3. changing one param (differentiate.gate_sigmas) reruns differentiate and what is downstream, not ingest/sync.
 # Usage: bench/dvc_repro.sh [SCRATCH_DIR]
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
@@ -13,18 +13,18 @@ cd "$scratch/clone"
 dvc init -q
 echo "== 1. fresh clone: dvc repro"
 time dvc repro 2>&1 | tee "$scratch/first.log" | grep -E "^(Running stage|Stage .* didn't change)" || true
-for stage in example ingest 'sync@trial01' features tune train decoupled simulate report; do
+for stage in example ingest sync features train decoupled simulate report; do
     grep -q "Running stage '$stage'" "$scratch/first.log" || { echo "FAIL: $stage did not run" >&2; exit 1; }
 done
 echo "== 2. second dvc repro: nothing to do"
 dvc repro 2>&1 | tee "$scratch/second.log" | tail -3
 if grep -q "Running stage" "$scratch/second.log"; then echo "FAIL: second repro ran stages" >&2; exit 1; fi
-echo "== 3. change differentiate.sigma_s: only downstream reruns"
-sed -i 's/^  sigma_s: 0.25$/  sigma_s: 0.3/' params.yaml
+echo "== 3. change differentiate.gate_sigmas: only downstream reruns"
+sed -i 's/^  gate_sigmas: 5.0$/  gate_sigmas: 4.0/' params.yaml
 dvc repro 2>&1 | tee "$scratch/third.log" | grep -E "^Running stage" || true
-for stage in example ingest 'sync@trial01'; do
+for stage in example ingest sync; do
     if grep -q "Running stage '$stage'" "$scratch/third.log"; then echo "FAIL: $stage reran" >&2; exit 1; fi
 done
-grep -q "Running stage 'differentiate@trial01'" "$scratch/third.log" || { echo "FAIL: differentiate did not rerun" >&2; exit 1; }
+grep -q "Running stage 'differentiate'" "$scratch/third.log" || { echo "FAIL: differentiate did not rerun" >&2; exit 1; }
 dvc metrics show
 echo "OK: dvc.yaml behaves (scratch: $scratch)"

@@ -1,14 +1,19 @@
 """Stage report: everything under ``data/`` -> ``reports/report.html`` (self-contained), ``reports/metrics.json``
-(for ``dvc metrics``), ``reports/plots/*.json`` (for ``dvc plots``) and ``reports/figures/*.png``.
+(every score of the run), ``reports/headline.json`` (a handful of numbers for ``dvc metrics``: the best coupled
+model's R² on the unseen trial per output, the best damping model's MAE against least squares per DOF, the best
+free-run MAE per DOF), ``reports/plots/*.json`` (for ``dvc plots``) and ``reports/figures/*.png``.
 
 ``python -m stages.report --root RUN --vehicle vehicle.yaml``.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import re
 from pathlib import Path
+from typing import Any
 
 from pipeline import layout
 from pipeline.config import Params, Vehicle
@@ -25,6 +30,68 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_")
 
 
+def _load(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+
+def headline(coupled: Any, decoupled: Any, simulation: Any) -> dict[str, Any]:
+    """The few numbers ``dvc metrics`` shows, from the stages' metrics files (each may be missing: ``None``).
+
+    ``coupled``: ``{model: {output: {final_r2, ...}}}``; ``decoupled``: ``{"results": {dof: {model: {"cv":
+    {"test_mae_mean"}}}}}``; ``simulation``: ``{trial: {"free_run": [{model, status, metrics: {dof: {mae}}}]}}``.
+    Diverged free runs are left out (their error covers only the part before they diverged)."""
+    out: dict[str, Any] = {}
+    best: dict[str, tuple[float, str]] = {}
+    for model, per_output in (coupled or {}).items():
+        for output, scores in (per_output if isinstance(per_output, dict) else {}).items():
+            r2 = _number(scores.get("final_r2")) if isinstance(scores, dict) else None
+            if r2 is not None and (output not in best or r2 > best[output][0]):
+                best[output] = (r2, model)
+    if best:
+        out["coupled_final_r2"] = {o: {"best": round(r2, 6), "model": m} for o, (r2, m) in sorted(best.items())}
+    damping: dict[str, Any] = {}
+    results = decoupled.get("results", {}) if isinstance(decoupled, dict) else {}
+    for dof, per_model in (results if isinstance(results, dict) else {}).items():
+        maes = {m: _number((r.get("cv") or {}).get("test_mae_mean")) for m, r in per_model.items()
+                if isinstance(r, dict)}
+        maes = {m: v for m, v in maes.items() if v is not None}
+        if maes:
+            model = min(maes, key=maes.__getitem__)
+            row: dict[str, Any] = {"best_mae": round(maes[model], 6), "model": model}
+            if "ls" in maes:
+                row["ls_mae"] = round(maes["ls"], 6)
+                if maes["ls"] > 0:
+                    row["vs_ls"] = round(maes[model] / maes["ls"], 4)
+            damping[dof] = row
+    if damping:
+        out["damping_mae"] = damping
+    free: dict[str, list[tuple[float, str]]] = {}
+    for trial_doc in (simulation if isinstance(simulation, dict) else {}).values():
+        runs = trial_doc.get("free_run") if isinstance(trial_doc, dict) else None
+        per_dof: dict[str, tuple[float, str]] = {}
+        for run_ in runs if isinstance(runs, list) else []:
+            if not isinstance(run_, dict) or run_.get("status") != "ok":
+                continue
+            for dof, m in (run_.get("metrics") or {}).items():
+                mae = _number(m.get("mae")) if isinstance(m, dict) else None
+                if mae is not None and (dof not in per_dof or mae < per_dof[dof][0]):
+                    per_dof[dof] = (mae, str(run_.get("model")))
+        for dof, value in per_dof.items():
+            free.setdefault(dof, []).append(value)
+    if free:  # the mean over the unseen trials of the best model's MAE on each
+        out["free_run_mae"] = {d: {"best": round(sum(v for v, _ in vals) / len(vals), 6),
+                                   "model": vals[0][1] if len({m for _, m in vals}) == 1 else "mixed"}
+                               for d, vals in free.items()}
+    return out
+
+
 def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     """Build the self-contained HTML report, metrics.json and the plot data of the run."""
     root = Path(root)
@@ -36,6 +103,10 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
         tmp.chmod(0o644)  # a report is for reading (mkstemp makes 0600)
     outputs.append(out / "report.html")
     outputs.append(write_json(report.metrics, out / "metrics.json"))
+    outputs.append(write_json(headline(_load(root / layout.EVALUATION / "coupled" / "metrics.json"),
+                                       _load(root / layout.EVALUATION / "decoupled" / "metrics.json"),
+                                       _load(root / layout.SIMULATION / "metrics.json")),
+                              out / "headline.json"))
     for name, rows in sorted(report.plots.items()):
         outputs.append(write_json(rows, out / "plots" / f"{name}.json"))
     for path in outputs:

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import importlib.util
+import json
+import os
 import re
+import shutil
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -65,18 +69,25 @@ def test_no_flow_style_templated_lists() -> None:
         assert not re.search(r"\[[^\]]*\$\{", line), f"dvc.yaml:{number}: flow-style templated list: {line!r}"
 
 
+def _modules(cmd: str) -> list[str]:
+    return re.findall(r"python -m stages\.(\w+)\b", cmd)
+
+
 def test_every_stage_of_the_dag_is_there_in_order() -> None:
-    names = list(dict.fromkeys(name for name, _, _ in expanded_stages()))
-    assert [n for n in names if n in STAGE_ORDER] == list(STAGE_ORDER)
+    run = [m for _, _, stage in expanded_stages() for m in _modules(stage["cmd"])]
+    assert [m for m in run if m in STAGE_ORDER] == list(STAGE_ORDER)
 
 
-def test_each_stage_runs_its_own_existing_module() -> None:
+def test_each_stage_runs_existing_modules_that_are_its_deps() -> None:
+    """A DVC stage runs its own module (``train`` runs ``tune`` first: they write into the same directories)."""
     for name, full, stage in expanded_stages():
-        match = re.match(r"python -m stages\.(\w+)\b", stage["cmd"])
-        assert match, f"{full}: cmd must be `python -m stages.<name> ...`: {stage['cmd']!r}"
-        assert match.group(1) == name, f"{full}: runs stages.{match.group(1)}, not its own module"
-        assert importlib.util.find_spec(f"stages.{name}") is not None, f"{full}: no module stages/{name}.py"
-        assert f"stages/{name}.py" in _entries(stage.get("deps")), f"{full}: its own script is not a dep"
+        modules = _modules(stage["cmd"])
+        parts = [p.strip() for p in stage["cmd"].split("&&")]
+        assert modules and len(modules) == len(parts), f"{full}: cmd must be `python -m stages.<name> ...`"
+        assert name in modules, f"{full}: does not run stages.{name}"
+        for module in modules:
+            assert importlib.util.find_spec(f"stages.{module}") is not None, f"{full}: no module stages/{module}.py"
+            assert f"stages/{module}.py" in _entries(stage.get("deps")), f"{full}: stages/{module}.py is not a dep"
 
 
 def test_params_keys_exist_in_the_schema_and_in_params_yaml() -> None:
@@ -116,29 +127,190 @@ def test_deps_are_produced_upstream_or_tracked_inputs() -> None:
 
 def test_metrics_plots_and_dvcignore() -> None:
     stages = {full: s for _, full, s in expanded_stages()}
-    assert _entries(stages["report"]["metrics"]) == ["reports/metrics.json"]
+    assert _entries(stages["report"]["metrics"]) == ["reports/headline.json"]
     assert len(_entries(stages["report"]["plots"])) >= 1
     ignore = (REPO / ".dvcignore").read_text().split()
     assert "__pycache__" in ignore
 
 
-@pytest.mark.parametrize("trial", ["trial01", "trial02", "trial03"])
-def test_foreach_trials_match_the_example(trial: str) -> None:
-    params = load_params(REPO / "params.yaml")
-    names = {full for _, full, _ in expanded_stages()}
-    for stage in ("sync", "differentiate", "derive"):
-        assert f"{stage}@{trial}" in names
-    assert params.features.test_trials == ["trial03"]
+# Trials and models a user might have: none of them is the example's, and there are more models than one.
+USER_TRIALS = ["basin_a", "sea_b"]
+USER_COUPLED = ["rbf_svr", "gertler_hagen"]
+USER_DECOUPLED = ["ls", "svr"]
 
 
-def test_train_outs_cover_every_coupled_model() -> None:
+def _outs_of(stages: dict[str, dict[str, Any]]) -> dict[str, str]:
+    return {out: full for full, s in stages.items()
+            for out in _entries(s.get("outs")) + _entries(s.get("metrics")) + _entries(s.get("plots"))}
+
+
+def _files_of_a_run(trials: list[str], coupled: list[str], decoupled: list[str], dofs: list[str]) -> dict[str, str]:
+    """Files (run-relative) each stage writes for these trials and model lists, by the stages' own path helpers."""
+    from pipeline import layout
+    from stages.decoupled import evaluation_dir, models_dir
     from stages.tune import hyperparameters_path
 
-    params = load_params(REPO / "params.yaml")
+    root = Path(".")
+    files: dict[str, str] = {}
+    for t in trials:
+        files[layout.ingest_report_path(root, t).as_posix()] = "ingest"
+        files[layout.synced_path(root, t).as_posix()] = "sync"
+        files[layout.kinematics_path(root, t).as_posix()] = "differentiate"
+        files[layout.estimation_report_path(root, t).as_posix()] = "differentiate"
+        files[layout.derived_path(root, t).as_posix()] = "derive"
+        files[f"{layout.SIMULATION}/{t}/free_run.json"] = "simulate"
+    files[f"{layout.features_dir(root).as_posix()}/part-0.parquet"] = "features"
+    files[hyperparameters_path(root).as_posix()] = "train"  # stages.tune, run by the `train` DVC stage
+    files[f"{layout.EVALUATION}/coupled/table2.json"] = "train"
+    for m in coupled:
+        model = Path(layout.MODELS) / "coupled" / f"{m}.joblib"
+        files[model.as_posix()] = files[card_path(model).as_posix()] = "train"
+    files[f"{layout.EVALUATION}/coupled/table3.json"] = "train"
+    for d in dofs:
+        for m in decoupled:
+            files[(models_dir(root) / f"{d}_{m}.joblib").as_posix()] = "decoupled"
+    files[(evaluation_dir(root) / "metrics.json").as_posix()] = "decoupled"
+    files["reports/report.html"] = "report"
+    files["reports/headline.json"] = "report"
+    return files
+
+
+def test_the_dag_covers_any_trials_and_any_model_lists() -> None:
+    """With trials basin_a, sea_b and two coupled models, every file a stage writes lies in one of that stage's
+    outs, and the deps of the stage after it hold it: the DAG does not split, nothing is written untracked."""
     stages = {full: s for _, full, s in expanded_stages()}
-    outs = set(_entries(stages["train"]["outs"]))
-    for model in params.coupled.models:
-        joblib_path = Path("data/models/coupled") / f"{model}.joblib"
-        assert joblib_path.as_posix() in outs and card_path(joblib_path).as_posix() in outs
-    tune_outs = set(_entries(stages["tune"]["outs"]))
-    assert hyperparameters_path(Path(".")).as_posix() in tune_outs
+    outs = _outs_of(stages)
+    files = _files_of_a_run(USER_TRIALS, USER_COUPLED, USER_DECOUPLED, ["u", "v", "r"])
+    for file, writer in files.items():
+        owners = [stage for out, stage in outs.items() if _overlaps(out, file)]
+        assert owners == [writer], f"{file} (written by {writer}) lies in the outs of {owners or 'no stage'}"
+    readers = {"sync": "ingest", "differentiate": "sync", "derive": "differentiate", "features": "derive",
+               "train": "features", "decoupled": "features", "simulate": "train", "report": "simulate"}
+    for reader, writer in readers.items():
+        deps = _entries(stages[reader]["deps"])
+        held = [f for f, w in files.items() if w == writer and any(_overlaps(d, f) for d in deps)]
+        assert held, f"{reader} depends on nothing that {writer} writes (deps: {deps})"
+
+
+def test_no_trial_or_model_names_in_dvc_yaml() -> None:
+    params = load_params(REPO / "params.yaml")
+    names = {*params.coupled.models, *params.decoupled.models, *params.features.test_trials,
+             *(f"trial{i:02d}" for i in range(1, 10))}
+    text = "\n".join(line.split("#", 1)[0] for line in DVC.read_text().splitlines())
+    assert not re.search(r"trial\d", text), "dvc.yaml names a trial"
+    doc = yaml.safe_load(DVC.read_text())
+    assert "foreach" not in text and "trials" not in str(doc.get("vars")), "stages are not driven by a trial list"
+    for _, full, stage in expanded_stages():
+        for path in _entries(stage.get("deps")) + list(_outs_of({full: stage})):
+            parts = {p.removesuffix(".joblib").removesuffix(".card") for p in Path(path).with_suffix("").parts}
+            assert not parts & names, f"{full}: {path} names a trial or model of params.yaml"
+
+
+def test_metrics_and_plots_are_committed_not_ignored() -> None:
+    """DVC keeps cache: false files out of its cache: git must carry them, or `dvc metrics diff` has nothing."""
+    stages = {full: s for _, full, s in expanded_stages()}
+    report = stages["report"]
+    small = report["metrics"] + report["plots"]
+    for entry in small:
+        path, options = next(iter(entry.items()))
+        assert options.get("cache") is False, f"{path}: metrics and plots go to git, not the DVC cache"
+        ignored = subprocess.run(["git", "check-ignore", "-q", "--no-index", path], cwd=REPO).returncode == 0
+        assert not ignored, f"{path} is git-ignored: `dvc metrics diff` / `dvc plots diff` would find nothing"
+    for path in _entries(report["outs"]):
+        ignored = subprocess.run(["git", "check-ignore", "-q", "--no-index", path], cwd=REPO).returncode == 0
+        assert ignored, f"{path} is a cached out; git must ignore it"
+
+
+def test_headline_metrics_are_a_handful_with_known_values() -> None:
+    from stages.report import headline
+
+    coupled = {"rbf_svr": {"udot_mps2": {"final_r2": 0.7, "cv_test_r2": 0.9}, "rdot_radps2": {"final_r2": 0.2}},
+               "gertler_hagen": {"udot_mps2": {"final_r2": 0.8}, "rdot_radps2": {"final_r2": float("nan")}}}
+    decoupled = {"lineage": {"trials": ["basin_a"]},
+                 "results": {"u": {"ls": {"cv": {"test_mae_mean": 2.0}}, "svr": {"cv": {"test_mae_mean": 1.5}}}}}
+    simulation = {"sea_b": {"free_run": [
+        {"model": "ls", "status": "ok", "metrics": {"u": {"mae": 0.03, "r2": 0.9}}},
+        {"model": "coupled_rbf_svr", "status": "diverged", "metrics": {"u": {"mae": 0.001}}},
+        {"model": "svr", "status": "ok", "metrics": {"u": {"mae": 0.02}}}]}}
+    doc = headline(coupled, decoupled, simulation)
+    assert doc == {"coupled_final_r2": {"rdot_radps2": {"best": 0.2, "model": "rbf_svr"},
+                                        "udot_mps2": {"best": 0.8, "model": "gertler_hagen"}},
+                   "damping_mae": {"u": {"best_mae": 1.5, "model": "svr", "ls_mae": 2.0, "vs_ls": 0.75}},
+                   "free_run_mae": {"u": {"best": 0.02, "model": "svr"}}}
+    assert headline(None, None, None) == {}
+
+
+# ------------------------------------------------------------------------- a real DVC project (where DVC is there)
+
+def _project(tmp: Path) -> Path:
+    """A DVC project as the user guide describes it: the code, logs basin_a and sea_b in data/raw/ (`dvc add`),
+    the example stage deleted, two coupled models; sized to run in about a minute."""
+    from pipeline.sim import example
+
+    proj = tmp / "proj"
+    for tree in ("pipeline", "stages"):
+        shutil.copytree(REPO / tree, proj / tree, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    for name in (".dvcignore", ".gitignore", "params.yaml"):
+        shutil.copy(REPO / name, proj / name)
+    doc = yaml.safe_load(DVC.read_text())
+    del doc["stages"]["example"]
+    (proj / "dvc.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    written = example(tmp / "gen", fmt="mcap", duration_s=60.0, seed=1, n_trials=2)
+    (proj / "data" / "raw").mkdir(parents=True)
+    for log, name in zip(sorted(written.trials, key=str), ("basin_a", "sea_b"), strict=True):
+        shutil.copy(log, proj / "data" / "raw" / f"{name}{Path(log).suffix}")
+    params = yaml.safe_load((proj / "params.yaml").read_text())
+    params["features"]["test_trials"] = ["sea_b"]
+    params["coupled"].update(models=["rbf_svr", "gertler_hagen"], folds=2, max_evals=4, max_samples=300,
+                             tuning="split")
+    params["decoupled"].update(models=["ls", "svr"], folds=2, curve_points=2, max_samples=300)
+    params["simulate"].update(horizons_s=[1.0], outage_windows_s=[10.0], band_samples=2)
+    (proj / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    load_params(proj / "params.yaml")
+    return proj
+
+
+def _ran(log: str) -> set[str]:
+    return set(re.findall(r"Running stage '([\w@.-]+)'", log))
+
+
+def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
+    """Reproduces, then does nothing, then reruns only what is downstream of a changed param; `dvc metrics diff`
+    shows the change. Needs DVC (`pip install -e '.[dvc]'`): about a minute."""
+    dvc = shutil.which("dvc")
+    if dvc is None:
+        pytest.skip("dvc is not installed (pip install -e '.[dvc]'): the real `dvc repro` check did not run; "
+                    "the structural checks of dvc.yaml above did")
+    proj = _project(tmp_path)
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+           "DVC_NO_ANALYTICS": "1", "AUVID_JOBS": "1", "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
+           "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t"}
+    env.pop("AUVID_SCHEDULER", None)
+
+    def sh(*cmd: str) -> str:
+        done = subprocess.run(cmd, cwd=proj, env=env, capture_output=True, text=True)
+        assert done.returncode == 0, f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stdout}\n{done.stderr}"
+        return done.stdout + done.stderr
+
+    sh("git", "init", "-q")
+    sh(dvc, "init", "-q")
+    sh(dvc, "add", "data/raw")
+    sh("git", "add", ".")
+    sh("git", "commit", "-qm", "project")
+    first = _ran(sh(dvc, "repro"))
+    every = {"ingest", "sync", "differentiate", "derive", "features", "train", "decoupled", "simulate", "report"}
+    assert first == every
+    assert (proj / "data/synced/basin_a.parquet").is_file() and (proj / "data/synced/sea_b.parquet").is_file()
+    assert (proj / "data/models/coupled/gertler_hagen.joblib").is_file()
+    sh("git", "add", "dvc.lock", "reports/headline.json", "reports/plots")
+    sh("git", "commit", "-qm", "first run")
+    assert sh("git", "status", "--porcelain").strip() == "", "dvc repro left files git neither tracks nor ignores"
+    assert _ran(sh(dvc, "repro")) == set()
+
+    params = yaml.safe_load((proj / "params.yaml").read_text())
+    params["coupled"]["tuning"] = "nested"  # other hyperparameters, so other scores on the unseen trial
+    (proj / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    assert _ran(sh(dvc, "repro")) == {"train", "simulate", "report"}
+    diff = json.loads(sh(dvc, "metrics", "diff", "--json"))
+    changed = diff.get("diff", diff).get("reports/headline.json", {})
+    assert any(k.startswith("coupled_final_r2.") and v.get("diff") for k, v in changed.items()), changed
