@@ -12,6 +12,11 @@ Speed: the smoother on a one-hour trial (the same simulator, 3600 s), timed as t
 
     python bench/estimation.py                         # 5 seeds x 480 s, then the one-hour timing
     python bench/estimation.py --seeds 0 1 --methods kalman gaussian --skip-speed
+    python bench/estimation.py --methods kalman --accelerometer --skip-speed   # + IMU accelerometers
+
+``--accelerometer``: the trial's AHRS accelerometers (the simulator's: 0.02 m/s^2 white noise, a constant bias per
+axis) configured in a copy of the example vehicle (``sensors.accelerometer``), scored as ``kalman+imu`` beside the
+methods without them, on the same trial.
 """
 
 from __future__ import annotations
@@ -33,11 +38,26 @@ from pipeline.sim import load_example_vehicle, simulate_trial, write_trial  # no
 DOFS = (("u", "mps"), ("v", "mps"), ("r", "radps"))
 
 
-def prepare(root: Path, seed: int, duration_s: float, params: Params):
+def vehicle_with_accelerometer():
+    """The example vehicle with its AHRS's accelerometers configured (the simulator's IMU position)."""
+    import yaml
+
+    from pipeline.config.vehicle import Vehicle
+    from pipeline.sim import SensorOptions, example_vehicle_path
+
+    raw = yaml.safe_load(example_vehicle_path().read_text())
+    raw["streams"]["ahrs"]["signals"].update(
+        {f"a{a}_imu_mps2": {"field": f"linear_acceleration.{a}", "unit": "m/s^2"} for a in "xyz"})
+    raw["sensors"]["accelerometer"] = {"signals": [f"a{a}_imu_mps2" for a in "xyz"],
+                                       "position_m": list(SensorOptions().imu_position_m)}
+    return Vehicle.model_validate(raw)
+
+
+def prepare(root: Path, seed: int, duration_s: float, params: Params, vehicle=None):
     """Simulate, write MCAP, ingest and sync one trial; returns (vehicle, trial)."""
     from stages import ingest, sync
 
-    vehicle = load_example_vehicle()
+    vehicle = vehicle if vehicle is not None else load_example_vehicle()
     trial = simulate_trial(vehicle, duration_s, seed=seed, warmup_s=20.0)
     (root / "data/raw").mkdir(parents=True, exist_ok=True)
     write_trial(trial, "mcap", root / "data/raw/trial.mcap")
@@ -71,16 +91,22 @@ def score(root: Path, vehicle, trial, params: Params) -> dict[str, float]:
     return out
 
 
-def quality(seeds: list[int], methods: list[str], duration_s: float) -> None:
+def quality(seeds: list[int], methods: list[str], duration_s: float, accelerometer: bool = False) -> None:
     rows = []
+    imu = vehicle_with_accelerometer() if accelerometer else None
     for seed in seeds:
         with tempfile.TemporaryDirectory() as tmp:
             root = Path(tmp)
             params = Params()
-            vehicle, trial = prepare(root, seed, duration_s, params)
+            _, trial = prepare(root, seed, duration_s, params, imu)
+            vehicle = load_example_vehicle()
             for method in methods:
                 p = Params.model_validate({"differentiate": {"method": method}})
                 rows.append((method, seed, score(root, vehicle, trial, p)))
+            if imu is not None:
+                rows.append(("kalman+imu", seed, score(root, imu, trial, Params())))
+    if imu is not None:
+        methods = [*methods, "kalman+imu"]
     keys = ["usable", "R2_udot", "R2_vdot", "R2_rdot", "cover_u", "cover_v", "cover_r", "cover_udot", "cover_vdot",
             "cover_rdot"]
     print(f"\n{duration_s:.0f}-s trials, default realistic sensors, default params per method")
@@ -139,10 +165,12 @@ def main() -> None:
     ap.add_argument("--speed-duration", type=float, default=3600.0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-speed", action="store_true")
+    ap.add_argument("--accelerometer", action="store_true", help="also the kalman method with the IMU's "
+                    "accelerometers configured (kalman+imu)")
     ap.add_argument("--skip-quality", action="store_true")
     args = ap.parse_args()
     if not args.skip_quality:
-        quality(args.seeds, args.methods, args.duration)
+        quality(args.seeds, args.methods, args.duration, args.accelerometer)
     if not args.skip_speed:
         speed(args.speed_duration, args.repeat)
 
