@@ -113,8 +113,14 @@ def _progress_factory(args: argparse.Namespace) -> Callable[[str], Progress]:
 
 # ---------------------------------------------------------------------------------------------- arguments
 
+def _abs_path(text: str) -> Path:
+    """A path argument made absolute at once: stages may run in worker processes started from another directory
+    (a process pool kept from an earlier call, a Dask worker), where a relative path means another file."""
+    return Path(text).expanduser().resolve()
+
+
 def _add_config(p: argparse.ArgumentParser, vehicle_required: bool = False) -> None:
-    p.add_argument("--root", type=Path, default=Path("."), help="run directory holding data/ and reports/ "
+    p.add_argument("--root", type=_abs_path, default=".", help="run directory holding data/ and reports/ "
                    "(default: .)")
     p.add_argument("--vehicle", type=Path, default=None,
                    help="vehicle config YAML (default: ./vehicle.yaml, else <root>/vehicle.yaml)")
@@ -161,7 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog="examples:\n  auvid run --root runs/basin --vehicle dagon.yaml data/raw/*.mcap\n"
                                 "  auvid run --root runs/basin --vehicle dagon.yaml --from features\n")
     _add_config(run)
-    run.add_argument("logs", nargs="*", type=Path, help="logs to ingest (default: everything under data/raw/)")
+    run.add_argument("logs", nargs="*", type=_abs_path, help="logs to ingest (default: everything under data/raw/)")
     run.add_argument("--from", dest="first", choices=_stage_names(), help="start at this stage")
     run.add_argument("--to", dest="last", choices=_stage_names(), help="stop after this stage")
     _add_run_options(run)
@@ -175,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
                                   + "\n")
         _add_config(p)
         if name == "ingest":
-            p.add_argument("logs", nargs="*", type=Path, help="logs to ingest (default: everything under "
+            p.add_argument("logs", nargs="*", type=_abs_path, help="logs to ingest (default: everything under "
                            "data/raw/)")
         if name in ("sync", "differentiate", "derive"):
             p.add_argument("--trial", default=None, help="one trial (default: every trial with input)")

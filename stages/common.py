@@ -42,7 +42,7 @@ EXIT_INTERRUPTED, EXIT_PIPE = 130, 141  # 128 + SIGINT, 128 + SIGPIPE, as a shel
 #: The DAG in execution order (``auvid run`` and ``dvc.yaml`` follow it).
 STAGE_ORDER: tuple[str, ...] = ("ingest", "sync", "differentiate", "derive", "features", "tune", "train",
                                 "decoupled", "simulate", "report")
-#: Stages whose work is per trial (``run(..., trial=...)``): fanned out over trials, ``foreach`` in dvc.yaml.
+#: Stages whose work is per trial (``run(..., trial=...)``): fanned out over trials (dvc.yaml: all trials at once).
 PER_TRIAL: frozenset[str] = frozenset({"sync", "differentiate", "derive"})
 
 
