@@ -191,3 +191,14 @@ def write_rosbag1_unindexed(path: Path, msgs: list[Msg], **kw: Any) -> Path:
     data[at:at + 8] = bytes(8)
     path.write_bytes(bytes(data[:index_pos]))
     return path
+
+
+# mavros_msgs/msg/OverrideRCIn.msg as mavros 2.x ships it
+OVERRIDE_RC_IN = """# Override RC Input
+# Currently MAVLink defines override for 18 channel
+
+uint16 CHAN_RELEASE=0
+uint16 CHAN_NOCHANGE=65535
+
+uint16[18] channels
+"""

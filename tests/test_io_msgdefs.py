@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from io_helpers import OVERRIDE_RC_IN
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from pipeline.config import Vehicle, load_vehicle
@@ -21,15 +22,6 @@ from pipeline.ingest import ingest_log
 from pipeline.io import open_log
 from pipeline.io.msgdefs import load_user_types, msgtype_of
 
-# mavros_msgs/msg/OverrideRCIn.msg as mavros 2.x ships it
-OVERRIDE_RC_IN = """# Override RC Input
-# Currently MAVLink defines override for 18 channel
-
-uint16 CHAN_RELEASE=0
-uint16 CHAN_NOCHANGE=65535
-
-uint16[18] channels
-"""
 RC = "mavros_msgs/msg/OverrideRCIn"
 FLOAT64 = "std_msgs/msg/Float64"
 T0_NS = 1_700_000_000_000_000_000

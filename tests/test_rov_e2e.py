@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from io_helpers import OVERRIDE_RC_IN
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from pipeline import store
@@ -39,15 +40,6 @@ GUIDE = Path(__file__).resolve().parents[1] / "docs" / "user-guide.md"
 T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF_N = 9.80665
 
-# mavros_msgs/msg/OverrideRCIn.msg as mavros 2.x ships it
-OVERRIDE_RC_IN = """# Override RC Input
-# Currently MAVLink defines override for 18 channel
-
-uint16 CHAN_RELEASE=0
-uint16 CHAN_NOCHANGE=65535
-
-uint16[18] channels
-"""
 RC = "mavros_msgs/msg/OverrideRCIn"
 TWIST = "geometry_msgs/msg/TwistWithCovarianceStamped"
 
