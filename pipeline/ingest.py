@@ -159,17 +159,24 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
     """
     path = Path(path)
     out = IngestOutput(trial=trial or trial_id(path))
+    overrides = vehicle.trial_overrides(out.trial)
+    if overrides:
+        log.info("%s: per-trial overrides %s", out.trial, overrides)
+    # Provenance keeps the hash of the whole vehicle config (overrides included), as every later stage records it.
+    chash = config_hash(vehicle)
+    vehicle = vehicle.for_trial(out.trial)
     # The file's sha256 (provenance) is computed while the log is read: hashlib and file reads release the GIL.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256") as pool:
         sha_job = pool.submit(file_sha256, path)
         try:
-            return _ingest(path, vehicle, out, salvage=salvage, source_name=source_name, sha_job=sha_job)
+            return _ingest(path, vehicle, out, salvage=salvage, source_name=source_name, sha_job=sha_job,
+                           chash=chash, overrides=overrides)
         finally:
             sha_job.cancel()
 
 
 def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, source_name: str | None,
-            sha_job: Any) -> IngestOutput:
+            sha_job: Any, chash: str, overrides: dict[str, Any]) -> IngestOutput:
     absent: dict[str, dict[str, Any]] = {}  # optional streams this trial lacks
 
     def lack(name: str, source: str, reason: str) -> None:
@@ -222,8 +229,8 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
             # debug: the reasons go into the quarantine entry, which the shell prints once
             log.debug("%s (%s): %s", out.trial, path.name, "; ".join(q["reason"] for q in out.quarantine))
             out.report = {"trial": out.trial, "source_file": source_name if source_name is not None else str(path),
-                          "format": reader.format, "absent_streams": absent, "skipped_streams": skipped,
-                          "quarantine": out.quarantine}
+                          "format": reader.format, "trial_overrides": overrides, "absent_streams": absent,
+                          "skipped_streams": skipped, "quarantine": out.quarantine}
             return out
         if not sources:
             raise IngestError(f"every stream that applies to this log is absent: {sorted(absent)}", file=path)
@@ -241,13 +248,12 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         raise IngestError(f"file is damaged ({result.salvage.reason}); salvage is disabled in params",
                           file=path)
     sha = sha_job.result()
-    chash = config_hash(vehicle)
     source_file = source_name if source_name is not None else str(path)
     report: dict[str, Any] = {
         "trial": out.trial, "source_file": source_file, "source_sha256": sha, "format": fmt,
         "config_hash": chash, "salvage": asdict(result.salvage) if result.salvage else None,
         "failed_topics": dict(sorted(result.failed.items())), "skipped_streams": skipped,
-        "absent_streams": absent, "topics": {}, "streams": {},
+        "trial_overrides": overrides, "absent_streams": absent, "topics": {}, "streams": {},
     }
     for topic, data in sorted(result.topics.items()):
         report["topics"][topic] = _topic_report(data, infos.get(topic))

@@ -29,7 +29,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
             if not files:
                 raise SyncError("no stream files", file=shown(source, root))
             streams = {f.stem: read_parquet(f)[0] for f in files}
-            frame = synchronize(streams, vehicle, params.sync)
+            frame = synchronize(streams, vehicle.for_trial(name), params.sync)
         except (SyncError, SchemaError) as err:
             result.quarantined.append(quarantine(err, name, shown(source, root)))
             drop_stale(target)

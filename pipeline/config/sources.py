@@ -142,3 +142,39 @@ class StreamSource(Frozen):
         for name, source in signals.items():
             conversion(name, source.unit)  # raises on unknown suffix / unit / dimension mismatch
         return signals
+
+
+class StreamOverride(Frozen):
+    """What one trial changes of a stream's source: any of its options; the keys left out keep the stream's value.
+
+    ``signals`` changes the field path or unit of signals the stream already has (their names stay)."""
+
+    topic: str | None = Field(None, description="Topic in this trial's log.")
+    file: str | None = Field(None, description="CSV file name (or glob) in this trial's directory.")
+    clock: Literal["log", "header", "column"] | None = None
+    offset_s: float | None = Field(None, description="Constant offset added to every stamp, for this trial.")
+    time: TimeOptions | None = None
+    csv: CsvOptions | None = None
+    optional: bool | None = Field(None, description="True: this trial may lack the stream.")
+    signals: dict[str, SignalSource] | None = Field(None, description=(
+        "Field path / unit of some of the stream's signals in this trial (names as under the stream)."))
+
+    def apply(self, stream: StreamSource) -> StreamSource:
+        """``stream`` with this override's keys; validated as a stream (a ValueError says what is wrong)."""
+        given = self.model_dump(exclude_unset=True)
+        merged = stream.model_dump()
+        unknown = sorted(set(given.get("signals") or {}) - set(stream.signals))
+        if unknown:
+            raise ValueError(f"signals {unknown} are not signals of this stream; known: {sorted(stream.signals)}")
+        if "signals" in given:
+            merged["signals"] = {**merged["signals"], **given.pop("signals")}
+        merged.update(given)
+        return StreamSource.model_validate(merged)
+
+
+class TrialOverride(Frozen):
+    """Per-trial changes to the vehicle config, for the trials whose name matches the key (a name or a glob)."""
+
+    streams: dict[str, StreamOverride] = Field(default_factory=dict, description=(
+        "Stream name -> the source options that differ in these trials (offset_s measured per dive, a topic "
+        "renamed in one recording, optional: true for a stream one trial lacks)."))

@@ -6,14 +6,15 @@ choose which DOFs they use (``dofs``), nothing here hard-wires 3 DOF.
 
 from __future__ import annotations
 
+import fnmatch
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field, PrivateAttr, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
 from pipeline.config.base import Frozen
-from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource
+from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource, TrialOverride
 
 Vec3 = tuple[float, float, float]
 DOF_NAMES = ("u", "v", "w", "p", "q", "r")
@@ -294,12 +295,32 @@ class Vehicle(Frozen):
     sensors: Sensors
     streams: dict[str, StreamSource] = Field(min_length=1)
     message_definitions: list[str] = Field(default_factory=list, description=MESSAGE_DEFINITIONS_DOC)
+    trials: dict[str, TrialOverride] = Field(default_factory=dict, description=(
+        "Per-trial overrides: trial name or glob (trial id: the log's name without extensions) -> what differs "
+        "for the matching trials. Several matching keys apply in config order, a later one winning per key."))
 
     _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
 
     def resolve(self, relative: str | Path) -> Path:
         """A path from the config (a thrust table), relative to the vehicle file's directory."""
         return self._base_dir / relative
+
+    def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
+        """The overrides that apply to ``trial``: ``{pattern: {stream: {key: value}}}``, in config order."""
+        return {pattern: {name: o.model_dump(mode="json", exclude_unset=True) for name, o in t.streams.items()}
+                for pattern, t in self.trials.items() if pattern == trial or fnmatch.fnmatchcase(trial, pattern)}
+
+    def for_trial(self, trial: str) -> Vehicle:
+        """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none
+        applies. The overrides were validated at load, so this never fails."""
+        matching = [t for pattern, t in self.trials.items() if pattern == trial or fnmatch.fnmatchcase(trial, pattern)]
+        if not any(t.streams for t in matching):
+            return self
+        streams = dict(self.streams)
+        for t in matching:
+            for name, override in t.streams.items():
+                streams[name] = override.apply(streams[name])
+        return self.model_copy(update={"streams": streams})
 
     def signal_names(self) -> list[str]:
         return [name for stream in self.streams.values() for name in stream.signals]
@@ -332,6 +353,25 @@ class Vehicle(Frozen):
                 raise ValueError(f"{key} {name!r} is not a configured signal (define it under `streams`); "
                                  f"known: {sorted(known)}")
         return self
+
+    @field_validator("trials")
+    @classmethod
+    def _overrides_valid(cls, trials: dict[str, TrialOverride], info: ValidationInfo) -> dict[str, TrialOverride]:
+        """Each override names a configured stream and gives a valid stream once applied on its own."""
+        streams: dict[str, StreamSource] = info.data.get("streams") or {}
+        for pattern, t in trials.items():
+            for name, override in t.streams.items():
+                key = f"trials.{pattern}.streams.{name}"
+                if name not in streams:
+                    raise ValueError(f"{key}: no stream {name!r} to override; streams: {sorted(streams)}")
+                try:
+                    override.apply(streams[name])
+                except ValidationError as err:
+                    why = "; ".join(f"{'.'.join(map(str, e['loc'])) or '(stream)'}: {e['msg']}" for e in err.errors())
+                    raise ValueError(f"{key}: {why}") from None
+                except ValueError as err:
+                    raise ValueError(f"{key}: {err}") from None
+        return trials
 
     def _sensor_references(self) -> list[tuple[str, str]]:
         """(config key, signal) of every signal the sensors section names."""
