@@ -321,7 +321,8 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
     elif "odometry" in roles:
         s = roles["odometry"]
         signals = [f"u_{s}_mps", f"v_{s}_mps", f"w_{s}_mps"]
-        out += ["  velocity:", "    frame: body", f"    signals: {_v(signals)}"]
+        out += ["  velocity:", "    frame: body", "    axes: flu  # a ROS twist, in its child frame: FLU -> FRD",
+                f"    signals: {_v(signals)}"]
     else:
         out.append(f"  velocity: {_todo('a velocity source: dvl (with mounting) or velocity (frame, signals)')}")
     quat = roles.get("quaternion") or (f"{roles.get('odometry')}_quat" if "odometry" in roles else None)
@@ -335,6 +336,10 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
     if any(rates.values()):
         out.append("  rates:")
         out += [f"    {a}: {sig}" for a, sig in rates.items() if sig]
+        if odom and any(rates[a] == f"{a}_{odom}_radps" for a in "qr"):
+            # ROS twists are FLU: q (about y left) and r (about z up) change sign in the body FRD axes
+            signs = [-1.0 if a != "p" and rates[a] == f"{a}_{odom}_radps" else 1.0 for a in "pqr"]
+            out.append(f"    signs: {_v(signs)}  # the odometry's angular twist is FLU")
     if "depth" in roles:
         out.append(f"  depth: {roles['depth']}")
     return out

@@ -116,3 +116,17 @@ def test_init_reproduces_the_example_features(tmp_path: Path, example_log: Path)
     example, starter = frames
     assert len(example) > 100
     pd.testing.assert_frame_equal(starter, example, check_exact=True)
+
+
+def test_odometry_twist_is_written_as_flu(tmp_path: Path) -> None:
+    """A nav_msgs/Odometry twist is FLU (ROS): init writes ``axes: flu`` and the rates' signs [1, -1, -1], the
+    sensors section test_odometry_source checks against the true FRD motion."""
+    from test_odometry_source import VEHICLE, write_bag
+
+    doc = yaml.safe_load(starter_config([write_bag(tmp_path / "run01")]).text)
+    sensors = doc["sensors"]
+    odom = next(name for name, s in doc["streams"].items() if s["topic"] == "/odom")
+    known = yaml.safe_load(VEHICLE)["sensors"]
+    assert odom == "odom"
+    assert sensors["velocity"] == known["velocity"]
+    assert sensors["rates"] == known["rates"]
