@@ -8,6 +8,9 @@ report (JSON-able): per topic messages read vs held by the storage, time span, m
 path; salvage; failed topics; CSV rows dropped; quarantine reasons; per stream, the time-stamp checks of
 :mod:`pipeline.stamps` (``stamps`` counts and ``stamp_warnings``, each with the remedy; also logged as warnings).
 
+The vehicle's per-trial overrides (``trials``) for the log's trial are applied first
+(:meth:`~pipeline.config.Vehicle.for_trial`); the report lists them under ``trial_overrides``.
+
 A stream with ``time: {rate_hz: R}`` gets ``t_ns = first + k / R`` (k the row or message index, the first
 stamp from its clock) plus its offset, instead of its own stamps.
 

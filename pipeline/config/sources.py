@@ -51,6 +51,10 @@ ingest then logs a warning, lists it under ``absent_streams`` in the ingest repo
 sync gives its signals as NaN with ``<signal>__valid`` False. A stream that is not optional (the default) is
 needed: a trial without it is quarantined, with the reason.
 
+A trial that differs (an offset measured per dive, a topic renamed in one recording, a stream only it lacks) gets
+per-trial overrides under the top-level ``trials`` key: ``trials: {dive07: {streams: {dvl: {offset_s: 0.12}}}}``
+(a trial name or glob; any stream option; :class:`StreamOverride`), applied by ingest and sync for that trial only.
+
 Ingest checks the stamps of every stream (zero, constant, sim-time header stamps, duplicates, quantized
 stamps, steps back; :mod:`pipeline.stamps`) and names these options as the remedy.
 """
