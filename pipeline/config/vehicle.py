@@ -312,7 +312,8 @@ class Vehicle(Frozen):
 
     def for_trial(self, trial: str) -> Vehicle:
         """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none
-        applies. The overrides were validated at load, so this never fails."""
+        applies. Each override was validated on its own at load; two matching keys that only together make an invalid
+        stream raise a ValueError here."""
         matching = [t for pattern, t in self.trials.items() if pattern == trial or fnmatch.fnmatchcase(trial, pattern)]
         if not any(t.streams for t in matching):
             return self
