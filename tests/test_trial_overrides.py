@@ -117,3 +117,16 @@ def test_bad_override_is_refused_at_load_with_the_key_path(tmp_path: Path, overr
     with pytest.raises(ConfigError) as info:
         load_vehicle(path)
     assert info.value.field == key and says in str(info.value) and "vehicle.yaml" in str(info.value)
+
+
+def test_overrides_that_clash_only_together_are_a_config_error_naming_both_keys() -> None:
+    """Each override is valid alone; for dive2 both match and give a stream with a topic AND a file."""
+    doc = vehicle_dict()
+    doc["trials"] = {"dive*": {"streams": {"depth": {"topic": None, "file": "depth.csv", "clock": "column",
+                                                     "csv": {"time_column": "t"}}}},
+                     "dive2": {"streams": {"depth": {"topic": "/depth2"}}}}
+    v = parse(Vehicle, doc)
+    assert v.for_trial("dive1").streams["depth"].file == "depth.csv"
+    with pytest.raises(ConfigError, match=r"trial 'dive2'.*\['dive\*', 'dive2'\].*'depth'.*exactly one of") as err:
+        v.for_trial("dive2")
+    assert err.value.field == "trials.dive2.streams.depth"

@@ -15,6 +15,7 @@ from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_
 
 from pipeline.config.base import Frozen
 from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource, TrialOverride
+from pipeline.errors import ConfigError
 
 Vec3 = tuple[float, float, float]
 DOF_NAMES = ("u", "v", "w", "p", "q", "r")
@@ -313,14 +314,20 @@ class Vehicle(Frozen):
     def for_trial(self, trial: str) -> Vehicle:
         """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none
         applies. Each override was validated on its own at load; two matching keys that only together make an invalid
-        stream raise a ValueError here."""
-        matching = [t for pattern, t in self.trials.items() if pattern == trial or fnmatch.fnmatchcase(trial, pattern)]
-        if not any(t.streams for t in matching):
+        stream raise a ConfigError here, naming the trial, the keys and the stream."""
+        matching = [(pattern, t) for pattern, t in self.trials.items()
+                    if pattern == trial or fnmatch.fnmatchcase(trial, pattern)]
+        if not any(t.streams for _, t in matching):
             return self
         streams = dict(self.streams)
-        for t in matching:
+        for _, t in matching:
             for name, override in t.streams.items():
-                streams[name] = override.apply(streams[name])
+                try:
+                    streams[name] = override.apply(streams[name])
+                except (ValidationError, ValueError) as err:
+                    keys = [p for p, t2 in matching if name in t2.streams]
+                    raise ConfigError(f"trial {trial!r}: the overrides {keys} of stream {name!r} together give an "
+                                      f"invalid stream: {err}", field=f"trials.{keys[-1]}.streams.{name}") from None
         return self.model_copy(update={"streams": streams})
 
     def signal_names(self) -> list[str]:
