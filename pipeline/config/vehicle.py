@@ -326,8 +326,9 @@ class Vehicle(Frozen):
                     streams[name] = override.apply(streams[name])
                 except (ValidationError, ValueError) as err:
                     keys = [p for p, t2 in matching if name in t2.streams]
+                    why = "; ".join(e["msg"] for e in err.errors()) if isinstance(err, ValidationError) else str(err)
                     raise ConfigError(f"trial {trial!r}: the overrides {keys} of stream {name!r} together give an "
-                                      f"invalid stream: {err}", field=f"trials.{keys[-1]}.streams.{name}") from None
+                                      f"invalid stream: {why}", field=f"trials.{keys[-1]}.streams.{name}") from None
         return self.model_copy(update={"streams": streams})
 
     def signal_names(self) -> list[str]:
