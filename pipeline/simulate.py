@@ -26,6 +26,7 @@ velocity, next to the baseline of holding the last DVL velocity.
 
 from __future__ import annotations
 
+import copy
 import functools
 import logging
 from collections.abc import Callable, Mapping, Sequence
@@ -65,6 +66,10 @@ class Table1D:
 
     def grid(self) -> np.ndarray:
         return np.linspace(self.lo, self.hi, self.n)
+
+    def take(self, members: np.ndarray) -> Table1D:
+        """The tables of batch members ``members`` (repeats allowed); a shared ``(G,)`` table is returned as is."""
+        return self if self.values.ndim == 1 else Table1D(self.lo, self.hi, self.values[members])
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         s = (np.asarray(x, dtype=float) - self.lo) / self.h
@@ -125,6 +130,15 @@ class DecoupledDynamics:
             log.info("C(nu) nu is not a quadratic form in the simulated DOFs; calling it at every step")
             return None
         return Q
+
+    def take(self, members: np.ndarray) -> DecoupledDynamics:
+        """The dynamics of batch members ``members`` (per-member damping tables taken, see :func:`take`)."""
+        damping = {d: take(t, members) for d, t in self.damping.items()}
+        if all(damping[d] is self.damping[d] for d in damping):
+            return self
+        other = copy.copy(self)
+        other.damping = damping
+        return other
 
     def __call__(self, nu: np.ndarray, tau: np.ndarray) -> np.ndarray:
         rhs = tau - np.column_stack([self.damping[d](nu[:, j]) for j, d in enumerate(self.dofs)])
@@ -213,48 +227,113 @@ def band_tables(models: Mapping[str, Any], ranges: Mapping[str, tuple[float, flo
     return out
 
 
+def take(f: Any, members: np.ndarray) -> Any:
+    """``f`` restricted to (or repeated over) the batch members ``members``: ``f.take(members)`` where ``f`` has
+    per-member parameters (a :class:`Table1D` of ``(B, G)`` values, dynamics built on such tables), else ``f``
+    itself (a function of each row alone)."""
+    method = getattr(f, "take", None)
+    return f if method is None else method(np.asarray(members, dtype=np.intp))
+
+
+class MemberStack:
+    """Several dynamics stepped as one batch: member ``b`` follows ``dynamics[group[b]]`` (one call per distinct
+    dynamics and RK4 stage, on its rows only)."""
+
+    def __init__(self, dynamics: Sequence[Dynamics], group: np.ndarray) -> None:
+        self.dynamics = list(dynamics)
+        self.group = np.asarray(group, dtype=np.intp)
+        self._rows = [np.flatnonzero(self.group == g) for g in range(len(self.dynamics))]
+
+    def __call__(self, nu: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        out = np.empty_like(nu, dtype=float)
+        for g, rows in zip(self.dynamics, self._rows, strict=True):
+            if rows.size:
+                out[rows] = g(nu[rows], inputs[rows])
+        return out
+
+    def take(self, members: np.ndarray) -> MemberStack:
+        local = np.empty(self.group.size, dtype=np.intp)  # each member's row within its own group
+        for rows in self._rows:
+            local[rows] = np.arange(rows.size)
+        group = self.group[members]
+        return MemberStack([take(g, local[members[group == j]]) for j, g in enumerate(self.dynamics)], group)
+
+
 def rollout(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, dt_s: float, *, bound: np.ndarray | None = None,
             clamp: np.ndarray | None = None, clamp_mask: np.ndarray | None = None,
-            method: str = "rk4") -> tuple[np.ndarray, np.ndarray]:
+            method: str = "rk4", n_steps: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Integrate a batch: ``nu0 (B, k)``, ``inputs (B, N, m)`` held over each step; returns ``(nu (B, N, k),
     diverged_step (B,))`` with ``nu[:, 0] = nu0`` and ``-1`` for members that stayed within ``bound (k,)``.
 
+    ``n_steps (B,)`` (default all ``N``): member ``b`` has ``n_steps[b]`` samples; its later values are NaN.
     DOFs in ``clamp_mask`` are taken from ``clamp (B, N, k)`` at every step (measured, e.g. gyro rates).
-    A diverged member is frozen at its last state within bounds; its later values are NaN.
+    A diverged member is frozen at its last state within bounds; its later values are NaN. See
+    :func:`rollout_ragged` for members that read their inputs from one trial's rows.
     """
     nu0 = np.atleast_2d(np.asarray(nu0, dtype=float))
-    n_batch, n_steps = inputs.shape[0], inputs.shape[1]
+    n_batch, n_max = inputs.shape[0], inputs.shape[1]
     k = nu0.shape[1]
-    out = np.full((n_batch, n_steps, k), np.nan)
+    length = np.full(n_batch, n_max) if n_steps is None else np.minimum(np.asarray(n_steps, dtype=int), n_max)
+    first = np.arange(n_batch) * n_max
+    flat, diverged = rollout_ragged(f, nu0, inputs.reshape(n_batch * n_max, -1), first, length, dt_s, bound=bound,
+                                    clamp=None if clamp is None else clamp.reshape(n_batch * n_max, k),
+                                    clamp_mask=clamp_mask, method=method, offsets=first, n_out=n_batch * n_max)
+    return flat.reshape(n_batch, n_max, k), diverged
+
+
+def rollout_ragged(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, starts: np.ndarray, n_steps: np.ndarray,
+                   dt_s: float, *, bound: np.ndarray | None = None, clamp: np.ndarray | None = None,
+                   clamp_mask: np.ndarray | None = None, method: str = "rk4", offsets: np.ndarray | None = None,
+                   n_out: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Integrate a batch of members of different lengths that read one table of rows: member ``b`` starts at
+    ``nu0[b]`` and takes its input at its step ``i`` from ``inputs[starts[b] + i]`` (``inputs (n, m)``, a
+    trial's rows; ``clamp (n, k)`` likewise) for ``n_steps[b]`` samples.
+
+    Returns ``(out, diverged_step (B,))``: ``out[offsets[b] + i]`` is member ``b`` at step ``i`` (``offsets``
+    defaults to the members laid end to end, ``out`` then has ``sum(n_steps)`` rows; NaN after divergence).
+    All members are stepped together: each RK4 stage calls ``f`` once, on the members still running
+    (``take(f, members)`` when that set changes), so members that ended or diverged cost nothing.
+    """
+    nu0 = np.atleast_2d(np.asarray(nu0, dtype=float))
+    starts, length = np.asarray(starts, dtype=np.intp), np.asarray(n_steps, dtype=np.intp)
+    n_batch, k = nu0.shape
+    if offsets is None:
+        offsets = np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.intp)
+        n_out = int(length.sum())
+    out = np.full((int(n_out), k), np.nan)
     diverged = np.full(n_batch, -1)
-    alive = np.ones(n_batch, dtype=bool)
-    state = nu0.copy()
     free = np.ones(k) if clamp_mask is None else (~np.asarray(clamp_mask, dtype=bool)).astype(float)
-    for i in range(n_steps):
-        if clamp is not None and clamp_mask is not None:
-            state[:, clamp_mask] = clamp[:, i, clamp_mask]
+    clamped = clamp is not None and clamp_mask is not None
+    act = np.flatnonzero(length > 0)  # members still running, and their states
+    state = nu0[act].copy()
+    g, g_size = f, -1
+    for i in range(int(length.max(initial=0))):
+        if clamped:
+            state[:, clamp_mask] = clamp[starts[act] + i][:, clamp_mask]
         bad = ~np.all(np.isfinite(state), axis=1)
         if bound is not None:
             bad |= np.any(np.abs(state) > bound, axis=1)
-        newly = bad & alive
-        if newly.any():
-            diverged[newly] = i
-            alive &= ~newly
-        out[alive, i] = state[alive]
-        if i == n_steps - 1 or not alive.any():
+        if bad.any():
+            diverged[act[bad]] = i
+        out[offsets[act[~bad]] + i] = state[~bad]
+        keep = ~bad & (length[act] > i + 1)
+        if not keep.all():
+            act, state = act[keep], state[keep]
+        if act.size == 0:
             break
-        u = inputs[:, i]
+        if act.size != g_size:  # the running set only shrinks: the same size is the same members
+            g, g_size = take(f, act), act.size
+        u = inputs[starts[act] + i]
         with np.errstate(all="ignore"):
             if method == "euler":
-                step = f(state, u)
+                step = g(state, u)
             else:
-                k1 = f(state, u) * free
-                k2 = f(state + 0.5 * dt_s * k1, u) * free
-                k3 = f(state + 0.5 * dt_s * k2, u) * free
-                k4 = f(state + dt_s * k3, u) * free
+                k1 = g(state, u) * free
+                k2 = g(state + 0.5 * dt_s * k1, u) * free
+                k3 = g(state + 0.5 * dt_s * k2, u) * free
+                k4 = g(state + dt_s * k3, u) * free
                 step = (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
-            nxt = state + dt_s * step * free
-        state = np.where(alive[:, None], nxt, state)
+            state = state + dt_s * step * free
     return out, diverged
 
 
@@ -327,31 +406,11 @@ def free_run(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray, inpu
     """Roll ``f`` out over every valid run of the trial from its measured initial velocity.
 
     ``band_f`` (optional) is a dynamics over a batch of ``band_members`` posterior members (per-member tables);
-    its mean +- 2 sd becomes :attr:`FreeRun.band`.
+    its mean +- 2 sd becomes :attr:`FreeRun.band`. All runs (and band members) are one batch
+    (:func:`simulate_model`).
     """
-    dt_s = grid_step_s(t_ns)
-    bound = divergence_bound(nu_meas, divergence_factor)
-    t_s = (np.asarray(t_ns) - t_ns[0]) * 1e-9
-    pred = np.full_like(nu_meas, np.nan, dtype=float)
-    lo = np.full_like(pred, np.nan)
-    hi = np.full_like(pred, np.nan)
-    status, at = "ok", None
-    for a, b in segment_runs(t_ns, segment, dt_s):
-        traj, div = rollout(f, nu_meas[a][None], inputs[None, a:b], dt_s, bound=bound, method=method)
-        pred[a:b] = traj[0]
-        if div[0] >= 0 and status == "ok":
-            status, at = "diverged", float(t_s[a + div[0]])
-            log.warning("%s diverged at t=%.2f s", name, at)
-        if band_f is not None and band_members > 0:
-            members, _ = rollout(band_f, np.repeat(nu_meas[a][None], band_members, 0),
-                                 np.repeat(inputs[None, a:b], band_members, 0), dt_s, bound=bound, method=method)
-            with np.errstate(all="ignore"):
-                m, s = np.nanmean(members, axis=0), np.nanstd(members, axis=0)
-            lo[a:b], hi[a:b] = m - 2 * s, m + 2 * s
-    run = FreeRun(name, list(dofs), t_s, nu_meas, pred, status, at,
-                  (lo, hi) if band_f is not None and band_members > 0 else None)
-    run.metrics = _metrics(nu_meas, pred, dofs)
-    return run
+    return simulate_model(name, f, t_ns, nu_meas, inputs, dofs, segment=segment, divergence_factor=divergence_factor,
+                          method=method, band_f=band_f, band_members=band_members)[0]
 
 
 def windows(t_ns: np.ndarray, segment: np.ndarray | None, dt_s: float, length_s: float) -> np.ndarray:
@@ -365,26 +424,83 @@ def horizon_errors(f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray, inputs: n
                    horizons_s: Sequence[float], *, segment: np.ndarray | None = None,
                    divergence_factor: float = 10.0, method: str = "rk4") -> dict[str, Any]:
     """Error growth: for each horizon H, rollouts re-initialized from measurement at the start of consecutive
-    H-second windows; mean |error| at the window's end and over the window, per DOF."""
+    H-second windows; mean |error| at the window's end and over the window, per DOF (all windows of all
+    horizons one batch, :func:`simulate_model`)."""
+    return simulate_model("", f, t_ns, nu_meas, inputs, dofs, horizons_s, segment=segment,
+                          divergence_factor=divergence_factor, method=method, free=False)[1]
+
+
+def simulate_model(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray, inputs: np.ndarray,
+                   dofs: Sequence[str], horizons_s: Sequence[float] = (), *, segment: np.ndarray | None = None,
+                   divergence_factor: float = 10.0, method: str = "rk4", band_f: Dynamics | None = None,
+                   band_members: int = 0, free: bool = True) -> tuple[FreeRun | None, dict[str, Any]]:
+    """One model's free run (``free``; with ``band_f``'s members) and horizon errors from one batched rollout:
+    every valid run, every band member of every run and every window of every horizon is a member of one
+    :func:`rollout_ragged` call (one call of the dynamics per RK4 stage for the whole batch, per dynamics).
+    Returns ``(FreeRun or None, horizons)``, equal to rolling each member out alone."""
     dt_s = grid_step_s(t_ns)
     bound = divergence_bound(nu_meas, divergence_factor)
-    out: dict[str, Any] = {}
+    runs = segment_runs(t_ns, segment, dt_s) if free else []
+    seg_a = np.array([a for a, _ in runs], dtype=np.intp)
+    seg_n = np.array([b - a for a, b in runs], dtype=np.intp)
+    band = free and band_f is not None and band_members > 0
+    starts, lengths, groups = [seg_a], [seg_n], [np.zeros(seg_a.size, dtype=np.intp)]
+    if band:  # run-major: the members of run s are rows s*M .. s*M + M - 1 of the band dynamics
+        starts.append(np.repeat(seg_a, band_members))
+        lengths.append(np.repeat(seg_n, band_members))
+        groups.append(np.ones(seg_a.size * band_members, dtype=np.intp))
+    horizon_n = {}
     for h in horizons_s:
-        starts = windows(t_ns, segment, dt_s, h)
-        n = int(round(h / dt_s)) + 1
-        if starts.size == 0:
+        st = windows(t_ns, segment, dt_s, h)
+        horizon_n[h] = (st.size, int(round(h / dt_s)) + 1)
+        starts.append(st)
+        lengths.append(np.full(st.size, horizon_n[h][1], dtype=np.intp))
+        groups.append(np.zeros(st.size, dtype=np.intp))
+    start, length, group = (np.concatenate(x) for x in (starts, lengths, groups))
+    dyn: Dynamics = f
+    if band:
+        dyn = MemberStack([f, take(band_f, np.tile(np.arange(band_members), seg_a.size))], group)
+    flat, div = rollout_ragged(dyn, nu_meas[start], inputs, start, length, dt_s, bound=bound, method=method)
+    offset = np.concatenate([[0], np.cumsum(length)]).astype(np.intp)
+
+    run = None
+    if free:
+        t_s = (np.asarray(t_ns) - t_ns[0]) * 1e-9
+        pred = np.full_like(nu_meas, np.nan, dtype=float)
+        lo, hi = np.full_like(pred, np.nan), np.full_like(pred, np.nan)
+        status, at = "ok", None
+        for s, (a, b) in enumerate(runs):
+            pred[a:b] = flat[offset[s]:offset[s + 1]]
+            if div[s] >= 0 and status == "ok":
+                status, at = "diverged", float(t_s[a + div[s]])
+                log.warning("%s diverged at t=%.2f s", name, at)
+            if band:
+                first = seg_a.size + s * band_members
+                members = flat[offset[first]:offset[first + band_members]].reshape(band_members, b - a, -1)
+                with np.errstate(all="ignore"):
+                    m, sd = np.nanmean(members, axis=0), np.nanstd(members, axis=0)
+                lo[a:b], hi[a:b] = m - 2 * sd, m + 2 * sd
+        run = FreeRun(name, list(dofs), t_s, nu_meas, pred, status, at, (lo, hi) if band else None)
+        run.metrics = _metrics(nu_meas, pred, dofs)
+
+    out: dict[str, Any] = {}
+    first = seg_a.size * (1 + (band_members if band else 0))
+    for h in horizons_s:
+        count, n = horizon_n[h]
+        if count == 0:
             out[f"{h:g}"] = {"n_windows": 0, "n_diverged": 0, "mae_end": None, "mae_window": None}
             continue
-        idx = starts[:, None] + np.arange(n)
-        traj, div = rollout(f, nu_meas[starts], inputs[idx], dt_s, bound=bound, method=method)
-        ok = div < 0
+        traj = flat[offset[first]:offset[first + count]].reshape(count, n, -1)
+        ok = div[first:first + count] < 0
+        idx = start[first:first + count, None] + np.arange(n)
         err = np.abs(traj[ok] - nu_meas[idx[ok]])
         out[f"{h:g}"] = {
-            "n_windows": int(starts.size), "n_diverged": int((~ok).sum()),
+            "n_windows": int(count), "n_diverged": int((~ok).sum()),
             "mae_end": {d: float(err[:, -1, j].mean()) if ok.any() else None for j, d in enumerate(dofs)},
             "mae_window": {d: float(err[:, :, j].mean()) if ok.any() else None for j, d in enumerate(dofs)},
         }
-    return out
+        first += count
+    return run, out
 
 
 def dead_reckon(u: np.ndarray, v: np.ndarray, yaw: np.ndarray, dt_s: float) -> np.ndarray:

@@ -82,3 +82,99 @@ def test_coupled_svr_free_run_through_numpy_kernel_sums_equals_sklearn_predict()
              for f in (True, False)]
         assert h[0]["5"]["mae_end"] == pytest.approx(h[1]["5"]["mae_end"], rel=1e-9)
     assert svr_kernel_predictor(object()) is None
+
+
+def _one_at_a_time(f, nu0, inputs, starts, lengths, dt_s, **kw):
+    """The reference the batch replaces: each member rolled out alone with its own dynamics (take(f, [b]))."""
+    from pipeline.simulate import rollout, take
+
+    out, div = [], []
+    clamp = kw.pop("clamp", None)
+    for b, (a, n) in enumerate(zip(starts, lengths, strict=True)):
+        extra = {} if clamp is None else {"clamp": clamp[None, a:a + n]}
+        traj, d = rollout(take(f, np.array([b])), nu0[b][None], inputs[None, a:a + n], dt_s, **kw, **extra)
+        out.append(traj[0])
+        div.append(d[0])
+    return np.concatenate(out), np.array(div)
+
+
+def _band_like(n_members: int, scale: float = 1.0):
+    """Decoupled dynamics with one damping table per batch member (as the GP's posterior functions)."""
+    from pipeline.simulate import DecoupledDynamics, SyntheticPlant, Table1D, coriolis_from_mass
+
+    plant = SyntheticPlant()
+    grid = np.linspace(-3.0, 3.0, 301)
+    factors = scale * np.linspace(0.6, 1.4, n_members)
+    tables = {d: Table1D(-3.0, 3.0, factors[:, None] * plant.damping(d, grid)[None]) for d in ("u", "v", "r")}
+    return DecoupledDynamics(plant.mass_matrix(), ["u", "v", "r"], tables, coriolis_from_mass)
+
+
+def test_ragged_batch_equals_one_member_at_a_time() -> None:
+    """Members of different lengths (ending at different steps), two dynamics in one stack, per-member tables,
+    a clamped DOF and a diverging member: the batch gives each member's lone rollout to float rounding."""
+    from pipeline.simulate import MemberStack, rollout_ragged
+
+    rng = np.random.default_rng(3)
+    n_rows, dt_s = 120, 0.05
+    inputs = rng.normal(0.0, 20.0, (n_rows, 3))
+    clamp = rng.normal(0.0, 0.2, (n_rows, 3))
+    starts = np.array([0, 7, 30, 3, 50, 60, 11])
+    lengths = np.array([37, 5, 1, 23, 60, 2, 90])
+    group = np.array([0, 1, 1, 0, 1, 0, 1])
+    unstable = _band_like(int((group == 1).sum()), scale=-3.0)  # negative damping: some members diverge
+    f = MemberStack([lambda nu, u: -0.8 * nu * np.abs(nu) + 0.05 * u, unstable], group)
+    nu0 = rng.normal(0.0, 0.5, (starts.size, 3))
+    bound = np.array([2.0, 2.0, 2.0])
+    for kw in ({}, {"clamp_mask": np.array([False, False, True])}):
+        c = {"clamp": clamp} if kw else {}
+        flat, div = rollout_ragged(f, nu0, inputs, starts, lengths, dt_s, bound=bound, **kw, **c)
+        ref, ref_div = _one_at_a_time(f, nu0, inputs, starts, lengths, dt_s, bound=bound, **kw, **c)
+        np.testing.assert_array_equal(div, ref_div)
+        assert (div >= 0).any() and (div < 0).any()
+        np.testing.assert_array_equal(np.isnan(flat), np.isnan(ref))
+        np.testing.assert_allclose(flat, ref, rtol=1e-10, atol=1e-14)
+
+
+def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> None:
+    """simulate_model (all runs, band members and horizon windows in one batch) against rolling each run, each
+    band member and each horizon's windows separately, on a trial with three runs of different lengths."""
+    from pipeline.simulate import (
+        TAU_COLUMNS,
+        VELOCITY_COLUMNS,
+        SyntheticPlant,
+        divergence_bound,
+        grid_step_s,
+        rollout,
+        segment_runs,
+        simulate_model,
+        synthetic_trial,
+        windows,
+    )
+
+    plant = SyntheticPlant()
+    trial = synthetic_trial(plant, duration_s=40.0, rate_hz=10.0, seed=4, gap_s=(9.0, 10.0))
+    seg = trial["segment"].to_numpy().copy()
+    seg[230:] = np.where(seg[230:] >= 0, seg[230:] + 5, seg[230:])  # a third run
+    t_ns, nu = trial["t_ns"].to_numpy(), trial[[VELOCITY_COLUMNS[d] for d in ("u", "v", "r")]].to_numpy()
+    tau = trial[[TAU_COLUMNS[d] for d in ("u", "v", "r")]].to_numpy()
+    f, band = _band_like(1, scale=0.7).take(np.array([0])), _band_like(4)
+    f.damping = {d: type(t)(t.lo, t.hi, t.values[0]) for d, t in f.damping.items()}  # one shared table
+    run, hz = simulate_model("m", f, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0], segment=seg, band_f=band,
+                             band_members=4)
+    dt_s, bound = grid_step_s(t_ns), divergence_bound(nu, 10.0)
+    runs = segment_runs(t_ns, seg, dt_s)
+    assert len({b - a for a, b in runs}) == 3
+    for a, b in runs:
+        traj, _ = rollout(f, nu[a][None], tau[None, a:b], dt_s, bound=bound)
+        np.testing.assert_allclose(run.predicted[a:b], traj[0], rtol=1e-10, atol=1e-14)
+        members, _ = rollout(band, np.repeat(nu[a][None], 4, 0), np.repeat(tau[None, a:b], 4, 0), dt_s, bound=bound)
+        np.testing.assert_allclose(run.band[0][a:b], members.mean(0) - 2 * members.std(0), rtol=1e-10, atol=1e-14)
+    for h in (1.0, 3.0):
+        st = windows(t_ns, seg, dt_s, h)
+        n = int(round(h / dt_s)) + 1
+        idx = st[:, None] + np.arange(n)
+        traj, _ = rollout(f, nu[st], tau[idx], dt_s, bound=bound)
+        err = np.abs(traj - nu[idx])
+        assert hz[f"{h:g}"]["n_windows"] == st.size
+        assert hz[f"{h:g}"]["mae_end"]["u"] == pytest.approx(float(err[:, -1, 0].mean()), rel=1e-10)
+        assert hz[f"{h:g}"]["mae_window"]["r"] == pytest.approx(float(err[:, :, 2].mean()), rel=1e-10)
