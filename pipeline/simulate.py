@@ -522,28 +522,45 @@ def bridge_outages(models: Mapping[str, Dynamics], t_ns: np.ndarray, nu_meas: np
     """Position error at the end of simulated DVL outages, per outage length and model (+ ``hold_last``).
 
     Windows of each length tile the valid runs; in each, the DVL DOFs are rolled out from their last measured
-    value while the other DOFs (gyro rates) stay measured. Needs ``u`` and ``v`` among ``dofs``.
+    value while the other DOFs (gyro rates) stay measured. Needs ``u`` and ``v`` among ``dofs``. Every window
+    of every length and model is one member of one batch (:func:`rollout_ragged`, a :class:`MemberStack` of
+    the models).
     """
     dt_s = grid_step_s(t_ns)
     bound = divergence_bound(nu_meas, divergence_factor)
     ju, jv = dofs.index("u"), dofs.index("v")
     clamp_mask = np.array([d not in dvl_dofs for d in dofs])
-    rows: list[dict[str, Any]] = []
+    plan = []  # (length, starts, n) of the lengths that fit
     for length in outage_windows_s:
         starts = windows(t_ns, segment, dt_s, length)
-        n = int(round(length / dt_s)) + 1
         if starts.size == 0:
             log.warning("no %g s window fits in the valid runs", length)
             continue
+        plan.append((length, starts, int(round(length / dt_s)) + 1))
+    names = list(models)
+    start = np.concatenate([st for _ in names for _, st, _ in plan] or [np.arange(0)]).astype(np.intp)
+    count = np.concatenate([np.full(st.size, n) for _ in names for _, st, n in plan] or [np.arange(0)])
+    group = np.concatenate([np.full(st.size, g) for g in range(len(names)) for _, st, _ in plan] or [np.arange(0)])
+    flat, div = rollout_ragged(MemberStack([models[m] for m in names], group), nu_meas[start], inputs, start,
+                               count, dt_s, bound=bound, clamp=nu_meas, clamp_mask=clamp_mask, method=method)
+    rows: list[dict[str, Any]] = []
+    first = {(m, length): 0 for m in names for length, _, _ in plan}
+    b = 0
+    for m in names:
+        for length, st, _ in plan:
+            first[(m, length)] = b
+            b += st.size
+    for length, starts, n in plan:
         idx = starts[:, None] + np.arange(n)
         ref = dead_reckon(nu_meas[idx, ju], nu_meas[idx, jv], yaw[idx], dt_s)[:, -1]
         held = np.repeat(nu_meas[starts][:, None], n, axis=1)
         candidates: dict[str, tuple[np.ndarray, np.ndarray]] = {"hold_last": (held, np.full(starts.size, -1))}
-        for name, f in models.items():
-            candidates[name] = rollout(f, nu_meas[starts], inputs[idx], dt_s, bound=bound,
-                                       clamp=nu_meas[idx], clamp_mask=clamp_mask, method=method)
-        for name, (traj, div) in candidates.items():
-            ok = div < 0
+        for m in names:
+            a = first[(m, length)]
+            off = int(count[:a].sum())
+            candidates[m] = (flat[off:off + starts.size * n].reshape(starts.size, n, -1), div[a:a + starts.size])
+        for name, (traj, dv) in candidates.items():
+            ok = dv < 0
             err = np.full(starts.size, np.nan)
             if ok.any():
                 pos = dead_reckon(traj[ok, :, ju], traj[ok, :, jv], yaw[idx[ok]], dt_s)[:, -1]

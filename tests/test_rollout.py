@@ -178,3 +178,34 @@ def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> Non
         assert hz[f"{h:g}"]["n_windows"] == st.size
         assert hz[f"{h:g}"]["mae_end"]["u"] == pytest.approx(float(err[:, -1, 0].mean()), rel=1e-10)
         assert hz[f"{h:g}"]["mae_window"]["r"] == pytest.approx(float(err[:, :, 2].mean()), rel=1e-10)
+
+
+def test_bridging_of_all_models_and_outage_lengths_in_one_batch_equals_separate_calls() -> None:
+    from pipeline.simulate import (
+        TAU_COLUMNS,
+        VELOCITY_COLUMNS,
+        DecoupledDynamics,
+        SyntheticPlant,
+        bridge_outages,
+        coriolis_from_mass,
+        synthetic_trial,
+    )
+
+    plant = SyntheticPlant()
+    trial = synthetic_trial(plant, duration_s=60.0, rate_hz=10.0, seed=5, gap_s=(20.0, 23.0))
+    dofs = ["u", "v", "r"]
+    t_ns, seg, yaw = trial["t_ns"].to_numpy(), trial["segment"].to_numpy(), trial["yaw_rad"].to_numpy()
+    nu, tau = (trial[[c[d] for d in dofs]].to_numpy() for c in (VELOCITY_COLUMNS, TAU_COLUMNS))
+    weak = DecoupledDynamics(plant.mass_matrix(), dofs, {d: (lambda x, d=d: 0.6 * plant.damping(d, x)) for d in dofs},
+                             coriolis_from_mass)
+    models = {"truth": plant.as_dynamics(), "weak": weak}
+    rows = bridge_outages(models, t_ns, nu, tau, yaw, dofs, [5.0, 12.0, 50.0], segment=seg)
+    assert [r["window_s"] for r in rows] == [5.0] * 3 + [12.0] * 3  # 50 s fits in no run
+    for r in rows:
+        if r["model"] == "hold_last":
+            continue
+        alone = bridge_outages({r["model"]: models[r["model"]]}, t_ns, nu, tau, yaw, dofs, [r["window_s"]],
+                               segment=seg)[1]
+        assert alone["n_windows"] == r["n_windows"] and alone["n_diverged"] == r["n_diverged"]
+        for k in ("mean_error_m", "median_error_m", "max_error_m"):
+            assert r[k] == pytest.approx(alone[k], rel=1e-10)
