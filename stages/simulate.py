@@ -33,10 +33,9 @@ from pipeline.simulate import (
     bridge_outages,
     bridging_markdown,
     damping_tables,
-    free_run,
-    horizon_errors,
     plot_bridging,
     plot_free_runs,
+    simulate_model,
     table_range,
 )
 from pipeline.tableio import atomic_path, write_json
@@ -126,11 +125,11 @@ def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoup
             continue
         dynamics[name] = (CoupledDynamics(est), frame[extra].to_numpy(float))
     runs, horizons = [], {}
-    for name, (f, inputs) in dynamics.items():
-        runs.append(free_run(name, f, t_ns, nu, inputs, dofs, segment=seg, divergence_factor=p.divergence_factor,
-                             method=p.method, band_f=bands.get(name), band_members=p.band_samples))
-        horizons[name] = horizon_errors(f, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
-                                        divergence_factor=p.divergence_factor, method=p.method)
+    for name, (f, inputs) in dynamics.items():  # free runs, band and horizon windows: one batch per model
+        run, horizons[name] = simulate_model(name, f, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
+                                             divergence_factor=p.divergence_factor, method=p.method,
+                                             band_f=bands.get(name), band_members=p.band_samples)
+        runs.append(run)
     outputs = [write_json([r.summary() for r in runs], out_dir / "free_run.json"),
                write_json(horizons, out_dir / "horizons.json")]
     if runs:
