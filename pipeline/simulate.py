@@ -235,6 +235,56 @@ def take(f: Any, members: np.ndarray) -> Any:
     return f if method is None else method(np.asarray(members, dtype=np.intp))
 
 
+class TableStack:
+    """Batch members' 1-D tables on different grids in one call: member ``b`` reads the table at ``offset[b]`` of
+    ``flat`` (``n[b]`` points from ``lo[b]`` in steps ``h[b]``), with :class:`Table1D`'s arithmetic."""
+
+    def __init__(self, flat: np.ndarray, offset: np.ndarray, lo: np.ndarray, h: np.ndarray, n: np.ndarray) -> None:
+        self.flat, self.offset, self.lo, self.h, self.n = flat, offset, lo, h, n
+
+    @classmethod
+    def of(cls, tables: Sequence[Table1D], group: np.ndarray, local: np.ndarray) -> TableStack:
+        """Member ``b`` gets ``tables[group[b]]`` (its row ``local[b]`` where that table is per member)."""
+        blocks = [t.values.ravel() for t in tables]
+        base = np.concatenate([[0], np.cumsum([x.size for x in blocks])[:-1]]).astype(np.intp)
+        per_member = np.array([t.values.ndim == 2 for t in tables])
+        size = np.array([t.n for t in tables], dtype=np.intp)
+        offset = base[group] + np.where(per_member[group], local * size[group], 0)
+        return cls(np.concatenate(blocks), offset, np.array([t.lo for t in tables])[group],
+                   np.array([t.h for t in tables])[group], (size[group] - 2).astype(float))
+
+    def take(self, members: np.ndarray) -> TableStack:
+        return TableStack(self.flat, self.offset[members], self.lo[members], self.h[members], self.n[members])
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        s = (np.asarray(x, dtype=float) - self.lo) / self.h
+        i = np.fmin(np.fmax(s, 0.0), self.n).astype(np.intp)
+        w = s - i
+        a, b = self.flat[self.offset + i], self.flat[self.offset + i + 1]
+        return a + w * (b - a)
+
+
+def stack(dynamics: Sequence[Dynamics], group: np.ndarray) -> Dynamics:
+    """Member ``b`` of a batch follows ``dynamics[group[b]]`` (row ``b``'s rank in its group of that one's
+    per-member tables). :class:`DecoupledDynamics` with the same M, DOFs and Coriolis term and
+    :class:`Table1D` damping become one such dynamics over a :class:`TableStack` (one call per RK4 stage for all
+    of them); anything else a :class:`MemberStack` (one call per dynamics)."""
+    group = np.asarray(group, dtype=np.intp)
+    first = dynamics[0] if dynamics else None
+    if not isinstance(first, DecoupledDynamics) or not all(
+            isinstance(g, DecoupledDynamics) and g.dofs == first.dofs and np.array_equal(g.M, first.M)
+            and g.coriolis is first.coriolis and all(isinstance(g.damping[d], Table1D) for d in g.dofs)
+            for g in dynamics):
+        return MemberStack(dynamics, group)
+    local = np.empty(group.size, dtype=np.intp)
+    for j in range(len(dynamics)):
+        rows = np.flatnonzero(group == j)
+        local[rows] = np.arange(rows.size)
+    out = copy.copy(first)
+    out.damping = {d: TableStack.of([g.damping[d] for g in dynamics], group, local) for d in first.dofs}
+    return out
+
+
 class MemberStack:
     """Several dynamics stepped as one batch: member ``b`` follows ``dynamics[group[b]]`` (one call per distinct
     dynamics and RK4 stage, on its rows only)."""
@@ -459,7 +509,7 @@ def simulate_model(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray
     start, length, group = (np.concatenate(x) for x in (starts, lengths, groups))
     dyn: Dynamics = f
     if band:
-        dyn = MemberStack([f, take(band_f, np.tile(np.arange(band_members), seg_a.size))], group)
+        dyn = stack([f, take(band_f, np.tile(np.arange(band_members), seg_a.size))], group)
     flat, div = rollout_ragged(dyn, nu_meas[start], inputs, start, length, dt_s, bound=bound, method=method)
     offset = np.concatenate([[0], np.cumsum(length)]).astype(np.intp)
 
@@ -523,8 +573,8 @@ def bridge_outages(models: Mapping[str, Dynamics], t_ns: np.ndarray, nu_meas: np
 
     Windows of each length tile the valid runs; in each, the DVL DOFs are rolled out from their last measured
     value while the other DOFs (gyro rates) stay measured. Needs ``u`` and ``v`` among ``dofs``. Every window
-    of every length and model is one member of one batch (:func:`rollout_ragged`, a :class:`MemberStack` of
-    the models).
+    of every length and model is one member of one batch (:func:`rollout_ragged` over :func:`stack` of the
+    models).
     """
     dt_s = grid_step_s(t_ns)
     bound = divergence_bound(nu_meas, divergence_factor)
@@ -541,7 +591,7 @@ def bridge_outages(models: Mapping[str, Dynamics], t_ns: np.ndarray, nu_meas: np
     start = np.concatenate([st for _ in names for _, st, _ in plan] or [np.arange(0)]).astype(np.intp)
     count = np.concatenate([np.full(st.size, n) for _ in names for _, st, n in plan] or [np.arange(0)])
     group = np.concatenate([np.full(st.size, g) for g in range(len(names)) for _, st, _ in plan] or [np.arange(0)])
-    flat, div = rollout_ragged(MemberStack([models[m] for m in names], group), nu_meas[start], inputs, start,
+    flat, div = rollout_ragged(stack([models[m] for m in names], group), nu_meas[start], inputs, start,
                                count, dt_s, bound=bound, clamp=nu_meas, clamp_mask=clamp_mask, method=method)
     rows: list[dict[str, Any]] = []
     first = {(m, length): 0 for m in names for length, _, _ in plan}

@@ -112,7 +112,7 @@ def _band_like(n_members: int, scale: float = 1.0):
 def test_ragged_batch_equals_one_member_at_a_time() -> None:
     """Members of different lengths (ending at different steps), two dynamics in one stack, per-member tables,
     a clamped DOF and a diverging member: the batch gives each member's lone rollout to float rounding."""
-    from pipeline.simulate import MemberStack, rollout_ragged
+    from pipeline.simulate import DecoupledDynamics, MemberStack, rollout_ragged, stack
 
     rng = np.random.default_rng(3)
     n_rows, dt_s = 120, 0.05
@@ -122,17 +122,26 @@ def test_ragged_batch_equals_one_member_at_a_time() -> None:
     lengths = np.array([37, 5, 1, 23, 60, 2, 90])
     group = np.array([0, 1, 1, 0, 1, 0, 1])
     unstable = _band_like(int((group == 1).sum()), scale=-3.0)  # negative damping: some members diverge
-    f = MemberStack([lambda nu, u: -0.8 * nu * np.abs(nu) + 0.05 * u, unstable], group)
+    shared = _band_like(1, scale=0.8)
+    shared.damping = {d: type(t)(t.lo, t.hi, t.values[0, ::2]) for d, t in shared.damping.items()}  # other grid
+    merged = stack([shared, unstable], group)  # one decoupled dynamics over a TableStack
+    assert isinstance(merged, DecoupledDynamics)
     nu0 = rng.normal(0.0, 0.5, (starts.size, 3))
     bound = np.array([2.0, 2.0, 2.0])
-    for kw in ({}, {"clamp_mask": np.array([False, False, True])}):
+    cases = [(MemberStack([lambda nu, u: -0.8 * nu * np.abs(nu) + 0.05 * u, unstable], group), {}),
+             (MemberStack([shared, unstable], group), {"clamp_mask": np.array([False, False, True])}),
+             (merged, {}), (merged, {"clamp_mask": np.array([False, False, True])})]
+    results = []
+    for f, kw in cases:
         c = {"clamp": clamp} if kw else {}
         flat, div = rollout_ragged(f, nu0, inputs, starts, lengths, dt_s, bound=bound, **kw, **c)
+        results.append(flat)
         ref, ref_div = _one_at_a_time(f, nu0, inputs, starts, lengths, dt_s, bound=bound, **kw, **c)
         np.testing.assert_array_equal(div, ref_div)
         assert (div >= 0).any() and (div < 0).any()
         np.testing.assert_array_equal(np.isnan(flat), np.isnan(ref))
         np.testing.assert_allclose(flat, ref, rtol=1e-10, atol=1e-14)
+    np.testing.assert_array_equal(results[3], results[1])  # the TableStack is Table1D's arithmetic
 
 
 def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> None:
