@@ -484,73 +484,101 @@ def simulate_model(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray
                    dofs: Sequence[str], horizons_s: Sequence[float] = (), *, segment: np.ndarray | None = None,
                    divergence_factor: float = 10.0, method: str = "rk4", band_f: Dynamics | None = None,
                    band_members: int = 0, free: bool = True) -> tuple[FreeRun | None, dict[str, Any]]:
-    """One model's free run (``free``; with ``band_f``'s members) and horizon errors from one batched rollout:
-    every valid run, every band member of every run and every window of every horizon is a member of one
-    :func:`rollout_ragged` call (one call of the dynamics per RK4 stage for the whole batch, per dynamics).
-    Returns ``(FreeRun or None, horizons)``, equal to rolling each member out alone."""
+    """One model's free run (``free``; with ``band_f``'s members) and horizon errors from one batched rollout
+    (:func:`simulate_models`). Returns ``(FreeRun or None, horizons)``."""
+    return simulate_models({name: (f, band_f)}, t_ns, nu_meas, inputs, dofs, horizons_s, segment=segment,
+                           divergence_factor=divergence_factor, method=method, band_members=band_members,
+                           free=free)[name]
+
+
+def simulate_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.ndarray, nu_meas: np.ndarray,
+                    inputs: np.ndarray, dofs: Sequence[str], horizons_s: Sequence[float] = (), *,
+                    segment: np.ndarray | None = None, divergence_factor: float = 10.0, method: str = "rk4",
+                    band_members: int = 0, free: bool = True) -> dict[str, tuple[FreeRun | None, dict[str, Any]]]:
+    """Free runs (``free``) and horizon errors of models ``{name: (f, band_f or None)}`` that read the same
+    ``inputs``, from one batched rollout: every valid run, every band member of every run and every window of
+    every horizon of every model is a member of one :func:`rollout_ragged` call over :func:`stack` of the
+    dynamics (one call per RK4 stage for the whole batch where they merge, e.g. decoupled models on tables).
+    Returns ``{name: (FreeRun or None, horizons)}``, equal to rolling each member out alone."""
+    if not models:
+        return {}
     dt_s = grid_step_s(t_ns)
     bound = divergence_bound(nu_meas, divergence_factor)
     runs = segment_runs(t_ns, segment, dt_s) if free else []
     seg_a = np.array([a for a, _ in runs], dtype=np.intp)
     seg_n = np.array([b - a for a, b in runs], dtype=np.intp)
-    band = free and band_f is not None and band_members > 0
-    starts, lengths, groups = [seg_a], [seg_n], [np.zeros(seg_a.size, dtype=np.intp)]
-    if band:  # run-major: the members of run s are rows s*M .. s*M + M - 1 of the band dynamics
-        starts.append(np.repeat(seg_a, band_members))
-        lengths.append(np.repeat(seg_n, band_members))
-        groups.append(np.ones(seg_a.size * band_members, dtype=np.intp))
-    horizon_n = {}
-    for h in horizons_s:
-        st = windows(t_ns, segment, dt_s, h)
-        horizon_n[h] = (st.size, int(round(h / dt_s)) + 1)
+    win = {h: windows(t_ns, segment, dt_s, h) for h in horizons_s}
+    win_n = {h: int(round(h / dt_s)) + 1 for h in horizons_s}
+    starts: list[np.ndarray] = []
+    lengths: list[np.ndarray] = []
+    groups: list[np.ndarray] = []
+    dynamics: list[Dynamics] = []
+    layout: dict[str, tuple[int, bool]] = {}  # name -> (first member, has a band)
+    n_members = 0
+
+    def add(st: np.ndarray, n: np.ndarray) -> None:
+        nonlocal n_members
         starts.append(st)
-        lengths.append(np.full(st.size, horizon_n[h][1], dtype=np.intp))
-        groups.append(np.zeros(st.size, dtype=np.intp))
+        lengths.append(n)
+        groups.append(np.full(st.size, len(dynamics) - 1, dtype=np.intp))
+        n_members += st.size
+
+    for name, (f, band_f) in models.items():
+        band = free and band_f is not None and band_members > 0
+        layout[name] = (n_members, band)
+        dynamics.append(f)
+        add(seg_a, seg_n)
+        for h in horizons_s:
+            add(win[h], np.full(win[h].size, win_n[h], dtype=np.intp))
+        if band:  # run-major: the members of run s are rows s*M .. s*M + M - 1 of the band dynamics
+            dynamics.append(take(band_f, np.tile(np.arange(band_members), seg_a.size)))
+            add(np.repeat(seg_a, band_members), np.repeat(seg_n, band_members))
     start, length, group = (np.concatenate(x) for x in (starts, lengths, groups))
-    dyn: Dynamics = f
-    if band:
-        dyn = stack([f, take(band_f, np.tile(np.arange(band_members), seg_a.size))], group)
+    dyn = dynamics[0] if len(dynamics) == 1 else stack(dynamics, group)
     flat, div = rollout_ragged(dyn, nu_meas[start], inputs, start, length, dt_s, bound=bound, method=method)
     offset = np.concatenate([[0], np.cumsum(length)]).astype(np.intp)
+    t_s = (np.asarray(t_ns) - t_ns[0]) * 1e-9
 
-    run = None
-    if free:
-        t_s = (np.asarray(t_ns) - t_ns[0]) * 1e-9
-        pred = np.full_like(nu_meas, np.nan, dtype=float)
-        lo, hi = np.full_like(pred, np.nan), np.full_like(pred, np.nan)
-        status, at = "ok", None
-        for s, (a, b) in enumerate(runs):
-            pred[a:b] = flat[offset[s]:offset[s + 1]]
-            if div[s] >= 0 and status == "ok":
-                status, at = "diverged", float(t_s[a + div[s]])
-                log.warning("%s diverged at t=%.2f s", name, at)
-            if band:
-                first = seg_a.size + s * band_members
-                members = flat[offset[first]:offset[first + band_members]].reshape(band_members, b - a, -1)
-                with np.errstate(all="ignore"):
-                    m, sd = np.nanmean(members, axis=0), np.nanstd(members, axis=0)
-                lo[a:b], hi[a:b] = m - 2 * sd, m + 2 * sd
-        run = FreeRun(name, list(dofs), t_s, nu_meas, pred, status, at, (lo, hi) if band else None)
-        run.metrics = _metrics(nu_meas, pred, dofs)
-
-    out: dict[str, Any] = {}
-    first = seg_a.size * (1 + (band_members if band else 0))
-    for h in horizons_s:
-        count, n = horizon_n[h]
-        if count == 0:
-            out[f"{h:g}"] = {"n_windows": 0, "n_diverged": 0, "mae_end": None, "mae_window": None}
-            continue
-        traj = flat[offset[first]:offset[first + count]].reshape(count, n, -1)
-        ok = div[first:first + count] < 0
-        idx = start[first:first + count, None] + np.arange(n)
-        err = np.abs(traj[ok] - nu_meas[idx[ok]])
-        out[f"{h:g}"] = {
-            "n_windows": int(count), "n_diverged": int((~ok).sum()),
-            "mae_end": {d: float(err[:, -1, j].mean()) if ok.any() else None for j, d in enumerate(dofs)},
-            "mae_window": {d: float(err[:, :, j].mean()) if ok.any() else None for j, d in enumerate(dofs)},
-        }
-        first += count
-    return run, out
+    results: dict[str, tuple[FreeRun | None, dict[str, Any]]] = {}
+    for name, (first, band) in layout.items():
+        run = None
+        if free:
+            pred = np.full_like(nu_meas, np.nan, dtype=float)
+            lo, hi = np.full_like(pred, np.nan), np.full_like(pred, np.nan)
+            status, at = "ok", None
+            band_first = first + seg_a.size + sum(win[h].size for h in horizons_s)
+            for s, (a, b) in enumerate(runs):
+                pred[a:b] = flat[offset[first + s]:offset[first + s + 1]]
+                if div[first + s] >= 0 and status == "ok":
+                    status, at = "diverged", float(t_s[a + div[first + s]])
+                    log.warning("%s diverged at t=%.2f s", name, at)
+                if band:
+                    m0 = band_first + s * band_members
+                    members = flat[offset[m0]:offset[m0 + band_members]].reshape(band_members, b - a, -1)
+                    with np.errstate(all="ignore"):
+                        m, sd = np.nanmean(members, axis=0), np.nanstd(members, axis=0)
+                    lo[a:b], hi[a:b] = m - 2 * sd, m + 2 * sd
+            run = FreeRun(name, list(dofs), t_s, nu_meas, pred, status, at, (lo, hi) if band else None)
+            run.metrics = _metrics(nu_meas, pred, dofs)
+        out: dict[str, Any] = {}
+        w0 = first + seg_a.size
+        for h in horizons_s:
+            count, n = win[h].size, win_n[h]
+            if count == 0:
+                out[f"{h:g}"] = {"n_windows": 0, "n_diverged": 0, "mae_end": None, "mae_window": None}
+                continue
+            traj = flat[offset[w0]:offset[w0 + count]].reshape(count, n, -1)
+            ok = div[w0:w0 + count] < 0
+            idx = win[h][:, None] + np.arange(n)
+            err = np.abs(traj[ok] - nu_meas[idx[ok]])
+            out[f"{h:g}"] = {
+                "n_windows": int(count), "n_diverged": int((~ok).sum()),
+                "mae_end": {d: float(err[:, -1, j].mean()) if ok.any() else None for j, d in enumerate(dofs)},
+                "mae_window": {d: float(err[:, :, j].mean()) if ok.any() else None for j, d in enumerate(dofs)},
+            }
+            w0 += count
+        results[name] = (run, out)
+    return results
 
 
 def dead_reckon(u: np.ndarray, v: np.ndarray, yaw: np.ndarray, dt_s: float) -> np.ndarray:

@@ -156,6 +156,7 @@ def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> Non
         rollout,
         segment_runs,
         simulate_model,
+        simulate_models,
         synthetic_trial,
         windows,
     )
@@ -187,6 +188,15 @@ def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> Non
         assert hz[f"{h:g}"]["n_windows"] == st.size
         assert hz[f"{h:g}"]["mae_end"]["u"] == pytest.approx(float(err[:, -1, 0].mean()), rel=1e-10)
         assert hz[f"{h:g}"]["mae_window"]["r"] == pytest.approx(float(err[:, :, 2].mean()), rel=1e-10)
+    other = _band_like(3, scale=1.2).take(np.array([2, 2]))  # per-member tables for the two runs' members
+    other.damping = {d: type(t)(t.lo, t.hi, t.values[0]) for d, t in other.damping.items()}
+    both = simulate_models({"m": (f, band), "other": (other, None)}, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0],
+                           segment=seg, band_members=4)
+    alone = simulate_model("other", other, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0], segment=seg)
+    for got, want in ((both["m"], (run, hz)), (both["other"], alone)):
+        np.testing.assert_allclose(got[0].predicted, want[0].predicted, rtol=1e-10, atol=1e-14)
+        assert got[1]["3"]["mae_end"]["v"] == pytest.approx(want[1]["3"]["mae_end"]["v"], rel=1e-10)
+    np.testing.assert_allclose(both["m"][0].band[1], run.band[1], rtol=1e-10, atol=1e-14)
 
 
 def test_bridging_of_all_models_and_outage_lengths_in_one_batch_equals_separate_calls() -> None:
