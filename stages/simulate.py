@@ -35,7 +35,7 @@ from pipeline.simulate import (
     damping_tables,
     plot_bridging,
     plot_free_runs,
-    simulate_model,
+    simulate_models,
     table_range,
 )
 from pipeline.tableio import atomic_path, write_json
@@ -125,10 +125,17 @@ def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoup
             continue
         dynamics[name] = (CoupledDynamics(est), frame[extra].to_numpy(float))
     runs, horizons = [], {}
-    for name, (f, inputs) in dynamics.items():  # free runs, band and horizon windows: one batch per model
-        run, horizons[name] = simulate_model(name, f, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
-                                             divergence_factor=p.divergence_factor, method=p.method,
-                                             band_f=bands.get(name), band_members=p.band_samples)
+    # free runs, band members and horizon windows in one batch: all decoupled models together (they read tau and
+    # merge into one call per RK4 stage), each coupled model alone (its own inputs)
+    batches = [{n: (f, bands.get(n)) for n, (f, inputs) in dynamics.items() if inputs is tau}]
+    batches += [{n: (f, None)} for n, (f, inputs) in dynamics.items() if inputs is not tau]
+    results: dict[str, Any] = {}
+    for batch in batches:
+        results.update(simulate_models(batch, t_ns, nu, dynamics[next(iter(batch))][1] if batch else tau, dofs,
+                                       p.horizons_s, segment=seg, divergence_factor=p.divergence_factor,
+                                       method=p.method, band_members=p.band_samples))
+    for name in dynamics:  # the models' order as before
+        run, horizons[name] = results[name]
         runs.append(run)
     outputs = [write_json([r.summary() for r in runs], out_dir / "free_run.json"),
                write_json(horizons, out_dir / "horizons.json")]
