@@ -73,8 +73,12 @@ class CoupledParams(Frozen):
         "kernel gives them one gamma, the velocities another. They must come last in `inputs`. None: every input "
         "that is not a body velocity of the kinematics table (u_mps ... r_radps, their _smooth and _meas forms)."))
     outputs: list[str] = Field(default_factory=lambda: ["udot_mps2", "vdot_mps2", "rdot_radps2"])
-    models: list[str] = Field(default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr",
-                                                       "gertler_hagen", "mcfarland_whitcomb"])
+    models: list[str] = Field(
+        default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
+                                 "graybox"],
+        description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual): the "
+        "best model on every output of the realistic benchmark (docs/models.md); graybox_gh is the same on "
+        "Gertler-Hagen.")
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
