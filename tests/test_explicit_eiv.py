@@ -191,3 +191,27 @@ def test_refinement_finds_the_breaks_between_runs():
     runs = model._runs(joined[0][:, :3], joined[1], None)
     assert runs == [(0, 400), (400, 800)]
     assert model._runs(joined[0][:, :3], joined[1], np.r_[np.zeros(400), np.ones(400)]) == runs
+
+
+def test_tls_equation_with_non_positive_inertia_falls_back_to_ols(caplog) -> None:
+    """A TLS solution whose own-acceleration coefficient is <= 0 is no physical model (its predictions divide by
+    it: on the demo, a WTLS yaw inertia of -9.9 gave Gertler-Hagen R2 -27 on its own training data). That
+    equation is refitted by OLS, with a warning naming the model and the equation; the others keep TLS."""
+    import logging
+
+    from pipeline.coupled import synthetic_frame
+    from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen
+
+    frame = synthetic_frame(800, seed=3, noise=0.5)  # noisy enough for plain TLS to turn the Y inertia over
+    X = frame[list(EXPLICIT_INPUTS)].to_numpy(float)
+    y = frame[["udot_mps2", "vdot_mps2", "rdot_radps2"]].to_numpy(float)
+    with caplog.at_level(logging.WARNING, logger="pipeline.models.explicit"):
+        tls = GertlerHagen(solver="tls").fit(X, y)
+    ols = GertlerHagen(solver="ols").fit(X, y)
+    assert tls.ols_fallback_ == ["Y"]
+    assert "GertlerHagen: equation Y: TLS gave non-positive inertia ['Y_vdot']" in caplog.text
+    assert np.all(np.diag(tls.mass_matrix_) > 0)
+    y_terms = [k for k, n in enumerate(tls.param_names) if n.startswith("Y_")]
+    np.testing.assert_allclose(tls.coef_[y_terms], ols.coef_[y_terms], rtol=1e-10)
+    x_terms = [k for k, n in enumerate(tls.param_names) if n.startswith("X_")]
+    assert not np.allclose(tls.coef_[x_terms], ols.coef_[x_terms], rtol=1e-3)  # X stays TLS

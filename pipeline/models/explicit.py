@@ -273,6 +273,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         zero_tau = tau_rms <= _ZERO_TAU * tau_rms.max() if tau_rms.max() > 0 else np.ones(3, dtype=bool)
         self.dropped_terms_: list[tuple[str, str]] = []
         self.homogeneous_equations_: list[str] = []
+        self.ols_fallback_: list[str] = []
         fixed: list[int] = []
         for eqs, params in self.groups:
             theta_g, fixed_g = self._fit_group(jac, tau, A, list(eqs), list(params), zero_tau, tau_rms, sigma)
@@ -337,17 +338,29 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
             r = np.sqrt(np.mean(resid * resid, axis=0))
             w = 1.0 / np.maximum(r, 1e-9 * s)
             theta_k = self._solve(jac, tau, A, eqs, keep, w, homogeneous, norm_k, sigma)
+        inertia = [keep.index(k) for eq, acc, k in self.mass_entries if eq == acc and eq in eqs and k in keep]
+        if self.solver != "ols" and any(theta_k[i] <= 0 for i in inertia):
+            # a TLS solution with a non-positive own-acceleration (inertia) coefficient is no physical model: its
+            # predictions divide by that coefficient (a fitted yaw inertia of -9.9 gave R2 -27 on its own data)
+            bad = [self.param_names[keep[i]] for i in inertia if theta_k[i] <= 0]
+            log.warning("%s: equation %s: %s gave non-positive inertia %s; this equation falls back to OLS",
+                        name, eq_names, self.solver.upper(), bad)
+            self.ols_fallback_.append(eq_names)
+            theta_k = self._solve(jac, tau, A, eqs, keep, np.ones(len(eqs)) if len(eqs) == 1 else w, homogeneous,
+                                  norm_k, sigma, solver="ols")
         out = np.zeros(len(params))
         out[[params.index(k) for k in keep]] = theta_k
         return out, ([norm_k] if norm_k is not None else [])
 
     def _solve(self, jac: list[np.ndarray | None], tau: np.ndarray, A: np.ndarray, eqs: list[int], keep: list[int],
-               w: np.ndarray, homogeneous: bool, norm_k: int | None, sigma: np.ndarray | None) -> np.ndarray:
+               w: np.ndarray, homogeneous: bool, norm_k: int | None, sigma: np.ndarray | None,
+               solver: str | None = None) -> np.ndarray:
+        solver = solver or self.solver
         name = type(self).__name__
         eq_names = "/".join(EQUATIONS[e] for e in eqs)
         Phi = (A[:, eqs][:, :, keep] * w[None, :, None]).reshape(-1, len(keep))
         rhs = (tau[:, eqs] * w[None, :]).reshape(-1)
-        if self.solver == "ols":
+        if solver == "ols":
             if not homogeneous:
                 return ols(Phi, rhs)
             j = keep.index(norm_k)
@@ -358,7 +371,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
             return theta
         Z = Phi if homogeneous else np.column_stack([Phi, rhs])
         cov = None
-        if self.solver == "wtls":
+        if solver == "wtls":
             cov_phi = self._design_noise_cov(jac, sigma, eqs, keep, w)
             if homogeneous:
                 cov = cov_phi
@@ -371,7 +384,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         ref = x[j] * np.sqrt(np.mean(Z[:, j] ** 2))
         if abs(ref) < 1e-12 * np.linalg.norm(x * np.sqrt(np.mean(Z * Z, axis=0))):
             what = f"{self.param_names[norm_k]}" if homogeneous else "tau"
-            raise ModelError(f"{name}: equation {eq_names}: non-generic {self.solver.upper()} problem (the smallest "
+            raise ModelError(f"{name}: equation {eq_names}: non-generic {solver.upper()} problem (the smallest "
                              f"singular vector has no {what} component)")
         return (x[:len(keep)] / x[j]) if homogeneous else (-x[:len(keep)] / x[j])
 
