@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pipeline.errors import ConfigError
 from pipeline.io.inspect import inspect_log, topic_fields
 from pipeline.io.msgdefs import UserTypes
 
@@ -96,8 +97,8 @@ def _gather(logs: list[Path], definitions: UserTypes | None) -> dict[str, _Topic
     for path in logs:
         info = inspect_log(path, definitions=definitions)
         if info["format"] == "csv":
-            raise NotImplementedError(f"{path}: `auvid init` reads ROS logs (MCAP, bags); for text files run "
-                                      "`auvid inspect` and write the `file:` streams from its sniffed csv options")
+            raise ConfigError("`auvid init` reads ROS logs (MCAP, bags); for text files run `auvid inspect` and "
+                              "write the `file:` streams from its sniffed csv options", file=path)
         for name, t in info["topics"].items():
             seen = topics.get(name)
             if seen is None:

@@ -130,3 +130,13 @@ def test_odometry_twist_is_written_as_flu(tmp_path: Path) -> None:
     assert odom == "odom"
     assert sensors["velocity"] == known["velocity"]
     assert sensors["rates"] == known["rates"]
+
+
+def test_init_on_a_text_log_is_a_usage_error_pointing_to_inspect(tmp_path: Path, capsys) -> None:
+    """`auvid init` reads ROS logs only: a CSV gets exit 2 and the way forward, not a traceback."""
+    log = tmp_path / "run01.csv"
+    log.write_text("t,x\n0.0,1.0\n0.1,1.5\n0.2,2.0\n")
+    assert cli.main(["init", str(log), "-o", str(tmp_path / "v.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "run01.csv" in err and "auvid inspect" in err and "Traceback" not in err
+    assert not (tmp_path / "v.yaml").exists()
