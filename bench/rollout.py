@@ -7,13 +7,17 @@ LS, KRR, SVR and GP on each DOF's damping (GP with its 32-member posterior band)
 errors (1, 5, 10 s) and, for the decoupled ones, DVL-outage bridging (10, 30, 60 s) are timed as the simulate
 stage runs them.
 
+The coupled models run as the simulate stage runs them: per model, its free runs over every segment and all
+horizon windows in one batch (``simulate_model``); all decoupled models, the GP's band members included, in one
+batch (``simulate_models``, one call per RK4 stage); bridging of all of them and all outage lengths in one batch.
+
 Usage: nice python bench/rollout.py [trial_s=480] [train_s=300]
 
-Measured (2 cores shared with other jobs, load average 4.7-7, so wall times are inflated; CPU is the better
-figure), 480-s trial, ~800-2900 support vectors per output: before the numpy kernel path all of it took 654 s wall /
-467 s CPU (ratio to one predict over the same rows 7.4 / 8.0); after, 384 s wall / 208 s CPU (3.3 / 3.3), the
-coupled SVRs 47-73 s CPU each instead of 140-158 s. The 20-s target is not met: one SVR predict over the rows the
-rollouts need already costs ~60 s CPU at these support-vector counts.
+Measured (docs/benchmarks.md, "Free-run rollouts"), 480-s trial, 2 shared cores, ~800-2900 support vectors per
+output: 96.6 s wall / 127.9 s CPU before batching (each segment, horizon and outage length its own rollout; the
+kernel sums as a (B, n_sv, 6) difference array), 12.7 s wall / 19.9 s CPU after (12.9 / 12.9 with
+OPENBLAS_NUM_THREADS=1); ratio to one SVR predict over the same rows 3.9 / 5.2 before, 0.5 / 0.8 after. The
+reference predict's row count (free run + horizons ~ 2 rows per sample and stage) is kept as before.
 """
 
 from __future__ import annotations
@@ -35,8 +39,8 @@ from pipeline.simulate import (
     bridge_outages,
     coriolis_from_mass,
     damping_tables,
-    free_run,
-    horizon_errors,
+    simulate_model,
+    simulate_models,
     synthetic_trial,
     table_range,
 )
@@ -89,25 +93,22 @@ def main() -> None:
     rows = []
 
     t0 = clock()
-    for name, est in coupled.items():
+    for name, est in coupled.items():  # each coupled model: free runs + horizon windows in one batch
         a = clock()
-        f = CoupledDynamics(est)
-        run = free_run(name, f, t_ns, nu, rpm, DOFS, segment=seg)
-        horizon_errors(f, t_ns, nu, rpm, DOFS, horizons, segment=seg)
+        run, _ = simulate_model(name, CoupledDynamics(est), t_ns, nu, rpm, DOFS, horizons, segment=seg)
         b = clock()
-        rows.append((f"coupled {name}", b[0] - a[0], b[1] - a[1], run.metrics["u"]["r2"]))
-    fs = {}
+        rows.append((f"coupled {name}", b[0] - a[0], b[1] - a[1], f"{run.metrics['u']['r2']:.3f}"))
+    a = clock()  # all decoupled models, the GP's band members too, in one batch (one call per RK4 stage)
+    fs, batch = {}, {}
     for name, models in decoupled.items():
-        a = clock()
-        f = DecoupledDynamics(M, DOFS, damping_tables(models, ranges), coriolis_from_mass)
+        fs[name] = DecoupledDynamics(M, DOFS, damping_tables(models, ranges), coriolis_from_mass)
         band = (DecoupledDynamics(M, DOFS, band_tables(models, ranges, 32), coriolis_from_mass)
                 if name == "gp" else None)
-        run = free_run(name, f, t_ns, nu, tau, DOFS, segment=seg, band_f=band, band_members=32)
-        horizon_errors(f, t_ns, nu, tau, DOFS, horizons, segment=seg)
-        fs[name] = f
-        b = clock()
-        rows.append((f"decoupled {name}" + (" + band 32" if band else ""), b[0] - a[0], b[1] - a[1],
-                     run.metrics["u"]["r2"]))
+        batch[name] = (fs[name], band)
+    done = simulate_models(batch, t_ns, nu, tau, DOFS, horizons, segment=seg, band_members=32)
+    b = clock()
+    rows.append(("decoupled " + ", ".join(decoupled) + " (+ GP band 32), one batch", b[0] - a[0], b[1] - a[1],
+                 " / ".join(f"{done[n][0].metrics['u']['r2']:.3f}" for n in decoupled)))
     a = clock()
     bridge_outages(fs, t_ns, nu, tau, test["yaw_rad"].to_numpy(), DOFS, outages, segment=seg)
     b = clock()
@@ -128,7 +129,7 @@ def main() -> None:
     print("| what | wall s | CPU s | free-run u R² |")
     print("| --- | ---: | ---: | ---: |")
     for what, wall, cpu, r2 in rows:
-        print(f"| {what} | {wall:.2f} | {cpu:.2f} | {'' if r2 is None else f'{r2:.3f}'} |")
+        print(f"| {what} | {wall:.2f} | {cpu:.2f} | {r2 or ''} |")
     print(f"| **all free runs, horizons, bridging** | **{total[0]:.2f}** | **{total[1]:.2f}** | |")
     print(f"| one SVR predict per coupled model over the same rows ({n_rows} rows in all) | {predict[0]:.2f} | "
           f"{predict[1]:.2f} | |")
