@@ -130,10 +130,11 @@ def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoup
     batches = [{n: (f, bands.get(n)) for n, (f, inputs) in dynamics.items() if inputs is tau}]
     batches += [{n: (f, None)} for n, (f, inputs) in dynamics.items() if inputs is not tau]
     results: dict[str, Any] = {}
-    for batch in batches:
-        results.update(simulate_models(batch, t_ns, nu, dynamics[next(iter(batch))][1] if batch else tau, dofs,
-                                       p.horizons_s, segment=seg, divergence_factor=p.divergence_factor,
-                                       method=p.method, band_members=p.band_samples))
+    for batch in filter(None, batches):
+        inputs = dynamics[next(iter(batch))][1]
+        results.update(simulate_models(batch, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
+                                       divergence_factor=p.divergence_factor, method=p.method,
+                                       band_members=p.band_samples))
     for name in dynamics:  # the models' order as before
         run, horizons[name] = results[name]
         runs.append(run)
