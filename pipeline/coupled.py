@@ -34,6 +34,7 @@ from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhi
 from pipeline.models.graybox import GrayBox
 from pipeline.models.search import SVR_MODELS, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
+from pipeline.simulate import grid_step_s
 from pipeline.units import axis_label
 
 log = logging.getLogger(__name__)
@@ -161,19 +162,6 @@ def noise_std_from(frame: pd.DataFrame | None) -> tuple[float, ...] | None:
     return (*med[:3], float("nan"), float("nan"), float("nan"), *med[3:])
 
 
-def grid_step_s(frame: pd.DataFrame | None) -> float:
-    """The feature rows' sample interval (s): the most common positive step of ``t_ns`` within a trial."""
-    if frame is None or "t_ns" not in frame.columns or len(frame) < 2:
-        raise ModelError("explicit_refine needs the training rows' t_ns to know the grid step")
-    t = frame["t_ns"].to_numpy(np.int64)
-    same = (frame["trial"].to_numpy()[1:] == frame["trial"].to_numpy()[:-1]) if "trial" in frame.columns else True
-    steps = np.diff(t)[same & (np.diff(t) > 0)]
-    if steps.size == 0:
-        raise ModelError("explicit_refine: no two consecutive training rows to take the grid step from")
-    values, counts = np.unique(steps, return_counts=True)
-    return float(values[np.argmax(counts)]) / 1e9
-
-
 def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams, *,
                 train: pd.DataFrame | None = None) -> Any:
     """An unfitted estimator predicting all outputs; ``hyper`` maps output -> SVR hyperparameters (a gray-box
@@ -182,7 +170,10 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
     if model in EXPLICIT_MODELS:
         refine = {}
         if params.explicit_refine:
-            refine = {"refine": True, "dt_s": grid_step_s(train), "refine_horizon_s": params.refine_horizon_s}
+            if train is None or "t_ns" not in train.columns or len(train) < 2:
+                raise ModelError("explicit_refine needs the training rows' t_ns to know the grid step")
+            refine = {"refine": True, "dt_s": grid_step_s(train["t_ns"].to_numpy()),
+                      "refine_horizon_s": params.refine_horizon_s}
         return _EXPLICIT_CLASSES[model](solver="wtls", noise_std=noise_std_from(train), **refine)
     known = list(SVR_MODELS) + list(EXPLICIT_MODELS) + list(GRAYBOX_MODELS)
     if model not in SVR_MODELS and model not in GRAYBOX_MODELS:
