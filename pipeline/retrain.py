@@ -6,6 +6,7 @@ One run of :func:`retrain`:
    at once (status ``locked``; the CLI exits 0 with a message);
 2. removes what a crashed run left (``staging/*``, stores the registry does not name);
 3. hashes every log in the inbox (content sha256); logs already in the registry's ``seen_logs`` are skipped;
+   symbolic links (and bag directories holding one) are never followed: logged and quarantined;
    no new log and a current model: status ``nothing_new``, nothing is touched;
 4. builds the candidate in ``staging/<version>/run``: a hard-linked copy of the current store's raw logs and
    per-trial tables (every stage writes by atomic replace, so the store's files are never modified through the
@@ -101,12 +102,32 @@ def exclusive_lock(root: Path) -> Iterator[None]:
 
 # --------------------------------------------------------------------------------------------- inbox, copies
 
-def inbox_logs(inbox: Path) -> list[Path]:
-    """Logs in the inbox: files and bag/CSV directories, hidden and partial files left out, in name order."""
+def inbox_logs(inbox: Path, skipped: list[dict[str, Any]] | None = None) -> list[Path]:
+    """Logs in the inbox: files and bag/CSV directories, hidden and partial files left out, in name order.
+
+    Symbolic links are never followed (docs/security.md): a link in the inbox, or a bag directory holding one,
+    could make the run copy any file the cron user can read (``/etc/shadow``, another user's data) into the
+    store. Each is logged and, when ``skipped`` is given, appended to it as a quarantine entry.
+    """
     if not inbox.is_dir():
         raise PipelineError("inbox is not a directory", file=inbox)
-    return sorted(p for p in inbox.iterdir()
-                  if not p.name.startswith(".") and not p.name.endswith(_PARTIAL) and not p.name.endswith(".dvc"))
+    logs = []
+    for p in sorted(inbox.iterdir()):
+        if p.name.startswith(".") or p.name.endswith(_PARTIAL) or p.name.endswith(".dvc"):
+            continue
+        if p.is_symlink():
+            reason = "a symbolic link in the inbox; not followed (copy the log itself into the inbox)"
+        elif p.is_dir() and any(q.is_symlink() for q in p.rglob("*")):
+            reason = "a log directory holding a symbolic link; not followed (copy the files themselves)"
+        elif not (p.is_file() or p.is_dir()):
+            reason = "not a regular file or directory (a FIFO, socket or device); skipped"
+        else:
+            logs.append(p)
+            continue
+        log.warning("inbox: %s is %s", p, reason)
+        if skipped is not None:
+            skipped.append({"file": str(p), "stage": "retrain", "reason": reason})
+    return logs
 
 
 def _link_tree(src: Path, dst: Path) -> None:
@@ -126,9 +147,9 @@ def _copy_log(src: Path, raw: Path, sha: str) -> Path:
         target = raw / f"{stem}-{sha[:8]}{dot}{suffix}"
     tmp = raw / f".{target.name}.incoming"
     if src.is_dir():
-        shutil.copytree(src, tmp)
+        shutil.copytree(src, tmp, symlinks=True)  # never follow a link (inbox_logs refused them already)
     else:
-        shutil.copy2(src, tmp)
+        shutil.copy2(src, tmp, follow_symlinks=False)
     os.replace(tmp, target)
     return target
 
@@ -239,15 +260,16 @@ def _retrain_locked(options: RetrainOptions, root: Path) -> RetrainOutcome:
     params_path = options.params_path or (root / "params.yaml" if (root / "params.yaml").exists() else None)
     params = load_params(params_path)
 
-    hashes = {p: file_sha256(p) for p in inbox_logs(options.inbox)}
+    skipped: list[dict[str, Any]] = []
+    hashes = {p: file_sha256(p) for p in inbox_logs(options.inbox, skipped)}
     new = {p: h for p, h in hashes.items() if h not in data["seen_logs"]}
     new = {p: h for p, h in new.items() if h not in list(new.values())[: list(new).index(p)]}  # dup content once
     if not new:
         if data["current"]:
             return RetrainOutcome("nothing_new", f"no new logs in {options.inbox}; current model "
-                                                 f"{data['current']} stays")
+                                                 f"{data['current']} stays", quarantined=skipped)
         if not data["store"]:
-            return RetrainOutcome("no_data", f"no logs in {options.inbox} and no model yet")
+            return RetrainOutcome("no_data", f"no logs in {options.inbox} and no model yet", quarantined=skipped)
 
     name = registry.next_version(data)
     staging = root / "staging" / name
@@ -295,7 +317,7 @@ def _retrain_locked(options: RetrainOptions, root: Path) -> RetrainOutcome:
         results.append(common.run_stage(stage, work, vehicle, params, progress=_progress(options, stage), **kwargs))
         if options.on_stage:
             options.on_stage(stage, results[-1], time.perf_counter() - start)
-    quarantined = [q for r in results for q in r.quarantined]
+    quarantined = skipped + [q for r in results for q in r.quarantined]
 
     scorer = options.scorer or holdout_score
     metrics = scorer(work, holdout)

@@ -4,7 +4,8 @@ Reads the ``tuning`` split (hyperparameter search only) and the ``train_test`` s
 learning curves, timings, final fit); ``decoupled.trials`` names, per DOF, the trials that excite it alone (paper
 001's protocol; ``pipeline.sim.Controls(excite="surge")`` makes such trials), otherwise every trial is used.
 Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card
-``<dof>_<model>.json`` (lineage, hyperparameters, scores, versions), and ``metrics.json`` (deterministic),
+``<dof>_<model>.card.json`` (:mod:`pipeline.models.card`: lineage, hyperparameters, scores, versions, the pickle's
+sha256), and ``metrics.json`` (deterministic),
 ``timings.json`` (wall-clock, varies run to run), ``curves.json``, ``table.md``, ``learning_curves.png``,
 ``timings.png``, ``damping.png``. Each (DOF, model) is written as soon as it finishes (its joblib and card, and
 the tables so far); one that fails is logged, named in ``metrics.json`` and ``table.md`` and in the result's
@@ -36,6 +37,7 @@ from pipeline.decoupled import (
     table_markdown,
 )
 from pipeline.errors import ModelError
+from pipeline.models.card import card_path, save_model
 from pipeline.models.decoupled import describe
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
@@ -61,15 +63,12 @@ def write_models(study: StudyResult, root: Path, lineage: dict[str, Any]) -> lis
     """One joblib file and one card per (DOF, model); the card names the file's inputs and output."""
     out = []
     for r in study.results:
-        stem = models_dir(root) / f"{r.dof}_{r.model}"
-        with atomic_path(stem.with_suffix(".joblib")) as tmp:
-            joblib.dump(r.estimator, tmp)
         x_col, y_col = dof_columns(r.dof)
         card = {"kind": "decoupled_damping", "dof": r.dof, "model": r.model, "inputs": [x_col], "output": y_col,
-                "estimator": type(r.estimator).__name__, "hyperparameters": r.best_params,
-                "learned": describe(r.model, r.estimator), "search_mae": r.search_mae, "scores": r.cv,
-                "lineage": lineage, "versions": versions()}
-        out += [stem.with_suffix(".joblib"), write_json(card, stem.with_suffix(".json"))]
+                "hyperparameters": r.best_params, "learned": describe(r.model, r.estimator),
+                "search_mae": r.search_mae, "scores": r.cv, "lineage": lineage, "versions": versions()}
+        # the card records the pickle's sha256: the simulate stage loads the model only through it
+        out += list(save_model(r.estimator, models_dir(root) / f"{r.dof}_{r.model}.joblib", card))
     return out
 
 
@@ -98,7 +97,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
         elif failure is not None:
             done.failed.append(failure)
             stem = models_dir(root) / f"{failure['dof']}_{failure['model']}"
-            for stale in (stem.with_suffix(".joblib"), stem.with_suffix(".json")):
+            for stale in (stem.with_suffix(".joblib"), card_path(stem.with_suffix(".joblib"))):
                 if stale.exists():
                     log.warning("removing %s of an earlier run: %s/%s failed this time", stale, failure["dof"],
                                 failure["model"])

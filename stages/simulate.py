@@ -16,7 +16,6 @@ import logging
 from pathlib import Path
 from typing import Any
 
-import joblib
 import numpy as np
 import pandas as pd
 
@@ -46,14 +45,17 @@ log = logging.getLogger(__name__)
 
 
 def decoupled_models(root: Path, dofs: list[str], wanted: list[str] | None) -> dict[str, dict[str, Any]]:
-    """``{model: {dof: estimator}}`` for every model fitted for all ``dofs``."""
+    """``{model: {dof: estimator}}`` for every model fitted for all ``dofs``, each loaded through its card
+    (ModelError for a ``.joblib`` without a card that records its sha256: docs/security.md)."""
+    from pipeline.models.card import load_model
+
     base = Path(root) / layout.MODELS / "decoupled"
     names = sorted({p.stem.split("_", 1)[1] for p in base.glob("*_*.joblib")}) if base.exists() else []
     out = {}
     for name in names if wanted is None else wanted:
         paths = {d: base / f"{d}_{name}.joblib" for d in dofs}
         if all(p.exists() for p in paths.values()):
-            out[name] = {d: joblib.load(p) for d, p in paths.items()}
+            out[name] = {d: load_model(p)[0] for d, p in paths.items()}  # sha256 checked against the card
         else:
             log.warning("decoupled model %r lacks DOF(s) %s; skipped", name, [d for d, p in paths.items()
                                                                             if not p.exists()])
@@ -87,7 +89,7 @@ def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str
             log.info("coupled model %r (inputs %s, outputs %s) does not fit DOFs %s; skipped", name, inputs,
                      outputs, dofs)
             continue
-        estimator, _ = load_model(base / card.get("model_file", f"{name}.joblib"))
+        estimator, _ = load_model(base / Path(str(card.get("model_file", f"{name}.joblib"))).name)
         out[f"coupled_{name}"] = (estimator, inputs[len(states):])
     return out
 

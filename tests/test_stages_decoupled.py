@@ -6,12 +6,12 @@ import json
 import shutil
 from pathlib import Path
 
-import joblib
 import numpy as np
 import pytest
 from helpers_sim_store import build_store
 
 from pipeline.config import Params, Vehicle
+from pipeline.models.card import save_model
 from pipeline.models.decoupled import LinearQuadraticDamping
 from stages import decoupled as decoupled_stage
 from stages import simulate as simulate_stage
@@ -39,7 +39,7 @@ def test_outputs_exist(built: tuple[Path, Vehicle]) -> None:
     root, _ = built
     for dof in ("u", "v", "r"):
         for model in ("ls", "gp"):
-            card = json.loads((root / f"data/models/decoupled/{dof}_{model}.json").read_text())
+            card = json.loads((root / f"data/models/decoupled/{dof}_{model}.card.json").read_text())
             assert (root / f"data/models/decoupled/{dof}_{model}.joblib").exists()
             assert card["dof"] == dof and card["model"] == model and card["lineage"]["trials"] == ["a"]
     for name in EVALUATION:
@@ -74,7 +74,7 @@ def test_a_diverging_model_is_reported_with_its_status(built: tuple[Path, Vehicl
     shutil.copytree(src, root)
     negative = LinearQuadraticDamping().fit(np.c_[[-1.0, 1.0]], [40.0, -40.0])  # negative damping: unstable
     for dof in ("u", "v", "r"):
-        joblib.dump(negative, root / f"data/models/decoupled/{dof}_neg.joblib")
+        save_model(negative, root / f"data/models/decoupled/{dof}_neg.joblib", {"dof": dof, "model": "neg"})
     result = simulate_stage.run(root, vehicle, PARAMS)
     assert result.summary["status"] == {"test/gp": "ok", "test/ls": "ok", "test/neg": "diverged"}
     metrics = json.loads((root / "data/simulation/metrics.json").read_text())["test"]

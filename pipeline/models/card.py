@@ -3,10 +3,18 @@
 ``save_model(est, path, card)`` writes ``<path>`` (joblib) and ``<path minus .joblib>.card.json``; ``load_model``
 refuses a pickle without its card and warns when the scikit-learn version differs from the one that wrote it
 (pickles are not portable across scikit-learn versions).
+
+Unpickling runs code, so ``load_model`` is the only way the project loads a model file (docs/security.md): the
+card must exist, name this file and record the sha256 of its bytes, and the bytes are checked *before*
+``joblib.load`` sees them. A ``.joblib`` dropped beside the real models, or one edited after it was written, is
+refused with a ModelError naming the file.
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -48,25 +56,37 @@ def save_model(estimator: Any, path: str | Path, card: dict[str, Any]) -> tuple[
     path = Path(path)
     with atomic_path(path) as tmp:
         joblib.dump(estimator, tmp)
-    full = {**card, "versions": versions(), "model_file": path.name, "model_sha256": file_sha256(path),
+    full = {**card, "versions": {**card.get("versions", {}), **versions()}, "model_file": path.name,
+            "model_sha256": file_sha256(path),
             "estimator": type(estimator).__name__}
     return path, write_json(full, card_path(path))
 
 
 def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
-    """Load an estimator and its card; ModelError if the card is missing or the pickle does not match it."""
-    import json
-
+    """Load an estimator and its card; ModelError if the card is missing, unreadable, names another file, or the
+    pickle's sha256 differs from the card's. The check reads the bytes once and unpickles those same bytes, so the
+    file cannot be swapped between the check and the load."""
     path = Path(path)
     cpath = card_path(path)
-    if not cpath.exists():
-        raise ModelError("model has no card (refusing an undocumented pickle)", file=path)
-    card = json.loads(cpath.read_text())
-    if not path.exists():
+    if not cpath.is_file():
+        raise ModelError(f"model has no card {cpath.name} (refusing to unpickle an undocumented model file; "
+                         "only models written by auvid, with their card, are loaded: docs/security.md)", file=path)
+    try:
+        card = json.loads(cpath.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ModelError(f"model card {cpath.name} is not valid JSON ({err}); refusing the model", file=path) from None
+    if not isinstance(card, dict) or not isinstance(card.get("model_sha256"), str):
+        raise ModelError(f"model card {cpath.name} records no model_sha256; refusing the model", file=path)
+    if card.get("model_file", path.name) != path.name:
+        raise ModelError(f"model card {cpath.name} is the card of {card.get('model_file')!r}, not of this file",
+                         file=path)
+    if not path.is_file():
         raise ModelError("the model file of this card does not exist", file=path)
-    if card.get("model_sha256") != file_sha256(path):
-        raise ModelError("model file does not match the sha256 in its card", file=path)
+    data = path.read_bytes()
+    if hashlib.sha256(data).hexdigest() != card["model_sha256"]:
+        raise ModelError(f"model file does not match the sha256 in its card {cpath.name} (changed or replaced "
+                         "after it was written); refusing to unpickle it", file=path)
     written = card.get("versions", {}).get("scikit-learn")
     if written != sklearn.__version__:
         log.warning("%s was written with scikit-learn %s, running %s", path, written, sklearn.__version__)
-    return joblib.load(path), card
+    return joblib.load(io.BytesIO(data)), card
