@@ -50,6 +50,7 @@ examples:
   auvid sync --root runs/basin --vehicle dagon.yaml --trial trial01
   auvid report --root runs/basin --vehicle dagon.yaml
   auvid retrain --root /srv/auvid --inbox /srv/incoming --vehicle dagon.yaml
+  auvid models list --root /srv/auvid          # registered model versions; show, promote, rollback
   AUVID_SCHEDULER=tcp://scheduler:8786 auvid run ...   # fan-out on a Dask cluster (or --scheduler)
 
 exit codes: 0 done, 1 done with quarantined inputs or failed models, 2 usage or config error (before any stage
@@ -232,6 +233,30 @@ def build_parser() -> argparse.ArgumentParser:
                     help="vehicle config (default: <root>/vehicle.yaml)")
     rt.add_argument("--params", type=Path, default=None, help="params YAML (default: <root>/params.yaml)")
     _add_run_options(rt)
+
+    models = sub.add_parser("models", help="the retraining registry: list versions, show one, promote, roll back",
+                            formatter_class=argparse.RawDescriptionHelpFormatter,
+                            epilog="examples:\n  auvid models list --root /srv/auvid\n"
+                                   "  auvid models show v0004 --root /srv/auvid\n"
+                                   "  auvid models promote v0004 --root /srv/auvid\n"
+                                   "  auvid models rollback --root /srv/auvid\n"
+                                   "promote and rollback take the retrain lock. See docs/retraining.md.\n")
+    msub = models.add_subparsers(dest="models_command", metavar="ACTION", required=True)
+    actions = {"list": "every version: status, created_at, holdout score, parent, reason (* = current)",
+               "show": "one version: lineage, metrics, why it was promoted or rejected, manual events",
+               "promote": "make a registered version the current model",
+               "rollback": "make the current model's parent current again"}
+    for action, text in actions.items():
+        a = msub.add_parser(action, help=text, description=text)
+        if action in ("show", "promote"):
+            a.add_argument("version", help="a registered version, e.g. v0004")
+        a.add_argument("--root", type=Path, default=Path("."), help="retraining home holding registry.json "
+                       "(default: .)")
+        if action in ("list", "show"):
+            a.add_argument("--json", action="store_true", help="machine-readable output")
+        else:
+            a.add_argument("-q", "--quiet", action="store_true", help="no warnings; the one result line only")
+        a.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 
 
@@ -461,6 +486,36 @@ def cmd_retrain(args: argparse.Namespace) -> int:
     return EXIT_QUARANTINED if outcome.quarantined else EXIT_OK
 
 
+def cmd_models(args: argparse.Namespace) -> int:
+    from pipeline import registry
+
+    root = args.root.resolve()
+    if not registry.registry_path(root).is_file():
+        raise UsageError(f"no model registry at {registry.registry_path(root)} (give the retraining home with "
+                         "--root; `auvid retrain` creates it)")
+    action = args.models_command
+    try:
+        if action == "list":
+            data = registry.load(root)
+            print(json.dumps(registry.rows(data), indent=2) if args.json else registry.format_table(data))
+        elif action == "show":
+            info = registry.describe_version(registry.load(root), args.version, root)
+            print(json.dumps(info, indent=2, sort_keys=True) if args.json else registry.format_version(info, root))
+        else:
+            before = registry.load(root).get("current")
+            data = registry.promote(root, args.version) if action == "promote" else registry.rollback(root)
+            now = data["current"]
+            print(f"models {action}: {now} is current" + (f" (was {before})" if before != now else
+                                                          " (it already was; nothing changed)"))
+    except registry.UnknownVersion as err:
+        raise UsageError(str(err)) from None
+    except registry.LockBusy:
+        print(f"auvid: models {action}: a retrain (or another promotion) holds {root / registry.LOCK_FILE}; "
+              "nothing changed, try again when it ends", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
 def _dispatch(args: argparse.Namespace) -> int:
     from pipeline.parallel import backend
 
@@ -475,6 +530,8 @@ def _dispatch(args: argparse.Namespace) -> int:
             return cmd_init(args)
         if args.command == "retrain":
             return cmd_retrain(args)
+        if args.command == "models":
+            return cmd_models(args)
         return cmd_stages(args, [args.command])
 
 

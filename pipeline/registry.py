@@ -14,15 +14,25 @@ The document::
     {"format": 1, "current": "v0002" | null, "store": "stores/v0003" | null,
      "holdout": {"trials": [...], "logs": {trial: sha256}, "metric": "...", "mode": "max"},
      "seen_logs": {sha256: {"name": ..., "trial": ..., "version": ..., "seen_at": ...}},
-     "versions": [{"version", "created_at", "status": "promoted" | "rejected", "reason", "metrics",
-                   "holdout_score", "parent", "lineage": {...}}]}
+     "versions": [{"version", "created_at", "status": "promoted" | "rejected" | "rolled_back", "reason",
+                   "metrics", "holdout_score", "parent", "lineage": {...},
+                   "events": [{"at", "action": "promote" | "rollback", "from", "to", "note"}]}]}
+
+``status`` and ``reason`` are what retraining decided; :func:`promote` and :func:`rollback` (``auvid models
+promote|rollback``) change ``current`` by hand, set ``status`` and append an event to the versions involved,
+keeping retraining's ``reason``. They take the same lock as a retrain (``ROOT/.retrain.lock``), so a manual
+promotion cannot interleave with a cron retrain's commit.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +43,42 @@ log = logging.getLogger(__name__)
 
 FORMAT = 1
 REGISTRY_FILE = "registry.json"
+LOCK_FILE = ".retrain.lock"
 
 
 class RegistryError(PipelineError):
     """The registry document is unreadable or of an unknown format."""
+
+
+class UnknownVersion(RegistryError):
+    """A version that the registry does not list, or that cannot become current (a usage error)."""
+
+
+class LockBusy(Exception):
+    """Another process (a retrain, a promotion) holds ``ROOT/.retrain.lock``."""
+
+
+@contextmanager
+def exclusive_lock(root: Path) -> Iterator[None]:
+    """Hold ``ROOT/.retrain.lock`` (flock, non-blocking); raises LockBusy if another process has it."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    handle = open(root / LOCK_FILE, "a+")  # noqa: SIM115 - held for the whole run
+    try:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise LockBusy from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"{os.getpid()}\n")
+        handle.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+    finally:
+        handle.close()
 
 
 def empty() -> dict[str, Any]:
@@ -97,3 +139,150 @@ def point_current(root: str | Path, name: str) -> None:
         tmp.unlink()
     os.symlink(Path("models") / name, tmp)
     os.replace(tmp, root / "current")
+
+
+# ------------------------------------------------------------------------------------- promote and roll back
+
+def require_version(data: dict[str, Any], name: str, root: str | Path) -> dict[str, Any]:
+    """The entry of ``name``; UnknownVersion (listing the known ones) if the registry has none."""
+    entry = version(data, name)
+    if entry is None:
+        known = [v["version"] for v in data["versions"]]
+        raise UnknownVersion(f"unknown model version {name!r}; registered: {known or 'none'}",
+                             file=registry_path(root))
+    return entry
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
+def _switch(root: Path, data: dict[str, Any], target: str, action: str, note: str) -> dict[str, Any]:
+    """Make ``target`` current in ``data`` (a copy), write it atomically, then repoint the ``current`` link."""
+    if not (root / "models" / target).is_dir():
+        raise UnknownVersion(f"version {target} has no model directory {root / 'models' / target}; it cannot "
+                             "become current", file=registry_path(root))
+    old = data.get("current")
+    event = {"at": _now(), "action": action, "from": old, "to": target, "note": note}
+    versions = []
+    for v in data["versions"]:
+        if v["version"] == target:
+            v = {**v, "status": "promoted", "events": [*v.get("events", []), event]}
+        elif v["version"] == old:
+            v = {**v, "status": "rolled_back" if action == "rollback" else v["status"],
+                 "events": [*v.get("events", []), event]}
+        versions.append(v)
+    data = {**data, "current": target, "versions": versions}
+    save(root, data)  # the commit point
+    point_current(root, target)
+    log.info("registry %s: %s -> %s (%s)", action, old, target, note)
+    return data
+
+
+def promote(root: str | Path, name: str, note: str = "promoted by hand") -> dict[str, Any]:
+    """Make a registered version current (under the retrain lock). Returns the new document; promoting the
+    current version changes nothing. UnknownVersion for a version the registry does not list; LockBusy while a
+    retrain runs."""
+    root = Path(root)
+    with exclusive_lock(root):
+        data = load(root)
+        require_version(data, name, root)
+        if data.get("current") == name:
+            return data
+        return _switch(root, data, name, "promote", note)
+
+
+def rollback(root: str | Path, note: str = "rolled back by hand") -> dict[str, Any]:
+    """Return to the current version's parent: the model that was current when it was trained (under the
+    retrain lock). UnknownVersion when there is no current version or it has no parent."""
+    root = Path(root)
+    with exclusive_lock(root):
+        data = load(root)
+        cur = current(data)
+        if cur is None:
+            raise UnknownVersion("no current model to roll back from", file=registry_path(root))
+        parent = cur.get("parent")
+        if not parent:
+            raise UnknownVersion(f"{cur['version']} has no parent (it was the first model); nothing to roll back "
+                                 "to", file=registry_path(root))
+        require_version(data, parent, root)
+        return _switch(root, data, parent, "rollback", f"{note} from {cur['version']}")
+
+
+def lineage_chain(data: dict[str, Any], name: str) -> list[str]:
+    """``name``, its parent, the parent's parent, ... (stops at a cycle or an unknown parent)."""
+    chain: list[str] = []
+    entry = version(data, name)
+    while entry is not None and entry["version"] not in chain:
+        chain.append(entry["version"])
+        entry = version(data, entry.get("parent"))
+    return chain
+
+
+# ------------------------------------------------------------------------------------------------- views
+
+def _score(value: Any) -> str:
+    return f"{value:.4g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else "-"
+
+
+def rows(data: dict[str, Any]) -> list[dict[str, Any]]:
+    """One record per version, oldest first: what ``auvid models list --json`` prints."""
+    return [{"version": v["version"], "current": v["version"] == data.get("current"), "status": v.get("status"),
+             "created_at": v.get("created_at"), "holdout_score": v.get("holdout_score"), "parent": v.get("parent"),
+             "reason": v.get("reason")} for v in data["versions"]]
+
+
+def format_table(data: dict[str, Any]) -> str:
+    """The versions as an aligned text table, the current one marked ``*``."""
+    metric = (data.get("holdout") or {}).get("metric", "holdout score")
+    head = ["", "version", "status", "created_at", metric, "parent", "reason"]
+    body = [["*" if r["current"] else "", r["version"], r["status"] or "-", r["created_at"] or "-",
+             _score(r["holdout_score"]), r["parent"] or "-", r["reason"] or "-"] for r in rows(data)]
+    widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head) - 1)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row[:-1], widths, strict=True)) + "  " + row[-1]
+             for row in [head, *body]]
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def describe_version(data: dict[str, Any], name: str, root: str | Path) -> dict[str, Any]:
+    """Everything ``auvid models show`` says about a version: its entry, whether it is current, its lineage
+    chain (itself, parent, grandparent, ...) and the holdout it was scored on."""
+    entry = require_version(data, name, root)
+    return {**entry, "current": data.get("current") == name, "chain": lineage_chain(data, name),
+            "holdout_definition": data.get("holdout")}
+
+
+def format_version(info: dict[str, Any], root: str | Path) -> str:
+    """The text form of :func:`describe_version`."""
+    lineage = info.get("lineage") or {}
+    holdout = info.get("holdout_definition") or {}
+    metrics = info.get("metrics") or {}
+    pad = "\n" + " " * 20
+
+    def line(label: str, text: object) -> str:
+        return f"  {label:<17} {text}"
+
+    on = ", ".join(lineage.get("holdout") or holdout.get("trials") or []) or "-"
+    better = "higher" if holdout.get("mode", "max") == "max" else "lower"
+    out = [f"{info['version']}: {info.get('status')}" + (" (current)" if info["current"] else ""),
+           line("created_at", info.get("created_at") or "-"),
+           line("reason", info.get("reason") or "-"),
+           line("holdout score", f"{_score(info.get('holdout_score'))} ({holdout.get('metric', '?')}, {better} is "
+                                 f"better, on {on})"),
+           line("lineage", " <- ".join(info["chain"]) + ("" if info.get("parent") else " (first model)")),
+           line("metrics", ", ".join(f"{k} {v if isinstance(v, str) else _score(v)}"
+                                     for k, v in sorted(metrics.items())) or "-")]
+    logs = lineage.get("new_logs") or []
+    out.append(line("new logs", len(logs)) + "".join(f"{pad}{e.get('name')}  sha256 {str(e.get('sha256'))[:12]}"
+                                                     for e in logs))
+    out.append(line("trials", ", ".join(lineage.get("trials") or []) or "-"))
+    for key in ("vehicle_hash", "params_hash", "package_version"):
+        out.append(line(key, lineage.get(key) or "-"))
+    quarantined = lineage.get("quarantined") or []
+    out.append(line("quarantined", len(quarantined)) + "".join(
+        f"{pad}{q.get('file') or q.get('model')}: {q.get('reason')}" for q in quarantined))
+    for event in info.get("events") or []:
+        out.append(line(str(event.get("action")), f"{event.get('at')}: {event.get('from') or '-'} -> "
+                                                  f"{event.get('to')} ({event.get('note')})"))
+    out.append(line("models", Path(root) / "models" / info["version"]))
+    return "\n".join(out)

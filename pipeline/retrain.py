@@ -23,13 +23,11 @@ One run of :func:`retrain`:
 
 from __future__ import annotations
 
-import fcntl
 import logging
 import os
 import shutil
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,11 +37,11 @@ import yaml
 from pipeline import __version__, layout, registry
 from pipeline.config import Params, config_hash, load_params, load_vehicle, parse
 from pipeline.errors import PipelineError
+from pipeline.registry import LOCK_FILE, LockBusy, exclusive_lock
 from pipeline.tableio import file_sha256
 
 log = logging.getLogger(__name__)
 
-LOCK_FILE = ".retrain.lock"
 _PARTIAL = (".part", ".tmp", ".partial", ".crdownload", ".lock")
 _LINKED = (layout.RAW, layout.SIGNALS, layout.SYNCED, layout.KINEMATICS, layout.DERIVED)
 _ARTIFACTS = (layout.MODELS, layout.EVALUATION, layout.SIMULATION, layout.REPORTS, "params.yaml")
@@ -72,32 +70,6 @@ class RetrainOutcome:
     version: str | None = None
     quarantined: list[dict[str, Any]] = field(default_factory=list)
     metrics: dict[str, Any] = field(default_factory=dict)
-
-
-class LockBusy(Exception):
-    pass
-
-
-@contextmanager
-def exclusive_lock(root: Path) -> Iterator[None]:
-    """Hold ``ROOT/.retrain.lock`` (flock, non-blocking); raises LockBusy if another process has it."""
-    root.mkdir(parents=True, exist_ok=True)
-    handle = open(root / LOCK_FILE, "a+")  # noqa: SIM115 - held for the whole run
-    try:
-        try:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise LockBusy from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"{os.getpid()}\n")
-        handle.flush()
-        try:
-            yield
-        finally:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
-    finally:
-        handle.close()
 
 
 # --------------------------------------------------------------------------------------------- inbox, copies
