@@ -63,6 +63,7 @@ class SalvageInfo:
     kept: int
     stopped_at_byte: int | None
     reason: str
+    duplicates: int = 0  # records dropped because the file holds them twice (pipeline.io.dedup)
 
 
 @dataclass

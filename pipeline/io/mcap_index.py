@@ -82,6 +82,7 @@ def index_walk(path: Path) -> IndexedFile | None:
 def _index_walk(path: Path) -> IndexedFile | None:
     out = Walk()
     chunks: list[ChunkRef] = []
+    heads: set[bytes] = set()  # chunk headers (times, sizes, CRC, compression) seen so far
     fd = os.open(path, os.O_RDONLY)
     try:
         size = os.fstat(fd).st_size
@@ -102,6 +103,9 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 (rlen,) = struct.unpack_from("<Q", head, p)
                 if p + 8 + rlen > length or implausible_chunk(compression, rlen, usize) is not None:
                     return None  # the record walk reports the damage
+                if head[:p + 8] in heads:
+                    return None  # a chunk written twice: the record walk drops and reports it
+                heads.add(head[:p + 8])
                 chunks.append(ChunkRef(body + p + 8, rlen, usize, crc, compression, pos))
             elif op == OP_MESSAGE_INDEX:
                 if not chunks:
@@ -110,6 +114,8 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 cid, n = struct.unpack_from("<HI", raw, 0)
                 if n % 16 or 6 + n > length:
                     return None
+                if cid in chunks[-1].index:
+                    return None  # two message indexes of one channel for one chunk (a record written twice)
                 entries = np.frombuffer(raw, dtype=_ENTRY, count=n // 16, offset=6)
                 if len(entries) and int(entries["o"].max()) >= 1 << 32:
                     return None

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
 from pipeline.io.base import Batch, RawReader, Restart, SalvageInfo, TopicInfo, stream_walk
+from pipeline.io.dedup import Seen, crc
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 
 if TYPE_CHECKING:
@@ -67,6 +68,7 @@ class Walk:
     stats_counts: dict[int, int] | None = None
     damage: Damaged | None = None
     kept: int = 0
+    seen: Seen = field(default_factory=Seen)  # chunks and messages met twice, dropped
 
 
 _INT64_LIMIT = 1 << 63
@@ -164,13 +166,17 @@ def _walk_records(
                 raise Damaged(f"message log time {log_ns} beyond int64 nanoseconds", origin + pos)
             if ch not in out.channels:
                 raise Damaged(f"message on unknown channel {ch}", origin + pos)
+            payload = bytes(buf[body + 22:stop])
+            if out.seen.message(ch, (_seq, log_ns, _pub, len(payload), crc(payload)), origin + pos):
+                pos = stop
+                continue
             out.counts[ch] = out.counts.get(ch, 0) + 1
             out.first.setdefault(ch, log_ns)
             out.last[ch] = log_ns
             out.kept += 1
             if on_message is not None:
                 keep = wanted is None or ch in wanted
-                on_message(ch, log_ns, bytes(buf[body + 22:stop]) if keep else None)
+                on_message(ch, log_ns, payload if keep else None)
         elif op == OP_CHUNK:
             _chunk(buf, body, stop, out, on_message, wanted, tolerant=tolerant, origin=origin + pos)
         elif op == OP_SCHEMA:
@@ -199,10 +205,10 @@ def _walk_records(
 
 
 def _chunk_head(buf: bytes | mmap.mmap, body: int) -> tuple[int, int, str, int, int]:
-    _start, _end, usize, crc = struct.unpack_from("<QQQI", buf, body)
+    _start, _end, usize, check = struct.unpack_from("<QQQI", buf, body)
     compression, p = _string(buf, body + 28)
     (rlen,) = _U64.unpack_from(buf, p)
-    return usize, crc, compression, p + 8, rlen
+    return usize, check, compression, p + 8, rlen
 
 
 def _chunk(
@@ -210,19 +216,23 @@ def _chunk(
     on_message: Callable[[int, int, bytes | None], None] | None, wanted: set[int] | None, *, tolerant: bool,
     origin: int,
 ) -> None:
-    usize, crc, compression, rstart, rlen = _chunk_head(buf, body)
+    usize, check, compression, rstart, rlen = _chunk_head(buf, body)
     if rstart + rlen > stop:
         raise Damaged("chunk records overrun the chunk", origin)
     why = implausible_chunk(compression, rlen, usize)
     if why is not None:
         raise Damaged(why, origin)
+    raw = bytes(buf[rstart:rstart + rlen])
+    if out.seen.chunk((bytes(buf[body:rstart]), rlen, crc(raw)), origin):
+        log.warning("chunk at byte %d repeats an earlier chunk byte for byte; dropped", origin)
+        return
     try:
-        data = _decompress(compression, bytes(buf[rstart:rstart + rlen]), usize, partial=False)
+        data = _decompress(compression, raw, usize, partial=False)
     except Damaged as dmg:
         raise Damaged(dmg.reason, origin) from None
     except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types
         raise Damaged(f"chunk does not decompress ({err})", origin) from err
-    if len(data) != usize or (crc and zlib.crc32(data) != crc):
+    if len(data) != usize or (check and zlib.crc32(data) != check):
         raise Damaged("chunk CRC or size mismatch (corrupt bytes)", origin)
     # Validate the whole chunk before delivering any of it: a corrupt chunk is dropped as a unit.
     if on_message is not None:
@@ -251,6 +261,16 @@ def _partial_chunk(
         pass
 
 
+def salvage_info(path: Path, result: Walk) -> SalvageInfo:
+    """The report of a walk that found damage, duplicates, or was asked to salvage."""
+    dmg, dups = result.damage, result.seen.describe()
+    reason = "; ".join(r for r in (dmg.reason if dmg else "", dups) if r) or "no damage found"
+    if dups:
+        log.warning("%s: %s", path, dups)
+    return SalvageInfo(kept=result.kept, stopped_at_byte=None if dmg is None or dmg.at < 0 else dmg.at,
+                       reason=reason, duplicates=result.seen.count)
+
+
 class McapReader(RawReader):
     """A plain MCAP file (ROS 2 CDR or ROS 1 encoded messages)."""
 
@@ -266,17 +286,18 @@ class McapReader(RawReader):
                  wanted: set[int] | None = None) -> Walk:
         if not self._tolerant:
             try:
-                return walk(self.path, on_message, wanted)
+                result = walk(self.path, on_message, wanted)
             except Damaged as dmg:
                 log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
                 self._tolerant = True
                 if on_message is not None:
                     raise
+            else:
+                if result.seen.count:
+                    self.salvage = salvage_info(self.path, result)
+                return result
         result = walk(self.path, on_message, wanted, tolerant=True)
-        dmg = result.damage
-        self.salvage = SalvageInfo(
-            kept=result.kept, stopped_at_byte=None if dmg is None or dmg.at < 0 else dmg.at,
-            reason=dmg.reason if dmg else "no damage found")
+        self.salvage = salvage_info(self.path, result)
         return result
 
     def _scan(self) -> None:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
 from pipeline.io.base import Batch, RawReader, Restart, SalvageInfo, TopicInfo, stream_walk
+from pipeline.io.dedup import Seen, crc
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import Damaged
 
@@ -53,6 +54,7 @@ class BagWalk:
     has_bag_header: bool = False
     damage: Damaged | None = None
     kept: int = 0
+    seen: Seen = field(default_factory=Seen)  # chunks and messages met twice, dropped
 
 
 def _header(buf: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
@@ -130,18 +132,27 @@ def walk_records(
             if cid not in out.connections:
                 raise Damaged(f"message on unknown connection {cid}", at)
             t = _time(hdr["time"])
+            payload = bytes(buf[dpos:dend])
+            if out.seen.message(cid, (t, dlen, crc(payload)), at):
+                pos = dend
+                continue
             out.counts[cid] = out.counts.get(cid, 0) + 1
             out.first.setdefault(cid, t)
             out.last[cid] = t
             out.kept += 1
             if on_message is not None and (wanted is None or cid in wanted):
-                on_message(cid, t, bytes(buf[dpos:dend]))
+                on_message(cid, t, payload)
         elif op == OP_CONNECTION:
             _connection(out, hdr, buf, dpos, dend)
         elif op == OP_CHUNK:
             comp = hdr.get("compression", b"none").decode()
+            raw = bytes(buf[dpos:dend])
+            if out.seen.chunk((bytes(buf[pos + 4:pos + 4 + hlen]), dlen, crc(raw)), at):
+                log.warning("chunk at byte %d repeats an earlier chunk byte for byte; dropped", at)
+                pos = dend
+                continue
             try:
-                data = _decompress(comp, bytes(buf[dpos:dend]), partial=False)
+                data = _decompress(comp, raw, partial=False)
             except Damaged:
                 raise Damaged(f"unknown chunk compression {comp!r}", at) from None
             except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
@@ -245,18 +256,31 @@ def index_counts(path: Path) -> dict[int, int] | None:
         if not probe.index_pos or probe.index_pos >= len(mm):
             return None
         counts: dict[int, int] = {}
+        chunks: set[bytes] = set()
         pos = probe.index_pos
         while pos + 4 <= len(mm):
             (hlen,) = _U32.unpack_from(mm, pos)
             hdr = _header(mm, pos + 4, pos + 4 + hlen)
             (dlen,) = _U32.unpack_from(mm, pos + 4 + hlen)
             dpos = pos + 8 + hlen
-            if hdr.get("op") == bytes([OP_CHUNK_INFO]):
+            if hdr.get("op") == bytes([OP_CHUNK_INFO]) and hdr.get("chunk_pos") not in chunks:
+                chunks.add(hdr.get("chunk_pos", b""))
                 for q in range(dpos, dpos + dlen, 8):
                     cid, n = struct.unpack_from("<II", mm, q)
                     counts[cid] = counts.get(cid, 0) + n
             pos = dpos + dlen
         return counts
+
+
+def salvage_info(path: Path, result: BagWalk, dups: int = 0, dup_words: str = "") -> SalvageInfo:
+    """The report of a walk that found damage, duplicates, or was asked to salvage."""
+    dmg = result.damage
+    dup_words = dup_words or result.seen.describe()
+    reason = "; ".join(r for r in (dmg.reason if dmg else "", dup_words) if r) or "no damage found"
+    if dup_words:
+        log.warning("%s: %s", path, dup_words)
+    return SalvageInfo(result.kept, None if dmg is None or dmg.at < 0 else dmg.at, reason,
+                       duplicates=dups or result.seen.count)
 
 
 class Rosbag1Reader(RawReader):
@@ -267,27 +291,35 @@ class Rosbag1Reader(RawReader):
         self._walk: BagWalk | None = None
         self._index: IndexedBag | None = None
         self._no_index = False
+        self._tolerant = False  # damage found: read by the salvage walk
 
     def _do_walk(self, on_message: Callable[[int, int, bytes], None] | None = None,
                  wanted: set[int] | None = None) -> BagWalk:
-        if self.salvage is None:
+        if not self._tolerant:
             try:
-                return walk(self.path, on_message, wanted)
+                result = walk(self.path, on_message, wanted)
             except Damaged as dmg:
                 if on_message is not None:
                     raise IngestError(f"bag changed while reading: {dmg}", file=self.path) from dmg
                 log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
+                self._tolerant = True
+            else:
+                if result.seen.count:
+                    self.salvage = salvage_info(self.path, result)
+                return result
         result = walk(self.path, on_message, wanted, tolerant=True)
-        dmg = result.damage
-        self.salvage = SalvageInfo(result.kept, None if dmg is None or dmg.at < 0 else dmg.at,
-                                   dmg.reason if dmg else "no damage found")
+        self.salvage = salvage_info(self.path, result)
         return result
 
     def _scan(self) -> None:
         from pipeline.io.rosbag1_index import index_walk
 
-        self._index = None if self._no_index or self.salvage is not None else index_walk(self.path)
+        self._index = None if self._no_index or self._tolerant else index_walk(self.path)
         w = self._index.walk if self._index is not None else self._do_walk()
+        if self._index is not None and self._index.duplicates:
+            self.salvage = salvage_info(self.path, w, self._index.duplicates,
+                                        f"{self._index.duplicates} duplicate chunk-info record(s) dropped (the "
+                                        "same chunk listed twice in the index)")
         self._walk = w
         stored = None
         if self._index is not None:

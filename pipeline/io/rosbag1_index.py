@@ -52,6 +52,7 @@ class ChunkRef:
 class IndexedBag:
     walk: BagWalk
     chunks: list[ChunkRef]
+    duplicates: int = 0  # chunk-info records that list a chunk listed before (dropped)
 
 
 def _record(fd: int, pos: int, end: int) -> tuple[dict[str, bytes], int, int]:
@@ -93,8 +94,9 @@ def _index_walk(path: Path) -> IndexedBag | None:
             return None
         out.index_pos, out.has_bag_header = index_pos, True
         section = os.pread(fd, size - index_pos, index_pos)
-        pos, info_counts = 0, {}
+        pos, info_counts, duplicates = 0, {}, 0
         chunk_pos: list[int] = []
+        listed: set[int] = set()
         while pos < len(section):
             (hlen,) = struct.unpack_from("<I", section, pos)
             hdr = _header(section, pos + 4, pos + 4 + hlen)
@@ -106,7 +108,13 @@ def _index_walk(path: Path) -> IndexedBag | None:
             if op == OP_CONNECTION:
                 _connection(out, hdr, section, dpos, dpos + dlen)
             elif op == OP_CHUNK_INFO:
-                chunk_pos.append(struct.unpack("<Q", hdr["chunk_pos"])[0])
+                cpos = struct.unpack("<Q", hdr["chunk_pos"])[0]
+                if cpos in listed:  # the same chunk listed twice: read it once
+                    duplicates += 1
+                    pos = dpos + dlen
+                    continue
+                chunk_pos.append(cpos)
+                listed.add(cpos)
                 for q in range(dpos, dpos + dlen, 8):
                     cid, n = struct.unpack_from("<II", section, q)
                     info_counts[cid] = info_counts.get(cid, 0) + n
@@ -143,7 +151,7 @@ def _index_walk(path: Path) -> IndexedBag | None:
     if any(cid not in out.connections for cid in out.counts):
         return None
     out.kept = sum(out.counts.values())
-    return IndexedBag(out, chunks)
+    return IndexedBag(out, chunks, duplicates)
 
 
 def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:

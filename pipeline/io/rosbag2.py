@@ -34,7 +34,7 @@ from pipeline.io.base import (
 )
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
-from pipeline.io.mcap_reader import Damaged, walk
+from pipeline.io.mcap_reader import Damaged, salvage_info, walk
 
 if TYPE_CHECKING:
     from pipeline.io.mcap_index import IndexedFile
@@ -273,14 +273,18 @@ class Rosbag2Reader(RawReader):
 
     def _walk_mcap(self, path: Path, on_message: Any = None, wanted: set[int] | None = None) -> Any:
         try:
-            return walk(path, on_message, wanted, tolerant=self.salvage is not None)
+            w = walk(path, on_message, wanted, tolerant=self.salvage is not None)
         except Damaged as dmg:
             if on_message is not None:
                 raise IngestError(f"storage file changed while reading: {dmg}", file=path) from dmg
             log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
             w = walk(path, None, None, tolerant=True)
-            self.salvage = SalvageInfo(w.kept, None if dmg.at < 0 else dmg.at, f"{path.name}: {dmg.reason}")
-            return w
+            w.damage = dmg
+        if w.damage is not None or w.seen.count:
+            info = salvage_info(path, w)
+            info.reason = f"{path.name}: {info.reason}"
+            self.salvage = info
+        return w
 
     def _scan_mcap(self, path: Path, ids: dict[int, str], add: Any) -> None:
         from pipeline.io.mcap_index import index_walk

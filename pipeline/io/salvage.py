@@ -30,9 +30,8 @@ def salvage(path: str | Path) -> SalvageInfo:
     else:
         raise IngestError(f"salvage reads MCAP files and ROS 1 bags, not {kind}", file=path)
     dmg = result.damage
-    info = SalvageInfo(
-        kept=result.kept, stopped_at_byte=None if dmg is None or dmg.at < 0 else dmg.at,
-        reason=dmg.reason if dmg is not None else "no damage found")
+    info = mcap_reader.salvage_info(path, result) if kind == "mcap" else \
+        rosbag1.salvage_info(path, result)  # type: ignore[arg-type]
     if dmg is not None:
         log.warning("%s: salvage kept %d messages, stopped at byte %s: %s", path, info.kept, info.stopped_at_byte,
                     info.reason)
@@ -49,6 +48,7 @@ def open_salvaged(path: str | Path) -> mcap_reader.McapReader | rosbag1.Rosbag1R
         return reader
     if kind == "ros1":
         bag = rosbag1.Rosbag1Reader(path)
+        bag._tolerant = True  # noqa: SLF001 - same package
         bag.salvage = SalvageInfo(0, None, "salvage requested")
         return bag
     raise IngestError(f"salvage reads MCAP files and ROS 1 bags, not {kind}", file=path)
