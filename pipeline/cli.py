@@ -51,6 +51,7 @@ examples:
   auvid report --root runs/basin --vehicle dagon.yaml
   auvid retrain --root /srv/auvid --inbox /srv/incoming --vehicle dagon.yaml
   auvid models list --root /srv/auvid          # registered model versions; show, promote, rollback
+  auvid export runs/basin                      # one MCAP per trial for Foxglove / PlotJuggler
   AUVID_SCHEDULER=tcp://scheduler:8786 auvid run ...   # fan-out on a Dask cluster (or --scheduler)
 
 exit codes: 0 done, 1 done with quarantined inputs or failed models, 2 usage or config error (before any stage
@@ -233,6 +234,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="vehicle config (default: <root>/vehicle.yaml)")
     rt.add_argument("--params", type=Path, default=None, help="params YAML (default: <root>/params.yaml)")
     _add_run_options(rt)
+
+    ex = sub.add_parser("export", help="one MCAP per trial (JSON channels) for Foxglove and PlotJuggler: synced "
+                        "signals, estimated velocities with bands, model predictions, free runs",
+                        formatter_class=argparse.RawDescriptionHelpFormatter,
+                        epilog="examples:\n  auvid export runs/basin                      # every trial -> "
+                               "runs/basin/exports/<trial>.mcap\n"
+                               "  auvid export runs/basin --trial trial03 --out /tmp/mcap\n"
+                               "Channels: docs/user-guide.md, 'Looking at a run in Foxglove or PlotJuggler'.\n")
+    ex.add_argument("root", type=_abs_path, help="run directory (holding data/synced, data/kinematics, ...)")
+    ex.add_argument("--trial", action="append", default=None, metavar="T",
+                    help="export this trial only (repeatable; default: every trial with a synced table)")
+    ex.add_argument("--out", type=_abs_path, default=None, help="output directory (default: ROOT/exports)")
+    ex.add_argument("-q", "--quiet", action="store_true", help="one summary line; no progress, no warnings")
+    ex.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
     models = sub.add_parser("models", help="the retraining registry: list versions, show one, promote, roll back",
                             formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -486,36 +501,6 @@ def cmd_retrain(args: argparse.Namespace) -> int:
     return EXIT_QUARANTINED if outcome.quarantined else EXIT_OK
 
 
-def cmd_models(args: argparse.Namespace) -> int:
-    from pipeline import registry
-
-    root = args.root.resolve()
-    if not registry.registry_path(root).is_file():
-        raise UsageError(f"no model registry at {registry.registry_path(root)} (give the retraining home with "
-                         "--root; `auvid retrain` creates it)")
-    action = args.models_command
-    try:
-        if action == "list":
-            data = registry.load(root)
-            print(json.dumps(registry.rows(data), indent=2) if args.json else registry.format_table(data))
-        elif action == "show":
-            info = registry.describe_version(registry.load(root), args.version, root)
-            print(json.dumps(info, indent=2, sort_keys=True) if args.json else registry.format_version(info, root))
-        else:
-            before = registry.load(root).get("current")
-            data = registry.promote(root, args.version) if action == "promote" else registry.rollback(root)
-            now = data["current"]
-            print(f"models {action}: {now} is current" + (f" (was {before})" if before != now else
-                                                          " (it already was; nothing changed)"))
-    except registry.UnknownVersion as err:
-        raise UsageError(str(err)) from None
-    except registry.LockBusy:
-        print(f"auvid: models {action}: a retrain (or another promotion) holds {root / registry.LOCK_FILE}; "
-              "nothing changed, try again when it ends", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
-
-
 def _dispatch(args: argparse.Namespace) -> int:
     from pipeline.parallel import backend
 
@@ -530,8 +515,10 @@ def _dispatch(args: argparse.Namespace) -> int:
             return cmd_init(args)
         if args.command == "retrain":
             return cmd_retrain(args)
-        if args.command == "models":
-            return cmd_models(args)
+        if args.command in ("models", "export"):
+            from pipeline import cli_tools
+
+            return cli_tools.cmd_models(args) if args.command == "models" else cli_tools.cmd_export(args)
         return cmd_stages(args, [args.command])
 
 

@@ -6,7 +6,8 @@ from the measured thruster speeds (``physics.generalized_forces``; minus ``physi
 pitch are in the store); each coupled model of ``stages.train`` (``data/models/coupled/<name>.joblib`` + card
 ``<name>.card.json`` whose ``inputs`` are the velocity columns of those DOFs first, then thruster speeds or ``tau_*``
 columns) is rolled out as ``nudot = F(nu, inputs)``. Writes ``data/simulation/<trial>/``: ``free_run.json|png``,
-``horizons.json``, ``bridging.json|md|png``, and ``data/simulation/metrics.json`` (all trials, deterministic).
+``free_run.parquet`` (the trajectories per sample), ``horizons.json``, ``bridging.json|md|png``, and
+``data/simulation/metrics.json`` (all trials, deterministic).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from pipeline import layout, physics, store
 from pipeline.config import Params, Vehicle
@@ -37,7 +39,7 @@ from pipeline.simulate import (
     simulate_models,
     table_range,
 )
-from pipeline.tableio import atomic_path, write_json
+from pipeline.tableio import atomic_path, write_json, write_parquet
 from stages.common import StageResult, stage_main
 
 NAME = "simulate"
@@ -141,7 +143,8 @@ def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoup
         run, horizons[name] = results[name]
         runs.append(run)
     outputs = [write_json([r.summary() for r in runs], out_dir / "free_run.json"),
-               write_json(horizons, out_dir / "horizons.json")]
+               write_json(horizons, out_dir / "horizons.json"),
+               write_free_runs(t_ns, [VELOCITY_COLUMNS[d] for d in dofs], runs, out_dir / "free_run.parquet")]
     if runs:
         outputs.append(plot_free_runs(runs, out_dir / "free_run.png", title=str(frame["trial"].iloc[0])))
     summary: dict[str, Any] = {"free_run": [r.summary() for r in runs], "horizons": horizons}
@@ -155,6 +158,21 @@ def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoup
         outputs += [out_dir / "bridging.md", plot_bridging(rows, out_dir / "bridging.png")]
         summary["bridging"] = rows
     return summary, outputs
+
+
+def write_free_runs(t_ns: np.ndarray, columns: list[str], runs: list[Any], target: Path) -> Path:
+    """The free-run trajectories per sample (for ``auvid export``): ``t_ns``, the measured velocities under their
+    own names, and per model ``<model>/<column>`` (NaN where not simulated) and, with a band,
+    ``<model>/<column>/lower`` and ``/upper`` (mean -+ 2 sd of the posterior members)."""
+    data: dict[str, Any] = {"t_ns": pa.array(t_ns, pa.int64())}
+    if runs:
+        data.update({c: runs[0].measured[:, j] for j, c in enumerate(columns)})
+    for r in runs:
+        for j, c in enumerate(columns):
+            data[f"{r.name}/{c}"] = r.predicted[:, j]
+            if r.band is not None:
+                data[f"{r.name}/{c}/lower"], data[f"{r.name}/{c}/upper"] = r.band[0][:, j], r.band[1][:, j]
+    return write_parquet(pa.table(data), target, {"stage": NAME, "models": [r.name for r in runs]})
 
 
 def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
