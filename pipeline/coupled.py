@@ -205,8 +205,15 @@ def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:
     return frame.iloc[idx]
 
 
-def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning"
-         ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
+def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
+    """A progress callback for one part of a longer job: the part's own done/total, ``label`` first in desc."""
+    if progress is None:
+        return None
+    return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
+
+
+def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
+         progress: Callable[..., Any] | None = None) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
     """Search hyperparameters of every SVR model and output on one block: the tuning split (``split="tuning"``,
     the papers' protocol) or, with ``params.tuning == "nested"``, the train_test block (``split="train_test"``).
     Rows of any other split are refused.
@@ -214,7 +221,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     A gray-box model's residual WDSE-SVR is tuned on the residuals ``y - base.predict`` of its explicit base fitted
     on the (whole, time-ordered) tuning block; its search starts from the GP seed, not from a warm start (the
     target differs). Returns ``(hyper, trace)``: ``hyper[model][output]`` = flat hyperparameters,
-    ``trace[model][output]`` = the :class:`SearchResult` as a dict.
+    ``trace[model][output]`` = the :class:`SearchResult` as a dict. ``progress(done, total, desc)`` (optional):
+    each search's candidates, ``desc`` naming the search (``wdse_svr/udot_mps2 (3/9)``).
     """
     if len(tuning) == 0:
         raise ModelError(f"{split} block is empty: nothing to tune on")
@@ -231,6 +239,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     trace: dict[str, Any] = {}
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum
     order = [m for m in SVR_MODELS if m in params.models]
+    n_searches, k_search = (len(order) + len(graybox)) * len(params.outputs), 0
     for model in order:
         hyper[model], trace[model] = {}, {}
         simpler = next((m for m in reversed(order[:order.index(model)]) if m in hyper), None)
@@ -239,6 +248,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
             if params.search == "fast":
                 kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
                           warm_start=hyper[simpler][out] if simpler else None)
+            k_search += 1
+            kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
             res = search(model, X, data[out].to_numpy(float), params.search, **kw)
             log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
@@ -252,6 +263,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
             kw = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
             if params.search == "fast":
                 kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance)
+            k_search += 1
+            kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
             res = search("wdse_svr", X, resid[:, k], params.search, **kw)
             log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
@@ -285,7 +298,8 @@ class NestedTuned(RegressorMixin, BaseEstimator):
 def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[str, dict[str, Any]],
                     params: CoupledParams, *, tuning_keys: pd.DataFrame | None = None, n_jobs: int | None = 1,
                     failures: dict[str, dict[str, str]] | None = None,
-                    on_model: Callable[[str, dict[str, Any] | None], None] | None = None) -> dict[str, Any]:
+                    on_model: Callable[[str, dict[str, Any] | None], None] | None = None,
+                    progress: Callable[..., Any] | None = None) -> dict[str, Any]:
     """Blocked CV on the train_test block and the final check on the test trial(s), per model.
 
     Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted}}``; the
@@ -295,6 +309,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
     logged, recorded there (``failures[model]`` = :func:`pipeline.evaluate.model_failure`) and the other models go
     on; without, it is raised as a ModelError. ``on_model(model, result or None)`` is called as each model
     finishes or fails (the stage writes that model's artifacts then, not after the whole study).
+    ``progress(done, total, desc)`` (optional): CV folds and final fits of all models, as they finish.
     """
     _check_columns(train_test, [*params.outputs, "trial", "t_ns"], "evaluate")
     keys = train_test[["trial", "t_ns"]]
@@ -302,15 +317,26 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
         check_no_leakage(train_test[["trial", "t_ns"]], test[["trial", "t_ns"]], tuning_keys)
     y = train_test[params.outputs].to_numpy(float)
     results: dict[str, Any] = {}
-    for model in params.models:
+    per_model = params.folds + 1  # the CV folds, then the final fit
+    total = per_model * len(params.models)
+    for k, model in enumerate(params.models):
+        base = k * per_model
+
+        def tick(done: int, _total: Any = None, desc: str | None = None, base: int = base, model: str = model
+                 ) -> None:
+            if progress is not None:
+                progress(base + done, total, f"{model} {desc or ''}".rstrip())
+
         try:
-            results[model] = _evaluate_model(model, train_test, test, y, keys, hyper, params, tuning_keys, n_jobs)
+            results[model] = _evaluate_model(model, train_test, test, y, keys, hyper, params, tuning_keys, n_jobs,
+                                             progress=tick if progress is not None else None)
         except MODEL_FAILURES as err:
             entry = model_failure(model, err)
             if failures is None:
                 raise ModelError(f"model {model!r} failed ({entry['error']}): {entry['reason']}") from err
             log.error("model %s failed, the others go on: %s: %s", model, entry["error"], entry["reason"])
             failures[model] = entry
+            tick(per_model, desc="failed")
             if on_model is not None:
                 on_model(model, None)
             continue
@@ -323,7 +349,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
 
 def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np.ndarray, keys: pd.DataFrame,
                     hyper: dict[str, dict[str, Any]], params: CoupledParams, tuning_keys: pd.DataFrame | None,
-                    n_jobs: int | None) -> dict[str, Any]:
+                    n_jobs: int | None, progress: Callable[..., Any] | None = None) -> dict[str, Any]:
     est = build_model(model, hyper.get(model), params, train=train_test)
     cols = model_inputs(model, params)
     _check_columns(train_test, cols, model)
@@ -332,8 +358,10 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     # tune stage's, searched on the whole train_test block it is fitted on
     cv_est = NestedTuned(model, params) if params.tuning == "nested" and model not in EXPLICIT_MODELS else est
     folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
-                                   outputs=params.outputs, n_jobs=n_jobs)
+                                   outputs=params.outputs, n_jobs=n_jobs, progress=progress)
     final_est = est.fit(X, y)
+    if progress is not None:
+        progress(params.folds + 1, None, "final fit")
     final = None
     if len(test):
         final = score_holdout(final_est, test[cols].to_numpy(float), test[params.outputs].to_numpy(float),

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -117,8 +117,10 @@ def _fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, t
 def cross_validate_blocked(estimator: Any, X: np.ndarray, y: np.ndarray, *, n_folds: int = 5,
                            keys: pd.DataFrame | None = None, tuning_keys: pd.DataFrame | None = None,
                            outputs: Sequence[str] | None = None, n_jobs: int | None = 1,
-                           group: str = "trial", time_col: str = "t_ns") -> list[dict[str, Any]]:
+                           group: str = "trial", time_col: str = "t_ns",
+                           progress: Callable[..., Any] | None = None) -> list[dict[str, Any]]:
     """Unshuffled blocked k-fold CV. Every fold passes the leakage guard (when ``keys`` are given) first.
+    ``progress(done, total, desc)`` (optional) is called as each fold's result arrives (in fold order).
 
     Returns one dict per fold: ``train`` / ``test`` scores per output, fit / predict time, sizes, test block.
     """
@@ -131,7 +133,14 @@ def cross_validate_blocked(estimator: Any, X: np.ndarray, y: np.ndarray, *, n_fo
         keys = keys.reset_index(drop=True)
         for train, test in folds:
             check_no_leakage(keys.iloc[train], keys.iloc[test], tuning_keys, group=group, time_col=time_col)
-    results = Parallel(n_jobs=n_jobs)(delayed(_fit_fold)(estimator, X, y, tr, te, outputs) for tr, te in folds)
+    jobs = (delayed(_fit_fold)(estimator, X, y, tr, te, outputs) for tr, te in folds)
+    if progress is None:
+        results = Parallel(n_jobs=n_jobs)(jobs)
+    else:  # the same work, results taken as they come (in order) to move the bar
+        results = []
+        for res in Parallel(n_jobs=n_jobs, return_as="generator")(jobs):
+            results.append(res)
+            progress(len(results), len(folds), f"fold {len(results)}/{len(folds)}")
     for k, res in enumerate(results):
         res["fold"] = k
     return list(results)

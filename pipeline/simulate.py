@@ -334,7 +334,8 @@ def rollout(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, dt_s: float, *, bo
 def rollout_ragged(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, starts: np.ndarray, n_steps: np.ndarray,
                    dt_s: float, *, bound: np.ndarray | None = None, clamp: np.ndarray | None = None,
                    clamp_mask: np.ndarray | None = None, method: str = "rk4", offsets: np.ndarray | None = None,
-                   n_out: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   n_out: int | None = None, progress: Callable[..., Any] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Integrate a batch of members of different lengths that read one table of rows: member ``b`` starts at
     ``nu0[b]`` and takes its input at its step ``i`` from ``inputs[starts[b] + i]`` (``inputs (n, m)``, a
     trial's rows; ``clamp (n, k)`` likewise) for ``n_steps[b]`` samples.
@@ -343,6 +344,7 @@ def rollout_ragged(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, starts: np.
     defaults to the members laid end to end, ``out`` then has ``sum(n_steps)`` rows; NaN after divergence).
     All members are stepped together: each RK4 stage calls ``f`` once, on the members still running
     (``take(f, members)`` when that set changes), so members that ended or diverged cost nothing.
+    ``progress(done, total, desc)`` (optional) is called about every 1 % of the steps.
     """
     nu0 = np.atleast_2d(np.asarray(nu0, dtype=float))
     starts, length = np.asarray(starts, dtype=np.intp), np.asarray(n_steps, dtype=np.intp)
@@ -357,7 +359,11 @@ def rollout_ragged(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, starts: np.
     act = np.flatnonzero(length > 0)  # members still running, and their states
     state = nu0[act].copy()
     g, g_size = f, -1
-    for i in range(int(length.max(initial=0))):
+    n_steps_max = int(length.max(initial=0))
+    every = max(1, n_steps_max // 100)
+    for i in range(n_steps_max):
+        if progress is not None and i % every == 0:
+            progress(i, n_steps_max, "rollout steps")
         if clamped:
             state[:, clamp_mask] = clamp[starts[act] + i][:, clamp_mask]
         bad = ~np.all(np.isfinite(state), axis=1)
@@ -384,6 +390,8 @@ def rollout_ragged(f: Dynamics, nu0: np.ndarray, inputs: np.ndarray, starts: np.
                 k4 = g(state + dt_s * k3, u) * free
                 step = (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
             state = state + dt_s * step * free
+    if progress is not None:
+        progress(n_steps_max, n_steps_max, "rollout steps")
     return out, diverged
 
 
@@ -494,12 +502,14 @@ def simulate_model(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray
 def simulate_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.ndarray, nu_meas: np.ndarray,
                     inputs: np.ndarray, dofs: Sequence[str], horizons_s: Sequence[float] = (), *,
                     segment: np.ndarray | None = None, divergence_factor: float = 10.0, method: str = "rk4",
-                    band_members: int = 0, free: bool = True) -> dict[str, tuple[FreeRun | None, dict[str, Any]]]:
+                    band_members: int = 0, free: bool = True, progress: Callable[..., Any] | None = None
+                    ) -> dict[str, tuple[FreeRun | None, dict[str, Any]]]:
     """Free runs (``free``) and horizon errors of models ``{name: (f, band_f or None)}`` that read the same
     ``inputs``, from one batched rollout: every valid run, every band member of every run and every window of
     every horizon of every model is a member of one :func:`rollout_ragged` call over :func:`stack` of the
     dynamics (one call per RK4 stage for the whole batch where they merge, e.g. decoupled models on tables).
-    Returns ``{name: (FreeRun or None, horizons)}``, equal to rolling each member out alone."""
+    Returns ``{name: (FreeRun or None, horizons)}``, equal to rolling each member out alone. ``progress``: see
+    :func:`rollout_ragged`."""
     if not models:
         return {}
     dt_s = grid_step_s(t_ns)
@@ -535,7 +545,8 @@ def simulate_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns
             add(np.repeat(seg_a, band_members), np.repeat(seg_n, band_members))
     start, length, group = (np.concatenate(x) for x in (starts, lengths, groups))
     dyn = dynamics[0] if len(dynamics) == 1 else stack(dynamics, group)
-    flat, div = rollout_ragged(dyn, nu_meas[start], inputs, start, length, dt_s, bound=bound, method=method)
+    flat, div = rollout_ragged(dyn, nu_meas[start], inputs, start, length, dt_s, bound=bound, method=method,
+                               progress=progress)
     offset = np.concatenate([[0], np.cumsum(length)]).astype(np.intp)
     t_s = (np.asarray(t_ns) - t_ns[0]) * 1e-9
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import platform
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -72,8 +73,9 @@ def write_models(study: StudyResult, root: Path, lineage: dict[str, Any]) -> lis
     return out
 
 
-def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
-    """Learn d_i(nu_i) per DOF with LS, MLP, KRR, SVR and GP; score, time and save them."""
+def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
+    """Learn d_i(nu_i) per DOF with LS, MLP, KRR, SVR and GP; score, time and save them. ``progress``: one unit
+    per (DOF, model) finished or failed (stages.common)."""
     root = Path(root)
     p = params.decoupled
     columns = ["t_ns", "segment", "split"] + [c for d in p.dofs for c in dof_columns(d)]
@@ -89,6 +91,10 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     outputs: list[Path] = []
     done = StudyResult([])
 
+    n_units = len(p.dofs) * len(p.models)
+    if progress is not None:
+        progress(0, n_units, "searching, cross-validating")
+
     def finished(result: ModelResult | None, failure: dict[str, str] | None) -> None:
         """Write this (DOF, model) at once (or drop a stale file of it), then the tables of what is done."""
         if result is not None:
@@ -103,6 +109,9 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
                                 failure["model"])
                     stale.unlink()
         write_tables(done, lineage, ev)
+        if progress is not None:
+            name = f"{result.dof}/{result.model}" if result is not None else f"{failure['dof']}/{failure['model']}"
+            progress(len(done.results) + len(done.failed), n_units, name)
 
     study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
                       gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,

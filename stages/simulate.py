@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +97,13 @@ def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str
     return out
 
 
+def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
+    """A progress callback for one part of the stage: the part's own done/total, ``label`` first in desc."""
+    if progress is None:
+        return None
+    return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
+
+
 def trial_inputs(frame: pd.DataFrame, vehicle: Vehicle, dofs: list[str]) -> np.ndarray:
     """Generalized forces of the simulated DOFs from the measured thruster speeds, minus restoring forces."""
     speeds = frame[[t.input_signal for t in vehicle.thrusters]].to_numpy(float)  # speed, PWM or thrust
@@ -107,7 +115,8 @@ def trial_inputs(frame: pd.DataFrame, vehicle: Vehicle, dofs: list[str]) -> np.n
 
 
 def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupled: dict[str, dict[str, Any]],
-                   coupled: dict[str, tuple[Any, list[str]]], out_dir: Path) -> tuple[dict[str, Any], list[Path]]:
+                   coupled: dict[str, tuple[Any, list[str]]], out_dir: Path,
+                   progress: Callable[..., Any] | None = None) -> tuple[dict[str, Any], list[Path]]:
     p, dofs = params.simulate, list(params.decoupled.dofs)
     t_ns = frame["t_ns"].to_numpy(np.int64)
     seg = frame["segment"].to_numpy(int) if "segment" in frame else None
@@ -134,11 +143,13 @@ def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoup
     batches = [{n: (f, bands.get(n)) for n, (f, inputs) in dynamics.items() if inputs is tau}]
     batches += [{n: (f, None)} for n, (f, inputs) in dynamics.items() if inputs is not tau]
     results: dict[str, Any] = {}
-    for batch in filter(None, batches):
+    batches = list(filter(None, batches))
+    for k, batch in enumerate(batches, start=1):
         inputs = dynamics[next(iter(batch))][1]
+        label = f"{', '.join(batch)} ({k}/{len(batches)})"
         results.update(simulate_models(batch, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
                                        divergence_factor=p.divergence_factor, method=p.method,
-                                       band_members=p.band_samples))
+                                       band_members=p.band_samples, progress=_part(progress, label)))
     for name in dynamics:  # the models' order as before
         run, horizons[name] = results[name]
         runs.append(run)
@@ -175,8 +186,9 @@ def write_free_runs(t_ns: np.ndarray, columns: list[str], runs: list[Any], targe
     return write_parquet(pa.table(data), target, {"stage": NAME, "models": [r.name for r in runs]})
 
 
-def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
-    """Free-run the fitted models on each test trial; horizons; DVL-outage bridging."""
+def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
+    """Free-run the fitted models on each test trial; horizons; DVL-outage bridging. ``progress``: the rollout
+    steps of each trial's batches (stages.common)."""
     root = Path(root)
     dofs = list(params.decoupled.dofs)
     test = store.load(root, vehicle=vehicle.name, split="test")
@@ -189,9 +201,11 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
         raise ModelError("no fitted models (run the decoupled or coupled stage first)", file=Path(layout.MODELS))
     outputs: list[Path] = []
     metrics = {}
-    for trial, frame in test.groupby("trial", sort=True):
+    groups = list(test.groupby("trial", sort=True))
+    for k, (trial, frame) in enumerate(groups, start=1):
         summary, paths = simulate_trial(frame.reset_index(drop=True), vehicle, params, decoupled, coupled,
-                                        root / layout.SIMULATION / str(trial))
+                                        root / layout.SIMULATION / str(trial),
+                                        _part(progress, f"trial {trial} ({k}/{len(groups)}):"))
         metrics[str(trial)] = summary
         outputs += paths
     outputs.append(write_json(metrics, root / layout.SIMULATION / "metrics.json"))

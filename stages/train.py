@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
@@ -29,8 +30,9 @@ log = logging.getLogger(__name__)
 NAME = "train"
 
 
-def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
-    """Blocked CV, final check, models with cards, tables and figures (coupled study, paper 000)."""
+def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
+    """Blocked CV, final check, models with cards, tables and figures (coupled study, paper 000). ``progress``:
+    CV folds and final fits (stages.common)."""
     root = Path(root)
     cp = params.coupled
     hp = hyperparameters_path(root)
@@ -84,7 +86,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
         write_tables(results, failed, cp.outputs, out_eval)
 
     evaluate_models(tt, te, hyper, cp, tuning_keys=tuning_keys[["trial", "t_ns"]], n_jobs=cp.n_jobs,
-                    failures=failed, on_model=finished)
+                    failures=failed, on_model=finished, progress=progress)
     if not results:
         raise ModelError("every coupled model failed: " + "; ".join(f"{m}: {e['reason']}" for m, e in failed.items()))
     outputs += write_tables(results, failed, cp.outputs, out_eval)

@@ -4,7 +4,9 @@ block (``coupled.tuning: nested``) or the tuning split (``split``)."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
@@ -21,14 +23,15 @@ def hyperparameters_path(root: Path) -> Path:
     return Path(root) / MODELS / "coupled" / "hyperparameters.json"
 
 
-def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
+def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
     """Search SVR hyperparameters (coupled study, paper 000): on the train_test block, the rows the final models
-    are fitted on (``coupled.tuning: nested``, the default), or on the tuning split (``split``, the papers')."""
+    are fitted on (``coupled.tuning: nested``, the default), or on the tuning split (``split``, the papers').
+    ``progress``: each search's candidates (stages.common)."""
     cp = params.coupled
     block = "train_test" if cp.tuning == "nested" else "tuning"
     cols = sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.inputs) | set(cp.outputs))
     frame = store.load(root, vehicle=vehicle.name, split=block, columns=[*cols, "split"])
-    hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs, split=block)
+    hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs, split=block, progress=progress)
     out_eval = Path(root) / EVALUATION / "coupled"
     doc = {"vehicle": vehicle.name, "search": cp.search, "seed": cp.seed, "inputs": cp.inputs,
            "outputs": cp.outputs, "tuning": cp.tuning, "tuned_on": block, "n_tuning_rows": len(frame),

@@ -25,7 +25,7 @@ import logging
 import math
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -44,6 +44,8 @@ from pipeline.evaluate import blocked_folds
 from pipeline.models.svr import RBFSVR, WDSESVR, TwoWeightsSVR
 
 log = logging.getLogger(__name__)
+
+Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_score", "grid_search", "fast_search",
            "search", "SearchResult"]
@@ -157,17 +159,24 @@ def _check_xy(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, list[float]] | None = None,
-                n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3, keep_trace: bool = False
-                ) -> SearchResult:
-    """Exhaustive search (the paper's protocol). Candidates run in parallel through joblib."""
+                n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3, keep_trace: bool = False,
+                progress: Progress | None = None) -> SearchResult:
+    """Exhaustive search (the paper's protocol). Candidates run in parallel through joblib; ``progress(done,
+    total, desc)`` (optional) is called as their scores arrive, in candidate order."""
     X, y = _check_xy(X, y)
     grid = grid or paper_grid(model, X.shape[1], float(np.std(y)))
     folds = blocked_folds(len(X), n_folds)
     t0 = time.perf_counter()
     candidates = list(grid_candidates(model, grid))
     log.info("grid search %s: %d candidates x %d folds", model, len(candidates), n_folds)
-    scores = Parallel(n_jobs=n_jobs, batch_size="auto")(
-        delayed(cv_score)(model, c, X, y, folds, 1, n_velocity) for c in candidates)
+    jobs = (delayed(cv_score)(model, c, X, y, folds, 1, n_velocity) for c in candidates)
+    if progress is None:
+        scores = Parallel(n_jobs=n_jobs, batch_size="auto")(jobs)
+    else:  # the same work, its results taken as they come (in order) to move the bar
+        scores = []
+        for score in Parallel(n_jobs=n_jobs, batch_size="auto", return_as="generator")(jobs):
+            scores.append(score)
+            progress(len(scores), len(candidates), f"{model} grid")
     best = int(np.argmax(scores))
     trace = [{"params": c, "score": s} for c, s in zip(candidates, scores, strict=True)] if keep_trace else []
     return SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
@@ -245,7 +254,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
                 smooth_tolerance: float = 0.0, n_explore: int | None = None, local: str = "model",
-                model_share: float = 0.6) -> SearchResult:
+                model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
     """GP-seeded adaptive pattern search on log scale (see module docstring).
 
     Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. Phases, each
@@ -265,6 +274,8 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
 
     ``smooth_tolerance`` > 0: return the smoothest candidate within that much R² of the best (see
     :func:`_smoothest_within`) rather than the best itself.
+
+    ``progress(done, total, desc)`` (optional) is called after each new candidate (``total``: the budget).
     """
     X, y = _check_xy(X, y)
     if local not in ("model", "pattern"):
@@ -292,6 +303,8 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
             params = _to_params(model, names, np.exp(v))
             cache[key] = cv_score(model, params, X, y, folds, n_jobs, n_velocity)
             trace.append({"params": params, "score": cache[key], "phase": phase})
+            if progress is not None:
+                progress(min(len(cache), max_evals), max_evals, f"{model} {phase}")
         return cache[key]
 
     scored = [(evaluate(x0, ph), k) for k, (x0, ph) in enumerate(zip(seeds, phases, strict=True))]
