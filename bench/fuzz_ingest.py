@@ -195,7 +195,7 @@ def read_counts(fmt: str, path: Path) -> tuple[dict[str, int], bool]:
             names = list(reader.topics())
             result = reader.read({n: ["u", "v"] for n in names},
                                  csv_options={n: CsvOptions(time_column="t") for n in names})
-        reported = any(getattr(d, "dropped_count", 0) for d in result.topics.values())
+        reported = result.salvage is not None or any(getattr(d, "dropped_count", 0) for d in result.topics.values())
     else:
         import io_helpers as h
 

@@ -213,9 +213,11 @@ def test_rosbag2_damaged_page_found_while_fetching(tmp_path: Path) -> None:
     data = bytearray(db.read_bytes())
     data[-4096:] = b"\xff" * 4096  # the last page holds message rows; topics and metadata.yaml are intact
     db.write_bytes(bytes(data))
-    with open_log(bag) as reader, pytest.raises(IngestError, match="sqlite storage damaged") as info:
-        reader.read(REQUESTS)  # counts from metadata.yaml; before the fix: sqlite3.DatabaseError from the fetch
-    assert info.value.file == str(db)
+    with open_log(bag) as reader:
+        result = reader.read(REQUESTS)  # counts from metadata.yaml; first: sqlite3.DatabaseError from the fetch,
+    # then an IngestError with nothing kept; now the rows of the intact pages, reported (issue 17, item 3)
+    assert result.salvage is not None and "intact pages" in result.salvage.reason
+    assert 0 < result.salvage.kept == sum(d.read for d in result.topics.values()) < 900
 
 
 @pytest.mark.parametrize("listed_first", [True, False])
@@ -232,3 +234,54 @@ def test_rosbag2_rows_missing_from_the_storage_are_reported(tmp_path: Path, list
     assert sum(d.read for d in result.topics.values()) == len(MSGS) - 2
     assert result.salvage is not None and result.salvage.kept == len(MSGS) - 2
     assert "fewer messages than metadata.yaml lists" in result.salvage.reason
+
+
+# -- per-file zstd: a cap on what is written to temporary disk (issue 17, item 5) ------------------------------
+def _bomb(path: Path, size: int, *, claim: bool) -> Path:
+    import zstandard
+
+    zeros = bytes(size)
+    if claim:  # the frame header states the content size
+        path.write_bytes(zstandard.ZstdCompressor().compress(zeros))
+    else:  # streamed: no size in the header, the cap is met while inflating
+        path.write_bytes(zstandard.ZstdCompressor(write_content_size=False).compressobj().compress(zeros) +
+                         zstandard.ZstdCompressor(write_content_size=False).compressobj().flush())
+    return path
+
+
+@pytest.mark.parametrize("claim", [True, False])
+def test_zstd_storage_inflating_past_the_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, claim: bool) -> None:
+    from pipeline.io import inflate
+
+    monkeypatch.setattr(inflate, "INFLATE_FLOOR_BYTES", 1 << 20)
+    bag, db = _bag(tmp_path)
+    db.unlink()
+    bomb = _bomb(bag / "bag.db3.zstd", 16 << 20, claim=claim)  # a few KB that inflate to 16 MiB
+    assert bomb.stat().st_size * inflate.INFLATE_RATIO < 16 << 20
+    with pytest.raises(IngestError, match="cap") as info:
+        open_log(bag)  # before: written out whole (a 67-KB file asked for 2 GiB of temporary disk)
+    assert info.value.file == str(bomb)
+    assert ("claims 16777216 bytes" in str(info.value)) == claim
+    out = tmp_path / "out.db3"
+    with pytest.raises(IngestError, match="cap"):
+        inflate.inflate_capped(bomb, out)
+    assert not out.exists()  # nothing left behind (and with a claimed size, nothing written at all)
+
+
+def test_zstd_storage_claiming_more_than_the_free_space(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from collections import namedtuple
+
+    from pipeline.io import inflate
+
+    bomb = _bomb(tmp_path / "bag.db3.zstd", 4 << 20, claim=True)
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(inflate.shutil, "disk_usage", lambda _p: usage(1 << 30, (1 << 30) - 4096, 4096))
+    with pytest.raises(IngestError, match="4096 bytes free") as info:
+        inflate.inflate_capped(bomb, tmp_path / "out.db3")
+    assert info.value.file == str(bomb)
+
+
+def test_zstd_storage_within_the_cap_reads(tmp_path: Path) -> None:
+    bag = write_rosbag2(tmp_path / "bag", MSGS, compression="file")
+    result = _read(bag)
+    assert sum(d.read for d in result.topics.values()) == len(MSGS) and result.salvage is None

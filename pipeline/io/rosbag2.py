@@ -23,6 +23,7 @@ import yaml
 from pipeline.errors import IngestError
 from pipeline.io.base import (
     Batch,
+    Batcher,
     RawReader,
     ReadResult,
     Restart,
@@ -33,6 +34,7 @@ from pipeline.io.base import (
     stream_walk,
 )
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
+from pipeline.io.inflate import inflate_capped
 from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, salvage_info, walk
 
@@ -92,6 +94,7 @@ class Rosbag2Reader(RawReader):
         self._no_index = False
         self._no_adbc = False
         self._short: dict[str, tuple[int, int]] = {}  # topic -> (metadata.yaml's count, the storage's): rows lost
+        self._pages: dict[Path, _PageSalvage] = {}  # damaged storage files read from their intact pages
 
     @classmethod
     def from_files(cls, files: list[Path]) -> Rosbag2Reader:
@@ -109,16 +112,11 @@ class Rosbag2Reader(RawReader):
         """Undo per-file compression (zstd) into a temporary directory."""
         if _magic(path)[:4] != ZSTD_MAGIC:
             return path
-        import zstandard
 
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="auvid-ros2-")
         out = Path(self._tmp.name) / path.name.removesuffix(".zstd")
-        try:
-            with open(path, "rb") as src, open(out, "wb") as dst:
-                zstandard.ZstdDecompressor().copy_stream(src, dst)
-        except zstandard.ZstdError as err:
-            raise IngestError(f"zstd file compression does not decompress: {err}", file=path) from err
+        inflate_capped(path, out)  # capped: a small damaged file must not fill the disk
         return out
 
     def close(self) -> None:
@@ -237,39 +235,95 @@ class Rosbag2Reader(RawReader):
             if isinstance(want, int) and want != have:
                 self._disagrees(name, want, have)
 
-    def _connect(self, path: Path) -> sqlite3.Connection:
+    def _connect(self, path: Path, *, tolerant: bool = False) -> sqlite3.Connection:
         try:
-            return sqlite3.connect(_read_only_uri(path), uri=True)
+            con = sqlite3.connect(_read_only_uri(path), uri=True)
+            if tolerant:  # read what is there of a file whose header claims more pages than it holds
+                con.execute("PRAGMA writable_schema = ON")
+            return con
         except sqlite3.Error as err:
             raise IngestError(f"cannot open sqlite storage: {err}", file=path) from err
 
     def _scan_sqlite(self, path: Path, ids: dict[int, str], add: Any, *, stats: bool = True) -> None:
-        con = self._connect(path)
+        from pipeline.io.sqlite_pages import cut_short
+
+        cut = cut_short(path)
+        con = self._connect(path, tolerant=cut is not None)
+        damage = None if cut is None else sqlite3.DatabaseError(f"cut short: {cut}")
         try:
-            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-            if "message_definitions" in tables:
-                for typ, enc, text in con.execute(
-                        "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"):
-                    if not (isinstance(typ, str) and isinstance(enc, str) and isinstance(text, str)):
-                        raise IngestError(f"damaged row in table 'message_definitions': type {typ!r}, encoding "
-                                          f"{enc!r} (expected three strings)", file=path)
-                    self._types.add(normalize_msgtype(typ), enc, text)  # type: ignore[union-attr]
-            counted = {tid: (n, lo, hi) for tid, n, lo, hi in con.execute(
-                "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")} \
-                if stats else {}
-            for tid, name, typ, fmt in con.execute("SELECT id, name, type, serialization_format FROM topics"):
-                if not (isinstance(tid, int) and isinstance(name, str) and isinstance(typ, str)
-                        and isinstance(fmt, str)):
-                    raise IngestError(
-                        f"damaged row in table 'topics': id {tid!r}, name {name!r}, type {typ!r}, "
-                        f"serialization_format {fmt!r} (expected an integer id and three strings)", file=path)
-                ids[tid] = name
-                n, lo, hi = counted.get(tid, (0, None, None))
-                add(name, normalize_msgtype(typ), fmt, n, lo, hi)
-        except (sqlite3.DatabaseError, UnicodeDecodeError) as err:  # damaged pages, names that are not UTF-8
+            try:
+                topics = self._schema_rows(con, path, ids)
+            except (sqlite3.DatabaseError, IngestError) as err:
+                if cut is not None:
+                    raise IngestError(f"sqlite storage cut short ({cut}) before its tables 'topics' and "
+                                      f"'message_definitions' end: {err}", file=path) from err
+                if isinstance(err, IngestError):
+                    raise
+                # A file cut short: sqlite refuses a header that claims more pages than the file holds, unless
+                # told that the schema may be odd; the small tables at the file's start then read as usual.
+                con.close()
+                con = self._connect(path, tolerant=True)
+                try:
+                    topics = self._schema_rows(con, path, ids)
+                except sqlite3.DatabaseError:
+                    raise IngestError(f"not a readable rosbag2 sqlite3 storage file: {err}", file=path) from err
+                damage = err
+            if path in self._pages:
+                counted = self._pages[path].counted()
+            elif damage is not None:
+                counted = self._salvage_sqlite(path, ids, damage).counted()
+            elif stats:
+                try:
+                    counted = {tid: (n, lo, hi) for tid, n, lo, hi in con.execute(
+                        "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")}
+                except sqlite3.DatabaseError as err:  # damaged or missing pages under the messages table
+                    counted = self._salvage_sqlite(path, ids, err).counted()
+            else:
+                counted = {}
+        except UnicodeDecodeError as err:  # names that are not UTF-8
             raise IngestError(f"not a readable rosbag2 sqlite3 storage file: {err}", file=path) from err
         finally:
             con.close()
+        for tid, name, typ, fmt in topics:
+            n, lo, hi = counted.get(tid, (0, None, None))
+            add(name, normalize_msgtype(typ), fmt, n, lo, hi)
+
+    def _schema_rows(self, con: sqlite3.Connection, path: Path, ids: dict[int, str]) -> list[tuple[Any, ...]]:
+        """Register the message definitions; the rows of table ``topics`` (their ids into ``ids``)."""
+        tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if "message_definitions" in tables:
+            for typ, enc, text in con.execute(
+                    "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"):
+                if not (isinstance(typ, str) and isinstance(enc, str) and isinstance(text, str)):
+                    raise IngestError(f"damaged row in table 'message_definitions': type {typ!r}, encoding "
+                                      f"{enc!r} (expected three strings)", file=path)
+                self._types.add(normalize_msgtype(typ), enc, text)  # type: ignore[union-attr]
+        topics = list(con.execute("SELECT id, name, type, serialization_format FROM topics"))
+        for tid, name, typ, fmt in topics:
+            if not (isinstance(tid, int) and isinstance(name, str) and isinstance(typ, str)
+                    and isinstance(fmt, str)):
+                raise IngestError(
+                    f"damaged row in table 'topics': id {tid!r}, name {name!r}, type {typ!r}, "
+                    f"serialization_format {fmt!r} (expected an integer id and three strings)", file=path)
+            ids[tid] = name
+        return topics
+
+    def _salvage_sqlite(self, path: Path, ids: dict[int, str], err: sqlite3.DatabaseError) -> _PageSalvage:
+        """Read the message rows of a damaged storage file from its intact pages (:mod:`.sqlite_pages`)."""
+        from pipeline.io.sqlite_pages import SqlitePages, message_rows
+
+        log.warning("%s: sqlite cannot read the messages table (%s); reading the rows from the intact pages",
+                    path, err)
+        with SqlitePages(path) as pages:
+            rows = message_rows(pages, set(ids))
+        found = _PageSalvage(rows)
+        self._pages[path] = found
+        damaged = f"; {rows.bad_cells} damaged cell(s) skipped" if rows.bad_cells else ""
+        self.salvage = SalvageInfo(
+            kept=len(rows.rowid), stopped_at_byte=rows.cut_at,
+            reason=f"{path.name}: {err}; kept the {len(rows.rowid)} message row(s) on intact pages{damaged}")
+        log.warning("%s", self.salvage.reason)
+        return found
 
     def _walk_mcap(self, path: Path, on_message: Any = None, wanted: set[int] | None = None) -> Any:
         try:
@@ -335,10 +389,31 @@ class Rosbag2Reader(RawReader):
 
             yield from stream_walk(walk_wanted)
 
+    def _page_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
+        """The rows of a damaged storage file, from its intact pages, in rowid order."""
+        from pipeline.io.sqlite_pages import Malformed, SqlitePages, message_payloads
+
+        batcher = Batcher()
+        with SqlitePages(path) as pages:
+            try:
+                for tid, log_ns, data in message_payloads(pages, self._pages[path].rows, set(wanted)):
+                    batch = batcher.add(wanted[tid], log_ns, self._decompress(data, path))
+                    if batch is not None:
+                        yield batch
+            except (Malformed, KeyError) as err:  # the file changed since the scan
+                raise IngestError(f"storage file changed while reading its pages: {err}", file=path) from err
+        last = batcher.flush()
+        if last is not None:
+            yield last
+
     def _sqlite_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
         """Rows fetched in bulk, ~16 MB of payloads at a time: as Arrow columns through ADBC when the driver is
         installed (no Python object per row), else through the sqlite3 module, joined into one buffer per batch.
+        A damaged file is read from its intact pages instead (:meth:`_salvage_sqlite`).
         """
+        if path in self._pages:
+            yield from self._page_batches(path, wanted)
+            return
         per_message = self.compression_mode == "MESSAGE"
         sql = (f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN "
                f"({','.join(str(int(i)) for i in wanted)}) ORDER BY id")
@@ -382,8 +457,11 @@ class Rosbag2Reader(RawReader):
                 del datas
                 yield _batch(wanted, tid_arr, stamp_arr, buf, starts, lengths)
         except sqlite3.DatabaseError as err:  # damaged pages found while fetching (opening was fine)
-            raise IngestError(f"sqlite storage damaged: rows cannot be read after {fetched} rows: {err}",
-                              file=path) from err
+            con.close()
+            ids = self._ids[self.files.index(path)]
+            self._salvage_sqlite(path, ids, err)
+            self._infos = None  # counts from the pages now
+            raise Restart from err
         finally:
             con.close()
 
@@ -479,6 +557,21 @@ def _arrow_columns(rb: Any) -> tuple[np.ndarray, ...]:
 
 
 BATCH_ROWS = 65536
+
+
+class _PageSalvage:
+    """The message rows of one damaged storage file, found on its pages."""
+
+    def __init__(self, rows: Any) -> None:
+        self.rows = rows
+
+    def counted(self) -> dict[int, tuple[int, int | None, int | None]]:
+        """topic id -> (rows, first, last timestamp), as the COUNT query gives them for an intact file."""
+        out = {}
+        for tid in np.unique(self.rows.topic_id).tolist():
+            stamps = self.rows.log_ns[self.rows.topic_id == tid]
+            out[tid] = (len(stamps), int(stamps.min()), int(stamps.max()))
+        return out
 
 
 def _batch(wanted: dict[int, str], tid: np.ndarray, log_ns: np.ndarray, buf: np.ndarray, starts: np.ndarray,

@@ -22,20 +22,23 @@ record per physical line (no quoted newlines).
 from __future__ import annotations
 
 import gzip
+import io
 import logging
 import re
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
 from types import TracebackType
+from typing import TypeVar
 
 import numpy as np
 import pandas as pd
 
 from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
-from pipeline.io.base import ReadResult, TopicData, TopicInfo
+from pipeline.io.base import ReadResult, SalvageInfo, TopicData, TopicInfo
 from pipeline.units import TIME_UNITS_NS
 
 log = logging.getLogger(__name__)
@@ -48,6 +51,7 @@ _SNIFF_LINES = 20
 _MAX_REPORTED_LINES = 50
 _INT64_MAX = (1 << 63) - 1
 _DECIMAL = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
+_T = TypeVar("_T")
 
 
 @dataclass
@@ -66,6 +70,53 @@ class CsvTopicData(TopicData):
 def is_gzip(path: str | Path) -> bool:
     with open(path, "rb") as handle:
         return handle.read(2) == GZIP_MAGIC
+
+
+_PIECE = 1 << 20
+
+
+def inflate_cut(path: str | Path) -> tuple[bytes, SalvageInfo]:
+    """The complete lines of a gzip file cut short, and the salvage report.
+
+    Streams the file through ``zlib.decompressobj`` (member after member) and keeps the text up to the last line
+    end that inflated before the cut; the partial last line is dropped. A stream that is corrupt rather than
+    cut (a deflate error, a CRC-32 or size that does not match) is an :class:`IngestError`: where corrupt bytes
+    start cannot be told, so nothing is kept.
+    """
+    path = Path(path)
+    parts: list[bytes] = []
+    with open(path, "rb") as fh:
+        inflater, pos, member = zlib.decompressobj(wbits=31), 0, 0
+        while True:
+            piece = fh.read(_PIECE)
+            if not piece:
+                break
+            while piece:
+                try:
+                    parts.append(inflater.decompress(piece))
+                except zlib.error as err:
+                    raise IngestError(f"gzip stream does not decompress (member at byte {member}): {err}",
+                                      file=path) from err
+                if not inflater.eof:
+                    pos += len(piece)
+                    break
+                rest = inflater.unused_data
+                pos += len(piece) - len(rest)
+                piece, member = rest, pos
+                if piece.strip(b"\x00") and not piece.startswith(GZIP_MAGIC[:len(piece)]):
+                    raise IngestError(f"data after the gzip stream at byte {pos} is not another gzip member",
+                                      file=path)
+                inflater = zlib.decompressobj(wbits=31)
+        if inflater.eof or pos == member:  # complete (or nothing after the last complete member)
+            raise IngestError("gzip file is complete; nothing to salvage", file=path)
+    text = b"".join(parts)
+    keep = text.rfind(b"\n") + 1
+    lines = text.count(b"\n", 0, keep)
+    info = SalvageInfo(kept=lines, stopped_at_byte=pos, reason=(
+        f"{path.name}: gzip stream cut short at byte {pos} (no end marker): kept the {lines} complete line(s) "
+        f"inflated before the cut, dropped {len(text) - keep} byte(s) of a partial line"))
+    log.warning("%s", info.reason)
+    return text[:keep], info
 
 
 def looks_like_text_dir(path: str | Path) -> bool:
@@ -105,6 +156,7 @@ class TextLogReader:
         if not self._files:
             raise IngestError("no delimited text files (.csv, .tsv, .txt, .dat, .gz) in directory", file=self.path)
         self._options: dict[str, CsvOptions] = {}
+        self._cut: dict[str, tuple[bytes, SalvageInfo]] = {}  # gzip files cut short: their complete lines
 
     # -- LogReader protocol -------------------------------------------------------------------------------
     def __enter__(self) -> TextLogReader:
@@ -144,7 +196,14 @@ class TextLogReader:
         topics: dict[str, TopicData] = {}
         for name, columns in requests.items():
             topics[name] = self._read_file(name, columns)
-        return ReadResult(topics=topics, failed={}, salvage=None)
+        return ReadResult(topics=topics, failed={}, salvage=self._salvage_report(topics))
+
+    def _salvage_report(self, topics: dict[str, TopicData]) -> SalvageInfo | None:
+        cut = [self._cut[name][1] for name in topics if name in self._cut]
+        if not cut:
+            return None
+        return SalvageInfo(kept=sum(topics[n].read for n in topics if n in self._cut),
+                           stopped_at_byte=cut[0].stopped_at_byte, reason="; ".join(c.reason for c in cut))
 
     # -- internals ----------------------------------------------------------------------------------------
     def _file(self, name: str) -> Path:
@@ -157,36 +216,63 @@ class TextLogReader:
     def _opts(self, name: str) -> CsvOptions | None:
         return self._options.get(name)
 
+    def _source(self, name: str) -> Path | io.BytesIO:
+        """What pandas reads: the file, or the complete lines of a gzip file cut short."""
+        return io.BytesIO(self._cut[name][0]) if name in self._cut else self._file(name)
+
+    def _binary(self, name: str) -> io.BufferedIOBase:
+        path = self._file(name)
+        if name in self._cut:
+            return io.BytesIO(self._cut[name][0])
+        return gzip.open(path, "rb") if is_gzip(path) else open(path, "rb")  # type: ignore[return-value]
+
+    def _tolerating_cut(self, name: str, run: Callable[[], _T]) -> _T:
+        """``run()``; when a gzip file ends before its end marker, again on the complete lines before the cut."""
+        try:
+            return run()
+        except EOFError:
+            path = self._file(name)
+            if name in self._cut or not is_gzip(path):
+                raise
+        self._cut[name] = inflate_cut(path)
+        return run()
+
     def _text_head(self, name: str, n_lines: int) -> list[str]:
         path = self._file(name)
         opts = self._opts(name)
         encoding = opts.encoding if opts else "utf-8"
-        opener = gzip.open if is_gzip(path) else open
-        lines: list[str] = []
-        try:
-            with opener(path, "rt", encoding=encoding, errors="strict", newline="") as handle:  # type: ignore[operator]
+
+        def head() -> list[str]:
+            lines: list[str] = []
+            with io.TextIOWrapper(self._binary(name), encoding=encoding, errors="strict", newline="") as handle:
                 for line in handle:
                     lines.append(line.rstrip("\r\n"))
                     if len(lines) >= n_lines:
                         break
+            return lines
+
+        try:
+            return self._tolerating_cut(name, head)
         except (UnicodeDecodeError, OSError, EOFError, zlib.error) as err:
             raise IngestError(f"cannot read as {encoding} text: {err}", file=path) from err
-        return lines
 
     def _count_data_lines(self, name: str) -> int:
         path = self._file(name)
         opts = self._opts(name)
-        opener = gzip.open if is_gzip(path) else open
         skip = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0)
-        count = 0
-        try:
-            with opener(path, "rb") as handle:  # type: ignore[operator]
+
+        def count() -> int:
+            n = 0
+            with self._binary(name) as handle:
                 for i, line in enumerate(handle):
                     if i >= skip and line.strip():
-                        count += 1
+                        n += 1
+            return n
+
+        try:
+            return self._tolerating_cut(name, count)
         except (OSError, EOFError, zlib.error) as err:  # zlib.error: a corrupt deflate stream in a .gz
             raise IngestError(f"cannot read: {err}", file=path) from err
-        return count
 
     def _delimiter(self, name: str) -> str:
         opts = self._opts(name)
@@ -200,12 +286,10 @@ class TextLogReader:
 
     def _read_kwargs(self, name: str) -> dict[str, object]:
         opts = self._opts(name)
-        path = self._file(name)
         sep = self._delimiter(name)
         kwargs: dict[str, object] = {
             "sep": sep,
             "skiprows": opts.skip_rows if opts else 0,
-            "compression": "gzip" if is_gzip(path) else None,
             "encoding": opts.encoding if opts else "utf-8",
             "skip_blank_lines": False,
             "engine": "c",
@@ -217,12 +301,17 @@ class TextLogReader:
             kwargs["names"] = list(opts.columns or [])
         return kwargs
 
+    def _compression(self, name: str) -> dict[str, object]:
+        """pandas' compression for the source (evaluated when read: a cut file is read as plain text)."""
+        return {"compression": "gzip" if name not in self._cut and is_gzip(self._file(name)) else None}
+
     def _header(self, name: str) -> tuple[list[str], list[str]]:
         """(raw names as pandas sees them, stripped names)."""
         path = self._file(name)
         kwargs = self._read_kwargs(name)
         try:
-            frame = pd.read_csv(path, nrows=0, **kwargs)  # type: ignore[call-overload]
+            frame = self._tolerating_cut(name, lambda: pd.read_csv(  # type: ignore[call-overload]
+                self._source(name), nrows=0, **{**kwargs, **self._compression(name)}))
         except pd.errors.EmptyDataError as err:
             raise IngestError("empty file (no header or data lines)", file=path) from err
         except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error) as err:
@@ -243,7 +332,8 @@ class TextLogReader:
         use = [by_name[c] for c in wanted]
         dtype = {by_name[opts.time_column.strip()]: str} if opts else None
         try:
-            frame = pd.read_csv(path, usecols=use, dtype=dtype, **kwargs)  # type: ignore[call-overload]
+            frame = self._tolerating_cut(name, lambda: pd.read_csv(  # type: ignore[call-overload]
+                self._source(name), usecols=use, dtype=dtype, **{**kwargs, **self._compression(name)}))
         except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error, pd.errors.ParserError) as err:
             raise IngestError(f"cannot parse as delimited text: {err}", file=path, topic=name) from err
         frame.columns = [str(c).strip() for c in frame.columns]
