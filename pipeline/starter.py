@@ -1,5 +1,8 @@
 """``auvid init``: a starter vehicle config (YAML text) from what :func:`pipeline.io.inspect.inspect_log` sees.
 
+Its first line, ``# yaml-language-server: $schema=<path>``, names the vehicle JSON Schema shipped in the package
+(:func:`schema_path`), so editors validate and complete the file while the TODOs are filled in.
+
 Recognised topics (by message type, then by topic name where the type says too little):
 
 - ``sensor_msgs/Imu``: attitude quaternion and body rates (``<s>_quat``, ``p_<s>_radps``, ``q_<s>_radps``,
@@ -225,6 +228,20 @@ def _todo(what: str) -> str:
     return _v(f"{TODO}: {what}")
 
 
+def schema_path(kind: str = "vehicle") -> Path:
+    """The JSON Schema of a config (``vehicle`` or ``params``) that ships with the package (``pipeline/schemas/``;
+    in a checkout a link to the repository's ``schemas/``, which ``python -m pipeline.config`` regenerates)."""
+    from importlib.resources import files
+
+    return Path(str(files("pipeline") / "schemas" / f"{kind}.schema.json")).resolve()
+
+
+def schema_modeline(kind: str = "vehicle") -> str:
+    """The first line of a generated config: editors with the YAML language server (VS Code's YAML extension,
+    neovim's yamlls, ...) then validate and complete the file against its JSON Schema as it is typed."""
+    return f"# yaml-language-server: $schema={schema_path(kind).as_posix()}"
+
+
 def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = None,
                    definitions: UserTypes | None = None, definition_dirs: list[Path] | None = None,
                    base_dir: Path | None = None) -> Starter:
@@ -236,6 +253,7 @@ def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = No
     streams, roles, joints, notes = _classify(topics, paths, definitions)
     vehicle_name = name or re.sub(r"[^A-Za-z0-9_\-]", "_", paths[0].name.split(".")[0]) or "vehicle"
     out: list[str] = [
+        schema_modeline("vehicle"),
         f"# Starter vehicle config written by `auvid init` from {len(paths)} log(s): "
         + ", ".join(p.name for p in paths[:5]) + (" ..." if len(paths) > 5 else ""),
         "# Fill in every TODO (the loader lists those left). Body axes FRD, world NED; matrices in the DOF",
