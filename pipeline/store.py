@@ -34,7 +34,7 @@ import pyarrow.parquet as pq
 
 from pipeline import SCHEMA_VERSION
 from pipeline.config.params import FeaturesParams
-from pipeline.errors import SchemaError
+from pipeline.errors import ConfigError, SchemaError
 from pipeline.kinematics import ACCELERATION, ATTITUDE, SMOOTH, VELOCITY
 from pipeline.layout import features_dir
 from pipeline.physics import force_columns
@@ -101,6 +101,24 @@ def _column_type(name: str) -> pa.DataType | None:
         if re.match(pattern, name):
             return t
     return None
+
+
+def check_test_trials(params: FeaturesParams, derived: Sequence[str], seen: Iterable[str] = ()) -> list[str]:
+    """The test trials that have a derived table. Every name in ``features.test_trials`` must be a trial of the run:
+    one with a derived table (``derived``) or one the run has seen and quarantined earlier (``seen``: ingested or
+    raw); a name matching neither is a ConfigError listing the trials (a ROS 2 bag directory ``trial_test_ros2``
+    is trial ``trial_test_ros2``, not ``trial_test``). A seen but quarantined test trial is a warning: the final
+    check runs without it."""
+    seen = set(seen)
+    unknown = [t for t in params.test_trials if t not in derived and t not in seen]
+    if unknown:
+        raise ConfigError(f"features.test_trials names {unknown}, which match no trial of this run; its trials: "
+                          f"{sorted(set(derived) | seen)}", field="features.test_trials")
+    for name in params.test_trials:
+        if name not in derived:
+            log.warning("features: test trial %s has no derived table (quarantined before features); the final "
+                        "check runs without it", name)
+    return [t for t in params.test_trials if t in derived]
 
 
 def assign_split(t_ns: np.ndarray, trial: str, params: FeaturesParams) -> np.ndarray:

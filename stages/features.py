@@ -21,6 +21,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
     root = Path(root)
     result = StageResult(stage=NAME)
     written: list[str] = []
+    store.check_test_trials(params.features, trials_in(root / layout.DERIVED, None), _seen_trials(root))
     for name in trials_in(root / layout.DERIVED, trial):
         source = layout.derived_path(root, name)
         target = store.partition_dir(root, vehicle.name, name) / store.PART_FILE
@@ -41,6 +42,15 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
         for path in store.prune(root, vehicle.name, written):
             log.info("features: removed stale partition %s", shown(path, root))
     return result
+
+
+def _seen_trials(root: Path) -> set[str]:
+    """Trials the run has seen before features: ingested (data/signals/) or waiting as logs (data/raw/)."""
+    from pipeline.ingest import trial_id
+    from stages.common import discover_trials
+    from stages.ingest import discover_logs
+
+    return set(discover_trials(root)) | {trial_id(p) for p in discover_logs(root)}
 
 
 def main(argv: list[str] | None = None) -> int:
