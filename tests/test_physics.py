@@ -166,9 +166,8 @@ def test_damping_target_identity(vehicle: Vehicle) -> None:
 def test_non_positive_definite_mass_names_key() -> None:
     bad = np.diag([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
     bad[5, 5] = -50.0
-    v = parse(Vehicle, vehicle_dict(added_mass=bad.tolist()))
-    with pytest.raises(ConfigError, match="added_mass") as info:
-        physics.mass_matrix(v)
+    with pytest.raises(ConfigError, match="added_mass") as info:  # refused at load since issue 17
+        physics.mass_matrix(parse(Vehicle, vehicle_dict(added_mass=bad.tolist())))
     assert info.value.field == "added_mass"
     asym = np.diag([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
     asym[0, 1] = 0.5

@@ -1,9 +1,10 @@
 """Vehicle config and run params: frozen pydantic models, loaded from YAML, hashed, with JSON Schemas.
 
 ``load_vehicle(path)`` and ``load_params(path)`` validate a file and raise :class:`ConfigError` naming
-the file and the key (``thrusters.1.direction``) on any problem. ``config_hash`` is the sha256 of the
-canonical JSON of a model: it goes into every output's provenance. ``python -m pipeline.config`` writes
-the JSON Schemas into ``schemas/``.
+the file and the key (``thrusters.1.direction``) on any problem: bytes that are not UTF-8, YAML the parser
+refuses or cannot nest, a key given twice (:mod:`pipeline.config.yamlload`), or a value the models refuse.
+``config_hash`` is the sha256 of the canonical JSON of a model: it goes into every output's provenance.
+``python -m pipeline.config`` writes the JSON Schemas into ``schemas/``.
 """
 
 from __future__ import annotations
@@ -13,11 +14,12 @@ import json
 from pathlib import Path
 from typing import Any, TypeVar
 
-import yaml
 from pydantic import BaseModel, ValidationError
 
+from pipeline.config.checks import KeyedError
 from pipeline.config.params import Params
 from pipeline.config.vehicle import Vehicle
+from pipeline.config.yamlload import load_yaml
 from pipeline.errors import ConfigError
 from pipeline.tableio import canonical_json
 
@@ -26,12 +28,17 @@ __all__ = ["Params", "Vehicle", "config_hash", "load_params", "load_vehicle", "p
 M = TypeVar("M", bound=BaseModel)
 
 
+def _key(item: Any) -> str:
+    """The dotted key of one pydantic error; a :class:`KeyedError` adds the key below where its check ran."""
+    loc = [str(p) for p in item["loc"]]
+    error = (item.get("ctx") or {}).get("error")
+    if isinstance(error, KeyedError):
+        loc.append(error.key)
+    return ".".join(loc)
+
+
 def _describe(err: ValidationError) -> str:
-    lines = []
-    for item in err.errors():
-        key = ".".join(str(p) for p in item["loc"]) or "(top level)"
-        lines.append(f"{key}: {item['msg']}")
-    return "; ".join(lines)
+    return "; ".join(f"{_key(item) or '(top level)'}: {item['msg']}" for item in err.errors())
 
 
 def parse(model: type[M], data: Any, source: str | Path = "<memory>") -> M:
@@ -39,23 +46,13 @@ def parse(model: type[M], data: Any, source: str | Path = "<memory>") -> M:
     try:
         return model.model_validate(data if data is not None else {})
     except ValidationError as err:
-        first_key = ".".join(str(p) for p in err.errors()[0]["loc"]) if err.errors() else None
+        first_key = _key(err.errors()[0]) if err.errors() else None
         raise ConfigError(f"invalid {model.__name__} config: {_describe(err)}", file=source,
-                          field=first_key) from None
-
-
-def _load_yaml(path: str | Path) -> Any:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError("config file not found", file=path) from None
-    except IsADirectoryError:
-        raise ConfigError("expected a YAML file, found a directory", file=path) from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ConfigError(f"not valid YAML: {err}", file=path) from None
+                          field=first_key or None) from None
+    except ConfigError as err:  # raised inside a validator by a helper: add the file
+        if err.file is not None:
+            raise
+        raise ConfigError(err.reason, file=source, field=err.field) from None
 
 
 def todo_markers(data: Any, key: str = "") -> list[tuple[str, str]]:
@@ -71,7 +68,7 @@ def todo_markers(data: Any, key: str = "") -> list[tuple[str, str]]:
 
 def load_vehicle(path: str | Path) -> Vehicle:
     """Load and validate a vehicle config YAML file; a config with ``TODO`` values left lists each of them."""
-    data = _load_yaml(path)
+    data = load_yaml(path)
     todo = todo_markers(data)
     if todo:
         listed = "; ".join(f"{key}: {what}" for key, what in todo)
@@ -85,7 +82,7 @@ def load_params(path: str | Path | None) -> Params:
     """Load and validate ``params.yaml``; ``None`` gives the defaults."""
     if path is None:
         return Params()
-    return parse(Params, _load_yaml(path), path)
+    return parse(Params, load_yaml(path), path)
 
 
 def config_hash(model: BaseModel) -> str:

@@ -5,11 +5,42 @@ stage uses. Each stage's owner keeps its section; add fields with defaults so ol
 from __future__ import annotations
 
 import re
-from typing import Literal
+from collections.abc import Iterable
+from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from pipeline.config import checks
 from pipeline.config.base import Frozen
+
+DOFS = ("u", "v", "w", "p", "q", "r")
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+
+
+def _unique_safe_names(names: list[str], what: str) -> list[str]:
+    """Names that become paths (trials, models): safe characters (:data:`checks.SAFE_NAME`), each once."""
+    for i, name in enumerate(names):
+        try:
+            checks.check_safe_name(name, what)
+        except ValueError as err:
+            raise checks.KeyedError(str(i), str(err)) from None
+        if name in names[:i]:
+            raise checks.KeyedError(str(i), f"{what} {name!r} is listed twice")
+    return names
+
+
+def _known(names: Iterable[str], known: Iterable[str], what: str) -> None:
+    known = list(known)
+    for i, name in enumerate(names):
+        if name not in known:
+            raise checks.KeyedError(str(i), f"unknown {what} {name!r}; known: {known}")
+
+
+def _dof_keys(mapping: dict[str, object]) -> None:
+    for key in mapping:
+        if key not in DOFS:
+            raise checks.KeyedError(key, f"{key!r} is not a DOF; expected one of {list(DOFS)}")
 
 
 class IngestParams(Frozen):
@@ -18,7 +49,7 @@ class IngestParams(Frozen):
 
 class SyncParams(Frozen):
     rate_hz: float = Field(20.0, gt=0)
-    max_gap_s: dict[str, float] = Field(
+    max_gap_s: dict[str, NonNegative] = Field(
         default_factory=lambda: {"default": 0.5},
         description="Largest gap between samples bridged by interpolation, per signal ('default' for the rest).")
     interpolation: dict[str, Literal["linear", "zoh", "nearest"]] = Field(
@@ -32,12 +63,18 @@ class DifferentiateParams(Frozen):
     method: Literal["kalman", "gaussian", "savgol"] = Field(
         "kalman", description="kalman: a Kalman/RTS smoother over every velocity and rate sensor at its own stamps "
         "with its own noise (pipeline.estimation); gaussian / savgol: filters of the synced grid.")
-    noise_sd: dict[str, float] = Field(
+    noise_sd: dict[str, Positive] = Field(
         default_factory=dict, description="Per signal, its white-noise SD in the signal's unit; signals not named "
         "get an SD estimated from the data (robust local fit).")
-    process_noise: dict[str, float] = Field(
+    process_noise: dict[str, Positive] = Field(
         default_factory=dict, description="kalman: per DOF (u v w p q r), the jerk's spectral density; DOFs not "
         "named get it by maximum likelihood.")
+
+    @field_validator("process_noise")
+    @classmethod
+    def _process_noise_per_dof(cls, process_noise: dict[str, float]) -> dict[str, float]:
+        _dof_keys(process_noise)
+        return process_noise
     gate_sigmas: float = Field(5.0, ge=0, description="kalman: measurements whose residual exceeds this many SDs "
                                "are rejected as outliers (0: none).")
     max_velocity_sd_mps: float = Field(
@@ -48,7 +85,7 @@ class DifferentiateParams(Frozen):
     sigma_s: float | Literal["auto"] = Field(
         "auto", description="gaussian: kernel width (s), or auto: per signal, the width of least estimated "
         "mean-square error of the derivative from the signal's noise and spectrum.")
-    sigma_s_per_signal: dict[str, float] = Field(
+    sigma_s_per_signal: dict[str, Positive] = Field(
         default_factory=dict, description="gaussian: per velocity column (u_mps ...), a width overriding sigma_s.")
     gaussian_degree: Literal[2, 4] = Field(
         2, description="Gaussian kernels exact for polynomials up to this degree: 2 = the plain Gaussian derivative "
@@ -60,7 +97,14 @@ class DifferentiateParams(Frozen):
 
 class FeaturesParams(Frozen):
     tuning_fraction: float = Field(0.2, ge=0, lt=1, description="First fraction of each trial's time: tuning block.")
-    test_trials: list[str] = Field(default_factory=list, description="Trials held out of tuning and CV (final check).")
+    test_trials: list[str] = Field(default_factory=list, description=(
+        "Trials held out of tuning and CV (final check); each must be a trial of the run (the features stage "
+        "checks), named with letters, digits, '_', '.', '-'."))
+
+    @field_validator("test_trials")
+    @classmethod
+    def _trial_names(cls, test_trials: list[str]) -> list[str]:
+        return _unique_safe_names(test_trials, "trial")
 
 
 _BODY_VELOCITY = re.compile(r"^[uvwpqr](_smooth|_meas)?_(mps|radps)$")
@@ -100,6 +144,15 @@ class CoupledParams(Frozen):
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")
     n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
+
+    @field_validator("models")
+    @classmethod
+    def _models_known(cls, models: list[str]) -> list[str]:
+        from pipeline.coupled import EXPLICIT_MODELS, GRAYBOX_MODELS  # they import this module
+        from pipeline.models.search import SVR_MODELS
+
+        _known(models, [*SVR_MODELS, *EXPLICIT_MODELS, *GRAYBOX_MODELS], "coupled model")
+        return _unique_safe_names(models, "model")
 
     @model_validator(mode="after")
     def _input_groups(self) -> CoupledParams:
@@ -145,6 +198,35 @@ class DecoupledParams(Frozen):
         default_factory=dict, description="Per DOF, the trials its damping is learned from (paper 001: experiments "
         "that excite that DOF alone, e.g. pipeline.sim Controls(excite='surge')); DOFs not named use every trial.")
 
+    @field_validator("dofs")
+    @classmethod
+    def _dofs_known(cls, dofs: list[str]) -> list[str]:
+        _known(dofs, DOFS, "DOF")
+        return _unique_safe_names(dofs, "DOF")
+
+    @field_validator("models")
+    @classmethod
+    def _models_known(cls, models: list[str]) -> list[str]:
+        return _decoupled_models(models)
+
+    @field_validator("trials")
+    @classmethod
+    def _trials_per_dof(cls, trials: dict[str, list[str]]) -> dict[str, list[str]]:
+        _dof_keys(trials)
+        for dof, names in trials.items():
+            try:
+                _unique_safe_names(names, "trial")
+            except checks.KeyedError as err:
+                raise checks.KeyedError(f"{dof}.{err.key}", str(err)) from None
+        return trials
+
+
+def _decoupled_models(models: list[str]) -> list[str]:
+    from pipeline.models.decoupled import MODEL_NAMES  # it imports the config
+
+    _known(models, MODEL_NAMES, "decoupled model")
+    return _unique_safe_names(models, "model")
+
 
 class SimulateParams(Frozen):
     horizons_s: list[float] = Field(default_factory=lambda: [1.0, 5.0, 10.0])
@@ -155,6 +237,11 @@ class SimulateParams(Frozen):
     band_samples: int = Field(32, ge=0, description="GP posterior functions rolled out for the 2-sigma band (0: none).")
     models: list[str] | None = Field(None, description="Decoupled models to simulate (None: every fitted one).")
     seed: int = 0
+
+    @field_validator("models")
+    @classmethod
+    def _models_known(cls, models: list[str] | None) -> list[str] | None:
+        return None if models is None else _decoupled_models(models)
 
 
 class Params(Frozen):

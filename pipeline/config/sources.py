@@ -61,11 +61,14 @@ stamps, steps back; :mod:`pipeline.stamps`) and names these options as the remed
 
 from __future__ import annotations
 
+import codecs
 from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from pipeline.config import checks
 from pipeline.config.base import Frozen
+from pipeline.errors import ConfigError
 from pipeline.units import conversion
 
 MESSAGE_DEFINITIONS_DOC = (
@@ -93,6 +96,20 @@ class CsvOptions(Frozen):
     header: bool = Field(True, description="False: the file has no header; give `columns`.")
     columns: list[str] | None = Field(None, description="Column names when the file has no header.")
     encoding: str = "utf-8"
+
+    @field_validator("encoding")
+    @classmethod
+    def _known_encoding(cls, encoding: str) -> str:
+        try:
+            codecs.lookup(encoding)
+        except LookupError:
+            raise ValueError(f"unknown text encoding {encoding!r} (e.g. utf-8, cp1252, latin-1)") from None
+        return encoding
+
+    @field_validator("epoch_s")
+    @classmethod
+    def _epoch_in_range(cls, epoch_s: float) -> float:
+        return checks.check_offset_s(epoch_s, "epoch_s")  # type: ignore[return-value]
 
     @model_validator(mode="after")
     def _columns_when_headerless(self) -> CsvOptions:
@@ -140,12 +157,25 @@ class StreamSource(Frozen):
             raise ValueError("`clock: column` is for CSV streams; a topic uses `log` or `header`")
         return self
 
+    @field_validator("offset_s")
+    @classmethod
+    def _offset_in_range(cls, offset_s: float) -> float:
+        return checks.check_offset_s(offset_s)  # type: ignore[return-value]
+
     @field_validator("signals")
     @classmethod
     def _units_known(cls, signals: dict[str, SignalSource]) -> dict[str, SignalSource]:
-        for name, source in signals.items():
-            conversion(name, source.unit)  # raises on unknown suffix / unit / dimension mismatch
-        return signals
+        return _check_units(signals)
+
+
+def _check_units(signals: dict[str, SignalSource]) -> dict[str, SignalSource]:
+    """Each signal's name ends with a known unit suffix and its ``unit`` converts to it."""
+    for name, source in signals.items():
+        try:
+            conversion(name, source.unit)
+        except ConfigError as err:
+            raise checks.KeyedError(f"{name}.unit" if source.unit is not None else name, err.reason) from None
+    return signals
 
 
 class StreamOverride(Frozen):
@@ -162,6 +192,11 @@ class StreamOverride(Frozen):
     optional: bool | None = Field(None, description="True: this trial may lack the stream.")
     signals: dict[str, SignalSource] | None = Field(None, description=(
         "Field path / unit of some of the stream's signals in this trial (names as under the stream)."))
+
+    @field_validator("offset_s")
+    @classmethod
+    def _offset_in_range(cls, offset_s: float | None) -> float | None:
+        return checks.check_offset_s(offset_s)
 
     def apply(self, stream: StreamSource) -> StreamSource:
         """``stream`` with this override's keys; validated as a stream (a ValueError says what is wrong)."""

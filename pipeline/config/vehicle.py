@@ -7,12 +7,15 @@ choose which DOFs they use (``dofs``), nothing here hard-wires 3 DOF.
 from __future__ import annotations
 
 import fnmatch
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
+from pipeline.config import checks
 from pipeline.config.base import Frozen
 from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource, TrialOverride
 from pipeline.errors import ConfigError
@@ -23,11 +26,27 @@ DOF_NAMES = ("u", "v", "w", "p", "q", "r")
 
 class RigidBody(Frozen):
     mass_kg: float = Field(gt=0)
-    inertia_kgm2: list[list[float]] = Field(description="3x3 inertia about the CG, body axes.")
+    inertia_kgm2: list[list[float]] = Field(description="3x3 inertia about the CG, body axes: symmetric, positive "
+                                            "definite.")
     cg_m: Vec3 = (0.0, 0.0, 0.0)
     cb_m: Vec3 = (0.0, 0.0, 0.0)
-    buoyancy_N: float | None = Field(None, description="Buoyancy; None: equal to the weight (neutral).")
-    gravity_mps2: float = 9.81
+    buoyancy_N: float | None = Field(None, ge=0, description="Buoyancy; None: equal to the weight (neutral).")
+    gravity_mps2: float = Field(9.81, gt=0)
+
+    @field_validator("inertia_kgm2")
+    @classmethod
+    def _inertia_spd(cls, rows: list[list[float]]) -> list[list[float]]:
+        inertia = checks.square(rows, 3, "the inertia")
+        checks.check_symmetric(inertia, "the inertia")
+        checks.check_positive_definite(inertia, "the inertia")
+        return rows
+
+    @model_validator(mode="after")
+    def _weight_finite(self) -> RigidBody:
+        if not math.isfinite(self.mass_kg * self.gravity_mps2):
+            raise checks.KeyedError("mass_kg", f"the weight mass_kg * gravity_mps2 = {self.mass_kg:g} * "
+                                    f"{self.gravity_mps2:g} is not a finite number of newtons")
+        return self
 
 
 class ThrustCurve(Frozen):
@@ -35,8 +54,9 @@ class ThrustCurve(Frozen):
     propeller speed (``table_speed_column``, rpm) or by PWM pulse width (``table_pwm_column``), at one supply
     voltage when the table holds several (``table_voltage_column`` and ``voltage_V``)."""
 
-    k_fwd_N_per_rpm2: float | None = None
-    k_bwd_N_per_rpm2: float | None = None
+    k_fwd_N_per_rpm2: float | None = Field(None, ge=0, description="Forward coefficient (thrust N per rpm^2).")
+    k_bwd_N_per_rpm2: float | None = Field(None, ge=0, description="Backward coefficient, positive like the forward "
+                                           "one (reverse thrust is -k_bwd n^2).")
     table: str | None = Field(None, description="CSV thrust table, path relative to the vehicle file.")
     table_speed_column: str | None = Field(None, description="Column of propeller speed (rpm) in the table.")
     table_pwm_column: str | None = Field(None, description="Column of PWM pulse width in the table (a thruster "
@@ -68,15 +88,24 @@ class Thruster(Frozen):
     """One thruster, driven by exactly one signal: propeller speed (rpm; ingest converts rev/s or rad/s), PWM pulse
     width (through a table's PWM column), or a measured thrust (N)."""
 
-    name: str
+    name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="Unique; it names the thrust column T_<name>_N.")
     speed_signal: str | None = Field(None, description="Signal carrying this thruster's propeller speed, in rpm.")
     pwm_signal: str | None = Field(None, description=(
         "Signal carrying the PWM pulse width (name it <name>_s, `unit: us`); thrust from the table's PWM column."))
     thrust_signal: str | None = Field(None, description="Signal carrying a measured thrust in N (no thrust model).")
     position_m: Vec3
-    direction: Vec3 = Field(description="Thrust direction in body axes (normalized by the pipeline).")
+    direction: Vec3 = Field(description="Thrust direction in body axes: any non-zero vector, normalized by the "
+                            "pipeline ([1, 1, 0] is 45 degrees between x and y).")
     thrust: ThrustCurve | None = Field(None, description="Thrust model; not needed with `thrust_signal`.")
     lag_s: float = Field(0.0, ge=0, description="First-order lag of the propeller (simulator only).")
+
+    @model_validator(mode="after")
+    def _direction_nonzero(self) -> Thruster:
+        norm = math.hypot(*self.direction)
+        if not norm > 1e-9 or not math.isfinite(norm):
+            raise checks.KeyedError("direction", f"thruster {self.name!r}: a thrust direction must be a non-zero "
+                                    f"vector; found {list(self.direction)} (length {norm:g})")
+        return self
 
     @model_validator(mode="after")
     def _one_input(self) -> Thruster:
@@ -289,7 +318,8 @@ class Sensors(Frozen):
 class Vehicle(Frozen):
     name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$")
     rigid_body: RigidBody
-    added_mass: list[list[float]] = Field(description="6x6 added-mass matrix M_A (positive definite part).")
+    added_mass: list[list[float]] = Field(description=(
+        "6x6 added-mass matrix M_A: symmetric, positive semi-definite (zero is fine); M_RB + M_A positive definite."))
     thrusters: list[Thruster] = Field(min_length=1)
     control_surfaces: list[ControlSurface] = Field(default_factory=list, description=(
         "Rudders, fins: their angles are carried to the feature store as inputs of the learned models."))
@@ -340,26 +370,84 @@ class Vehicle(Frozen):
         return list(dict.fromkeys([t.input_signal for t in self.thrusters]
                                   + [c.angle_signal for c in self.control_surfaces]))
 
+    @field_validator("added_mass")
+    @classmethod
+    def _added_mass_psd(cls, rows: list[list[float]]) -> list[list[float]]:
+        added = checks.square(rows, 6, "the added-mass matrix M_A")
+        checks.check_symmetric(added, "the added-mass matrix M_A")
+        checks.check_positive_semidefinite(added, "the added-mass matrix M_A", hint=(
+            ": M_A holds positive masses (M_A = -diag(X_udot, Y_vdot, ...)); a negative diagonal usually means "
+            "the hydrodynamic derivatives were entered with their sign"))
+        return rows
+
+    @field_validator("streams")
+    @classmethod
+    def _stream_names_safe(cls, streams: dict[str, StreamSource]) -> dict[str, StreamSource]:
+        for name in streams:
+            try:
+                checks.check_safe_name(name, "stream name")
+            except ValueError as err:
+                raise checks.KeyedError(name, str(err)) from None
+        return streams
+
+    @model_validator(mode="after")
+    def _mass_matrix_spd(self) -> Vehicle:
+        """M = M_RB + M_A: positive definite (as :func:`pipeline.physics.mass_matrix` needs) and conditioned."""
+        from pipeline.physics import rigid_body_mass  # physics imports this module
+
+        mass = rigid_body_mass(self.rigid_body) + np.asarray(self.added_mass, dtype=float)
+        if not np.all(np.isfinite(mass)):
+            raise checks.KeyedError("rigid_body.mass_kg", "the mass matrix M = M_RB + M_A has non-finite entries")
+        try:
+            checks.check_conditioned(mass, "the mass matrix M = M_RB + M_A")
+            checks.check_positive_definite(mass, "the mass matrix M = M_RB + M_A")
+        except ValueError as err:
+            raise checks.KeyedError("added_mass", str(err)) from None
+        return self
+
     @model_validator(mode="after")
     def _references_exist(self) -> Vehicle:
-        known = set(self.signal_names())
-        dupes = {n for n in known if self.signal_names().count(n) > 1}
+        """Every signal named is defined by exactly one stream; thrusters and surfaces have their own names and
+        inputs. Each error is keyed at the reference (``thrusters.1.speed_signal``)."""
+        KeyedError = checks.KeyedError
+        names = self.signal_names()
+        known = set(names)
+        dupes = sorted({n for n in known if names.count(n) > 1})
         if dupes:
-            raise ValueError(f"signals defined in more than one stream: {sorted(dupes)}")
+            where = [s for s, stream in self.streams.items() if dupes[0] in stream.signals]
+            raise KeyedError(f"streams.{where[-1]}.signals.{dupes[0]}",
+                             f"signals defined in more than one stream: {dupes} ({dupes[0]!r} in streams {where})")
         for i, thr in enumerate(self.thrusters):
             if thr.input_signal not in known:
-                raise ValueError(f"thrusters[{i}].{thr.input_kind}_signal {thr.input_signal!r} is not a configured "
+                raise KeyedError(f"thrusters.{i}.{thr.input_kind}_signal",
+                                 f"thrusters[{i}].{thr.input_kind}_signal {thr.input_signal!r} is not a configured "
                                  f"signal; known: {sorted(known)}")
         for i, surface in enumerate(self.control_surfaces):
             if surface.angle_signal not in known:
-                raise ValueError(f"control_surfaces[{i}].angle_signal {surface.angle_signal!r} is not a configured "
+                raise KeyedError(f"control_surfaces.{i}.angle_signal",
+                                 f"control_surfaces[{i}].angle_signal {surface.angle_signal!r} is not a configured "
                                  f"signal; known: {sorted(known)}")
-        names = [t.name for t in self.thrusters] + [c.name for c in self.control_surfaces]
-        if len(set(names)) < len(names):
-            raise ValueError(f"thruster and control-surface names must be unique; found {names}")
+        parts: list[tuple[str, Thruster | ControlSurface]] = (
+            [(f"thrusters.{i}", t) for i, t in enumerate(self.thrusters)]
+            + [(f"control_surfaces.{i}", c) for i, c in enumerate(self.control_surfaces)])
+        seen: dict[str, str] = {}
+        for key, part in parts:
+            if part.name in seen:
+                raise KeyedError(f"{key}.name", f"thruster and control-surface names must be unique; {part.name!r} "
+                                 f"is also {seen[part.name]}.name")
+            seen[part.name] = key
+        driven: dict[str, str] = {}
+        for key, part in parts:
+            signal = part.input_signal if isinstance(part, Thruster) else part.angle_signal
+            field = f"{part.input_kind}_signal" if isinstance(part, Thruster) else "angle_signal"
+            if signal in driven:
+                raise KeyedError(f"{key}.{field}", f"each thruster and control surface needs its own input signal; "
+                                 f"{signal!r} also drives {driven[signal]}")
+            driven[signal] = key
         for key, name in self._sensor_references():
             if name not in known:
-                raise ValueError(f"{key} {name!r} is not a configured signal (define it under `streams`); "
+                raise KeyedError(key,
+                                 f"{key} {name!r} is not a configured signal (define it under `streams`); "
                                  f"known: {sorted(known)}")
         return self
 
@@ -386,8 +474,8 @@ class Vehicle(Frozen):
         """(config key, signal) of every signal the sensors section names."""
         s = self.sensors
         source = s.linear_velocity()
-        refs = [(f"{source.key}.{'velocity' if source.key == 'sensors.dvl' else 'signals'}", n)
-                for n in source.velocity]
+        refs = [(f"{source.key}.{'velocity' if source.key == 'sensors.dvl' else 'signals'}.{j}", n)
+                for j, n in enumerate(source.velocity)]
         if source.valid is not None:
             refs.append((f"{source.key}.valid", source.valid))
         att = s.attitude
@@ -396,7 +484,7 @@ class Vehicle(Frozen):
         refs += [(f"sensors.rates.{k}", n) for k, n in zip("pqr", (s.rates.p, s.rates.q, s.rates.r), strict=True)
                  if n]
         if s.accelerometer is not None:
-            refs += [(f"sensors.accelerometer.signals[{j}]", n) for j, n in enumerate(s.accelerometer.signals)]
+            refs += [(f"sensors.accelerometer.signals.{j}", n) for j, n in enumerate(s.accelerometer.signals)]
         if s.depth:
             refs.append(("sensors.depth", s.depth))
         return refs

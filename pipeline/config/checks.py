@@ -1,0 +1,97 @@
+"""Checks the config models share: names that may reach a path, matrices, clock offsets, keyed errors.
+
+A validator that knows *which key* is wrong (a matrix entry, a signal's unit) raises :class:`KeyedError`;
+:func:`pipeline.config.parse` appends its ``key`` to the location pydantic gives, so the ConfigError names
+``rigid_body.inertia_kgm2`` even when the check runs on the whole vehicle.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+
+import numpy as np
+
+#: A name that becomes (part of) a file or directory name: a stream, a trial, a model. Letters, digits,
+#: ``_ . -``; not starting with a dot (so neither ``.``, ``..`` nor a hidden file).
+SAFE_NAME = re.compile(r"^[A-Za-z0-9_\-][A-Za-z0-9_.\-]*$")
+SAFE_NAME_RULE = "letters, digits, '_', '.' and '-', not starting with '.'"
+
+#: Largest |clock offset| (s): 2^62 ns, about 146 years. A real offset (a driver's latency, a clock running
+#: ahead, or boot-relative stamps moved onto the Unix epoch, ~1.7e9 s) is far below; beyond it, stamp plus
+#: offset in int64 nanoseconds could overflow.
+MAX_OFFSET_S = 2.0**62 / 1e9
+
+#: Largest condition number of the mass matrix M = M_RB + M_A: solving M nu_dot = ... (the simulator) then
+#: keeps at least 4 of float64's 16 significant digits. Real vehicles are at 10 to 10^4.
+MAX_MASS_CONDITION = 1e12
+
+
+class KeyedError(ValueError):
+    """A validation error that knows the offending key, relative to where the validator runs."""
+
+    def __init__(self, key: str, message: str) -> None:
+        self.key = key
+        super().__init__(message)
+
+
+def check_safe_name(name: str, what: str) -> str:
+    """``name`` if it is safe as a file name (:data:`SAFE_NAME`); a ValueError saying why not otherwise."""
+    if not isinstance(name, str) or not SAFE_NAME.match(name):
+        raise ValueError(f"{what} {name!r} is not a safe name: use {SAFE_NAME_RULE} (it becomes part of a path)")
+    return name
+
+
+def check_offset_s(value: float | None, what: str = "offset_s") -> float | None:
+    if value is not None and abs(value) > MAX_OFFSET_S:
+        raise ValueError(f"{what} {value:g} s is beyond +/-{MAX_OFFSET_S:.3g} s (2^62 ns, ~146 years): "
+                         "a clock offset that large cannot be meant")
+    return value
+
+
+def square(rows: Sequence[Sequence[float]], n: int, what: str) -> np.ndarray:
+    """``rows`` as an n x n float array; a ValueError naming the shape found otherwise."""
+    lengths = [len(r) for r in rows]
+    if len(rows) != n or any(k != n for k in lengths):
+        raise ValueError(f"{what} must be {n}x{n}; found {len(rows)} row(s) of length(s) {lengths}")
+    return np.asarray(rows, dtype=float)
+
+
+def _tolerance(matrix: np.ndarray) -> float:
+    return 1e-9 * max(1.0, float(np.abs(matrix).max()))
+
+
+def check_symmetric(matrix: np.ndarray, what: str) -> None:
+    """Symmetric to the tolerance :mod:`pipeline.physics` uses (1e-9 relative)."""
+    gap = float(np.abs(matrix - matrix.T).max())
+    if gap > _tolerance(matrix):
+        i, j = np.unravel_index(int(np.argmax(np.abs(matrix - matrix.T))), matrix.shape)
+        raise ValueError(f"{what} must be symmetric; [{i}][{j}] = {matrix[i, j]:g} but [{j}][{i}] = "
+                         f"{matrix[j, i]:g}")
+
+
+def smallest_eigenvalue(matrix: np.ndarray) -> float:
+    return float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T)).min())
+
+
+def check_positive_definite(matrix: np.ndarray, what: str) -> None:
+    low = smallest_eigenvalue(matrix)
+    if low <= 0:
+        raise ValueError(f"{what} must be positive definite; smallest eigenvalue {low:.6g} "
+                         f"(diagonal {np.diag(matrix).tolist()})")
+
+
+def check_positive_semidefinite(matrix: np.ndarray, what: str, hint: str = "") -> None:
+    low = smallest_eigenvalue(matrix)
+    if low < -_tolerance(matrix):
+        raise ValueError(f"{what} must be positive semi-definite; smallest eigenvalue {low:.6g} "
+                         f"(diagonal {np.diag(matrix).tolist()}){hint}")
+
+
+def check_conditioned(matrix: np.ndarray, what: str) -> None:
+    """Checked before definiteness: the smallest eigenvalue of an ill-conditioned matrix is round-off."""
+    eig = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    size = np.abs(eig)
+    if not np.all(np.isfinite(eig)) or size.max() > MAX_MASS_CONDITION * size.min():
+        raise ValueError(f"{what} has eigenvalues from {eig.min():.3g} to {eig.max():.3g}: a condition number "
+                         f"above {MAX_MASS_CONDITION:.0e} (a mass or inertia off by many orders of magnitude)")
