@@ -285,3 +285,23 @@ def test_zstd_storage_within_the_cap_reads(tmp_path: Path) -> None:
     bag = write_rosbag2(tmp_path / "bag", MSGS, compression="file")
     result = _read(bag)
     assert sum(d.read for d in result.topics.values()) == len(MSGS) and result.salvage is None
+
+
+# -- ROS 1 ---------------------------------------------------------------------------------------------------
+def test_unindexed_bag_cut_at_a_record_boundary_says_it_was_cut(tmp_path: Path) -> None:
+    from io_helpers import write_rosbag1_unindexed
+
+    path = write_rosbag1_unindexed(tmp_path / "t.bag", MSGS, chunk_threshold=1500)
+    data = path.read_bytes()
+    pos, boundaries = 13, []
+    while pos < len(data):  # top-level records: bag header, chunks, index data
+        (hlen,) = struct.unpack_from("<I", data, pos)
+        (dlen,) = struct.unpack_from("<I", data, pos + 4 + hlen)
+        pos += 8 + hlen + dlen
+        boundaries.append(pos)
+    cut = boundaries[len(boundaries) // 2]
+    path.write_bytes(data[:cut])
+    result = _read(path)  # before: every complete message, and salvage None (a silent loss for the report)
+    assert result.salvage is not None and "no index" in result.salvage.reason
+    assert result.salvage.stopped_at_byte == cut
+    assert 0 < result.salvage.kept == sum(d.read for d in result.topics.values()) < len(MSGS)

@@ -222,6 +222,9 @@ def walk(
                     raise Damaged("file ends before its index (cut short at a record boundary)", size)
                 if out.index_pos:
                     _check_index(mm, out.index_pos, size)
+                else:  # the recorder writes the index when it closes the bag: this one was cut short
+                    out.damage = Damaged("bag has no index (index_pos 0): the recording was not closed, the file "
+                                         "is cut short after its last complete record", size)
             except Damaged as dmg:
                 if not tolerant:
                     raise
@@ -304,7 +307,7 @@ class Rosbag1Reader(RawReader):
                 log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
                 self._tolerant = True
             else:
-                if result.seen.count:
+                if result.seen.count or result.damage is not None:  # duplicates, or never indexed (cut)
                     self.salvage = salvage_info(self.path, result)
                 return result
         result = walk(self.path, on_message, wanted, tolerant=True)
