@@ -17,7 +17,8 @@ Each case is read (``open_log`` / ``open_text``, ``topics()``, ``read()`` of the
 with an address-space limit (``RLIMIT_AS``: the parent's size + ``--mem-mib``) and a wall-clock timeout. Outcome:
 
 - ``ok``: read, every count as in the intact log;  ``reported``: read, with a salvage report, failed topics or
-  dropped CSV rows;  ``error``: a :class:`pipeline.errors.PipelineError` (a clean quarantine);
+  dropped CSV rows that the intact log's read does not give (an unindexed ROS 1 bag always says it was cut);
+  ``error``: a :class:`pipeline.errors.PipelineError` (a clean quarantine);
 - ``uncaught``: any other exception;  ``memory``: MemoryError;  ``hang``: timeout;  ``crash``: the child died;
 - ``silent-loss``: fewer messages than the intact log and nothing reported;  ``silent-dup``: more messages
   (binary formats only: a CSV states no count, so an inserted or cut line is a line like any other).
@@ -185,8 +186,9 @@ def case_rng(seed: int, fmt: str, index: int) -> random.Random:
 
 
 # -- reading one log -----------------------------------------------------------------------------------------
-def read_counts(fmt: str, path: Path) -> tuple[dict[str, int], bool]:
-    """Open and read the log: (messages read per topic, whether a loss was reported)."""
+def read_counts(fmt: str, path: Path) -> tuple[dict[str, int], Any]:
+    """Open and read the log: (messages read per topic, what the read reported: a salvage report, failed topics,
+    dropped CSV rows; None when nothing)."""
     if fmt.startswith("csv"):
         from pipeline.config.sources import CsvOptions
         from pipeline.io.text import open_text
@@ -195,7 +197,9 @@ def read_counts(fmt: str, path: Path) -> tuple[dict[str, int], bool]:
             names = list(reader.topics())
             result = reader.read({n: ["u", "v"] for n in names},
                                  csv_options={n: CsvOptions(time_column="t") for n in names})
-        reported = result.salvage is not None or any(getattr(d, "dropped_count", 0) for d in result.topics.values())
+        dropped = sum(getattr(d, "dropped_count", 0) for d in result.topics.values())
+        reported = (result.salvage and (result.salvage.reason, result.salvage.kept), dropped) \
+            if result.salvage is not None or dropped else None
     else:
         import io_helpers as h
 
@@ -204,16 +208,21 @@ def read_counts(fmt: str, path: Path) -> tuple[dict[str, int], bool]:
         with open_log(path) as reader:
             listed = reader.topics()
             result = reader.read({t: f for t, f in h.REQUESTS.items() if t in listed})
-        reported = result.salvage is not None or bool(result.failed)
+        reported = (result.salvage and (result.salvage.reason, result.salvage.kept), sorted(result.failed)) \
+            if result.salvage is not None or result.failed else None
     return {t: len(d.log_ns) for t, d in result.topics.items()}, reported
 
 
-def classify(fmt: str, path: Path, baseline: dict[str, int]) -> dict[str, Any]:
-    """Read one (mutated) log in this process; the outcome and, for an uncaught exception, its site."""
+def classify(fmt: str, path: Path, baseline: dict[str, int], intact_report: Any = None) -> dict[str, Any]:
+    """Read one (mutated) log in this process; the outcome and, for an uncaught exception, its site.
+
+    A report counts when it says something the intact log's read does not (an unindexed ROS 1 bag always
+    reports that it was cut; its loss must change what is reported)."""
     from pipeline.errors import PipelineError
 
     try:
-        counts, reported = read_counts(fmt, path)
+        counts, report = read_counts(fmt, path)
+        reported = report is not None and report != intact_report
     except PipelineError as err:
         return {"outcome": "error", "detail": str(err)[:200]}
     except MemoryError as err:
@@ -249,7 +258,8 @@ def _site(err: BaseException) -> dict[str, str]:
     return {"site": site, "detail": f"{type(err).__name__}: {str(err)[:160]}"}
 
 
-def run_forked(fmt: str, path: Path, baseline: dict[str, int], timeout_s: float, mem_limit: int) -> dict[str, Any]:
+def run_forked(fmt: str, path: Path, baseline: dict[str, int], intact_report: Any, timeout_s: float,
+               mem_limit: int) -> dict[str, Any]:
     """:func:`classify` in a forked child under an address-space limit and a timeout."""
     rfd, wfd = os.pipe()
     pid = os.fork()
@@ -258,7 +268,7 @@ def run_forked(fmt: str, path: Path, baseline: dict[str, int], timeout_s: float,
         code = 0
         try:
             resource.setrlimit(resource.RLIMIT_AS, (mem_limit, mem_limit))
-            out = classify(fmt, path, baseline)
+            out = classify(fmt, path, baseline, intact_report)
             with os.fdopen(wfd, "w") as fh:
                 fh.write(json.dumps(out))
         except BaseException:  # noqa: BLE001 - never return into the parent's code
@@ -293,11 +303,12 @@ def _vm_size() -> int:
 
 
 # -- campaign ------------------------------------------------------------------------------------------------
-def prepare(fmt: str, seeds: Path) -> tuple[Path, Path, dict[str, int]]:
+def prepare(fmt: str, seeds: Path) -> tuple[Path, Path, dict[str, int], Any]:
+    """The intact seed: (path to open, file to mutate, counts, what its read reports)."""
     log_path, target = write_seed(fmt, seeds / fmt)
-    counts, reported = read_counts(fmt, log_path)
-    assert not reported, f"{fmt}: the intact seed reads with a report"
-    return log_path, target, counts
+    counts, report = read_counts(fmt, log_path)
+    assert report is None or fmt == "ros1-unindexed", f"{fmt}: the intact seed reads with a report: {report}"
+    return log_path, target, counts, report
 
 
 def apply_case(fmt: str, index: int, seed: int, log_path: Path, target: Path, work: Path) -> tuple[Path, str]:
@@ -337,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         seeds, work = Path(tmp) / "seeds", Path(tmp) / "case"
         if args.replay:
             fmt, index = args.replay.rsplit(":", 1)
-            log_path, target, baseline = prepare(fmt, seeds)
+            log_path, target, baseline, intact_report = prepare(fmt, seeds)
             path, what = apply_case(fmt, int(index), args.seed, log_path, target, work)
             print(f"{fmt}:{index}  {what}")
             if args.keep:
@@ -346,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(read_counts(fmt, path), "intact:", baseline)
             except Exception:  # noqa: BLE001 - show it
                 traceback.print_exc()
-            print(classify(fmt, path, baseline))
+            print(classify(fmt, path, baseline, intact_report))
             return 0
         prepared = {fmt: prepare(fmt, seeds) for fmt in formats}
         mem_limit = _vm_size() + (args.mem_mib << 20)
@@ -357,10 +368,10 @@ def main(argv: list[str] | None = None) -> int:
         records = []
         t0 = time.monotonic()
         for fmt in formats:
-            log_path, target, baseline = prepared[fmt]
+            log_path, target, baseline, intact_report = prepared[fmt]
             for index in range(per_format[fmt]):
                 path, what = apply_case(fmt, index, args.seed, log_path, target, work)
-                out = run_forked(fmt, path, baseline, args.timeout, mem_limit)
+                out = run_forked(fmt, path, baseline, intact_report, args.timeout, mem_limit)
                 table[fmt][out["outcome"]] += 1
                 records.append({"case": f"{fmt}:{index}", "mutation": what, **out})
                 if out["outcome"] not in ("ok", "reported", "error"):

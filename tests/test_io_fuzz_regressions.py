@@ -305,3 +305,30 @@ def test_unindexed_bag_cut_at_a_record_boundary_says_it_was_cut(tmp_path: Path) 
     assert result.salvage is not None and "no index" in result.salvage.reason
     assert result.salvage.stopped_at_byte == cut
     assert 0 < result.salvage.kept == sum(d.read for d in result.topics.values()) < len(MSGS)
+
+
+def test_split_bag_with_two_damaged_files_restarts_twice(tmp_path: Path) -> None:
+    import shutil
+
+    import yaml
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    docs = []
+    for i in range(2):
+        part = write_rosbag2(tmp_path / f"part{i}", trial(n=300, seed=i))
+        db = next(part.glob("*.db3"))
+        data = bytearray(db.read_bytes())
+        data[-4096:] = b"\xff" * 4096  # a page of message rows; found only by the fetch (counts from metadata)
+        (bag / f"bag_{i}.db3").write_bytes(bytes(data))
+        docs.append(yaml.safe_load((part / "metadata.yaml").read_text()))
+        shutil.rmtree(part)
+    info = docs[0]["rosbag2_bagfile_information"]
+    info["relative_file_paths"] = ["bag_0.db3", "bag_1.db3"]
+    for entry in info["topics_with_message_count"]:
+        entry["message_count"] *= 2
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(docs[0]))
+    with open_log(bag) as reader:
+        result = reader.read(REQUESTS)  # before: the second file's Restart escaped the read
+    assert result.salvage is not None and "bag_0.db3" in result.salvage.reason and "bag_1.db3" in result.salvage.reason
+    assert 0 < result.salvage.kept == sum(d.read for d in result.topics.values()) < 1800

@@ -132,6 +132,9 @@ class Restart(Exception):
     """The reader found damage while reading and switched to its salvage path; read again from the start."""
 
 
+_RESTARTS = 64  # each restart moves one more file (of a split bag) to its salvage path
+
+
 BATCH_BYTES = 16 << 20
 
 
@@ -333,10 +336,12 @@ class RawReader:
         return None
 
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
-        try:
-            return self._read(requests)
-        except Restart:  # damage found while reading: the reader now reads by its salvage path
-            return self._read(requests)
+        for _ in range(_RESTARTS):
+            try:
+                return self._read(requests)
+            except Restart:  # damage found while reading: the reader now reads that file by its salvage path
+                continue
+        return self._read(requests)
 
     def _read(self, requests: dict[str, list[str]]) -> ReadResult:
         from pipeline.io import fields

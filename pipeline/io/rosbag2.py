@@ -316,13 +316,15 @@ class Rosbag2Reader(RawReader):
                     path, err)
         with SqlitePages(path) as pages:
             rows = message_rows(pages, set(ids))
-        found = _PageSalvage(rows)
-        self._pages[path] = found
         damaged = f"; {rows.bad_cells} damaged cell(s) skipped" if rows.bad_cells else ""
-        self.salvage = SalvageInfo(
-            kept=len(rows.rowid), stopped_at_byte=rows.cut_at,
-            reason=f"{path.name}: {err}; kept the {len(rows.rowid)} message row(s) on intact pages{damaged}")
-        log.warning("%s", self.salvage.reason)
+        found = _PageSalvage(rows, f"{path.name}: {err}; kept the {len(rows.rowid)} message row(s) on intact "
+                                   f"pages{damaged}")
+        self._pages[path] = found
+        log.warning("%s", found.reason)
+        first = next(iter(self._pages.values()))
+        self.salvage = SalvageInfo(  # every damaged file of a split bag
+            kept=sum(len(p.rows.rowid) for p in self._pages.values()), stopped_at_byte=first.rows.cut_at,
+            reason="; ".join(p.reason for p in self._pages.values()))
         return found
 
     def _walk_mcap(self, path: Path, on_message: Any = None, wanted: set[int] | None = None) -> Any:
@@ -562,8 +564,9 @@ BATCH_ROWS = 65536
 class _PageSalvage:
     """The message rows of one damaged storage file, found on its pages."""
 
-    def __init__(self, rows: Any) -> None:
+    def __init__(self, rows: Any, reason: str) -> None:
         self.rows = rows
+        self.reason = reason
 
     def counted(self) -> dict[int, tuple[int, int | None, int | None]]:
         """topic id -> (rows, first, last timestamp), as the COUNT query gives them for an intact file."""
