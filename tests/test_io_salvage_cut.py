@@ -216,3 +216,18 @@ def test_page_rows_with_overflow_pages(tmp_path: Path) -> None:
         assert before <= set(got), cut  # every row wholly before the cut
         assert all(got[i] == blobs[i] for i in got)  # and nothing else, or nothing wrong
         assert set(got) == before, cut  # a row with a byte past the cut is not half-kept
+
+
+def test_db3_with_bytes_inserted_is_not_called_cut(tmp_path: Path) -> None:
+    from pipeline.io.sqlite_pages import cut_short
+
+    bag = write_rosbag2(tmp_path / "bag", DB_MSGS)
+    db = next(bag.glob("*.db3"))
+    data = db.read_bytes()
+    assert cut_short(db) is None
+    db.write_bytes(data[:len(data) // 2] + bytes(100) + data[len(data) // 2:])
+    assert cut_short(db) is None  # longer than its header says: damaged, not cut
+    db.write_bytes(data[:-100])
+    assert "ends 3996 bytes into page" in (cut_short(db) or "")
+    db.write_bytes(data[:-4096])
+    assert "pages of the" in (cut_short(db) or "")

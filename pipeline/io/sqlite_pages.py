@@ -43,11 +43,13 @@ def cut_short(path: str | Path) -> str | None:
     page_size = 65536 if page_size == 1 else page_size
     if page_size < 512 or page_size & (page_size - 1):
         return None
-    if size % page_size:
-        return f"the file ends {size % page_size} bytes into page {size // page_size + 1} (not whole pages)"
     (claimed,) = _U32.unpack_from(head, 28)
     valid = head[24:28] == head[92:96]  # the header's page count is kept up to date by this writer
-    if valid and claimed > size // page_size:
+    if valid and size >= claimed * page_size:
+        return None  # every page the header counts is there (bytes beyond them are another kind of damage)
+    if size % page_size:
+        return f"the file ends {size % page_size} bytes into page {size // page_size + 1} (not whole pages)"
+    if valid:
         return f"the file holds {size // page_size} pages of the {claimed} its header counts"
     return None
 
