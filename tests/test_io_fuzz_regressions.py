@@ -332,3 +332,14 @@ def test_split_bag_with_two_damaged_files_restarts_twice(tmp_path: Path) -> None
         result = reader.read(REQUESTS)  # before: the second file's Restart escaped the read
     assert result.salvage is not None and "bag_0.db3" in result.salvage.reason and "bag_1.db3" in result.salvage.reason
     assert 0 < result.salvage.kept == sum(d.read for d in result.topics.values()) < 1800
+
+
+def test_signalling_nan_in_a_float32_field_is_quiet() -> None:
+    import warnings
+
+    from pipeline.io.cdr import _as_float
+
+    snan = np.frombuffer(np.array([0x7F800001], dtype="<u4").tobytes(), dtype="<f4")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # before: RuntimeWarning 'invalid value encountered in cast' on stderr
+        assert np.isnan(_as_float(snan, "float32")).all()

@@ -306,7 +306,8 @@ class Columnar:
 def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
     if base_type == "bool":
         return (values != 0).astype(np.float64)
-    return values.astype(np.float64, copy=False)
+    with np.errstate(invalid="ignore"):  # a signalling NaN in a float32 field (damaged bytes) stays a NaN
+        return values.astype(np.float64, copy=False)
 
 
 def fast_columns(
