@@ -86,6 +86,8 @@ VEHICLE_CASES = [
     pytest.param(put("rigid_body.mass_kg", INF), "rigid_body.mass_kg", "finite", id="mass-inf"),
     pytest.param(put("rigid_body.mass_kg", NAN), "rigid_body.mass_kg", "finite", id="mass-nan"),
     pytest.param(put("rigid_body.mass_kg", 1e308), "rigid_body.mass_kg", "weight", id="mass-1e308"),
+    pytest.param(put("rigid_body", {**BASE["rigid_body"], "mass_kg": 1e300, "cg_m": [0.0, 0.0, 1e10]}), "rigid_body",
+                 "non-finite", id="mass-1e300-far-cg"),
     pytest.param(put("rigid_body.mass_kg", True), "rigid_body.mass_kg", "boolean", id="mass-true"),
     pytest.param(put("rigid_body.mass_kg", 0.0), "rigid_body.mass_kg", "greater than 0", id="mass-zero"),
     pytest.param(put("rigid_body.mass_kg", -75.0), "rigid_body.mass_kg", "greater than 0", id="mass-negative"),
@@ -222,6 +224,21 @@ def test_malformed_vehicle_is_refused_naming_file_and_key(tmp_path: Path, edit: 
     assert says in str(err), f"{says!r} not in: {err}"
 
 
+@pytest.mark.parametrize(("inertia", "says"), [
+    pytest.param(with_row(I3, 0, [-5.0, 0.0, 0.0]), "positive definite", id="negative-diagonal"),
+    pytest.param(with_row(I3, 0, [5.0, 1.0, 0.0]), "symmetric", id="asymmetric"),
+    pytest.param(with_row(I3, 2, [0.0, 0.0, NAN]), "finite", id="nan"),
+])
+def test_the_rigid_body_alone_refuses_a_bad_inertia(inertia: list[list[float]], says: str) -> None:
+    """The rigid body's own check (the vehicle's mass-matrix check would catch these too, through physics)."""
+    from pipeline.config import parse
+    from pipeline.config.vehicle import RigidBody
+
+    with pytest.raises(ConfigError) as info:
+        parse(RigidBody, {**BASE["rigid_body"], "inertia_kgm2": inertia}, "rigid_body.yaml")
+    assert info.value.field.startswith("inertia_kgm2") and says in str(info.value)
+
+
 def _line_of(text: str, needle: str) -> int:
     return text[: text.index(needle)].count("\n") + 1
 
@@ -272,6 +289,25 @@ def test_merge_keys_may_be_overridden(tmp_path: Path) -> None:
     text = TEXT.replace("  - name: th2\n", "  - &second\n    name: th2\n").replace(
         "  - name: th3\n    speed_signal: n3_rpm\n", "  - <<: *second\n    name: th3\n    speed_signal: n3_rpm\n")
     assert load_vehicle(_write(tmp_path, text)).thrusters[2].name == "th3"
+
+
+def test_a_config_error_raised_inside_a_validator_gets_the_file() -> None:
+    from pydantic import field_validator
+
+    from pipeline.config import parse
+    from pipeline.config.base import Frozen
+
+    class Model(Frozen):
+        x: float
+
+        @field_validator("x")
+        @classmethod
+        def _helper_raises(cls, x: float) -> float:
+            raise ConfigError("a helper's own error", field="x")
+
+    with pytest.raises(ConfigError) as info:
+        parse(Model, {"x": 1.0}, "model.yaml")
+    assert info.value.file == "model.yaml" and info.value.field == "x"
 
 
 def test_a_utf8_byte_order_mark_is_fine(tmp_path: Path) -> None:

@@ -391,16 +391,18 @@ class Vehicle(Frozen):
         return streams
 
     @model_validator(mode="after")
-    def _mass_matrix_spd(self) -> Vehicle:
-        """M = M_RB + M_A: positive definite (as :func:`pipeline.physics.mass_matrix` needs) and conditioned."""
+    def _mass_matrix_usable(self) -> Vehicle:
+        """M = M_RB + M_A finite and conditioned. It is positive definite already (M_RB is, with a positive mass
+        and inertia; M_A is semi-definite), as :func:`pipeline.physics.mass_matrix` needs."""
         from pipeline.physics import rigid_body_mass  # physics imports this module
 
-        mass = rigid_body_mass(self.rigid_body) + np.asarray(self.added_mass, dtype=float)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is what the next line reports
+            mass = rigid_body_mass(self.rigid_body) + np.asarray(self.added_mass, dtype=float)
         if not np.all(np.isfinite(mass)):
-            raise checks.KeyedError("rigid_body.mass_kg", "the mass matrix M = M_RB + M_A has non-finite entries")
+            raise checks.KeyedError("rigid_body", "the mass matrix M = M_RB + M_A has non-finite entries (mass_kg "
+                                    f"{self.rigid_body.mass_kg:g} with cg_m {list(self.rigid_body.cg_m)})")
         try:
             checks.check_conditioned(mass, "the mass matrix M = M_RB + M_A")
-            checks.check_positive_definite(mass, "the mass matrix M = M_RB + M_A")
         except ValueError as err:
             raise checks.KeyedError("added_mass", str(err)) from None
         return self
