@@ -42,6 +42,6 @@ class Frozen(BaseModel):
                 if name in data and not _admits_bool(field.annotation):
                     key = _bool_at(data[name], name)
                     if key is not None:
-                        raise KeyedError(key, "found a boolean (true/false; YAML also reads yes/no/on/off so) "
-                                         "where this key takes no boolean")
+                        raise KeyedError(key, "found a boolean (true/false, or YAML's yes/no/on/off) where this "
+                                         "key takes a number or a name")
         return data
