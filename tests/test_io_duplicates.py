@@ -139,11 +139,16 @@ def test_ros2_mcap_chunk_written_twice_is_read_once(tmp_path: Path) -> None:
 
 
 def test_seen_window_and_chunks() -> None:
-    seen = Seen(window=2)
-    assert not seen.message(1, "a", 10) and not seen.message(1, "b", 20)
-    assert seen.message(1, "a", 30)          # within the last two of channel 1
-    assert not seen.message(2, "a", 40)      # another channel
-    assert not seen.message(1, "c", 50) and not seen.message(1, "a", 60)  # "a" left the window
+    seen = Seen(window=3)
+    buf = b"aaaabbbbccccaaaa"
+    assert not seen.message(10, buf, 0, 4, 0) and not seen.message(20, buf, 4, 8, 4)
+    assert seen.message(10, buf, 12, 16, 12)      # the bytes of the first, its time again: a copy
+    assert not seen.message(10, buf, 8, 12, 8)    # its time again, other bytes
+    other = b"aaaa"
+    assert not seen.message(10, other, 0, 4, 0)   # another buffer (a chunk): a fresh window
     assert not seen.chunk("k", 70) and seen.chunk("k", 80)
-    assert (seen.count, seen.first_at) == (2, 30)
-    assert "2 duplicate record(s)" in seen.describe() and "byte 30" in seen.describe()
+    assert (seen.count, seen.first_at) == (2, 12)
+    assert "2 duplicate record(s)" in seen.describe() and "byte 12" in seen.describe()
+    small = Seen(window=1)
+    assert not small.message(1, buf, 0, 4, 0) and not small.message(1, buf, 4, 8, 4)
+    assert not small.message(1, buf, 12, 16, 12)  # the original left the window

@@ -62,6 +62,36 @@ def test_mcap_chunk_claiming_a_huge_size_allocates_nothing(tmp_path: Path, claim
     assert 0 < result.salvage.kept < len(MSGS)
 
 
+@pytest.mark.parametrize("layout", ["summary", "no-summary", "channels-first"])
+def test_mcap_chunk_opcode_flipped_to_footer_is_damage(tmp_path: Path, layout: str) -> None:
+    path = write_mcap(tmp_path / "t.mcap", MSGS, compression="lz4", summary=layout != "no-summary")
+    data = bytearray(path.read_bytes())
+    if layout == "channels-first":  # schemas and channels also at the top level, before the chunks (allowed)
+        records = _records(data)
+        top = b"".join(bytes(data[at:nxt]) for (op, at, _), (_, nxt, _) in zip(records, records[1:], strict=False)
+                       if op in (0x03, 0x04))
+        header_end = records[1][1]
+        data = bytearray(data[:header_end] + top + data[header_end:])
+    chunks = [at for op, at, _ in _records(data) if op == 0x06]
+    data[chunks[1]] = 0x02  # one bit: Chunk (0x06) -> Footer (0x02)
+    path.write_bytes(bytes(data))
+    result = _read(path)  # before: the walk stopped at the 'footer', half the file gone, salvage None
+    assert result.salvage is not None and "footer" in result.salvage.reason
+    assert result.salvage.stopped_at_byte == chunks[1]
+    assert 0 < sum(d.read for d in result.topics.values()) < len(MSGS)
+
+
+def test_mcap_chunk_records_length_zeroed_is_damage(tmp_path: Path) -> None:
+    path = write_mcap(tmp_path / "t.mcap", MSGS, summary=False)
+    data = bytearray(path.read_bytes())
+    body = [b for op, _, b in _records(data) if op == 0x06][1]
+    data[body:body + 50] = bytes(50)  # times, sizes, CRC, compression and records length all zero
+    path.write_bytes(bytes(data))
+    result = _read(path)  # before: an empty uncompressed chunk, its messages dropped without a word
+    assert result.salvage is not None and "do not fill the chunk" in result.salvage.reason
+    assert 0 < sum(d.read for d in result.topics.values()) < len(MSGS)
+
+
 def _message_in_plain_chunk(data: bytearray) -> int:
     """Body offset of the first message record inside the first (uncompressed) chunk; its CRC is cleared."""
     body = next(body for op, _, body in _records(data) if op == 0x06)

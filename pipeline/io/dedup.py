@@ -2,22 +2,26 @@
 
 A damaged or carelessly concatenated log can hold the same record twice (a chunk copied by a resumed upload, a
 message record repeated by a retrying writer); read naively, every message in it counts twice and nothing says
-so. The record walks of MCAP files and ROS 1 bags ask :class:`Seen` about each chunk and message record: a chunk
-whose bytes equal an earlier chunk's, or a message record equal (channel, times, sequence, payload) to one of the
-last :data:`WINDOW` messages of its channel, is dropped, counted and reported with the salvage report
-(:class:`pipeline.io.base.SalvageInfo`, ``duplicates``).
+so. The record walks of MCAP files and ROS 1 bags ask :class:`Seen` about each chunk and message
+record: a chunk whose bytes equal an earlier chunk's, or a message record equal byte for byte (channel, times,
+sequence, payload) to one of the last :data:`WINDOW` message records before it (in the file, or in the same
+chunk), is dropped, counted and reported with the salvage report (:class:`pipeline.io.base.SalvageInfo`,
+``duplicates``).
 
-Keys hold a CRC-32 of the bytes with their length and the record's own header fields, so memory stays at a
-few dozen bytes per chunk and per recent message however long the file.
+A chunk is remembered by its header and a CRC-32 of its bytes, a recent message by its log time and position,
+so memory stays at a few dozen bytes per chunk and per recent message however long the file.
 """
 
 from __future__ import annotations
 
+import mmap
 import zlib
 from collections import deque
 from collections.abc import Hashable
 
-WINDOW = 64  # recent messages per channel compared with each new one
+Buffer = bytes | mmap.mmap
+
+WINDOW = 256  # recent message records compared with a new one that does not advance the log time
 
 
 def crc(data: bytes | memoryview) -> int:
@@ -32,7 +36,9 @@ class Seen:
         self.count = 0                     # records dropped as duplicates
         self.first_at: int | None = None   # file offset of the first of them
         self._chunks: set[Hashable] = set()
-        self._recent: dict[int, tuple[deque[Hashable], set[Hashable]]] = {}
+        self._recent: deque[tuple[int, int]] = deque(maxlen=window)  # (start, stop) of the last message records
+        self._latest = -1 << 64            # the latest log time so far
+        self._buf: Buffer | None = None    # the buffer the recent records lie in
 
     def chunk(self, key: Hashable, at: int) -> bool:
         """True when a chunk with this key was seen before in the walk (it is then counted as a duplicate)."""
@@ -42,16 +48,27 @@ class Seen:
         self._chunks.add(key)
         return False
 
-    def message(self, channel: int, key: Hashable, at: int) -> bool:
-        """True when this message record equals one of the last ``window`` of its channel (counted)."""
-        order, keys = self._recent.setdefault(channel, (deque(), set()))
-        if key in keys:
-            self._dropped(at)
-            return True
-        order.append(key)
-        keys.add(key)
-        if len(order) > self.window:
-            keys.discard(order.popleft())
+    def message(self, log_ns: int, buf: Buffer, start: int, stop: int, at: int) -> bool:
+        """True when the message record ``buf[start:stop]`` (channel, times and payload) equals one of the last
+        ``window`` message records of the same buffer (the file, or one chunk's records), then counted.
+
+        Only a record whose log time does not pass the latest so far is compared with earlier ones (a copy
+        repeats its original's time), so a recording in time order pays a comparison and an append a message.
+        """
+        if buf is not self._buf:  # another buffer (a chunk's records, or the file again): a fresh window
+            self._buf = buf
+            self._recent.clear()
+            self._latest = -1 << 64
+        if log_ns <= self._latest:
+            record = buf[start:stop]
+            size = stop - start
+            for s, e in self._recent:
+                if e - s == size and buf[s:e] == record:
+                    self._dropped(at)
+                    return True
+        else:
+            self._latest = log_ns
+        self._recent.append((start, stop))
         return False
 
     def _dropped(self, at: int) -> None:

@@ -101,7 +101,7 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 _s, _e, usize, crc = struct.unpack_from("<QQQI", head, 0)
                 compression, p = _str(head, 28)
                 (rlen,) = struct.unpack_from("<Q", head, p)
-                if p + 8 + rlen > length or implausible_chunk(compression, rlen, usize) is not None:
+                if p + 8 + rlen != length or implausible_chunk(compression, rlen, usize) is not None:
                     return None  # the record walk reports the damage
                 if head[:p + 8] in heads:
                     return None  # a chunk written twice: the record walk drops and reports it
@@ -130,6 +130,8 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 raw = os.pread(fd, length, body)
                 _record(op, raw, out)
             elif op == OP_FOOTER:
+                if stop != size - 8:
+                    return None  # a footer before the end (a damaged opcode): the record walk reports it
                 break
             elif op not in _SKIPPABLE and op < 0x80:
                 return None  # messages outside chunks, or a record this walk does not know

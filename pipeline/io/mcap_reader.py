@@ -166,8 +166,7 @@ def _walk_records(
                 raise Damaged(f"message log time {log_ns} beyond int64 nanoseconds", origin + pos)
             if ch not in out.channels:
                 raise Damaged(f"message on unknown channel {ch}", origin + pos)
-            payload = bytes(buf[body + 22:stop])
-            if out.seen.message(ch, (_seq, log_ns, _pub, len(payload), crc(payload)), origin + pos):
+            if out.seen.message(log_ns, buf, body, stop, origin + pos):
                 pos = stop
                 continue
             out.counts[ch] = out.counts.get(ch, 0) + 1
@@ -176,7 +175,7 @@ def _walk_records(
             out.kept += 1
             if on_message is not None:
                 keep = wanted is None or ch in wanted
-                on_message(ch, log_ns, payload if keep else None)
+                on_message(ch, log_ns, bytes(buf[body + 22:stop]) if keep else None)
         elif op == OP_CHUNK:
             _chunk(buf, body, stop, out, on_message, wanted, tolerant=tolerant, origin=origin + pos)
         elif op == OP_SCHEMA:
@@ -198,6 +197,8 @@ def _walk_records(
                 counts[cid] = cnt
             out.stats_counts = counts
         elif op == OP_FOOTER:
+            if in_chunk or stop != end - 8:  # a footer is followed by the closing magic and nothing else
+                raise Damaged("footer record before the end of the file (a damaged opcode?)", origin + pos)
             return
         elif op == 0 or op > 0x0F and op < 0x80:
             raise Damaged(f"unknown record opcode 0x{op:02x}", origin + pos)
@@ -217,8 +218,8 @@ def _chunk(
     origin: int,
 ) -> None:
     usize, check, compression, rstart, rlen = _chunk_head(buf, body)
-    if rstart + rlen > stop:
-        raise Damaged("chunk records overrun the chunk", origin)
+    if rstart + rlen != stop:  # the records are the chunk's last field: a damaged length hides messages
+        raise Damaged(f"chunk records ({rlen} bytes) do not fill the chunk record", origin)
     why = implausible_chunk(compression, rlen, usize)
     if why is not None:
         raise Damaged(why, origin)

@@ -132,8 +132,7 @@ def walk_records(
             if cid not in out.connections:
                 raise Damaged(f"message on unknown connection {cid}", at)
             t = _time(hdr["time"])
-            payload = bytes(buf[dpos:dend])
-            if out.seen.message(cid, (t, dlen, crc(payload)), at):
+            if out.seen.message(t, buf, pos + 4, dend, at):
                 pos = dend
                 continue
             out.counts[cid] = out.counts.get(cid, 0) + 1
@@ -141,7 +140,7 @@ def walk_records(
             out.last[cid] = t
             out.kept += 1
             if on_message is not None and (wanted is None or cid in wanted):
-                on_message(cid, t, payload)
+                on_message(cid, t, bytes(buf[dpos:dend]))
         elif op == OP_CONNECTION:
             _connection(out, hdr, buf, dpos, dend)
         elif op == OP_CHUNK:
