@@ -269,8 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "(default: .)")
         if action in ("list", "show"):
             a.add_argument("--json", action="store_true", help="machine-readable output")
-        else:
-            a.add_argument("-q", "--quiet", action="store_true", help="no warnings; the one result line only")
+        a.add_argument("-q", "--quiet", action="store_true", help="no warnings (the output is unchanged)")
         a.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 

@@ -57,7 +57,7 @@ def test_list_is_a_table_with_the_current_version_marked(home: Path, capsys: pyt
 
 
 def test_list_json_for_machines(home: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = _models(capsys, "list", "--root", str(home), "--json")
+    code, out, _ = _models(capsys, "list", "--root", str(home), "--json", "-q")
     rows = json.loads(out)
     assert code == 0 and [r["version"] for r in rows] == ["v0001", "v0002", "v0003", "v0004"]
     assert [r["current"] for r in rows] == [False, False, True, False]
