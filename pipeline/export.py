@@ -340,8 +340,10 @@ def export_trial(root: str | Path, trial: str, out_dir: str | Path, progress: Pr
     for src in sources:
         sources[src] = file_sha256(root / src) if (root / src).is_file() else ""
     target = Path(out_dir) / f"{trial}.mcap"
-    with atomic_path(target) as tmp, open(tmp, "wb") as stream:
-        messages = _write(stream, trial, channels, sources, progress)
+    with atomic_path(target) as tmp:
+        with open(tmp, "wb") as stream:
+            messages = _write(stream, trial, channels, sources, progress)
+        tmp.chmod(0o644)  # mkstemp makes 0600; the file is for viewers, often another user's
     for reason in skipped:
         log.warning("export %s: %s", trial, reason)
     return ExportResult(trial, target, messages, skipped)

@@ -192,6 +192,7 @@ def test_same_inputs_same_bytes_and_no_temp_file(run_root: Path, exported: dict[
     again = export.export_trials(run_root, ["test"], tmp_path)[0]
     assert again.path.read_bytes() == (exported["out"] / "test.mcap").read_bytes()
     assert [p.name for p in tmp_path.iterdir()] == ["test.mcap"]
+    assert again.path.stat().st_mode & 0o777 == 0o644
 
 
 def test_a_failed_export_leaves_the_old_file(run_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
