@@ -114,3 +114,18 @@ def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch)
         train_rows = np.delete(train_test, np.s_[fold["test_start"]:fold["test_stop"]], axis=0)
         np.testing.assert_array_equal(rows, train_rows)
         assert not (rows[:, None, :] == test_rows[None, :, :]).all(-1).any()
+
+
+def test_a_lone_rich_kernel_is_warm_started_from_the_simpler_kernels(study):
+    """coupled.models: [wdse_svr] alone gets the same hyperparameters as in the full list: its fast search starts
+    from 2-weights' optimum, itself from RBF's, although neither is asked for (and neither is returned)."""
+    from pipeline.coupled import split_blocks, tune
+    full_params, out = study
+    frame = pd.concat([synthetic_frame(1500, seed=0, tuning_fraction=0.4),
+                       synthetic_frame(500, seed=1, trial="syn02", split="test")], ignore_index=True)
+    lone_params = full_params.model_copy(update={"models": ["wdse_svr"]})
+    hyper, trace = tune(split_blocks(frame)["tuning"], lone_params)
+    assert set(hyper) == set(trace) == {"wdse_svr"}
+    for o in full_params.outputs:
+        assert hyper["wdse_svr"][o] == out["hyper"]["wdse_svr"][o], o
+        assert trace["wdse_svr"][o]["warm_start_score"] is not None, o
