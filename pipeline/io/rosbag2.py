@@ -40,6 +40,7 @@ from pipeline.io.mcap_reader import Damaged, salvage_info, walk
 
 if TYPE_CHECKING:
     from pipeline.io.mcap_index import IndexedFile
+    from pipeline.io.sqlite_pages import MessageRows
 
 log = logging.getLogger(__name__)
 
@@ -564,7 +565,7 @@ BATCH_ROWS = 65536
 class _PageSalvage:
     """The message rows of one damaged storage file, found on its pages."""
 
-    def __init__(self, rows: Any, reason: str) -> None:
+    def __init__(self, rows: MessageRows, reason: str) -> None:
         self.rows = rows
         self.reason = reason
 
