@@ -21,13 +21,16 @@ from __future__ import annotations
 import functools
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from pipeline.config.vehicle import RigidBody, Thruster, Vehicle
 from pipeline.errors import ConfigError
 from pipeline.units import SOURCE_UNITS
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +176,8 @@ def allocation_matrix(vehicle: Vehicle) -> np.ndarray:
 
 
 def _read_table(path: str) -> pd.DataFrame:
+    import pandas as pd  # only for a thrust table: the config validation on every command's path does not need it
+
     try:
         frame = pd.read_csv(path, encoding="utf-8", sep=None, engine="python")
     except FileNotFoundError:
@@ -187,6 +192,8 @@ def _numeric(frame: pd.DataFrame, column: str, key: str, path: str) -> np.ndarra
     if column.strip() not in frame.columns:
         raise ConfigError(f"column {column!r} not in thrust table; available: {list(frame.columns)}", file=path,
                           field=key)
+    import pandas as pd
+
     return pd.to_numeric(frame[column.strip()], errors="coerce").to_numpy(dtype=float)
 
 
