@@ -231,3 +231,13 @@ def test_db3_with_bytes_inserted_is_not_called_cut(tmp_path: Path) -> None:
     assert "ends 3996 bytes into page" in (cut_short(db) or "")
     db.write_bytes(data[:-4096])
     assert "pages of the" in (cut_short(db) or "")
+
+
+def test_cut_gzip_csv_sniffs_like_it_reads(tmp_path: Path) -> None:
+    from pipeline.io.csvsniff import sniff_csv
+
+    data = gzip.compress(b"".join(_lines(200)), mtime=0)
+    path = tmp_path / "dvl.csv.gz"
+    path.write_bytes(data[:len(data) // 2])
+    found = sniff_csv(path)  # auvid inspect / init; before: 'gzip stream does not decompress' (EOFError)
+    assert found.columns == ["t", "u", "v"] and found.delimiter == ","

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
-from pipeline.io.text import is_gzip, sniff_delimiter
+from pipeline.io.text import inflate_cut, is_gzip, sniff_delimiter
 
 HEAD_BYTES = 64 * 1024
 HEAD_LINES = 60
@@ -56,7 +56,9 @@ def _head(path: Path) -> tuple[list[str], str]:
     try:
         with opener(path, "rb") as handle:  # type: ignore[operator]
             raw = handle.read(HEAD_BYTES)
-    except (gzip.BadGzipFile, EOFError, zlib.error) as err:  # a damaged .gz (file-system errors pass through)
+    except EOFError:  # a .gz cut short before HEAD_BYTES: its complete lines, as the reader keeps them
+        raw = inflate_cut(path)[0][:HEAD_BYTES]
+    except (gzip.BadGzipFile, zlib.error) as err:  # a damaged .gz (file-system errors pass through)
         raise IngestError(f"gzip stream does not decompress: {err}", file=path) from err
     for encoding in ("utf-8", "cp1252"):
         try:
