@@ -2,7 +2,9 @@
 
 ``prepare(out)`` writes ``out/data/raw/<trial>.mcap`` (the simulated trial logs), ``out/vehicle.yaml`` (the
 vehicle config the simulator wrote for its logs) and ``out/params.yaml`` (small, fast settings that still
-exercise every stage), and returns where they are. ``auvid demo`` then runs the DAG on it; ``dvc.yaml``'s
+exercise every stage), and returns where they are. Both configs start with the ``# yaml-language-server:
+$schema=`` line that ``auvid init`` writes, naming the JSON Schema shipped in the package, so that an editor
+validates and completes them. ``auvid demo`` then runs the DAG on it; ``dvc.yaml``'s
 ``example`` stage calls the same function for the repository's own run directory.
 """
 
@@ -25,6 +27,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_DURATION_S = 150.0
 LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+MODELINE_PREFIX = "# yaml-language-server:"
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,16 @@ def _find_logs(directory: Path) -> list[Path]:
         elif path.is_dir() and (path / "metadata.yaml").exists():
             found.append(path)
     return found
+
+
+def _add_modeline(path: Path, kind: str) -> None:
+    """Put the schema line first in a config file (replacing one that names another path)."""
+    from pipeline.starter import schema_modeline
+
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+    if lines and lines[0].startswith(MODELINE_PREFIX):
+        lines = lines[1:]
+    path.write_text(schema_modeline(kind) + "\n" + "".join(lines), encoding="utf-8")
 
 
 def _simulate(target: Path, duration_s: float, seed: int) -> Any:
@@ -113,9 +126,11 @@ def prepare(out: str | Path, *, duration_s: float | None = None, seed: int = 0) 
         vehicle_path = out / "vehicle.yaml"
     shutil.rmtree(gen, ignore_errors=True)
     trials = sorted(trial_id(p) for p in moved)
+    _add_modeline(vehicle_path, "vehicle")
     params_path = out / "params.yaml"
     params_path.write_text("# auvid demo params (auvid demo writes this file; see pipeline/config/params.py)\n"
                            + yaml.safe_dump(demo_params(trials), sort_keys=False))
+    _add_modeline(params_path, "params")
     log.info("demo: %d trial(s) %s in %s", len(trials), trials, out)
     return DemoSetup(root=out, logs=sorted(moved), vehicle_path=vehicle_path, params_path=params_path,
                      trials=trials)
