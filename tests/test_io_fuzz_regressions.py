@@ -373,3 +373,39 @@ def test_signalling_nan_in_a_float32_field_is_quiet() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # before: RuntimeWarning 'invalid value encountered in cast' on stderr
         assert np.isnan(_as_float(snan, "float32")).all()
+
+
+@pytest.mark.parametrize("kw", [{}, {"write_content_size": False}, {"write_checksum": True}])
+def test_zstd_frames_tell_a_cut_stream(tmp_path: Path, kw: dict) -> None:
+    import zstandard
+
+    from pipeline.io.inflate import frames
+
+    raw = np.random.default_rng(1).bytes(3000) + bytes(300_000)
+    data = zstandard.ZstdCompressor(**kw).compress(raw) + zstandard.ZstdCompressor(**kw).compress(raw[:500])
+    path = tmp_path / "f.zst"
+    path.write_bytes(data)
+    assert frames(path) == (None if "write_content_size" in kw else len(raw) + 500, None)
+    for cut in range(1, len(data), 29):  # zstandard inflates every one of these without an error
+        path.write_bytes(data[:cut])
+        assert frames(path)[1] is not None, cut
+
+
+def test_cut_zstd_storage_is_reported_and_named(tmp_path: Path) -> None:
+    msgs = trial(n=700, seed=2)
+    bag = write_rosbag2(tmp_path / "bag", msgs, compression="file")
+    zst = next(bag.glob("*.zstd"))
+    data = zst.read_bytes()
+    zst.write_bytes(data[:int(len(data) * 0.7)])
+    result = _read(bag)  # before: the whole blocks inflated, the cut said nothing (salvage from the db3 alone)
+    assert result.salvage is not None and result.salvage.reason.startswith(f"{zst.name}: zstd stream cut short")
+    want = {t: sorted(m.log_ns for m in msgs if m.topic == t) for t in REQUESTS}
+    kept = 0
+    for topic, got in result.topics.items():
+        assert got.log_ns.tolist() == want[topic][:got.read]  # a prefix of each topic
+        kept += got.read
+    assert 0 < kept < len(msgs)
+    zst.write_bytes(data[:len(data) // 10])  # less than one whole block: nothing inflates
+    with pytest.raises(IngestError, match="zstd stream cut short") as info:
+        _read(bag)
+    assert info.value.file == str(zst)  # not the temporary file it was inflated to

@@ -8,11 +8,13 @@ recording. Per-file compression (``*.db3.zstd``, ``*.mcap.zstd``) is undone into
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
 import sqlite3
 import tempfile
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
@@ -83,6 +85,8 @@ class Rosbag2Reader(RawReader):
             raise IngestError(
                 "no storage files: expected metadata.yaml or *.db3 / *.mcap (optionally .zstd) files", file=self.path)
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._cut_streams: list[str] = []  # per-file zstd streams cut short (reported with the read)
+        self._origin: dict[str, Path] = {}  # inflated temporary file -> the .zstd file it came from
         self.files = [self._plain(p) for p in files]
         kinds = {("mcap" if _magic(p).startswith(MCAP_MAGIC) else "sqlite3") for p in self.files}
         if len(kinds) != 1:
@@ -117,7 +121,11 @@ class Rosbag2Reader(RawReader):
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="auvid-ros2-")
         out = Path(self._tmp.name) / path.name.removesuffix(".zstd")
-        inflate_capped(path, out)  # capped: a small damaged file must not fill the disk
+        cut = inflate_capped(path, out)  # capped: a small damaged file must not fill the disk
+        self._origin[str(out)] = path
+        if cut is not None:
+            log.warning("%s", cut)
+            self._cut_streams.append(cut)
         return out
 
     def close(self) -> None:
@@ -142,15 +150,30 @@ class Rosbag2Reader(RawReader):
         against the rows :meth:`read` fetches) instead of a scan of every row, and first / last unknown until read.
         """
         if self._infos is None:
-            self._scan(quick=True)
+            with self._named_originals():
+                self._scan(quick=True)
         assert self._infos is not None
         return dict(self._infos)
 
     def topics(self) -> dict[str, TopicInfo]:
         if self._infos is None or self._provisional:
-            self._scan()
+            with self._named_originals():
+                self._scan()
         assert self._infos is not None
         return dict(self._infos)
+
+    @contextlib.contextmanager
+    def _named_originals(self) -> Iterator[None]:
+        """An IngestError about a file inflated to temporary disk names the ``.zstd`` file it came from."""
+        try:
+            yield
+        except IngestError as err:
+            src = self._origin.get(err.file or "")
+            if src is None:
+                raise
+            cut = "".join(f"; {c}" for c in self._cut_streams if c.startswith(f"{src.name}:"))
+            raise IngestError(f"{err.reason} (in the storage inflated from it{cut})", file=src, topic=err.topic,
+                              field=err.field) from err
 
     def _listed_counts(self) -> dict[str, int] | None:
         counts = {}
@@ -211,13 +234,18 @@ class Rosbag2Reader(RawReader):
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
         """As :meth:`RawReader.read`; rows that metadata.yaml counts but the storage lacks (damaged sqlite pages
         drop them without an error) are a loss, reported like a salvage."""
-        result = super().read(requests)
+        with self._named_originals():
+            result = super().read(requests)
         short = {t: c for t, c in self._short.items() if t in result.topics}
         if short and result.salvage is None:
             lost = "; ".join(f"{t}: {have} of {listed}" for t, (listed, have) in sorted(short.items()))
             result.salvage = SalvageInfo(
                 kept=sum(d.read for d in result.topics.values()), stopped_at_byte=None,
                 reason=f"the storage holds fewer messages than metadata.yaml lists ({lost})")
+        if self._cut_streams:  # a cut .zstd inflates without an error: say so, whatever the storage shows
+            cut = "; ".join(self._cut_streams)
+            result.salvage = SalvageInfo(sum(d.read for d in result.topics.values()), None, cut) \
+                if result.salvage is None else replace(result.salvage, reason=f"{cut}; {result.salvage.reason}")
         return result
 
     def _was_read(self, topic: str, data: TopicData) -> None:
