@@ -241,3 +241,12 @@ def test_cut_gzip_csv_sniffs_like_it_reads(tmp_path: Path) -> None:
     path.write_bytes(data[:len(data) // 2])
     found = sniff_csv(path)  # auvid inspect / init; before: 'gzip stream does not decompress' (EOFError)
     assert found.columns == ["t", "u", "v"] and found.delimiter == ","
+
+
+def test_gzip_csv_zero_padding_between_members_then_cut(tmp_path: Path) -> None:
+    lines = _lines(200)
+    first, second = gzip.compress(b"".join(lines[:100]), mtime=0), gzip.compress(b"".join(lines[100:]), mtime=0)
+    path = tmp_path / "dvl.csv.gz"
+    path.write_bytes(first + bytes(64) + second[:len(second) // 2])  # gzip reads padded members
+    text, info = inflate_cut(path)
+    assert text == b"".join(lines[:text.count(b"\n")]) and text.count(b"\n") > 100

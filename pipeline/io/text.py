@@ -102,8 +102,12 @@ def inflate_cut(path: str | Path) -> tuple[bytes, SalvageInfo]:
                     break
                 rest = inflater.unused_data
                 pos += len(piece) - len(rest)
-                piece, member = rest, pos
-                if piece.strip(b"\x00") and not piece.startswith(GZIP_MAGIC[:len(piece)]):
+                piece = rest.lstrip(b"\x00")  # zero padding after a member (gzip allows it)
+                pos += len(rest) - len(piece)
+                member = pos
+                if not piece:
+                    continue
+                if not piece.startswith(GZIP_MAGIC[:len(piece)]):
                     raise IngestError(f"data after the gzip stream at byte {pos} is not another gzip member",
                                       file=path)
                 inflater = zlib.decompressobj(wbits=31)
