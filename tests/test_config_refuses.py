@@ -373,6 +373,24 @@ def test_malformed_params_are_refused_naming_file_and_key(tmp_path: Path, doc: d
     assert says in str(err), f"{says!r} not in: {err}"
 
 
+def test_the_model_names_params_accept_are_the_pipelines() -> None:
+    """params.py keeps its own lists (loading params must not import the modelling stack); they must not drift."""
+    from pipeline.config.params import COUPLED_MODELS, DECOUPLED_MODELS
+    from pipeline.coupled import EXPLICIT_MODELS, GRAYBOX_MODELS
+    from pipeline.models.decoupled import MODEL_NAMES
+    from pipeline.models.search import SVR_MODELS
+
+    assert set(COUPLED_MODELS) == {*SVR_MODELS, *EXPLICIT_MODELS, *GRAYBOX_MODELS}
+    assert set(DECOUPLED_MODELS) == set(MODEL_NAMES)
+
+
+def test_loading_params_imports_no_modelling_stack() -> None:
+    code = ("import sys\nfrom pipeline.config import load_params\nload_params('params.yaml')\n"
+            "print(sorted(m for m in ('pandas', 'scipy', 'sklearn', 'joblib') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
 def test_params_duplicate_key_is_refused(tmp_path: Path) -> None:
     path = _write(tmp_path, "features:\n  test_trials: [trial01]\n  test_trials: [trial02]\n", "params.yaml")
     err = _refused(load_params, path)

@@ -14,6 +14,11 @@ from pipeline.config import checks
 from pipeline.config.base import Frozen
 
 DOFS = ("u", "v", "w", "p", "q", "r")
+#: The model names params may give, checked at load without importing the modelling stack (``auvid ingest`` loads
+#: params too); tests/test_config_refuses.py keeps them equal to pipeline.coupled's and pipeline.models.decoupled's.
+COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox",
+                  "graybox_gh")
+DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 
@@ -148,10 +153,7 @@ class CoupledParams(Frozen):
     @field_validator("models")
     @classmethod
     def _models_known(cls, models: list[str]) -> list[str]:
-        from pipeline.coupled import EXPLICIT_MODELS, GRAYBOX_MODELS  # they import this module
-        from pipeline.models.search import SVR_MODELS
-
-        _known(models, [*SVR_MODELS, *EXPLICIT_MODELS, *GRAYBOX_MODELS], "coupled model")
+        _known(models, COUPLED_MODELS, "coupled model")
         return _unique_safe_names(models, "model")
 
     @model_validator(mode="after")
@@ -222,9 +224,7 @@ class DecoupledParams(Frozen):
 
 
 def _decoupled_models(models: list[str]) -> list[str]:
-    from pipeline.models.decoupled import MODEL_NAMES  # it imports the config
-
-    _known(models, MODEL_NAMES, "decoupled model")
+    _known(models, DECOUPLED_MODELS, "decoupled model")
     return _unique_safe_names(models, "model")
 
 
