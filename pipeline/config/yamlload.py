@@ -36,6 +36,18 @@ def _decode(raw: bytes, path: Path) -> str:
         raise ConfigError(f"config files are UTF-8 text; this file is {what}: save it as UTF-8", file=path) from None
 
 
+def _yaml_message(err: yaml.YAMLError, text: str) -> str:
+    """What the parser refused and where (line, column), without its "<unicode string>" placeholder for the file."""
+    if isinstance(err, yaml.reader.ReaderError):
+        line = text[: err.position].count("\n") + 1
+        return f"not valid YAML at line {line}: character #x{err.character:04x}: {err.reason}"
+    mark = getattr(err, "problem_mark", None)
+    if isinstance(err, yaml.MarkedYAMLError) and mark is not None:
+        what = ", ".join(x for x in (err.context, err.problem) if x)
+        return f"not valid YAML at line {mark.line + 1}, column {mark.column + 1}: {what}"
+    return f"not valid YAML: {err}"
+
+
 def _key_text(node: yaml.Node) -> str:
     return str(node.value) if isinstance(node, yaml.ScalarNode) else f"<{node.id} at line {node.start_mark.line + 1}>"
 
@@ -100,7 +112,7 @@ def load_yaml(path: str | Path) -> Any:
     try:
         loader = yaml.SafeLoader(text)  # its reader refuses control characters here already
     except yaml.YAMLError as err:
-        raise ConfigError(f"not valid YAML: {err}", file=path) from None
+        raise ConfigError(_yaml_message(err, text), file=path) from None
     try:
         node = loader.get_single_node()
         if node is None:
@@ -108,7 +120,7 @@ def load_yaml(path: str | Path) -> Any:
         _check_duplicate_keys(node, path)
         data = loader.construct_document(node)
     except yaml.YAMLError as err:
-        raise ConfigError(f"not valid YAML: {err}", file=path) from None
+        raise ConfigError(_yaml_message(err, text), file=path) from None
     except RecursionError:
         mark = loader.get_mark()
         raise ConfigError(f"nested too deeply for the YAML parser (it gave up at line {mark.line + 1}, column "
