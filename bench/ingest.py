@@ -1,8 +1,8 @@
-"""Ingest benchmark (issue "Fast ingest"): log -> per-stream Parquet of the configured fields, against rosbags.
+"""Ingest benchmark (issue 15): ``auvid ingest`` as the user runs it, log -> per-stream Parquet, against rosbags.
 
     python bench/ingest.py                                          # 10 simulated minutes, all formats, temp dir
-    python bench/ingest.py --minutes 60 --logs /tmp/trial60         # the one-hour trial; keep / reuse the logs
-    python bench/ingest.py --minutes 60 --logs /tmp/trial60 --repeat 3 --json /tmp/b60.json
+    nice python bench/ingest.py --minutes 60 --logs /tmp/trial60 --repeat 3 --json /tmp/b60.json   # issue 15
+    python bench/ingest.py --minutes 60 --logs /tmp/trial60 --pin core0 --skip-inproc
     python bench/ingest.py --minutes 240 --logs /tmp/trial240 --repeat 1 --skip-rosbags --formats ros2-mcap
 
 The trial: IMU 120 Hz (sensor_msgs/Imu), gyro 100 Hz (geometry_msgs/Vector3Stamped), pressure 10 Hz
@@ -11,15 +11,23 @@ minute), thrusters 20 Hz (sensor_msgs/JointState, four named joints). Formats: R
 ROS 2 sqlite3 (rosbags writers), MCAP with zstd chunks (mcap writer, wrapped in a bag directory so rosbags can
 read it too), ROS 1 bag (rosbags writer).
 
-Every measurement runs in a fresh subprocess; auvid and the two rosbags references take turns, ``--repeat`` times,
-and the table shows medians. ``auvid`` = the ingest stage's work for one log: ``pipeline.ingest.ingest_log`` (open,
-validate, read the 16 configured fields, provenance with the file's sha256, sorted tables) + the stage's
-``write_trial`` (each stream's Parquet file and the ingest report, written atomically into the trial's
-directory); ``raw`` = rosbags ``AnyReader`` iterating every message without deserializing; ``deser`` = the same
-plus ``deserialize`` (rosbags' typestore is built before its clock starts; auvid's imports are warmed the same
-way). Ratios > 1 mean auvid is faster. Memory: the child's RSS after imports (base), its peak during
-``ingest_log`` and its peak including the Parquet writes, and the size of the extracted arrays (the output
-tables); the target is peak - base <= 2 x arrays + a constant, flat as the log grows.
+Every measurement is a fresh child process, and the methods take turns (interleaved), ``--repeat`` rounds, each
+round once on any core and once under ``taskset -c 0`` (``--pin``). The tables show the min of N for times and
+the max of N for peak RSS. Methods:
+
+* ``auvid``: the whole ``auvid ingest -q --root TMP --vehicle V LOG`` process (console script, imports included,
+  into a fresh run directory): what a user or a DVC stage pays;
+* ``inproc``: the earlier in-process figure: ``pipeline.ingest.ingest_log`` + the stage's ``write_trial`` timed
+  inside a child after its imports are warmed (the ADBC driver included);
+* ``raw`` / ``deser``: rosbags ``AnyReader`` iterating every message without / with ``deserialize``, each a whole
+  child process (rosbags' import and typestore included in its CPU; its own clock starts after the typestore);
+* ``cat``: ``cat`` of the log's files to /dev/null, the floor of reading the bytes (warm page cache).
+
+Whole-process figures come from ``os.wait4``: CPU = user + sys of the child (all its threads; insensitive to the
+load on other cores), wall = fork to exit, peak RSS = ``ru_maxrss``. Ratios > 1 mean auvid is faster, except
+``auvid ÷ cat`` (how many times reading the bytes auvid takes). The load average is printed at the start, after
+each format and at the end. In-process memory: the child's RSS after imports (base), its peak during
+``ingest_log`` and its peak including the Parquet writes; Arrow MB = the output tables.
 """
 
 from __future__ import annotations
@@ -29,7 +37,6 @@ import json
 import math
 import os
 import resource
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -267,7 +274,7 @@ def _warm_imports() -> None:
     """Import what ingest imports lazily, so that a measurement is the steady per-log cost of a batch."""
     import importlib
 
-    for name in ("pandas", "pyarrow.parquet", "pipeline.io", "pipeline.io.cdr", "pipeline.io.fields",
+    for name in ("pyarrow.parquet", "pipeline.io", "pipeline.io.cdr", "pipeline.io.fields",
                  "pipeline.io.mcap_reader", "pipeline.io.mcap_index", "pipeline.io.rosbag1",
                  "pipeline.io.rosbag1_index", "pipeline.io.rosbag2", "pipeline.io.text"):
         importlib.import_module(name)
@@ -330,19 +337,11 @@ def measure(method: str, path: Path, ros1: bool) -> dict[str, Any]:
 
 
 def _size_mb(path: Path) -> float:
-    files = [p for p in path.rglob("*") if p.is_file()] if path.is_dir() else [path]
-    return sum(p.stat().st_size for p in files) / 1e6
+    return sum(p.stat().st_size for p in _files(path)) / 1e6
 
 
-def _child(method: str, path: Path, ros1: bool) -> dict[str, Any]:
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--measure", method, "--path", str(path)]
-    if ros1:
-        cmd.append("--ros1")
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
-                          check=False)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{method} on {path} failed:\n{proc.stderr[-3000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+def _files(path: Path) -> list[Path]:
+    return sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
 
 
 def logs_in(outdir: Path, minutes: float, formats: list[str]) -> dict[str, dict[str, Path]]:
@@ -365,30 +364,139 @@ def logs_in(outdir: Path, minutes: float, formats: list[str]) -> dict[str, dict[
     return {f: logs[f] for f in formats}
 
 
-HEAD = ("| format | MB | messages | auvid s | MB/s | msgs/s | raw s | deser s | × raw | × deser | arrays MB "
-        "| auvid peak RSS − base MB: ingest / +Parquet (base) | raw / deser peak RSS MB | paths |")
+def _loadavg() -> str:
+    with open("/proc/loadavg") as fh:
+        return " ".join(fh.read().split()[:3])
 
 
-def row_md(fmt: str, size: float, a: dict[str, Any], r: dict[str, Any], d: dict[str, Any]) -> str:
-    paths = ",".join(sorted(set(a["paths"].values())))
-    base = a["base_rss_mb"]
-    return (f"| {fmt} | {size:.1f} | {a['messages']} | {a['seconds']:.3f} | {size / a['seconds']:.0f} | "
-            f"{a['messages'] / a['seconds']:,.0f} | {r['seconds']:.2f} | {d['seconds']:.2f} | "
-            f"{r['seconds'] / a['seconds']:.1f} | {d['seconds'] / a['seconds']:.1f} | {a['arrays_mb']:.1f} | "
-            f"{a['read_peak_mb'] - base:.0f} / {a['peak_mb'] - base:.0f} ({base:.0f}) | "
-            f"{r['peak_mb']:.0f} / {d['peak_mb']:.0f} | {paths}"
-            + (f" QUARANTINE {a['quarantine']}" if a["quarantine"] else "") + " |")
+# -- whole processes --------------------------------------------------------------------------------------------
+PIN = ["taskset", "-c", "0"]  # one core: the sha256 thread and the Parquet writer threads get no second one
+CHILD_ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 
 
-def _median(runs: list[dict[str, Any]]) -> dict[str, Any]:
+def run_process(cmd: list[str], pin: bool, capture: bool = True) -> dict[str, Any]:
+    """Run ``cmd`` as a child (under ``taskset -c 0`` when ``pin``) and return its own resource use.
+
+    ``os.wait4`` gives the child's rusage: CPU = user + sys of every thread of the process (imports included),
+    insensitive to how busy the other cores are; wall = from fork to exit, as the user waits; peak RSS =
+    ru_maxrss. ``taskset`` execs the command, so the rusage is the command's.
+    """
+    full = [*PIN, *cmd] if pin else cmd
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        start = time.perf_counter()
+        proc = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=out if capture else subprocess.DEVNULL,
+                                stderr=err, cwd=ROOT, env=CHILD_ENV)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(full)} exited {proc.returncode}:\n{stderr[-3000:]}")
+    return {"cpu_s": usage.ru_utime + usage.ru_stime, "user_s": usage.ru_utime, "sys_s": usage.ru_stime,
+            "wall_s": wall, "rss_mib": usage.ru_maxrss / 1024.0, "stdout": stdout}
+
+
+def auvid_command() -> list[str]:
+    """``auvid`` as the user runs it: the console script beside this interpreter (else ``python -m``)."""
+    script = Path(sys.executable).with_name("auvid")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "pipeline.cli"]
+
+
+def vehicle_yaml(outdir: Path) -> Path:
+    """The bench vehicle as the YAML file ``auvid ingest --vehicle`` reads."""
+    import yaml
+
+    doc = bench_vehicle().model_dump(mode="json", exclude_none=True, by_alias=True)
+    path = outdir / "bench-vehicle.yaml"
+    text = yaml.safe_dump(doc, sort_keys=False)
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+    return path
+
+
+def process_auvid(log: Path, vehicle: Path, pin: bool) -> dict[str, Any]:
+    """A whole ``auvid ingest -q`` process into a fresh run directory (removed after, outside the measurement)."""
+    with tempfile.TemporaryDirectory(prefix="auvid-bench-run-") as tmp:
+        got = run_process([*auvid_command(), "ingest", "-q", "--root", tmp, "--vehicle", str(vehicle), str(log)],
+                          pin)
+        reports = sorted(Path(tmp).glob("data/signals/*/ingest_report.json"))
+        if len(reports) != 1:
+            raise RuntimeError(f"auvid ingest of {log} wrote {len(reports)} reports: {got['stdout'][-2000:]}")
+        report = json.loads(reports[0].read_text())
+    got["messages"] = sum(t["messages_read"] for t in report["topics"].values())
+    got["paths"] = sorted({t["decode_path"] for t in report["topics"].values()})
+    return got
+
+
+def process_measure(method: str, path: Path, ros1: bool, pin: bool) -> dict[str, Any]:
+    """A child running ``--measure`` (in-process auvid, or a rosbags reference): its own clock and the process's."""
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--measure", method, "--path", str(path)]
+    got = run_process(cmd + (["--ros1"] if ros1 else []), pin)
+    return {**json.loads(got.pop("stdout").strip().splitlines()[-1]), **got}
+
+
+def process_cat(path: Path, pin: bool) -> dict[str, Any]:
+    """``cat`` of the log's files to /dev/null: reading the bytes, the floor of any reader."""
+    got = run_process(["cat", *map(str, _files(path))], pin, capture=False)
+    got["messages"] = None
+    return got
+
+
+METHODS = ("auvid", "inproc", "raw", "deser", "cat")
+
+
+def _best(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Min of N for times (the least disturbed run), max of N for peak RSS."""
     if not runs:
-        return {"seconds": float("nan"), "peak_mb": float("nan"), "messages": 0}
-    pick = sorted(runs, key=lambda m: m["seconds"])[len(runs) // 2]
-    out = {**pick, "seconds": statistics.median(m["seconds"] for m in runs),
-           "peak_mb": max(m["peak_mb"] for m in runs)}
-    if "read_peak_mb" in pick:
-        out["read_peak_mb"] = max(m["read_peak_mb"] for m in runs)
+        return {}
+    out = dict(runs[0])
+    for key in ("cpu_s", "user_s", "sys_s", "wall_s", "seconds"):
+        if key in out:
+            out[key] = min(r[key] for r in runs)
+    for key in ("rss_mib", "peak_mb", "read_peak_mb"):
+        if key in out:
+            out[key] = max(r[key] for r in runs)
     return out
+
+
+PROCESS_HEAD = ("| format | MB | messages | cores | auvid CPU s | auvid wall s | deser ÷ auvid, CPU | raw ÷ auvid, CPU "
+                "| deser ÷ auvid, wall | raw ÷ auvid, wall | auvid ÷ cat, wall | raw / deser CPU s | cat wall s "
+                "| peak RSS MiB: auvid / raw / deser | Arrow MB |")
+INPROC_HEAD = ("| format | cores | auvid in-process s | raw / deser in-process s | × raw | × deser "
+               "| auvid peak RSS − base MB: ingest / +Parquet (base) | paths |")
+
+
+def _ratio(num: dict[str, Any], den: dict[str, Any], key: str) -> str:
+    return f"{num[key] / den[key]:.1f}×" if num and den and den.get(key) else "–"
+
+
+def _val(m: dict[str, Any], key: str, spec: str = ".2f") -> str:
+    return format(m[key], spec) if m and m.get(key) is not None else "–"
+
+
+def process_row(fmt: str, size: float, pin: bool, b: dict[str, dict[str, Any]]) -> str:
+    a, r, d, c, i = (b.get(m, {}) for m in ("auvid", "raw", "deser", "cat", "inproc"))
+    cells = [fmt, f"{size:.1f}", _val(a, "messages", ","), "taskset -c 0" if pin else "any",
+             _val(a, "cpu_s"), _val(a, "wall_s"), _ratio(d, a, "cpu_s"), _ratio(r, a, "cpu_s"),
+             _ratio(d, a, "wall_s"), _ratio(r, a, "wall_s"), _ratio(a, c, "wall_s"),
+             f"{_val(r, 'cpu_s')} / {_val(d, 'cpu_s')}", _val(c, "wall_s"),
+             " / ".join(_val(m, "rss_mib", ".0f") for m in (a, r, d)), _val(i, "arrays_mb", ".1f")]
+    return "| " + " | ".join(cells) + " |"
+
+
+def inproc_row(fmt: str, pin: bool, b: dict[str, dict[str, Any]]) -> str:
+    i, r, d = b.get("inproc", {}), b.get("raw", {}), b.get("deser", {})
+    if not i:
+        return ""
+    base = i["base_rss_mb"]
+    refs = f"{r['seconds']:.2f} / {d['seconds']:.2f}" if r and d else "–"
+    return (f"| {fmt} | {'taskset -c 0' if pin else 'any'} | {i['seconds']:.3f} | {refs} | "
+            f"{_ratio(r, i, 'seconds')} | {_ratio(d, i, 'seconds')} | "
+            f"{i['read_peak_mb'] - base:.0f} / {i['peak_mb'] - base:.0f} ({base:.0f}) | "
+            f"{','.join(sorted(set(i['paths'].values())))}"
+            + (f" QUARANTINE {i['quarantine']}" if i["quarantine"] else "") + " |")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -396,8 +504,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
     parser.add_argument("--logs", type=Path, default=None, help="generate into / reuse the logs of this directory")
-    parser.add_argument("--repeat", type=int, default=3, help="runs of each measurement (the table shows medians)")
-    parser.add_argument("--skip-rosbags", action="store_true", help="measure auvid only")
+    parser.add_argument("--repeat", type=int, default=3, help="runs of each measurement (the tables show the min)")
+    parser.add_argument("--pin", choices=("both", "any", "core0"), default="both",
+                        help="run each child on any core, pinned to core 0 (taskset -c 0), or both (default)")
+    parser.add_argument("--skip-rosbags", action="store_true", help="no rosbags references")
+    parser.add_argument("--skip-inproc", action="store_true", help="no in-process auvid figure")
     parser.add_argument("--json", type=Path, default=None, help="also write every run as JSON here")
     parser.add_argument("--measure", choices=("auvid", "raw", "deser"), help=argparse.SUPPRESS)
     parser.add_argument("--path", type=Path, help=argparse.SUPPRESS)
@@ -408,25 +519,49 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     outdir = args.logs or Path(tempfile.mkdtemp(prefix="auvid-bench-"))
     logs = logs_in(outdir, args.minutes, args.formats)
-    with open("/proc/loadavg") as fh:
-        print(f"{time.strftime('%Y-%m-%d %H:%M')}, load average {' '.join(fh.read().split()[:3])}", flush=True)
-    print(HEAD)
-    print("|" + "---|" * (HEAD.count("|") - 1), flush=True)
-    rows = []
+    vehicle = vehicle_yaml(outdir)
+    pins = {"both": [False, True], "any": [False], "core0": [True]}[args.pin]
+    methods = [m for m in METHODS if not (args.skip_rosbags and m in ("raw", "deser"))
+               and not (args.skip_inproc and m == "inproc")]
+    print(f"{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, load average {_loadavg()}; "
+          f"{args.minutes:g} min, min of {args.repeat}, {' '.join(auvid_command())}", flush=True)
+    rows, process_lines, inproc_lines = [], [], []
     for fmt, paths in logs.items():
         ros1 = fmt == "ros1"
-        runs: dict[str, list[dict[str, Any]]] = {"auvid": [], "raw": [], "deser": []}
-        for _ in range(args.repeat):
-            for method in ("auvid",) if args.skip_rosbags else ("auvid", "raw", "deser"):
-                runs[method].append(_child(method, paths["auvid" if method == "auvid" else "rosbags"], ros1))
-        med = {method: _median(got) for method, got in runs.items()}
+        runs: dict[str, list[dict[str, Any]]] = {f"{m}/{int(p)}": [] for m in methods for p in pins}
+        for _ in range(args.repeat):  # interleaved: every method and pinning once per round
+            for pin in pins:
+                for method in methods:
+                    if method == "auvid":
+                        got = process_auvid(paths["auvid"], vehicle, pin)
+                    elif method == "cat":
+                        got = process_cat(paths["auvid"], pin)
+                    else:
+                        key = "auvid" if method == "inproc" else method
+                        got = process_measure(key, paths["auvid" if method == "inproc" else "rosbags"], ros1, pin)
+                    runs[f"{method}/{int(pin)}"].append(got)
         size = _size_mb(paths["auvid"])
-        print(row_md(fmt, size, med["auvid"], med["raw"], med["deser"]), flush=True)
-        if not args.skip_rosbags and med["raw"]["messages"] != med["auvid"]["messages"]:
-            print(f"  note: rosbags read {med['raw']['messages']} messages, auvid {med['auvid']['messages']}")
-        rows.append({"format": fmt, "size_mb": size, "minutes": args.minutes, **med, "runs": runs})
-    with open("/proc/loadavg") as fh:
-        print(f"load average after: {' '.join(fh.read().split()[:3])}")
+        load = _loadavg()
+        for pin in pins:
+            best = {m: _best(runs[f"{m}/{int(pin)}"]) for m in methods}
+            process_lines.append(process_row(fmt, size, pin, best))
+            inproc_lines.append(inproc_row(fmt, pin, best))
+            print(process_lines[-1], flush=True)
+            if "raw" in best and best["raw"]["messages"] != best["auvid"]["messages"]:
+                print(f"  note: rosbags read {best['raw']['messages']} messages, auvid {best['auvid']['messages']}")
+            rows.append({"format": fmt, "size_mb": size, "minutes": args.minutes, "pinned": pin, "load": load,
+                         **best})
+        rows[-1]["runs"] = runs
+        print(f"  ({fmt} done, load average {load})", flush=True)
+    print(f"\nWhole process, min of {args.repeat} (load average at the end {_loadavg()}):\n")
+    print(PROCESS_HEAD)
+    print("|" + "---|" * (PROCESS_HEAD.count("|") - 1))
+    print("\n".join(process_lines))
+    if "inproc" in methods:
+        print("\nIn-process (the clock starts after the imports; rosbags: after building its typestore):\n")
+        print(INPROC_HEAD)
+        print("|" + "---|" * (INPROC_HEAD.count("|") - 1))
+        print("\n".join(line for line in inproc_lines if line))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2, default=str))
     return 0
