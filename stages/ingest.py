@@ -26,6 +26,7 @@ from typing import Any
 
 from pipeline import layout
 from pipeline.config import Params, Vehicle
+from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import ingest_log, trial_id
 from pipeline.parallel import usable_cpus
@@ -128,6 +129,12 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
     seen: dict[str, Path] = {}
     for path in paths:
         trial = trial_id(path)
+        if not SAFE_NAME.match(trial):  # the trial id names directories: '...mcap' would be trial '..'
+            result.quarantined.append({"error": "IngestError", "file": _display(path, root), "trial": None,
+                                       "topic": None, "field": None,
+                                       "reason": f"the log's name gives trial id {trial!r}, not a safe name "
+                                                 f"({SAFE_NAME_RULE}): rename the log"})
+            continue
         if trial in seen:
             result.quarantined.append({"error": "IngestError", "file": _display(path, root), "trial": trial,
                                        "topic": None, "field": None,

@@ -385,3 +385,16 @@ def test_stage_quarantines_garbage_and_empty_logs_among_good_ones(tmp_path: Path
     assert all(e["error"] == "IngestError" and e["file"].startswith("data/raw/") for e in result.quarantined)
     assert sorted(p.name for p in layout.signals_dir(root, "trial5").iterdir()) == [
         "dvl.parquet", "imu.parquet", "ingest_report.json", "thr.parquet"]
+
+
+def test_a_log_whose_name_gives_an_unsafe_trial_id_is_quarantined_not_written_outside(tmp_path: Path) -> None:
+    """'...mcap' would be trial '..': its tables would land in data/ instead of data/signals/<trial>/."""
+    root = raw_root(tmp_path)
+    odd = root / layout.RAW / "...csv"
+    odd.write_text("t,rate\n1,2\n")
+    result = stage.run(root, make_vehicle(CSV_STREAMS), Params(), logs=[odd, root / layout.RAW / "trial01"])
+    assert result.exit_code == 1
+    [entry] = result.quarantined
+    assert entry["file"] == "data/raw/...csv" and "'..'" in entry["reason"] and "safe name" in entry["reason"]
+    assert layout.stream_path(root, "trial01", "fog").exists()
+    assert sorted(p.name for p in (root / layout.SIGNALS).iterdir()) == ["quarantine.json", "trial01"]
