@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from fixturepaths import SHARED, T200_CSV, shared_fixture
 from test_velocity_sources import ship_dict, synced_grid
 
 from pipeline import physics
@@ -21,7 +22,7 @@ from pipeline.kinematics import body_kinematics
 from pipeline.store import features_table
 from pipeline.sync import required_signals
 
-T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
+T200 = SHARED / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF = 9.80665
 
 
@@ -40,7 +41,8 @@ def rudder_ship(**thruster: Any) -> dict[str, Any]:
 
 
 def test_pwm_thruster_through_the_t200_table_at_its_voltage() -> None:
-    table = {"table": str(T200), "table_pwm_column": "PWM (µs)", "table_thrust_column": "Force (Kg f)",
+    table = {"table": str(shared_fixture(T200_CSV)), "table_pwm_column": "PWM (µs)",
+             "table_thrust_column": "Force (Kg f)",
              "table_thrust_unit": "kgf", "table_voltage_column": "Voltage (V)", "voltage_V": 16.0}
     vehicle = parse(Vehicle, rudder_ship(pwm_signal="th1_pwm_s", thrust=table))
     thr = vehicle.thrusters[0]

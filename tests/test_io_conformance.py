@@ -1,4 +1,5 @@
-"""Conformance over real files written by other people's tools (../shared/fixtures)."""
+"""Conformance over real files written by other people's tools: the rosbag2 test bags shipped in tests/fixtures
+(Apache-2.0), the ROS 1 bags from ../shared/fixtures (licence not stated, so not shipped; skipped without it)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixturepaths import SHIPPED, shared_fixture
 
 from pipeline.errors import IngestError
 from pipeline.io import open_log
 from pipeline.io.fields import leaf_paths, resolve
 from pipeline.io.inspect import format_inspect, inspect_log
 
-FIXTURES = Path(__file__).resolve().parents[2] / "shared" / "fixtures"
-ROS2 = FIXTURES / "rosbag2"
+ROS2 = SHIPPED / "rosbag2"
 
 
 def _bags() -> list[Path]:
@@ -34,6 +35,8 @@ def _bags() -> list[Path]:
 
 
 BAGS = _bags()
+if len(BAGS) < 27:  # an empty (or partial) parametrization would pass silently
+    raise RuntimeError(f"{ROS2}: {len(BAGS)} rosbag2 fixture bags found, expected the 27 shipped")
 
 
 def _storage_counts(bag: Path) -> Counter[str]:
@@ -167,7 +170,7 @@ def _ros1_counts(path: Path) -> Counter:
 
 
 def test_ros1_waterlinked_custom_types() -> None:
-    path = FIXTURES / "ros1/dtu_bluerov2_waterlinked.bag"
+    path = shared_fixture("ros1/dtu_bluerov2_waterlinked.bag")
     own = _ros1_counts(path)
     reader = open_log(path)
     infos = reader.topics()
@@ -185,7 +188,7 @@ def test_ros1_waterlinked_custom_types() -> None:
 
 
 def test_ros1_headerless_float64() -> None:
-    path = FIXTURES / "ros1/usv_sim_trialnu_sines.bag"
+    path = shared_fixture("ros1/usv_sim_trialnu_sines.bag")
     own = _ros1_counts(path)
     reader = open_log(path)
     infos = reader.topics()

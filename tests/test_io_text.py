@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixturepaths import SHARED, T200_CSV, shared_fixture
 
 from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
 from pipeline.io.text import is_gzip, open_text, sniff_delimiter
 
-FIXTURES = Path(__file__).resolve().parents[2] / "shared" / "fixtures"
-T200 = FIXTURES / "csv" / "bluerobotics_t200_performance_10-20V.csv"
+T200 = SHARED / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 
 N = 25
 BASE_NS = 1_700_000_000_000_000_000
@@ -107,7 +107,7 @@ def test_sniff_delimiter() -> None:
 def test_t200_fixture_reads_with_right_columns_and_values(tmp_path: Path) -> None:
     trial = tmp_path / "t200"
     trial.mkdir()
-    shutil.copy(T200, trial / T200.name)
+    shutil.copy(shared_fixture(T200_CSV), trial / T200.name)
     with open_text(trial) as reader:
         columns = reader.fields(T200.name)
         assert columns == ["PWM (µs)", "RPM", "Current (A)", "Voltage (V)", "Power (W)", "Force (Kg f)",

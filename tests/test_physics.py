@@ -5,12 +5,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from fixturepaths import SHARED, T200_CSV, shared_fixture
 
 from pipeline import physics
 from pipeline.config import Vehicle, parse
 from pipeline.errors import ConfigError
 
-T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
+T200 = SHARED / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF = 9.80665
 
 
@@ -112,7 +113,7 @@ def _table_thruster(table: str, col: str = " Force (Kg f)", unit: str = "kgf") -
 
 
 def test_thrust_table_t200_exact_points_midpoints_kgf() -> None:
-    thr = parse(Vehicle, vehicle_dict(thrusters=[_table_thruster(str(T200))])).thrusters[0]
+    thr = parse(Vehicle, vehicle_dict(thrusters=[_table_thruster(str(shared_fixture(T200_CSV)))])).thrusters[0]
     # rows of the sheet: 1900 us -> 3533 rpm, 5.25 kgf; 1100 us -> 3465 rpm (unsigned), -4.07 kgf
     np.testing.assert_allclose(physics.thrust_N(thr, np.array([3533.0, 0.0])), [5.25 * KGF, 0.0])
     np.testing.assert_allclose(physics.thrust_N(thr, np.array([-3465.0])), [-4.07 * KGF])

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixturepaths import SHARED, T200_CSV, shared_fixture
 from io_helpers import OVERRIDE_RC_IN
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -37,7 +38,7 @@ from stages import ingest as ingest_stage
 from stages import sync as sync_stage
 
 GUIDE = Path(__file__).resolve().parents[1] / "docs" / "user-guide.md"
-T200 = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "csv" / "bluerobotics_t200_performance_10-20V.csv"
+T200 = SHARED / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF_N = 9.80665
 
 RC = "mavros_msgs/msg/OverrideRCIn"
@@ -78,7 +79,7 @@ VEHICLE_YAML = guide_block("Walkthrough: a BlueROV2-like ROV", "yaml")
 
 def t200_kgf_at_16V() -> dict[int, float]:
     """PWM (us) -> force (kgf) of the sheet's 16 V rows."""
-    with T200.open(encoding="utf-8") as f:
+    with shared_fixture(T200_CSV).open(encoding="utf-8") as f:
         rows = [{k.strip(): v.strip() for k, v in row.items()} for row in csv.DictReader(f)]
     return {int(r["PWM (µs)"]): float(r["Force (Kg f)"]) for r in rows if float(r["Voltage (V)"]) == 16.0}
 
@@ -203,7 +204,7 @@ def dive(tmp_path_factory: pytest.TempPathFactory) -> Path:
     home = tmp_path_factory.mktemp("bluerov")
     (home / "bluerov2.yaml").write_text(VEHICLE_YAML, encoding="utf-8")
     write_msg_tree(home / "msgs")
-    shutil.copy(T200, home / T200.name)
+    shutil.copy(shared_fixture(T200_CSV), home / T200.name)
     (home / "dives").mkdir()
     write_bag(home / "dives" / "dive01")
     return home

@@ -1,10 +1,9 @@
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
+from fixturepaths import T200_CSV, shared_fixture
 
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle
@@ -332,8 +331,7 @@ def test_simulate_with_thrust_table(vehicle: Vehicle, tmp_path) -> None:
     from pipeline.config import load_vehicle
     from pipeline.sim import example_vehicle_path
 
-    shutil.copy(Path(__file__).resolve().parents[2] / "shared/fixtures/csv/bluerobotics_t200_performance_10-20V.csv",
-                tmp_path / "t200.csv")
+    shutil.copy(shared_fixture(T200_CSV), tmp_path / "t200.csv")
     data = yaml.safe_load(example_vehicle_path().read_text())
     for thr in data["thrusters"]:
         thr["thrust"] = {"table": "t200.csv", "table_speed_column": "RPM", "table_thrust_column": "Force (Kg f)",
