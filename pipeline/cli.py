@@ -140,8 +140,9 @@ def _add_definitions(p: argparse.ArgumentParser) -> None:
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="Dask scheduler (tcp://host:8786) for per-trial and CV/search fan-out "
-                        "(default: $AUVID_SCHEDULER, else local processes)")
+                   help="Dask scheduler (tcp://host:8786), or local[:N] for a LocalCluster of N workers, for "
+                        "per-trial and CV/search fan-out (default: $AUVID_SCHEDULER, else local processes, "
+                        "serial for small inputs)")
     p.add_argument("-q", "--quiet", action="store_true", help="one summary line per run: no progress bars, "
                    "no per-stage lines, no warnings")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")

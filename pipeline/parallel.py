@@ -6,7 +6,14 @@ module picks joblib's backend once, at the top of a run:
 * default: joblib's own local process pool (``loky``), ``n_jobs`` = the number of usable cores;
 * ``--scheduler ADDRESS`` on the CLI, or the environment variable ``AUVID_SCHEDULER``: a
   ``dask.distributed.Client`` connected to ``ADDRESS`` and joblib's ``"dask"`` backend, so that the same
-  ``Parallel(...)`` calls run on the cluster's workers.
+  ``Parallel(...)`` calls run on the cluster's workers;
+* ``--scheduler local`` or ``local:N``: the same on a ``dask.distributed.LocalCluster`` started for the run
+  (N worker processes, default one per usable core, one thread each) and closed after it.
+
+A local process pool costs its start-up (new interpreters importing numpy, pandas, scipy, the pipeline) and the
+pickling of every task; on small inputs that is more than the work. ``pmap(..., work_bytes=...)`` therefore runs
+serially when the work is below :data:`POOL_MIN_BYTES` (measured by ``bench/parallel.py``, see
+docs/benchmarks.md, "Per-trial fan-out"). A Dask scheduler the user asked for is always used.
 
 Library code does not care which: it calls ``joblib.Parallel(n_jobs=n_jobs())`` (or scikit-learn's
 ``n_jobs=n_jobs()``) inside whatever backend is active. ``parallel_backend(scheduler)`` is the context
@@ -29,12 +36,24 @@ log = logging.getLogger(__name__)
 
 ENV_SCHEDULER = "AUVID_SCHEDULER"
 ENV_JOBS = "AUVID_JOBS"
+ENV_POOL_MIN_BYTES = "AUVID_POOL_MIN_BYTES"
 CONNECT_TIMEOUT_S = 10.0
+LOCAL = "local"
+
+#: Input bytes (summed over the items of one fan-out: the logs for ingest, the trials' inputs for sync,
+#: differentiate and derive) below which a local process pool does not pay and ``pmap`` runs serially.
+#: Measured with ``nice python bench/parallel.py --sweep`` and ``--trials 2 --minutes 0.5 --repeat 3`` on the
+#: 2 shared cores of the development machine (2026-11-24, docs/benchmarks.md "Per-trial fan-out"): a pool costs
+#: about 2.5-3 s of wall (2.9 CPU-s) the first time a stage's code runs in its workers (2 trials of 30 s: serial
+#: 3.9 s, pool 10.9 s for the whole ``auvid run --to derive``), so it pays once a stage has more than ~5 s of
+#: serial work; the heaviest stage per byte, differentiate (0.09 s/MB), gets there at ~60 MB, the others
+#: (ingest 0.012, sync 0.019, derive 0.046 s/MB) later. The issue's six small logs (a few MB) stay serial.
+POOL_MIN_BYTES = 64_000_000
 
 T = TypeVar("T")
 R = TypeVar("R")
 
-_active: dict[str, Any] = {"scheduler": None, "client": None}
+_active: dict[str, Any] = {"scheduler": None, "client": None, "local": None}
 
 
 def scheduler_from_env() -> str | None:
@@ -69,17 +88,57 @@ def usable_cpus() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def parse_scheduler(value: Any) -> Any:
+    """What ``--scheduler`` / ``AUVID_SCHEDULER`` asks for: None (local processes), ``("local", N)`` (a
+    LocalCluster of N workers; N None = one per usable core), or the value itself (an address such as
+    ``tcp://host:8786``, or a cluster object). A malformed ``local:N`` is a ConfigError."""
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        return value
+    text = value.strip()
+    if not text:
+        return None
+    head, sep, tail = text.partition(":")
+    if head.lower() != LOCAL:
+        return text
+    if not sep:
+        return (LOCAL, None)
+    try:
+        workers = int(tail)
+    except ValueError:
+        workers = 0
+    if workers < 1:
+        raise ConfigError(f"--scheduler {text!r}: expected 'local' or 'local:N' with N a positive number of "
+                          f"workers, or a scheduler address such as tcp://host:8786")
+    return (LOCAL, workers)
+
+
 def active_scheduler() -> str | None:
     """Address of the Dask scheduler the current backend uses, or None for local processes."""
     return _active["scheduler"]
 
 
-def _connect(scheduler: Any) -> Any:
+def _import_distributed() -> Any:
     try:
-        from dask.distributed import Client
+        import dask.distributed
     except ImportError:
         raise ConfigError("a Dask scheduler was requested but dask.distributed is not installed; "
                           "install the extra: pip install -e '.[dask]'") from None
+    return dask.distributed
+
+
+def _local_cluster(workers: int | None) -> Any:
+    """A LocalCluster of ``workers`` processes (default: one per usable core), one thread each (the work is
+    numpy / libsvm and holds the GIL for long stretches), no dashboard."""
+    distributed = _import_distributed()
+    n = workers or usable_cpus()
+    log.info("starting a Dask LocalCluster with %d worker(s)", n)
+    return distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+
+
+def _connect(scheduler: Any) -> Any:
+    Client = _import_distributed().Client
     if hasattr(scheduler, "scheduler_address"):  # a LocalCluster or similar object
         return Client(scheduler)
     try:
@@ -92,13 +151,26 @@ def _connect(scheduler: Any) -> Any:
 def parallel_backend(scheduler: Any = None) -> Iterator[str]:
     """Run the enclosed joblib work locally (``scheduler=None``) or on the Dask cluster at ``scheduler``.
 
-    ``scheduler`` is an address (``tcp://host:8786``) or a cluster object with ``scheduler_address``.
-    Yields the joblib backend name (``"loky"`` or ``"dask"``). Nested calls with the same scheduler reuse
-    the outer client.
+    ``scheduler`` is an address (``tcp://host:8786``), ``"local"`` / ``"local:N"`` (a LocalCluster started
+    here and closed on exit) or a cluster object with ``scheduler_address``. Yields the joblib backend name
+    (``"loky"`` or ``"dask"``). Nested calls with the same scheduler reuse the outer client.
     """
-    if scheduler is None or scheduler == "":
+    scheduler = parse_scheduler(scheduler)
+    if isinstance(scheduler, tuple):
+        if _active["client"] is not None and _active.get("local") == scheduler:
+            yield "dask"
+            return
+        cluster = _local_cluster(scheduler[1])
+        try:
+            with parallel_backend(cluster) as name:
+                _active["local"] = scheduler
+                yield name
+        finally:
+            cluster.close()
+        return
+    if scheduler is None:
         previous = dict(_active)
-        _active.update(scheduler=None, client=None)
+        _active.update(scheduler=None, client=None, local=None)
         try:
             with joblib.parallel_config(backend="loky"):
                 yield "loky"
@@ -111,7 +183,7 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
         return
     client = _connect(scheduler)
     previous = dict(_active)
-    _active.update(scheduler=address, client=client)
+    _active.update(scheduler=address, client=client, local=None)
     log.info("joblib work goes to the Dask cluster at %s", address)
     try:
         with joblib.parallel_config(backend="dask"):
@@ -128,15 +200,62 @@ def backend(scheduler: Any = None) -> Iterator[str]:
         yield name
 
 
-def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None) -> list[R]:
+def pool_pays(n_items: int, work_bytes: int | None, jobs: int) -> bool:
+    """Whether a fan-out of ``n_items`` over ``work_bytes`` of input should go to ``jobs`` parallel workers.
+
+    On a Dask cluster (asked for explicitly): whenever there are two items or more. Locally: two items or more,
+    more than one job, and ``work_bytes`` unknown (None) or at least :data:`POOL_MIN_BYTES`.
+    """
+    if n_items <= 1:
+        return False
+    if _active["scheduler"] is not None:
+        return True
+    return jobs > 1 and (work_bytes is None or work_bytes >= pool_min_bytes())
+
+
+def pool_min_bytes() -> int:
+    """:data:`POOL_MIN_BYTES`, or ``AUVID_POOL_MIN_BYTES`` where set (0: always the pool; the benchmark's knob)."""
+    env = os.environ.get(ENV_POOL_MIN_BYTES, "").strip()
+    if not env:
+        return POOL_MIN_BYTES
+    try:
+        return max(0, int(float(env)))
+    except ValueError:
+        raise ConfigError(f"{ENV_POOL_MIN_BYTES} must be a number of bytes, found {env!r}") from None
+
+
+def _indexed(fn: Callable[[T], R], index: int, item: T) -> tuple[int, R]:
+    return index, fn(item)
+
+
+def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, work_bytes: int | None = None,
+         on_done: Callable[[int, int, int], Any] | None = None) -> list[R]:
     """``[fn(x) for x in items]`` through joblib in the active backend, results in input order.
 
-    A single item (or ``jobs == 1`` locally) runs inline: no process start-up for nothing.
+    Runs inline (no process start-up for nothing) for a single item, ``jobs == 1`` locally, or ``work_bytes``
+    (the input the items will read) below :data:`POOL_MIN_BYTES` locally (:func:`pool_pays`).
+    ``on_done(done, total, index)`` is called as each item finishes (in completion order when parallel):
+    ``done`` items finished so far, ``index`` the position in ``items`` of the one that just did.
     """
     items = list(items)
     jobs = n_jobs() if jobs is None else jobs
-    if len(items) <= 1 or (jobs == 1 and _active["scheduler"] is None):
-        return [fn(x) for x in items]
+    total = len(items)
+    if not pool_pays(total, work_bytes, jobs):
+        if total > 1 and work_bytes is not None and jobs > 1:
+            log.debug("%d item(s), %d input bytes < %d: serial", total, work_bytes, pool_min_bytes())
+        results = []
+        for index, item in enumerate(items):
+            results.append(fn(item))
+            if on_done is not None:
+                on_done(index + 1, total, index)
+        return results
     if _active["scheduler"] is None:
-        jobs = min(jobs, len(items))
-    return list(joblib.Parallel(n_jobs=jobs)(joblib.delayed(fn)(x) for x in items))
+        jobs = min(jobs, total)
+    ordered: list[Any] = [None] * total
+    tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
+    for done, (index, result) in enumerate(joblib.Parallel(n_jobs=jobs, return_as="generator_unordered")(tasks),
+                                           start=1):
+        ordered[index] = result
+        if on_done is not None:
+            on_done(done, total, index)
+    return ordered

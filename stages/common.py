@@ -186,25 +186,60 @@ def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: 
               progress: Callable[..., Any] | None = None, fan_out: bool = True,
               trials: list[str] | None = None) -> StageResult:
     """Run one stage of the DAG; per-trial stages fan out over ``trials`` (default: every trial with input)
-    through joblib, in the active backend (local processes or a Dask cluster)."""
-    from pipeline.parallel import n_jobs, pmap
+    through joblib, in the active backend (local processes or a Dask cluster), reporting one progress unit per
+    trial as each finishes. Locally, a fan-out (ingest's too) whose input is below
+    ``pipeline.parallel.POOL_MIN_BYTES`` runs serially: a process pool would cost more than it gives."""
+    from pipeline.parallel import n_jobs, pmap, pool_pays
 
     root = Path(root)
     module = load_stage(name)
     kwargs: dict[str, Any] = {"progress": progress, "n_jobs": n_jobs()}
-    if name == "ingest" and logs is not None:
-        kwargs["logs"] = list(logs)
-    if name == "ingest" and progress is not None:  # ingest reports one call per log: tell the bar the total
-        count = len(logs) if logs else len(getattr(module, "discover_logs", lambda _root: [])(root))
-        if count:
-            progress(0, count)
+    if name == "ingest":
+        paths = list(logs) if logs else list(getattr(module, "discover_logs", lambda _root: [])(root))
+        if logs is not None:
+            kwargs["logs"] = list(logs)
+        if progress is not None and paths:  # ingest reports one call per log: tell the bar the total
+            progress(0, len(paths))
+        if not pool_pays(len(paths), sum(_size(Path(p)) for p in paths), kwargs["n_jobs"]):
+            kwargs["n_jobs"] = 1  # small logs: a process pool would cost more than it gives
     if fan_out and name in PER_TRIAL and "trial" in accepted_kwargs(module.run, {"trial": None}):
         trials = trials_for(name, root) if trials is None else trials
         if not trials:
             log.warning("stage %s: no trial has input yet", name)
-        results = pmap(_run_trial, [(name, root, vehicle, params, t) for t in trials])
+        work = sum(trial_input_bytes(name, root, t) for t in trials)
+        on_done = None
+        if progress is not None and trials:
+            progress(0, len(trials))
+            on_done = lambda done, total, i: progress(done, total, trials[i])  # noqa: E731
+        results = pmap(_run_trial, [(name, root, vehicle, params, t) for t in trials], work_bytes=work,
+                       on_done=on_done)
         return merge_results(name, results)
     return call_stage(name, root, vehicle, params, **kwargs)
+
+
+def _size(path: Path) -> int:
+    """Bytes of a file, or of every file under a directory (a rosbag2 directory, a trial's streams); 0 if gone."""
+    try:
+        if path.is_dir():
+            return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def trial_input_bytes(name: str, root: Path, trial: str) -> int:
+    """The bytes a per-trial stage reads for ``trial`` (what decides whether a process pool pays)."""
+    from pipeline import layout
+
+    root = Path(root)
+    signals = layout.signals_dir(root, trial)
+    if name == "sync":
+        return _size(signals)
+    if name == "differentiate":
+        return _size(layout.synced_path(root, trial)) + _size(signals)
+    if name == "derive":
+        return _size(layout.kinematics_path(root, trial))
+    return 0
 
 
 def require_stages(names: list[str] | tuple[str, ...]) -> None:

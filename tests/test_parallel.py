@@ -69,9 +69,9 @@ def test_auvid_run_fans_trials_out_on_the_cluster(tmp_path, monkeypatch: pytest.
     seen_backends = []
     original = parallel.pmap
 
-    def spy(fn, items, *, jobs=None):  # noqa: ANN001, ANN202
+    def spy(fn, items, **kw):  # noqa: ANN001, ANN202
         seen_backends.append(parallel.active_scheduler())
-        return original(fn, items, jobs=jobs)
+        return original(fn, items, **kw)
 
     monkeypatch.setattr(parallel, "pmap", spy)
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
@@ -81,3 +81,157 @@ def test_auvid_run_fans_trials_out_on_the_cluster(tmp_path, monkeypatch: pytest.
     assert seen_backends == [cluster.scheduler_address] * 3  # sync, differentiate, derive
     assert sorted(t for s, t in dag.calls if s == "derive") == ["trial01", "trial02", "trial03"]
     assert sorted(p.name for p in (root / "data/derived").iterdir()) == [f"trial0{i}.parquet" for i in (1, 2, 3)]
+
+
+# ------------------------------------------------------------------ --scheduler local[:N], the work threshold
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    (None, None), ("", None), ("  ", None), ("local", ("local", None)), ("LOCAL", ("local", None)),
+    ("local:3", ("local", 3)), ("tcp://10.0.0.1:8786", "tcp://10.0.0.1:8786"),
+])
+def test_scheduler_values(text: str | None, expected: object) -> None:
+    assert parallel.parse_scheduler(text) == expected
+
+
+@pytest.mark.parametrize("text", ["local:0", "local:-2", "local:many", "local:"])
+def test_bad_local_worker_count_is_a_config_error(text: str) -> None:
+    with pytest.raises(ConfigError, match="local:N"):
+        parallel.parse_scheduler(text)
+
+
+def test_scheduler_local_starts_a_local_cluster_and_closes_it() -> None:
+    with parallel.parallel_backend("local:1") as name:
+        address = parallel.active_scheduler()
+        assert name == "dask" and address is not None and address.startswith("tcp://")
+        from dask.distributed import get_client
+
+        assert len(get_client().scheduler_info()["workers"]) == 1
+        assert parallel.pmap(abs, [-1, -2, 3]) == [1, 2, 3]
+    assert parallel.active_scheduler() is None
+    with pytest.raises(ConfigError, match="cannot reach"):  # the cluster is gone with the context
+        with parallel.parallel_backend(address):
+            pass
+
+
+def test_auvid_run_scheduler_local_n(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``auvid run --scheduler local:2`` asks for a 2-worker LocalCluster and fans out there (an in-process
+    cluster stands in: the fake stages cannot be imported by worker processes)."""
+    from fakestages import FakeDag, make_run_dir
+
+    from pipeline import cli
+
+    FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path, ("trial01", "trial02"))
+    started, seen = [], []
+    original = parallel.pmap
+
+    def local_cluster(workers):  # noqa: ANN001, ANN202
+        started.append(workers)
+        return LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
+
+    def spy(fn, items, **kw):  # noqa: ANN001, ANN202
+        seen.append(parallel.active_scheduler())
+        return original(fn, items, **kw)
+
+    monkeypatch.setattr(parallel, "_local_cluster", local_cluster)
+    monkeypatch.setattr(parallel, "pmap", spy)
+    code = cli.main(["run", "--root", str(root), "--vehicle", str(root / "vehicle.yaml"), "-q",
+                     "--scheduler", "local:2", "--to", "derive"])
+    assert code == 0 and started == [2]
+    assert len(seen) == 3 and all(s is not None and s.startswith("inproc://") for s in seen)
+    assert parallel.active_scheduler() is None
+
+
+@pytest.mark.parametrize("scheduler", ["local", "tcp://127.0.0.1:8786"])
+def test_scheduler_without_dask_exits_2_naming_the_extra(tmp_path, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture[str], scheduler: str) -> None:
+    import sys
+
+    from fakestages import FakeDag, make_run_dir
+
+    from pipeline import cli
+
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path)
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import dask.distributed -> ImportError
+    code = cli.main(["run", "--root", str(root), "--vehicle", str(root / "vehicle.yaml"), "--scheduler", scheduler])
+    assert code == 2
+    assert "pip install -e '.[dask]'" in capsys.readouterr().err
+    assert dag.calls == []  # before any stage
+
+
+def _boom(*_a: object, **_k: object) -> None:
+    raise AssertionError("a process pool was started")
+
+
+def test_small_work_runs_serially_large_work_in_the_pool(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(parallel.ENV_POOL_MIN_BYTES, raising=False)
+    calls = []
+    with parallel.parallel_backend(None):
+        real = joblib.Parallel
+        monkeypatch.setattr(joblib, "Parallel", _boom)
+        small = parallel.POOL_MIN_BYTES - 1
+        assert parallel.pmap(_square_plus, [1, 2, 3], jobs=2, work_bytes=small,
+                             on_done=lambda *a: calls.append(a)) == [2, 5, 10]
+        assert calls == [(1, 3, 0), (2, 3, 1), (3, 3, 2)]
+        monkeypatch.setattr(joblib, "Parallel", real)
+        calls.clear()
+        assert parallel.pmap(_square_plus, [1, 2, 3], jobs=2, work_bytes=parallel.POOL_MIN_BYTES,
+                             on_done=lambda *a: calls.append(a)) == [2, 5, 10]
+        assert [d for d, _, _ in calls] == [1, 2, 3] and sorted(i for _, _, i in calls) == [0, 1, 2]
+    assert not parallel.pool_pays(3, parallel.POOL_MIN_BYTES - 1, 2)
+    assert parallel.pool_pays(3, parallel.POOL_MIN_BYTES, 2)
+    assert parallel.pool_pays(3, None, 2)  # unknown work: the pool, as before
+    assert not parallel.pool_pays(3, None, 1) and not parallel.pool_pays(1, None, 8)
+    monkeypatch.setenv(parallel.ENV_POOL_MIN_BYTES, "0")
+    assert parallel.pool_pays(2, 0, 2)
+
+
+def test_threshold_is_ignored_on_a_cluster_the_user_asked_for() -> None:
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        with parallel.parallel_backend(cluster.scheduler_address):
+            assert parallel.pool_pays(2, 0, 1)
+
+
+def test_per_trial_stages_on_small_trials_start_no_pool_and_report_each_trial(
+        tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from fakestages import FakeDag, make_run_dir
+
+    from stages import common
+
+    dag = FakeDag().install(monkeypatch)
+    monkeypatch.setenv(parallel.ENV_JOBS, "2")  # a pool would be allowed; the input is too small for one
+    monkeypatch.delenv(parallel.ENV_POOL_MIN_BYTES, raising=False)
+    monkeypatch.setattr(joblib, "Parallel", _boom)
+    root = make_run_dir(tmp_path, ("trial01", "trial02", "trial03"))
+    seen_jobs = []
+    ingest = dag.modules["ingest"]
+    plain_run = ingest.run
+
+    def ingest_run(root, vehicle, params, logs=None, progress=None, n_jobs=1):  # noqa: ANN001, ANN202
+        seen_jobs.append(n_jobs)
+        return plain_run(root, vehicle, params, logs=logs, progress=progress)
+
+    monkeypatch.setattr(ingest, "run", ingest_run)
+    calls: dict[str, list[tuple]] = {}
+    for stage in ("ingest", "sync", "differentiate", "derive"):
+        rec = calls.setdefault(stage, [])
+        common.run_stage(stage, root, None, None, progress=lambda *a, rec=rec: rec.append(a))  # type: ignore[arg-type]
+    assert seen_jobs == [1]  # ingest: three tiny logs, no pool
+    for stage in ("sync", "differentiate", "derive"):
+        assert calls[stage] == [(0, 3), (1, 3, "trial01"), (2, 3, "trial02"), (3, 3, "trial03")], stage
+    assert sorted(t for s, t in dag.calls if s == "derive") == ["trial01", "trial02", "trial03"]
+
+
+def test_trial_input_bytes(tmp_path) -> None:
+    from pipeline import layout
+    from stages import common
+
+    (tmp_path / "data/signals/t1").mkdir(parents=True)
+    (tmp_path / "data/signals/t1/imu.parquet").write_bytes(b"x" * 100)
+    for path, n in ((layout.synced_path(tmp_path, "t1"), 10), (layout.kinematics_path(tmp_path, "t1"), 7)):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"x" * n)
+    assert [common.trial_input_bytes(s, tmp_path, "t1") for s in ("sync", "differentiate", "derive")] == [100, 110, 7]
+    assert common.trial_input_bytes("sync", tmp_path, "missing") == 0
