@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 import yaml
+from test_report import check_headline_against_metrics, run_dir, study_dir  # noqa: F401  (fixtures: a run with the stages' study files)
 
 from pipeline.config import Params, load_params
 from pipeline.models.card import card_path
@@ -302,6 +303,12 @@ def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
     assert first == every
     assert (proj / "data/synced/basin_a.parquet").is_file() and (proj / "data/synced/sea_b.parquet").is_file()
     assert (proj / "data/models/coupled/gertler_hagen.joblib").is_file()
+    assert check_headline_against_metrics(proj) >= 2 * 3  # the report's headline box = reports/metrics.json
+    shown = json.loads(subprocess.run([dvc, "plots", "show", "--json"], cwd=proj, env=env, capture_output=True,
+                                      text=True, check=True).stdout)  # stdout only: sh() adds stderr
+    shown = {Path(k).stem: v for k, v in shown.get("data", shown).items()}
+    for name in MODEL_PLOTS:  # the model plots, with rows from this run's models
+        assert shown[name][0]["content"]["data"]["values"], name
     sh("git", "add", "dvc.lock", "reports/headline.json", "reports/plots")
     sh("git", "commit", "-qm", "first run")
     assert sh("git", "status", "--porcelain").strip() == "", "dvc repro left files git neither tracks nor ignores"
@@ -314,3 +321,88 @@ def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
     diff = json.loads(sh(dvc, "metrics", "diff", "--json"))
     changed = diff.get("diff", diff).get("reports/headline.json", {})
     assert any(k.startswith("coupled_final_r2.") and v.get("diff") for k, v in changed.items()), changed
+
+
+# ------------------------------------------------------------------------------------- model plots for `dvc plots`
+
+MODEL_PLOTS = {"coupled_r2", "damping_r2", "learning_curves", "free_run_error"}
+
+
+def _plot_defs() -> dict[str, dict[str, Any]]:
+    stages = {full: s for _, full, s in expanded_stages()}
+    return {path: props for entry in stages["report"]["plots"] for path, props in entry.items()}
+
+
+@pytest.fixture
+def model_study(request: pytest.FixtureRequest) -> Path:
+    """test_report's run with the stages' study files, plus a horizons table of the simulate stage."""
+    root: Path = request.getfixturevalue("study_dir")
+    (root / "data/simulation/trial02/horizons.json").write_text(json.dumps({
+        "gp": {"1.0": {"n_windows": 9, "n_diverged": 0, "mae_end": {"u": 0.01, "r": 0.002}},
+               "5.0": {"n_windows": 8, "n_diverged": 0, "mae_end": {"u": 0.03, "r": 0.004}}},
+        "ls": {"1.0": {"n_windows": 9, "n_diverged": 0, "mae_end": {"u": 0.02, "r": 0.003}}}}))
+    from pipeline.config import load_vehicle
+    from stages import report as report_stage
+
+    assert report_stage.run(root, load_vehicle(root / "vehicle.yaml"), load_params(None)).exit_code == 0
+    return root
+
+
+def test_dvc_yaml_defines_the_model_plots_on_fields_the_report_writes(model_study: Path) -> None:
+    defs = _plot_defs()
+    assert {Path(p).stem for p in defs} >= MODEL_PLOTS | {"valid_fraction", "ingest_rates"}
+    for path, props in defs.items():
+        rows = json.loads((model_study / path).read_text())
+        if Path(path).stem in MODEL_PLOTS:
+            assert rows, f"{path}: no rows from the study files"
+        for row in rows:
+            assert props["x"] in row and props["y"] in row, f"{path}: {props['x']}/{props['y']} not in {row}"
+        template = props.get("template")
+        if template and template.endswith(".json"):  # a project template: it ships with the code
+            assert (REPO / template).is_file(), template
+    rows = {Path(p).stem: json.loads((model_study / p).read_text()) for p in defs}
+    assert {"model": "wdse_svr · udot_mps2", "final_r2": 0.8, "cv_test_r2": 0.8} in rows["coupled_r2"]
+    assert {r["series"] for r in rows["learning_curves"]} == {"u · gp", "u · ls"}
+    assert [r["train_samples"] for r in rows["learning_curves"] if r["series"] == "u · ls"] == [40, 220, 400]
+    assert {"series": "trial02 · gp · u", "horizon_s": 5.0, "mae": 0.03} in rows["free_run_error"]
+
+
+def test_model_plot_files_exist_when_their_stage_did_not_run(request: pytest.FixtureRequest) -> None:
+    """Every plot in dvc.yaml is an out of the report stage: a run without a study still writes it (empty)."""
+    root: Path = request.getfixturevalue("run_dir")
+    from pipeline.config import load_vehicle
+    from stages import report as report_stage
+
+    report_stage.run(root, load_vehicle(root / "vehicle.yaml"), load_params(None))
+    for path in _plot_defs():
+        assert (root / path).is_file(), path
+
+
+def test_dvc_plots_show_gives_the_model_plots(model_study: Path, tmp_path: Path) -> None:
+    """`dvc plots show --json` on the report's plot files and this dvc.yaml: a plot per model file, with its rows,
+    the series template drawing one line per series. Needs DVC; a few seconds."""
+    dvc = shutil.which("dvc") or shutil.which("dvc", path=str(Path(sys.executable).parent))
+    if dvc is None:
+        pytest.skip("dvc is not installed (pip install -e '.[dvc]'): `dvc plots show` was not run")
+    proj = tmp_path / "plots_proj"
+    (proj / "reports").mkdir(parents=True)
+    shutil.copytree(model_study / "reports/plots", proj / "reports/plots")
+    shutil.copy(DVC, proj / "dvc.yaml")
+    (proj / "pipeline/report").mkdir(parents=True)
+    shutil.copy(REPO / "pipeline/report/dvc_series.json", proj / "pipeline/report/dvc_series.json")
+    env = {**os.environ, "DVC_NO_ANALYTICS": "1"}
+    subprocess.run([dvc, "init", "--no-scm", "-q"], cwd=proj, env=env, check=True, capture_output=True)
+    done = subprocess.run([dvc, "plots", "show", "--json"], cwd=proj, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    shown = json.loads(done.stdout)
+    shown = shown.get("data", shown)
+    ids = {Path(k).stem: v for k, v in shown.items()}
+    assert set(ids) >= MODEL_PLOTS, sorted(ids)
+    for name in MODEL_PLOTS:
+        spec = ids[name][0]["content"]
+        values = spec["data"]["values"]
+        assert len(values) == len(json.loads((proj / f"reports/plots/{name}.json").read_text())), name
+    for name in ("learning_curves", "free_run_error"):
+        spec = ids[name][0]["content"]
+        assert spec["encoding"]["color"]["field"] == "series" and spec["mark"]["type"] == "line"
+    assert ids["coupled_r2"][0]["content"]["encoding"]["x"]["field"] == "final_r2"

@@ -8,6 +8,7 @@ import re
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -258,3 +259,106 @@ def test_report_renders_in_a_headless_browser(study_dir: Path, tmp_path: Path) -
     assert images >= 6 and decoded == images
     assert tables >= 6 and rendered == tables
     assert page_w <= view_w and wide == 0, f"horizontal scrolling at {view_w} px: page {page_w}, {wide} table(s)"
+
+
+# ------------------------------------------------------------ the headline box against reports/metrics.json
+
+def headline_tables(text: str) -> list[list[dict[str, str]]]:
+    """The tables of the report's headline box (the Summary section's first box), as rows of cell texts."""
+    import html as stdhtml
+
+    box = _section(text, "summary").split("<div class='box'>", 1)[1]
+    tables = []
+    for table in re.findall(r"<table>(.*?)</table>", box, flags=re.S):
+        head = [stdhtml.unescape(h) for h in re.findall(r"<th(?:\s[^>]*)?>(.*?)</th>", table)]
+        rows = [[stdhtml.unescape(c) for c in re.findall(r"<td(?:\s[^>]*)?>(.*?)</td>", tr)]
+                for tr in re.findall(r"<tr>(.*?)</tr>", table.split("<tbody>", 1)[1])]
+        tables.append([dict(zip(head, r, strict=True)) for r in rows])
+    return tables
+
+
+def _scores(metrics: dict[str, Any], study: str) -> dict[str, float]:
+    """Every flattened score of one study in metrics.json, keyed ``<file>:<path>``."""
+    return {f"{name}:{k}": v for name, doc in metrics.items() if name.startswith(f"{study}/") and isinstance(doc, dict)
+            for k, v in doc.items()}
+
+
+def _one(scores: dict[str, float], *suffixes: str, within: str = "") -> float:
+    found = {k: v for k, v in scores.items() if within in k and any(k.endswith(s) for s in suffixes)}
+    assert len(set(found.values())) == 1, f"{suffixes} in metrics.json: {found or 'missing'}"
+    return next(iter(found.values()))
+
+
+def check_headline_against_metrics(root: Path) -> int:
+    """Every number of the headline box equals (as shown, 4 significant digits) the score in reports/metrics.json
+    it comes from, and each "best" is the best there. Returns how many numbers were checked."""
+    from pipeline.report import studies
+
+    text = (root / "reports/report.html").read_text()
+    metrics = json.loads((root / "reports/metrics.json").read_text())
+    model_of = {v: k for k, v in studies.LABELS.items()}
+    output_of = {v: k for k, v in studies.OUTPUT_LABELS.items()}
+    checked = 0
+    for rows in headline_tables(text):
+        for row in rows:
+            if "R² on the unseen trial" in row:  # best coupled model per output
+                out = output_of.get(row["output"], row["output"])
+                coupled = _scores(metrics, "coupled")
+                value = _one(coupled, f"{model_of.get(row['best model'], row['best model'])}.{out}.final_r2",
+                             f"{model_of.get(row['best model'], row['best model'])}.final.{out}.r2")
+                assert row["R² on the unseen trial"] == html.fmt(value), row
+                finals = [v for k, v in coupled.items() if k.endswith((f".{out}.final_r2", f".final.{out}.r2"))]
+                assert value == max(finals), (row, finals)
+                checked += 1
+            elif "best damping model" in row:  # best damping model per DOF against least squares
+                dof, model = row["DOF"], row["best damping model"]
+                dec = _scores(metrics, "decoupled")
+                value = _one(dec, f"results.{dof}.{model}.cv.test_mae_mean")
+                ls = _one(dec, f"results.{dof}.ls.cv.test_mae_mean")
+                unit = studies.DAMPING_UNIT.get(dof, "")
+                assert row["CV test MAE"] == f"{value:.4g} {unit}" and row["LS (reference)"] == f"{ls:.4g} {unit}"
+                others = [v for k, v in dec.items() if re.search(rf"results\.{dof}\.(?!ls\.)[^.]+\.cv\.test_mae_mean$",
+                                                                 k)]
+                assert value == min(others), (row, others)
+                assert row["vs LS"] == f"{value / ls:.2f}×"
+                checked += 2
+            elif "vs hold-last" in row:  # DVL-outage bridging
+                sim = _scores(metrics, "simulation")
+                window = float(row["outage [s]"])
+                value = _one(sim, f"{row['best model']}@window_s={window}.mean_error_m", within=row["trial"])
+                hold = _one(sim, f"hold_last@window_s={window}.mean_error_m", within=row["trial"])
+                assert row["mean error [m]"] == html.fmt(value) and row["vs hold-last"] == f"{value / hold:.2f}×"
+                checked += 2
+    return checked
+
+
+@pytest.fixture
+def headline_run(study_dir: Path) -> Path:
+    """study_dir with the coupled stage's metrics.json (stages.train writes it beside table3.json)."""
+    t3 = json.loads((study_dir / "data/evaluation/coupled/table3.json").read_text())
+    _write(study_dir / "data/evaluation/coupled/metrics.json", {
+        m: {o: {"cv_test_r2": e["cv"][o]["test_r2"]["mean"], "cv_test_r2_sd": e["cv"][o]["test_r2"]["sd"],
+                "final_r2": e["final"][o]["r2"]} for o in e["final"]} if "final" in e else
+        {"failed": "ModelError: singular"} for m, e in t3.items()})
+    dec_path = study_dir / "data/evaluation/decoupled/metrics.json"
+    dec = json.loads(dec_path.read_text())
+    svr = json.loads(json.dumps(dec["results"]["u"]["gp"]))  # a second model beside LS, worse than GP
+    svr["cv"]["test_mae_mean"] = 0.66
+    dec["results"]["u"]["svr"] = svr
+    _write(dec_path, dec)
+    return study_dir
+
+
+def test_headline_numbers_match_reports_metrics_json(headline_run: Path) -> None:
+    _build(headline_run)
+    assert check_headline_against_metrics(headline_run) == 2 + 2 + 2  # two outputs, one DOF, one outage
+
+
+def test_headline_check_catches_a_number_that_is_not_in_metrics_json(headline_run: Path) -> None:
+    _build(headline_run)
+    metrics_path = headline_run / "reports/metrics.json"
+    metrics = json.loads(metrics_path.read_text())
+    metrics["decoupled/metrics"]["results.u.gp.cv.test_mae_mean"] = 0.65  # the box says 0.6
+    metrics_path.write_text(json.dumps(metrics))
+    with pytest.raises(AssertionError):
+        check_headline_against_metrics(headline_run)

@@ -21,6 +21,7 @@ from pipeline import __version__, layout
 from pipeline.config import Params, Vehicle, config_hash
 from pipeline.report import figures, studies
 from pipeline.report import html as H
+from pipeline.report.plots import model_plots
 
 log = logging.getLogger(__name__)
 
@@ -334,6 +335,7 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
         sections.append((sub, f"Evaluation: {sub}", _artifact_section(root, f"{layout.EVALUATION}/{sub}", figs)
                          or f"<p class='muted'>No readable file under {H.esc(sub)}/.</p>"))
     sections.append(("provenance", "Provenance", _provenance_section(root, vehicle, params, trials)))
+    plots.update(model_plots(root))  # for `dvc plots`: every name always, empty where its stage did not run
     text = H.page(f"auvid report: {vehicle.name}", sections,
                   subtitle=f"auvid {__version__} · config {config_hash(vehicle)[:12]} · params "
                            f"{config_hash(params)[:12]}")
