@@ -31,7 +31,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.model_selection import GridSearchCV, KFold, cross_validate, learning_curve
 from threadpoolctl import threadpool_limits
 
-from pipeline.errors import ModelError
+from pipeline.errors import ConfigError, ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
 from pipeline.simulate import DAMPING_COLUMNS, VELOCITY_COLUMNS
@@ -180,6 +180,12 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
                curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str,
                on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None) -> StudyResult:
     study = StudyResult([])
+    known = set(tuning["trial"]) | set(train_test["trial"])
+    for dof, names in (dof_trials or {}).items():  # a misspelt name would shrink the DOF's data without a word
+        if set(names) - known:
+            raise ConfigError(f"decoupled.trials.{dof} names {sorted(set(names) - known)}, which are not tuning or "
+                              f"train_test trials of the feature store: {sorted(known)}",
+                              field=f"decoupled.trials.{dof}")
 
     def failed(name: str, dof: str, err: Exception) -> None:
         entry = model_failure(name, err, dof=dof)

@@ -147,3 +147,17 @@ def test_gp_on_nu_and_nu_abs_nu_follows_quadratic_damping_through_rest() -> None
     assert warped[1] < 0.7 * plain[1], scores  # measured: 0.091 against 0.167 N
     with pytest.raises(ValueError, match="warp"):
         DampingGP(warp="cubic").fit(x[:, None], damping(x))
+
+
+def test_decoupled_trials_naming_no_trial_of_the_store_is_a_config_error(data: pd.DataFrame) -> None:
+    """decoupled.trials.v: [sway_01] where the store's trial is sway01: an error naming the param and the trials,
+    not a DOF that quietly learns from fewer rows (or a failure per model)."""
+    from pipeline.errors import ConfigError
+
+    frame = data.assign(trial="sway01")
+    with pytest.raises(ConfigError, match=r"decoupled.trials.v names \['sway_01'\].*\['sway01'\]"):
+        run_study(frame.iloc[:200], frame.iloc[200:], dofs=["v"], models=["ls"], search=SMALL,
+                  dof_trials={"v": ["sway01", "sway_01"]})
+    ok = run_study(frame.iloc[:200], frame.iloc[200:], dofs=["v"], models=["ls"], search=SMALL, folds=3,
+                   dof_trials={"v": ["sway01"]})
+    assert [r.model for r in ok.results] == ["ls"] and not ok.failed
