@@ -180,7 +180,7 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
                curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str,
                on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None) -> StudyResult:
     study = StudyResult([])
-    known = set(tuning["trial"]) | set(train_test["trial"])
+    known = set(tuning["trial"]) | set(train_test["trial"]) if dof_trials else set()
     for dof, names in (dof_trials or {}).items():  # a misspelt name would shrink the DOF's data without a word
         if set(names) - known:
             raise ConfigError(f"decoupled.trials.{dof} names {sorted(set(names) - known)}, which are not tuning or "
