@@ -132,6 +132,11 @@ def _local_cluster(workers: int | None) -> Any:
     """A LocalCluster of ``workers`` processes (default: one per usable core), one thread each (the work is
     numpy / libsvm and holds the GIL for long stretches), no dashboard."""
     distributed = _import_distributed()
+    # The scheduler and nannies run in this process and log every start and stop at INFO through handlers of
+    # their own: they follow the run's level (WARNING by default, ERROR under -q), INFO only with -v.
+    root_level = logging.getLogger().getEffectiveLevel()
+    logging.getLogger("distributed").setLevel(logging.INFO if root_level <= logging.DEBUG
+                                              else max(logging.WARNING, root_level))
     n = workers or usable_cpus()
     log.info("starting a Dask LocalCluster with %d worker(s)", n)
     return distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)

@@ -235,3 +235,23 @@ def test_trial_input_bytes(tmp_path) -> None:
         path.write_bytes(b"x" * n)
     assert [common.trial_input_bytes(s, tmp_path, "t1") for s in ("sync", "differentiate", "derive")] == [100, 110, 7]
     assert common.trial_input_bytes("sync", tmp_path, "missing") == 0
+
+
+def test_quiet_run_on_a_local_cluster_prints_one_line(tmp_path) -> None:
+    """-q means one summary line, also with the scheduler and nannies of a LocalCluster logging in the process
+    (a real ``auvid`` process: dask sets up its log handlers at import)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pipeline.sim import example_vehicle_path, load_example_vehicle, simulate_trial, write_trial
+
+    raw = tmp_path / "data/raw"
+    raw.mkdir(parents=True)
+    write_trial(simulate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", raw / "t1.mcap")
+    auvid = Path(sys.executable).with_name("auvid")
+    done = subprocess.run([str(auvid), "run", "--root", str(tmp_path), "--vehicle", str(example_vehicle_path()),
+                           "-q", "--scheduler", "local:1", "--to", "ingest"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert len(done.stdout.splitlines()) == 1 and done.stderr == "", (done.stdout, done.stderr)
