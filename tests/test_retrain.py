@@ -82,6 +82,18 @@ def test_new_log_worse_is_rejected_better_is_promoted(tmp_path: Path, monkeypatc
     assert sorted(p.name for p in (root / "stores").iterdir()) == ["v0003"]
 
 
+def test_a_candidate_that_only_ties_the_champion_is_rejected(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Promotion needs a strictly better holdout score: a tie keeps the current model (no churn on equal data)."""
+    FakeDag(score=0.5).install(monkeypatch)
+    root, inbox = _home(tmp_path)
+    retrain(_opts(root, inbox))
+    FakeDag(score=0.5).install(monkeypatch)
+    (inbox / "trial03.mcap").write_text("log trial03")
+    tie = retrain(_opts(root, inbox))
+    assert tie.status == "rejected"
+    assert registry.load(root)["current"] == "v0001"
+
+
 @pytest.mark.parametrize("stage", ["ingest", "derive", "train", "report"])
 def test_crash_leaves_registry_and_current_model_intact(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                         stage: str) -> None:
