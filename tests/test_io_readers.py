@@ -180,3 +180,22 @@ def test_inspect(tmp_path: Path, msgs: list) -> None:
     assert dvl["first_iso"].startswith("2023-11-14T22:13:20")
     text = format_inspect(info)
     assert "/thrusters/joint_states" in text and "sensor_msgs/msg/JointState" in text
+
+
+@pytest.mark.parametrize("kind", ["mcap", "ros1"])
+def test_fewer_messages_read_than_the_storage_holds_is_an_error_naming_the_topic(tmp_path: Path, kind: str) -> None:
+    """The storage-count cross-check: where the storage says a topic holds one message more than the read yields
+    (a reader bug, or a loss no salvage saw), the read fails naming file and topic instead of returning less."""
+    import dataclasses
+
+    msgs = trial()
+    path = {"mcap": lambda: write_mcap(tmp_path / "t.mcap", msgs),
+            "ros1": lambda: write_rosbag1(tmp_path / "t.bag", msgs)}[kind]()
+    with open_log(path) as reader:
+        topic = next(iter(REQUESTS))
+        info = reader.catalog()[topic]
+        reader._infos[topic] = dataclasses.replace(info, count=info.count + 1)
+        holds = f"read {info.count} messages but the storage holds {info.count + 1}"
+        with pytest.raises(IngestError, match=holds) as err:
+            reader.read({topic: REQUESTS[topic]})
+    assert err.value.topic == topic
