@@ -374,28 +374,48 @@ PIN = ["taskset", "-c", "0"]  # one core: the sha256 thread and the Parquet writ
 CHILD_ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 
 
-def run_process(cmd: list[str], pin: bool, capture: bool = True) -> dict[str, Any]:
-    """Run ``cmd`` as a child (under ``taskset -c 0`` when ``pin``) and return its own resource use.
-
-    ``os.wait4`` gives the child's rusage: CPU = user + sys of every thread of the process (imports included),
-    insensitive to how busy the other cores are; wall = from fork to exit, as the user waits; peak RSS =
-    ru_maxrss. ``taskset`` execs the command, so the rusage is the command's.
-    """
-    full = [*PIN, *cmd] if pin else cmd
-    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+#: A lean process that starts every measured child. On Linux a child's ``ru_maxrss`` is at least its parent's peak
+#: RSS (the parent's memory counts until the child's exec), so children started from this script, which has numpy,
+#: pydantic and the bench's data in it, would all report its peak. This spawner holds ~10 MiB.
+SPAWNER = r"""
+import json, os, subprocess, sys, time
+for line in sys.stdin:
+    req = json.loads(line)
+    with open(req["out"], "w") as out, open(req["err"], "w") as err:
         start = time.perf_counter()
-        proc = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=out if capture else subprocess.DEVNULL,
-                                stderr=err, cwd=ROOT, env=CHILD_ENV)
+        proc = subprocess.Popen(req["cmd"], stdin=subprocess.DEVNULL, stdout=out if req["capture"] else
+                                subprocess.DEVNULL, stderr=err, cwd=req["cwd"], env=req["env"])
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - start
         proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
-        out.seek(0)
-        err.seek(0)
+    print(json.dumps({"rc": proc.returncode, "wall_s": wall, "user_s": usage.ru_utime, "sys_s": usage.ru_stime,
+                      "rss_mib": usage.ru_maxrss / 1024.0}), flush=True)
+"""
+_spawner: list[subprocess.Popen[str]] = []
+
+
+def run_process(cmd: list[str], pin: bool, capture: bool = True) -> dict[str, Any]:
+    """Run ``cmd`` as a child (under ``taskset -c 0`` when ``pin``) and return its own resource use.
+
+    The lean spawner (:data:`SPAWNER`) starts it and reads ``os.wait4``'s rusage: CPU = user + sys of every thread
+    of the process (imports included), insensitive to how busy the other cores are; wall = from fork to exit, as
+    the user waits; peak RSS = ``ru_maxrss``. ``taskset`` execs the command, so the rusage is the command's.
+    """
+    if not _spawner:
+        _spawner.append(subprocess.Popen([sys.executable, "-I", "-S", "-c", SPAWNER], stdin=subprocess.PIPE,
+                                         stdout=subprocess.PIPE, text=True))
+    spawner = _spawner[0]
+    full = [*PIN, *cmd] if pin else cmd
+    with tempfile.NamedTemporaryFile("r") as out, tempfile.NamedTemporaryFile("r") as err:
+        assert spawner.stdin is not None and spawner.stdout is not None
+        spawner.stdin.write(json.dumps({"cmd": full, "out": out.name, "err": err.name, "capture": capture,
+                                        "cwd": str(ROOT), "env": CHILD_ENV}) + "\n")
+        spawner.stdin.flush()
+        got = json.loads(spawner.stdout.readline())
         stdout, stderr = out.read(), err.read()
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(full)} exited {proc.returncode}:\n{stderr[-3000:]}")
-    return {"cpu_s": usage.ru_utime + usage.ru_stime, "user_s": usage.ru_utime, "sys_s": usage.ru_stime,
-            "wall_s": wall, "rss_mib": usage.ru_maxrss / 1024.0, "stdout": stdout}
+    if got.pop("rc") != 0:
+        raise RuntimeError(f"{' '.join(full)} failed:\n{stderr[-3000:]}")
+    return {"cpu_s": got["user_s"] + got["sys_s"], **got, "stdout": stdout}
 
 
 def auvid_command() -> list[str]:
