@@ -10,7 +10,8 @@ system of the process and the workers it waited for, from ``getrusage(RUSAGE_CHI
 
 * ``serial``: ``AUVID_JOBS=1``, every fan-out inline;
 * ``pool``: the local process pool on every usable core, whatever the input size (``AUVID_POOL_MIN_BYTES=0``);
-* ``auto``: the default, serial below ``pipeline.parallel.POOL_MIN_BYTES`` of input per fan-out, else the pool.
+* ``auto``: the default, serial below ``pipeline.parallel.POOL_MIN_BYTES`` of input per fan-out, else the pool;
+* ``dask`` (``--modes ... dask``): ``--scheduler local``, a Dask LocalCluster with one worker per usable core.
 
 The trials are copies of one simulated DAGON log (``pipeline.sim.writers.example``; the per-trial work does not
 depend on what the vehicle did, only on how long it logged), named ``trial01`` ... so that each is its own trial.
@@ -39,7 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-MODES = {"serial": {"AUVID_JOBS": "1"}, "pool": {"AUVID_POOL_MIN_BYTES": "0"}, "auto": {}}
+MODES = {"serial": {"AUVID_JOBS": "1"}, "pool": {"AUVID_POOL_MIN_BYTES": "0"}, "auto": {},
+         "dask": {"AUVID_SCHEDULER": "local"}}
 STAGE_LINE = re.compile(r"^\[(\w+)\] .* in ([0-9.]+) s$")
 PER_TRIAL_DIRS = {"ingest": "data/raw", "sync": "data/signals", "differentiate": "data/synced",
                   "derive": "data/kinematics"}
@@ -93,7 +95,8 @@ def input_bytes(root: Path) -> dict[str, int]:
 def run_once(root: Path, mode: str) -> dict[str, Any]:
     clean(root)
     env = {**os.environ, **MODES[mode]}
-    env.pop("AUVID_SCHEDULER", None)
+    if mode != "dask":
+        env.pop("AUVID_SCHEDULER", None)
     if mode != "serial":
         env.pop("AUVID_JOBS", None)
     cmd = [str(Path(sys.executable).with_name("auvid")), "run", "--root", str(root), "--vehicle",
@@ -129,7 +132,7 @@ def cmd_speedup(args: argparse.Namespace, cache: Path, work: Path) -> None:
 
     log, vehicle = make_log(cache, args.minutes * 60.0)
     root = make_root(work, log, vehicle, args.trials)
-    modes = ["serial", "pool", "auto"]
+    modes = ["serial", *(m for m in args.modes if m != "serial")]
     runs = measure(root, modes, args.repeat)
     sizes = input_bytes(root)
     print(f"{args.trials} trials x {args.minutes:g} simulated min ({log.stat().st_size / 1e6:.1f} MB each), "
@@ -177,6 +180,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--minutes", type=float, default=10.0, help="simulated minutes per trial")
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--logs", type=Path, default=None, help="keep / reuse the simulated logs and run dirs here")
+    parser.add_argument("--modes", nargs="+", choices=sorted(MODES), default=["serial", "pool", "auto"])
     parser.add_argument("--sweep", action="store_true", help="serial vs pool per stage over sizes (the threshold)")
     parser.add_argument("--sweep-trials", type=int, nargs="+", default=[2, 4, 8])
     parser.add_argument("--sweep-seconds", type=float, nargs="+", default=[30.0, 120.0, 600.0])

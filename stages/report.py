@@ -1,7 +1,8 @@
 """Stage report: everything under ``data/`` -> ``reports/report.html`` (self-contained), ``reports/metrics.json``
 (every score of the run), ``reports/headline.json`` (a handful of numbers for ``dvc metrics``: the best coupled
 model's R² on the unseen trial per output, the best damping model's MAE against least squares per DOF, the best
-free-run MAE per DOF), ``reports/plots/*.json`` (for ``dvc plots``) and ``reports/figures/*.png``.
+free-run MAE per DOF), ``reports/plots/*.json`` (for ``dvc plots``: data quality, and the model plots of
+``pipeline.report.plots``: R² per model, learning curves, free-run error vs horizon) and ``reports/figures/*.png``.
 
 ``python -m stages.report --root RUN --vehicle vehicle.yaml``.
 """
