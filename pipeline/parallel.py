@@ -165,6 +165,8 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
         if _active["client"] is not None and _active.get("local") == scheduler:
             yield "dask"
             return
+        dask_log = logging.getLogger("distributed")
+        level = dask_log.level  # _local_cluster quiets it; given back once the cluster has logged its close
         cluster = _local_cluster(scheduler[1])
         try:
             with parallel_backend(cluster) as name:
@@ -172,6 +174,7 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
                 yield name
         finally:
             cluster.close()
+            dask_log.setLevel(level)
         return
     if scheduler is None:
         previous = dict(_active)
