@@ -119,3 +119,11 @@ def test_auvid_ingest_loads_no_modelling_stack(tmp_path: Path, write: Callable[[
     found = loaded(code, MODELLING + ADBC, tmp_path)
     assert (run / "data" / "signals" / "trial01" / "dvl.parquet").exists()
     assert found == [], f"auvid ingest of {log.name} loaded {found}"
+
+
+def test_auvid_inspect_starts_no_pool_machinery(tmp_path: Path) -> None:
+    """inspect, init, models and export fan out no joblib work: the CLI enters no parallel backend for them."""
+    log = io.write_mcap(tmp_path / "trial01.mcap", io.trial(n=12))
+    code = ("import contextlib, io\nfrom pipeline.cli import main\n"
+            f"with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['inspect', {str(log)!r}]) == 0")
+    assert loaded(code, ("joblib", "dask", "distributed", "scipy", "sklearn", "matplotlib"), tmp_path) == []
