@@ -34,10 +34,9 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pyarrow as pa
 
 from pipeline.config import Vehicle, config_hash
 from pipeline.config.sources import StreamSource
@@ -47,6 +46,9 @@ from pipeline.io.msgdefs import UserTypes, load_user_types
 from pipeline.stamps import check_stamps, fmt_rate, uniform_times
 from pipeline.tableio import file_sha256
 from pipeline.units import conversion
+
+if TYPE_CHECKING:  # pyarrow is imported where tables are built: `auvid inspect` uses this module's time_stats
+    import pyarrow as pa
 
 log = logging.getLogger(__name__)
 
@@ -374,6 +376,8 @@ def _arrow(values: np.ndarray, arrow_type: pa.DataType, dtype: type[np.generic])
     import (0.3-0.6 s of CPU) was the largest single cost of a whole ``auvid ingest`` process, which never uses
     pandas. NaN stays a value, not a null, as with ``pa.array(..., from_pandas=False)``.
     """
+    import pyarrow as pa
+
     values = np.ascontiguousarray(values, dtype=dtype)
     return pa.Array.from_buffers(arrow_type, len(values), [None, pa.py_buffer(values)])
 
@@ -381,6 +385,8 @@ def _arrow(values: np.ndarray, arrow_type: pa.DataType, dtype: type[np.generic])
 def _build_table(path: Path, name: str, stream: StreamSource,
                  data: TopicData) -> tuple[pa.Table, np.ndarray, np.ndarray]:
     """The stream's table, its t_ns in storage order, and the stamps to check (t_ns before the offset)."""
+    import pyarrow as pa
+
     if stream.clock == "header":
         if data.header_ns is None:
             raise IngestError(f"stream {name!r} uses clock: header, but {data.msgtype} has no header stamp",
