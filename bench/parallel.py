@@ -6,7 +6,8 @@
 
 What is timed is a whole ``auvid run --to derive`` process (ingest, sync, differentiate, derive: the stages that
 fan out per log or per trial), started fresh each time, as a user or cron would: wall time, and CPU time (user +
-system of the process and the workers it waited for, from ``getrusage(RUSAGE_CHILDREN)``). The modes:
+system of the process and of every process below it, pool workers included, sampled every 0.1 s with psutil).
+The modes:
 
 * ``serial``: ``AUVID_JOBS=1``, every fan-out inline;
 * ``pool``: the local process pool on every usable core, whatever the input size (``AUVID_POOL_MIN_BYTES=0``);
@@ -26,7 +27,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import resource
 import shutil
 import statistics
 import subprocess
@@ -92,6 +92,29 @@ def input_bytes(root: Path) -> dict[str, int]:
     return out
 
 
+def _tree_cpu(proc: subprocess.Popen[bytes], every_s: float = 0.1) -> float:
+    """CPU seconds (user + system) of ``proc`` and every process below it (pool workers, Dask nannies), sampled
+    every ``every_s`` until it exits: a worker's time counts whether or not its parent waited for it (getrusage
+    would miss the workers a pool leaves to exit on their own)."""
+    import psutil
+
+    seen: dict[tuple[int, float], float] = {}
+    root = psutil.Process(proc.pid)
+    while proc.poll() is None:
+        try:
+            tree = [root, *root.children(recursive=True)]
+        except psutil.Error:
+            tree = []
+        for p in tree:
+            try:
+                times = p.cpu_times()
+                seen[(p.pid, p.create_time())] = times.user + times.system
+            except psutil.Error:
+                pass
+        time.sleep(every_s)
+    return sum(seen.values())
+
+
 def run_once(root: Path, mode: str) -> dict[str, Any]:
     clean(root)
     env = {**os.environ, **MODES[mode]}
@@ -101,15 +124,17 @@ def run_once(root: Path, mode: str) -> dict[str, Any]:
         env.pop("AUVID_JOBS", None)
     cmd = [str(Path(sys.executable).with_name("auvid")), "run", "--root", str(root), "--vehicle",
            str(root / "vehicle.yaml"), "--to", "derive"]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=err, text=True)
+        cpu = _tree_cpu(proc)
+        wall = time.perf_counter() - t0
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
     if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stdout}\n{proc.stderr}")
-    stages = {m.group(1): float(m.group(2)) for m in map(STAGE_LINE.match, proc.stdout.splitlines()) if m}
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        raise SystemExit(f"{' '.join(cmd)} exited {proc.returncode}:\n{stdout}\n{stderr}")
+    stages = {m.group(1): float(m.group(2)) for m in map(STAGE_LINE.match, stdout.splitlines()) if m}
     return {"wall": wall, "cpu": cpu, "stages": stages}
 
 
