@@ -321,6 +321,11 @@ def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
     diff = json.loads(sh(dvc, "metrics", "diff", "--json"))
     changed = diff.get("diff", diff).get("reports/headline.json", {})
     assert any(k.startswith("coupled_final_r2.") and v.get("diff") for k, v in changed.items()), changed
+    plots = json.loads(subprocess.run([dvc, "plots", "diff", "HEAD", "--json"], cwd=proj, env=env, check=True,
+                                      capture_output=True, text=True).stdout)
+    plots = {Path(k).stem: v for k, v in plots.get("data", plots).items()}
+    for name in ("coupled_r2", "learning_curves"):  # both revisions in one plot: the model plots diff
+        assert {d["rev"] for d in plots[name][0]["content"]["data"]["values"]} == {"HEAD", "workspace"}, name
 
 
 # ------------------------------------------------------------------------------------- model plots for `dvc plots`
