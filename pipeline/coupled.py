@@ -219,10 +219,11 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     Rows of any other split are refused.
 
     A gray-box model's residual WDSE-SVR is tuned on the residuals ``y - base.predict`` of its explicit base fitted
-    on the (whole, time-ordered) tuning block; its search starts from the GP seed, not from a warm start (the
-    target differs). Returns ``(hyper, trace)``: ``hyper[model][output]`` = flat hyperparameters,
-    ``trace[model][output]`` = the :class:`SearchResult` as a dict. ``progress(done, total, desc)`` (optional):
-    each search's candidates, ``desc`` naming the search (``wdse_svr/udot_mps2 (3/9)``).
+    on the (whole, time-ordered) tuning block; its search runs the same RBF -> 2-weights -> WDSE chain on the
+    residual (the SVRs' optima are no warm start: the target differs). Returns ``(hyper, trace)``:
+    ``hyper[model][output]`` = flat hyperparameters, ``trace[model][output]`` = the :class:`SearchResult` as a
+    dict. ``progress(done, total, desc)`` (optional): each search's candidates, ``desc`` naming the search
+    (``wdse_svr/udot_mps2 (3/9)``).
     """
     if len(tuning) == 0:
         raise ModelError(f"{split} block is empty: nothing to tune on")
@@ -268,10 +269,12 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         hyper[model], trace[model] = {}, {}
         for k, out in enumerate(params.outputs):
             kw = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
-            if params.search == "fast":
-                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance)
             k_search += 1
             kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
+            if params.search == "fast":  # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs above
+                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance)
+                for simpler in SVR_MODELS[:-1]:
+                    kw["warm_start"] = search(simpler, X, resid[:, k], params.search, **kw).best_params
             res = search("wdse_svr", X, resid[:, k], params.search, **kw)
             log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
