@@ -199,3 +199,21 @@ def test_fewer_messages_read_than_the_storage_holds_is_an_error_naming_the_topic
         with pytest.raises(IngestError, match=holds) as err:
             reader.read({topic: REQUESTS[topic]})
     assert err.value.topic == topic
+
+
+def test_a_bag_whose_metadata_points_outside_it_is_refused(tmp_path: Path) -> None:
+    """metadata.yaml's relative_file_paths may not reach outside the bag directory (a crafted '../other.db3')."""
+    import shutil
+
+    import yaml
+
+    bag = write_rosbag2(tmp_path / "bag", trial())
+    outside = tmp_path / "elsewhere.db3"
+    [db3] = sorted(bag.glob("*.db3"))
+    shutil.copy(db3, outside)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    meta["rosbag2_bagfile_information"]["relative_file_paths"] = ["../elsewhere.db3"]
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(IngestError, match="outside the bag directory"):
+        with open_log(bag) as reader:
+            reader.read({t: f for t, f in REQUESTS.items() if t in reader.topics()})

@@ -108,6 +108,9 @@ class Rosbag2Reader(RawReader):
 
     def _locate(self, rel: str) -> Path:
         path = self.path / rel
+        if not path.resolve().is_relative_to(self.path.resolve()):  # '../../etc/passwd', an absolute path
+            raise IngestError(f"metadata.yaml lists storage file {rel!r} outside the bag directory; a bag's files "
+                              "lie in it", file=self.path)
         for cand in (path, path.with_name(path.name + ".zstd"), path.with_name(path.name.removesuffix(".zstd"))):
             if cand.is_file():
                 return cand
