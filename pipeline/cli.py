@@ -560,6 +560,10 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as err:
         print(f"auvid: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as err:  # a full disk, a read-only or vanished directory: the outputs written so far are whole
+        where = f" ({err.filename})" if err.filename else ""
+        print(f"auvid: {args.command} failed: {err.strerror or err}{where}", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         print("auvid: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -182,6 +182,24 @@ def test_ctrl_c_exits_130_without_traceback(tmp_path: Path, monkeypatch: pytest.
     assert err == "auvid: interrupted\n"
 
 
+def test_a_full_disk_exits_3_naming_the_file_without_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """ENOSPC (or any OSError a stage does not turn into a PipelineError) is a failed stage: exit 3, one line."""
+    import errno
+
+    dag = FakeDag().install(monkeypatch)
+    target = tmp_path / "data/synced/trial01.parquet"
+
+    def disk_full(*args: Any, **kwargs: Any) -> common.StageResult:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
+
+    dag.modules["sync"].run = disk_full
+    root = make_run_dir(tmp_path)
+    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_FAILED == 3
+    err = capsys.readouterr().err
+    assert err == f"auvid: run failed: No space left on device ({target})\n"
+
+
 _BIG_INSPECT = textwrap.dedent("""\
     import sys, types
     fake = types.ModuleType("pipeline.io.inspect")
