@@ -161,3 +161,28 @@ def test_decoupled_trials_naming_no_trial_of_the_store_is_a_config_error(data: p
     ok = run_study(frame.iloc[:200], frame.iloc[200:], dofs=["v"], models=["ls"], search=SMALL, folds=3,
                    dof_trials={"v": ["sway01"]})
     assert [r.model for r in ok.results] == ["ls"] and not ok.failed
+
+
+def test_gp_band_is_widened_by_the_residuals_remaining_correlation() -> None:
+    """Damping targets from smoothed derivatives have errors correlated in time; after thinning, the latent variance
+    is scaled by the integrated autocorrelation time left in the residuals (``variance_factor_``). Here the noise
+    is AR(1) with lag-1 correlation 0.9 at 10 Hz: the factor is well above 1 and the band is the plain GP
+    posterior's (computed below from the fitted kernel) times its square root."""
+    from pipeline.models.decoupled import DampingGP
+
+    rng = np.random.default_rng(7)
+    n = 800
+    t = np.arange(n) / 10.0
+    v = 0.8 * np.sin(2 * np.pi * t / 23.0 + 7) * np.cos(2 * np.pi * t / 61.0)
+    e = np.zeros(n)
+    for k in range(1, n):
+        e[k] = 0.9 * e[k - 1] + np.sqrt(1 - 0.9**2) * rng.standard_normal()
+    gp = DampingGP(max_samples=200).fit(v[:, None], 20.0 * v + 60.0 * v * np.abs(v) + 4.0 * e)
+    assert gp.variance_factor_ > 1.2
+    grid = np.linspace(-0.6, 0.6, 25)[:, None]
+    _, std = gp.predict(grid, return_std=True)
+    Z = gp._inputs(grid)
+    k_star = gp._signal(Z, gp.Z_train_)
+    K = gp._signal(gp.Z_train_, gp.Z_train_) + gp.theta_[-1] * np.eye(len(gp.Z_train_))
+    plain = gp.theta_[0] - np.einsum("ij,ji->i", k_star, np.linalg.solve(K, k_star.T))
+    np.testing.assert_allclose(std**2, gp.variance_factor_ * plain * gp.y_scale_**2, rtol=1e-6, atol=1e-12)
