@@ -30,7 +30,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from pipeline.config import Params, Vehicle, load_params, load_vehicle
+from pipeline.config import Params, Vehicle, check_params_against_vehicle, load_params, load_vehicle
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.parallel import backend
 
@@ -73,7 +73,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 def load_configs(root: Path, vehicle_path: Path, params_path: Path | None) -> tuple[Vehicle, Params]:
     if params_path is None and (root / "params.yaml").exists():
         params_path = root / "params.yaml"
-    return load_vehicle(vehicle_path), load_params(params_path)
+    vehicle, params = load_vehicle(vehicle_path), load_params(params_path)
+    check_params_against_vehicle(vehicle, params, params_path)
+    return vehicle, params
 
 
 def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | None = None,

@@ -440,3 +440,21 @@ def test_a_quarantined_test_trial_is_a_warning(caplog: pytest.LogCaptureFixture)
                                      {"trial01", "trial02", "trial03"})
     assert chosen == ["trial03"]
     assert "test trial trial02 has no derived table" in caplog.text
+
+
+@pytest.mark.parametrize(("differentiate", "says"), [
+    ({"noise_sd": {"dvl_x_mp": 0.02}}, r"differentiate.noise_sd names \['dvl_x_mp'\], which are not signals"),
+    ({"sigma_s_per_signal": {"dvl_x_mps": 0.3}}, r"sigma_s_per_signal names \['dvl_x_mps'\], which are not velocity"),
+])
+def test_params_naming_signals_the_vehicle_lacks_are_refused(tmp_path: Path, differentiate: dict[str, Any],
+                                                             says: str) -> None:
+    """A misspelt noise_sd key was ignored, the noise estimated from the data without a word."""
+    from stages.common import load_configs
+
+    params = _write(tmp_path, yaml.safe_dump({"differentiate": differentiate}), "params.yaml")
+    with pytest.raises(ConfigError, match=says) as err:
+        load_configs(tmp_path, DAGON, params)
+    assert str(params) in str(err.value)
+    ok = _write(tmp_path, yaml.safe_dump({"differentiate": {"noise_sd": {"dvl_x_mps": 0.02},
+                                                            "sigma_s_per_signal": {"u_mps": 0.3}}}), "ok.yaml")
+    assert load_configs(tmp_path, DAGON, ok)[1].differentiate.noise_sd == {"dvl_x_mps": 0.02}

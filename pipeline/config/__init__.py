@@ -23,7 +23,8 @@ from pipeline.config.yamlload import load_yaml
 from pipeline.errors import ConfigError
 from pipeline.tableio import canonical_json
 
-__all__ = ["Params", "Vehicle", "config_hash", "load_params", "load_vehicle", "parse", "write_schemas"]
+__all__ = ["Params", "Vehicle", "check_params_against_vehicle", "config_hash", "load_params", "load_vehicle", "parse",
+           "write_schemas"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -83,6 +84,26 @@ def load_params(path: str | Path | None) -> Params:
     if path is None:
         return Params()
     return parse(Params, load_yaml(path), path)
+
+
+_VELOCITY_COLUMNS = ("u_mps", "v_mps", "w_mps", "p_radps", "q_radps", "r_radps")  # pipeline.kinematics.VELOCITY
+
+
+def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: str | Path | None = None) -> None:
+    """Params that name signals must name signals of the vehicle: ``differentiate.noise_sd`` keys are signals of
+    its streams (any trial's overrides included), ``differentiate.sigma_s_per_signal`` keys body-velocity columns.
+    A misspelt key would otherwise be ignored and the noise estimated from the data without a word."""
+    known = set(vehicle.signal_names())
+    for trial in vehicle.trials:
+        known |= set(vehicle.for_trial(trial).signal_names())
+    checks = (("noise_sd", params.differentiate.noise_sd, known),
+              ("sigma_s_per_signal", params.differentiate.sigma_s_per_signal, set(_VELOCITY_COLUMNS)))
+    for key, given, valid in checks:
+        unknown = sorted(set(given) - valid)
+        if unknown:
+            raise ConfigError(f"differentiate.{key} names {unknown}, which are not "
+                              + ("signals of the vehicle's streams" if key == "noise_sd" else "velocity columns")
+                              + f"; known: {sorted(valid)}", file=params_path, field=f"differentiate.{key}")
 
 
 def config_hash(model: BaseModel) -> str:
