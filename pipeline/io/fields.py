@@ -46,6 +46,46 @@ def _latest() -> dict[str, Any]:
     return _LATEST
 
 
+#: ``time`` and ``duration`` of ROS 1, as rosbags names them; the only standard types a ROS 1 bag takes from rosbags.
+_BUILTIN_MSGS = {"builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
+                 "builtin_interfaces/msg/Duration": "int32 sec\nuint32 nanosec\n"}
+
+
+class _Definitions(dict):  # type: ignore[type-arg]
+    """Type name -> rosbags field definitions: the file's and the user's (the dict's own entries) first, then
+    the standard ROS 2 types, looked up only for a name that is not among them.
+
+    The standard types come from rosbags' LATEST store, whose modules take ~0.1 s of CPU to import: a log that
+    embeds its definitions (MCAP, a ROS 2 bag from Iron on) never needs them, and a ROS 1 bag needs only ``time``
+    and ``duration``, which are parsed here instead.
+    """
+
+    def __init__(self, *, ros1: bool) -> None:
+        super().__init__()
+        self.ros1 = ros1
+        if ros1:
+            for name, text in _BUILTIN_MSGS.items():
+                self.update(get_types_from_msg(text, name))
+
+    def _standard(self, key: str) -> Any:
+        return None if self.ros1 else _latest().get(key)
+
+    def __missing__(self, key: str) -> Any:
+        found = self._standard(key)
+        if found is None:
+            raise KeyError(key)
+        return found
+
+    def __contains__(self, key: object) -> bool:
+        return dict.__contains__(self, key) or (isinstance(key, str) and self._standard(key) is not None)
+
+    def get(self, key: str, default: Any = None) -> Any:  # type: ignore[override]
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
+
 class TypeRegistry:
     """The types of one file: embedded definitions first, then the user's (``message_definitions`` in the vehicle
     config, :mod:`pipeline.io.msgdefs`), then (ROS 2 only) the standard ROS 2 types.
@@ -56,10 +96,8 @@ class TypeRegistry:
 
     def __init__(self, *, ros1: bool, user: UserTypes | None = None) -> None:
         self.ros1 = ros1
-        if ros1:  # ROS 1 bags embed every definition; only the builtin time and duration come from rosbags
-            self.defs: dict[str, Any] = {k: v for k, v in _latest().items() if k.startswith("builtin_interfaces/")}
-        else:
-            self.defs = dict(_latest())
+        # ROS 1 bags embed every definition; only the builtin time and duration come from rosbags
+        self.defs: dict[str, Any] = _Definitions(ros1=ros1)
         self.user = user if user is not None else UserTypes()
         self.defs.update(self.user.types)
         self.errors: dict[str, str] = {}
