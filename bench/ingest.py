@@ -278,10 +278,6 @@ def _warm_imports() -> None:
                  "pipeline.io.mcap_reader", "pipeline.io.mcap_index", "pipeline.io.rosbag1",
                  "pipeline.io.rosbag1_index", "pipeline.io.rosbag2", "pipeline.io.text"):
         importlib.import_module(name)
-    try:
-        importlib.import_module("adbc_driver_sqlite.dbapi")  # the sqlite3 storage's Arrow fetch path
-    except ImportError:
-        pass
     from pipeline.io.fields import _latest
 
     _latest()  # the standard ROS 2 definitions, parsed once per process

@@ -100,9 +100,7 @@ WRITERS: dict[str, Any] = {
     "mcap": lambda d, m: io.write_mcap(d / "trial01.mcap", m),
     "mcap-uncompressed": lambda d, m: io.write_mcap(d / "trial01.mcap", m, compression="none"),
     "ros2-mcap": lambda d, m: io.write_rosbag2(d / "trial01", m, storage="mcap"),
-    "ros2-sqlite3": pytest.param(lambda d, m: io.write_rosbag2(d / "trial01", m, storage="sqlite3"),
-                                 marks=pytest.mark.xfail(strict=True, reason="the sqlite3 storage fetches through "
-                                                         "ADBC, which imports pyarrow.dataset and pandas")),
+    "ros2-sqlite3": lambda d, m: io.write_rosbag2(d / "trial01", m, storage="sqlite3"),
     "ros1": lambda d, m: io.write_rosbag1(d / "trial01.bag", m),
 }
 

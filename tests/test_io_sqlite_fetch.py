@@ -1,9 +1,11 @@
-"""ROS 2 sqlite3 bags: the Arrow (ADBC) and sqlite3-module fetch paths agree bit for bit; counts that metadata.yaml
-states are checked against the rows read, and a wrong one is replaced by the storage's own count."""
+"""ROS 2 sqlite3 bags: the two fetches (batches of rows aggregated by sqlite, and rows fetched one by one through the
+sqlite3 module) agree bit for bit, in batches of any size; a damaged row is an IngestError in both; counts that
+metadata.yaml states are checked against the rows read, and a wrong one is replaced by the storage's own count."""
 
 from __future__ import annotations
 
 import logging
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +13,7 @@ import pytest
 import yaml
 from io_helpers import REQUESTS, expected, trial, write_rosbag2
 
+from pipeline.errors import IngestError
 from pipeline.io import open_log
 from pipeline.io.rosbag2 import Rosbag2Reader
 
@@ -20,31 +23,88 @@ def msgs() -> list:
     return trial(n=40, seed=11)
 
 
-def _read(path: Path, *, adbc: bool, fast: bool) -> dict:
+def _read(path: Path, *, rows: bool, fast: bool) -> dict:
     with open_log(path) as reader:
         assert isinstance(reader, Rosbag2Reader)
-        reader._no_adbc = not adbc  # noqa: SLF001
+        reader._row_fetch = rows  # noqa: SLF001
         reader.allow_fast = fast
-        topics = reader.read(REQUESTS).topics
-        assert reader._no_adbc is not adbc  # noqa: SLF001 - the Arrow path did not fall back
-        return topics
+        return reader.read(REQUESTS).topics
+
+
+def _assert_same(a: dict, b: dict) -> None:
+    assert set(a) == set(b)
+    for topic, x in a.items():
+        y = b[topic]
+        assert x.read == y.read == x.expected
+        assert x.log_ns.tobytes() == y.log_ns.tobytes() and x.header_ns.tobytes() == y.header_ns.tobytes()
+        assert x.columns.keys() == y.columns.keys()
+        for field in x.columns:
+            assert x.columns[field].tobytes() == y.columns[field].tobytes(), (topic, field)
 
 
 @pytest.mark.parametrize("fast", [True, False], ids=["fast", "per-message"])
-def test_arrow_and_sqlite3_module_give_identical_columns(tmp_path: Path, msgs: list, fast: bool) -> None:
-    pytest.importorskip("adbc_driver_sqlite")
+def test_aggregated_and_row_fetches_give_identical_columns(tmp_path: Path, msgs: list, fast: bool) -> None:
     path = write_rosbag2(tmp_path / "bag", msgs)
-    arrow, plain = _read(path, adbc=True, fast=fast), _read(path, adbc=False, fast=fast)
+    aggregated, plain = _read(path, rows=False, fast=fast), _read(path, rows=True, fast=fast)
     want = expected(msgs)
-    assert set(arrow) == set(plain) == set(REQUESTS)
-    for topic, a in arrow.items():
-        b = plain[topic]
-        assert a.read == b.read == len(want[topic]["log_ns"])
-        assert a.log_ns.tobytes() == b.log_ns.tobytes() and a.header_ns.tobytes() == b.header_ns.tobytes()
-        np.testing.assert_array_equal(a.log_ns, want[topic]["log_ns"])
-        assert a.columns.keys() == b.columns.keys()
-        for field in a.columns:
-            assert a.columns[field].tobytes() == b.columns[field].tobytes(), (topic, field)
+    assert set(aggregated) == set(REQUESTS)
+    for topic, cols in want.items():
+        np.testing.assert_array_equal(aggregated[topic].log_ns, cols["log_ns"])
+    _assert_same(aggregated, plain)
+
+
+@pytest.mark.parametrize("first,most", [(1, 1), (7, 16), (5, 64)])
+def test_aggregated_batches_of_any_size_give_the_same_columns(tmp_path: Path, msgs: list, first: int, most: int,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """Batches follow each other by id (``id > last``); each is sized from the one before (a few rows here)."""
+    import pipeline.io.rosbag2 as rosbag2
+
+    path = write_rosbag2(tmp_path / "bag", msgs)
+    plain = _read(path, rows=True, fast=True)
+    monkeypatch.setattr(rosbag2, "FIRST_BATCH_ROWS", first)
+    monkeypatch.setattr(rosbag2, "BATCH_ROWS", most)
+    monkeypatch.setattr(rosbag2, "BATCH_BYTES", 2000)
+    _assert_same(_read(path, rows=False, fast=True), plain)
+
+
+def test_empty_payloads_and_other_topics(msgs: list) -> None:
+    """A zero-length payload adds nothing to the joined blob but keeps its row; rows of unwanted topics stay out."""
+    from pipeline.io.rosbag2 import _concatenated_rows, _fetched_rows
+
+    con = sqlite3.connect(":memory:")
+    con.execute("CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, "
+                "timestamp INTEGER NOT NULL, data BLOB NOT NULL)")
+    rows = [(i, 1 + i % 3, 1_700_000_000_000_000_000 + i, bytes(range(i % 5))) for i in range(1, 40)]
+    con.executemany("INSERT INTO messages VALUES (?, ?, ?, ?)", rows)
+    wanted = {1: "/a", 2: "/b"}
+    kept = [r for r in rows if r[1] in wanted]
+
+    def flat(batches: object) -> list[tuple[int, int, bytes]]:
+        out = []
+        for tid, stamps, buf, starts, lengths in batches:  # type: ignore[attr-defined]
+            out += [(int(t), int(s), buf[a:a + n].tobytes()) for t, s, a, n in zip(tid, stamps, starts, lengths,
+                                                                                     strict=True)]
+        return out
+
+    assert flat(_concatenated_rows(con, wanted)) == [(t, s, d) for _, t, s, d in kept]
+    assert flat(_fetched_rows(con, wanted, lambda d: d)) == [(t, s, d) for _, t, s, d in kept]
+
+
+@pytest.mark.parametrize(("column", "value", "rows"), [
+    ("timestamp", "'soon'", False), ("timestamp", "'soon'", True), ("timestamp", "1.5", False),
+    ("data", "'text'", False), ("data", "'text'", True), ("data", "42", False), ("data", "42", True)])
+def test_a_damaged_row_is_an_ingest_error(tmp_path: Path, msgs: list, column: str, value: str, rows: bool) -> None:
+    """(Fetched one by one, a float stamp is truncated by numpy unseen; aggregated, every type is checked.)"""
+    path = write_rosbag2(tmp_path / "bag", msgs)
+    db = next(path.glob("*.db3"))
+    with sqlite3.connect(db) as con:
+        con.execute(f"UPDATE messages SET {column} = {value} WHERE id = 5")
+    con.close()
+    with open_log(path) as reader:
+        reader._row_fetch = rows  # noqa: SLF001
+        with pytest.raises(IngestError, match="damaged row in table 'messages'") as info:
+            reader.read(REQUESTS)
+    assert info.value.file == str(db)
 
 
 def test_listed_counts_are_checked_by_the_read(tmp_path: Path, msgs: list, caplog: pytest.LogCaptureFixture) -> None:
@@ -82,75 +142,16 @@ def test_catalog_fills_time_ranges_from_the_read(tmp_path: Path, msgs: list) -> 
         assert (infos[topic].first_ns, infos[topic].last_ns) == (cols["log_ns"].min(), cols["log_ns"].max())
 
 
-def test_arrow_failure_midway_rereads_through_the_sqlite3_module(tmp_path: Path, msgs: list,
-                                                                 monkeypatch: pytest.MonkeyPatch,
-                                                                 caplog: pytest.LogCaptureFixture) -> None:
-    """ADBC giving up after some batches were decoded (a column whose type changes between record batches):
-    the read starts again through the sqlite3 module, and nothing is counted twice."""
-    pytest.importorskip("adbc_driver_sqlite")
-    import pipeline.io.rosbag2 as rosbag2
-
-    path = write_rosbag2(tmp_path / "bag", msgs)
-    plain = _read(path, adbc=False, fast=True)
-    monkeypatch.setattr(rosbag2, "BATCH_ROWS", 16)
-    real = rosbag2._arrow_columns  # noqa: SLF001
-    calls = {"n": 0}
-
-    def flaky(rb: object) -> tuple:
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise rosbag2._ArrowUnfit("payload column of type string")  # noqa: SLF001
-        return real(rb)
-
-    monkeypatch.setattr(rosbag2, "_arrow_columns", flaky)
-    with open_log(path) as reader, caplog.at_level(logging.INFO):
-        topics = reader.read(REQUESTS).topics
-        assert reader._no_adbc  # noqa: SLF001
-    assert calls["n"] == 2
-    assert "reading rows through the sqlite3 module (payload column of type string)" in caplog.text
-    for topic, a in topics.items():
-        b = plain[topic]
-        assert a.read == b.read == a.expected
-        assert a.log_ns.tobytes() == b.log_ns.tobytes()
-        for field in a.columns:
-            assert a.columns[field].tobytes() == b.columns[field].tobytes(), (topic, field)
-
-
-def test_unreadable_by_adbc_from_the_start_falls_back_without_restart(tmp_path: Path, msgs: list,
-                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    pytest.importorskip("adbc_driver_sqlite")
-    import adbc_driver_manager
-    import adbc_driver_sqlite.dbapi as adbc
-
-    path = write_rosbag2(tmp_path / "bag", msgs)
-    plain = _read(path, adbc=False, fast=True)
-
-    def refuse(*_a: object, **_k: object) -> None:
-        raise adbc.OperationalError("cannot open", status_code=adbc_driver_manager.AdbcStatusCode.IO)
-
-    monkeypatch.setattr(adbc, "connect", refuse)
-    with open_log(path) as reader:
-        topics = reader.read(REQUESTS).topics
-        assert reader._no_adbc  # noqa: SLF001
-    for topic, a in topics.items():
-        assert a.read == plain[topic].read
-        assert a.columns.keys() == plain[topic].columns.keys()
-        for field in a.columns:
-            assert a.columns[field].tobytes() == plain[topic].columns[field].tobytes(), (topic, field)
-
-
-@pytest.mark.parametrize("adbc", [True, False], ids=["arrow", "sqlite3-module"])
+@pytest.mark.parametrize("rows", [False, True], ids=["aggregated", "rows"])
 def test_directory_names_with_uri_characters_open_the_right_file_read_only(tmp_path: Path, msgs: list,
-                                                                         adbc: bool) -> None:
+                                                                         rows: bool) -> None:
     """'?', '#' and '%' in a bag's path are percent-encoded in the sqlite URI: unquoted they would end the file
     name early and open, or create, another file beside the raw log."""
-    if adbc:
-        pytest.importorskip("adbc_driver_sqlite")
     write_rosbag2(tmp_path / "plain" / "bag", msgs)  # (rosbags' own writer does not quote such paths)
     parent = (tmp_path / "plain").rename(tmp_path / "sea trial #3?50%")
     path = parent / "bag"
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
-    topics = _read(path, adbc=adbc, fast=True)
+    topics = _read(path, rows=rows, fast=True)
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
     want = expected(msgs)
     for topic, cols in want.items():
