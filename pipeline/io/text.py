@@ -31,13 +31,15 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
 from types import TracebackType
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
-import pandas as pd
 
 from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
+
+if TYPE_CHECKING:  # pandas parses the text where a file is read: `auvid inspect` of a bag imports this module too
+    import pandas as pd
 from pipeline.io.base import ReadResult, SalvageInfo, TopicData, TopicInfo
 from pipeline.units import TIME_UNITS_NS
 
@@ -311,6 +313,8 @@ class TextLogReader:
 
     def _header(self, name: str) -> tuple[list[str], list[str]]:
         """(raw names as pandas sees them, stripped names)."""
+        import pandas as pd
+
         path = self._file(name)
         kwargs = self._read_kwargs(name)
         try:
@@ -324,6 +328,8 @@ class TextLogReader:
         return raw, [c.strip() for c in raw]
 
     def _read_file(self, name: str, columns: list[str]) -> CsvTopicData:
+        import pandas as pd
+
         path = self._file(name)
         opts = self._opts(name)
         raw, stripped = self._header(name)
@@ -405,6 +411,8 @@ def time_to_ns(raw: pd.Series, opts: CsvOptions, *, path: Path | str, topic: str
     A stamp beyond int64 nanoseconds (past the year 2262, e.g. ``99999999999`` s or ``1e300``) is an error
     naming its lines, never a wrapped value; negative absolute stamps (before 1970) are logged.
     """
+    import pandas as pd
+
     unit_ns = TIME_UNITS_NS[opts.time_unit]
     digits = len(str(unit_ns)) - 1
     text = raw.astype("string").str.strip().fillna("")
