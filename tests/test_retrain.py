@@ -32,6 +32,14 @@ def _snapshot(root: Path) -> dict[str, str]:
             if p.is_file() and not p.is_symlink() and p.name != LOCK_FILE}
 
 
+def _home_with_champion(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Path, Path]:
+    """A retraining home whose first run promoted v0001 (holdout score 0.5)."""
+    FakeDag(score=0.5).install(monkeypatch)
+    root, inbox = _home(tmp_path)
+    retrain(_opts(root, inbox))
+    return root, inbox
+
+
 def test_first_run_promotes_second_does_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     dag = FakeDag(score=0.5).install(monkeypatch)
     root, inbox = _home(tmp_path)
@@ -84,9 +92,7 @@ def test_new_log_worse_is_rejected_better_is_promoted(tmp_path: Path, monkeypatc
 
 def test_a_candidate_that_only_ties_the_champion_is_rejected(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Promotion needs a strictly better holdout score: a tie keeps the current model (no churn on equal data)."""
-    FakeDag(score=0.5).install(monkeypatch)
-    root, inbox = _home(tmp_path)
-    retrain(_opts(root, inbox))
+    root, inbox = _home_with_champion(tmp_path, monkeypatch)
     FakeDag(score=0.5).install(monkeypatch)
     (inbox / "trial03.mcap").write_text("log trial03")
     tie = retrain(_opts(root, inbox))
@@ -97,9 +103,7 @@ def test_a_candidate_that_only_ties_the_champion_is_rejected(tmp_path: Path, mon
 @pytest.mark.parametrize("stage", ["ingest", "derive", "train", "report"])
 def test_crash_leaves_registry_and_current_model_intact(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                         stage: str) -> None:
-    FakeDag(score=0.5).install(monkeypatch)
-    root, inbox = _home(tmp_path)
-    retrain(_opts(root, inbox))
+    root, inbox = _home_with_champion(tmp_path, monkeypatch)
     before = _snapshot(root)
 
     FakeDag(score=0.9, fail_at=stage).install(monkeypatch)
@@ -117,9 +121,7 @@ def test_crash_leaves_registry_and_current_model_intact(tmp_path: Path, monkeypa
 
 
 def test_crash_at_the_commit_point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    FakeDag(score=0.5).install(monkeypatch)
-    root, inbox = _home(tmp_path)
-    retrain(_opts(root, inbox))
+    root, inbox = _home_with_champion(tmp_path, monkeypatch)
     FakeDag(score=0.9).install(monkeypatch)
     (inbox / "trial03.mcap").write_text("log trial03")
 
