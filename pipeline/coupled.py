@@ -269,12 +269,12 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         hyper[model], trace[model] = {}, {}
         for k, out in enumerate(params.outputs):
             kw = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
-            k_search += 1
-            kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
             if params.search == "fast":  # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs above
                 kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance)
                 for simpler in SVR_MODELS[:-1]:
                     kw["warm_start"] = search(simpler, X, resid[:, k], params.search, **kw).best_params
+            k_search += 1  # progress: the residual's WDSE search (its warm-start chain reports nothing)
+            kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
             res = search("wdse_svr", X, resid[:, k], params.search, **kw)
             log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
