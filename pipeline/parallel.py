@@ -18,17 +18,19 @@ docs/benchmarks.md, "Per-trial fan-out"). A Dask scheduler the user asked for is
 Library code does not care which: it calls ``joblib.Parallel(n_jobs=n_jobs())`` (or scikit-learn's
 ``n_jobs=n_jobs()``) inside whatever backend is active. ``parallel_backend(scheduler)`` is the context
 manager the CLI enters; ``backend()`` is the same with the scheduler taken from the environment.
+
+joblib itself (~0.08 s of CPU to import) is imported where a pool starts or a Dask backend is entered: a run
+that fans nothing out (``auvid ingest`` of one log) never pays for it (``tests/test_import_budget.py``).
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
-
-import joblib
 
 from pipeline.errors import ConfigError
 
@@ -180,8 +182,13 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
         previous = dict(_active)
         _active.update(scheduler=None, client=None, local=None)
         try:
-            with joblib.parallel_config(backend="loky"):
+            if "joblib" not in sys.modules:  # nothing has configured joblib: its default backend is loky
                 yield "loky"
+            else:
+                import joblib
+
+                with joblib.parallel_config(backend="loky"):
+                    yield "loky"
         finally:
             _active.update(previous)
         return
@@ -193,6 +200,8 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
     previous = dict(_active)
     _active.update(scheduler=address, client=client, local=None)
     log.info("joblib work goes to the Dask cluster at %s", address)
+    import joblib
+
     try:
         with joblib.parallel_config(backend="dask"):
             yield "dask"
@@ -260,6 +269,8 @@ def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, w
     if _active["scheduler"] is None:
         jobs = min(jobs, total)
     ordered: list[Any] = [None] * total
+    import joblib
+
     tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
     for done, (index, result) in enumerate(joblib.Parallel(n_jobs=jobs, return_as="generator_unordered")(tasks),
                                            start=1):

@@ -31,6 +31,8 @@ CONFIG_AND_TABLES = ("joblib", "pydantic", "pyarrow", "yaml", "numpy", "mcap", "
 ADBC = ("adbc_driver_manager", "adbc_driver_sqlite", "pyarrow.dataset")
 #: rosbags' standard ROS 2 types (~0.1 s of CPU): needed only for a type that the log does not define.
 STANDARD_TYPES = ("rosbags.typesys.stores.ros2_jazzy",)
+#: joblib (~0.08 s of CPU): imported where a pool starts; one log per run starts none.
+POOL = ("joblib",)
 
 PROBE = """
 import json, sys
@@ -116,7 +118,7 @@ def test_auvid_ingest_loads_no_modelling_stack(tmp_path: Path, write: Callable[[
     code = ("from pipeline.cli import main\n"
             f"code = main(['ingest', '-q', '--root', {str(run)!r}, '--vehicle', {str(vehicle)!r}, {str(log)!r}])\n"
             "assert code == 0, code")
-    found = loaded(code, MODELLING + ADBC + STANDARD_TYPES, tmp_path)
+    found = loaded(code, MODELLING + ADBC + STANDARD_TYPES + POOL, tmp_path)
     assert (run / "data" / "signals" / "trial01" / "dvl.parquet").exists()
     assert found == [], f"auvid ingest of {log.name} loaded {found}"
 
