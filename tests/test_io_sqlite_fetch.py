@@ -1,6 +1,8 @@
-"""ROS 2 sqlite3 bags: the two fetches (batches of rows aggregated by sqlite, and rows fetched one by one through the
-sqlite3 module) agree bit for bit, in batches of any size; a damaged row is an IngestError in both; counts that
-metadata.yaml states are checked against the rows read, and a wrong one is replaced by the storage's own count."""
+"""ROS 2 sqlite3 bags: the three fetches (the messages table's pages parsed by ``sqlite_btree``, batches of rows
+aggregated by sqlite, and rows fetched one by one through the sqlite3 module) agree bit for bit, in batches of any
+size; what the page parser does not take, sqlite reads from the next row on; a damaged row is an IngestError in
+every fetch; counts that metadata.yaml states are checked against the rows read, and a wrong one is replaced by
+the storage's own count."""
 
 from __future__ import annotations
 
@@ -23,10 +25,11 @@ def msgs() -> list:
     return trial(n=40, seed=11)
 
 
-def _read(path: Path, *, rows: bool, fast: bool) -> dict:
+def _read(path: Path, *, rows: bool, fast: bool, pages: bool = False) -> dict:
     with open_log(path) as reader:
         assert isinstance(reader, Rosbag2Reader)
         reader._row_fetch = rows  # noqa: SLF001
+        reader._page_fetch = pages  # noqa: SLF001
         reader.allow_fast = fast
         return reader.read(REQUESTS).topics
 
@@ -43,14 +46,16 @@ def _assert_same(a: dict, b: dict) -> None:
 
 
 @pytest.mark.parametrize("fast", [True, False], ids=["fast", "per-message"])
-def test_aggregated_and_row_fetches_give_identical_columns(tmp_path: Path, msgs: list, fast: bool) -> None:
+def test_page_aggregated_and_row_fetches_give_identical_columns(tmp_path: Path, msgs: list, fast: bool) -> None:
     path = write_rosbag2(tmp_path / "bag", msgs)
     aggregated, plain = _read(path, rows=False, fast=fast), _read(path, rows=True, fast=fast)
+    paged = _read(path, rows=False, fast=fast, pages=True)
     want = expected(msgs)
     assert set(aggregated) == set(REQUESTS)
     for topic, cols in want.items():
         np.testing.assert_array_equal(aggregated[topic].log_ns, cols["log_ns"])
     _assert_same(aggregated, plain)
+    _assert_same(paged, plain)
 
 
 @pytest.mark.parametrize("first,most", [(1, 1), (7, 16), (5, 64)])
@@ -93,8 +98,11 @@ def test_empty_payloads_and_other_topics(msgs: list) -> None:
 @pytest.mark.parametrize(("column", "value", "rows"), [
     ("timestamp", "'soon'", False), ("timestamp", "'soon'", True), ("timestamp", "1.5", False),
     ("data", "'text'", False), ("data", "'text'", True), ("data", "42", False), ("data", "42", True)])
-def test_a_damaged_row_is_an_ingest_error(tmp_path: Path, msgs: list, column: str, value: str, rows: bool) -> None:
-    """(Fetched one by one, a float stamp is truncated by numpy unseen; aggregated, every type is checked.)"""
+@pytest.mark.parametrize("pages", [True, False], ids=["pages", "sqlite"])
+def test_a_damaged_row_is_an_ingest_error(tmp_path: Path, msgs: list, column: str, value: str, rows: bool,
+                                          pages: bool) -> None:
+    """(Fetched one by one, a float stamp is truncated by numpy unseen; aggregated, every type is checked; the page
+    parser leaves such a row to sqlite's aggregates.)"""
     path = write_rosbag2(tmp_path / "bag", msgs)
     db = next(path.glob("*.db3"))
     with sqlite3.connect(db) as con:
@@ -102,6 +110,7 @@ def test_a_damaged_row_is_an_ingest_error(tmp_path: Path, msgs: list, column: st
     con.close()
     with open_log(path) as reader:
         reader._row_fetch = rows  # noqa: SLF001
+        reader._page_fetch = pages  # noqa: SLF001
         with pytest.raises(IngestError, match="damaged row in table 'messages'") as info:
             reader.read(REQUESTS)
     assert info.value.file == str(db)
@@ -142,16 +151,17 @@ def test_catalog_fills_time_ranges_from_the_read(tmp_path: Path, msgs: list) -> 
         assert (infos[topic].first_ns, infos[topic].last_ns) == (cols["log_ns"].min(), cols["log_ns"].max())
 
 
-@pytest.mark.parametrize("rows", [False, True], ids=["aggregated", "rows"])
+@pytest.mark.parametrize(("rows", "pages"), [(False, True), (False, False), (True, False)],
+                         ids=["pages", "aggregated", "rows"])
 def test_directory_names_with_uri_characters_open_the_right_file_read_only(tmp_path: Path, msgs: list,
-                                                                         rows: bool) -> None:
+                                                                         rows: bool, pages: bool) -> None:
     """'?', '#' and '%' in a bag's path are percent-encoded in the sqlite URI: unquoted they would end the file
     name early and open, or create, another file beside the raw log."""
     write_rosbag2(tmp_path / "plain" / "bag", msgs)  # (rosbags' own writer does not quote such paths)
     parent = (tmp_path / "plain").rename(tmp_path / "sea trial #3?50%")
     path = parent / "bag"
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
-    topics = _read(path, rows=rows, fast=True)
+    topics = _read(path, rows=rows, fast=True, pages=pages)
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
     want = expected(msgs)
     for topic, cols in want.items():
