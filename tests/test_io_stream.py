@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import mmap
+import sys
 import threading
+from pathlib import Path
 
 import pytest
+from io_helpers import REQUESTS, expected, trial, write_mcap, write_rosbag1_unindexed
 
-from pipeline.io.base import stream_walk
+from pipeline.io import base, mcap_reader, open_log, rosbag1
+from pipeline.io.base import release_behind, stream_walk
 
 
 def _walker(n: int, progress: list[int], fail_at: int | None = None):
@@ -48,3 +53,63 @@ def test_a_reader_that_stops_early_stops_the_walk() -> None:
     batches.close()
     assert not any(t.name == "record-walk" for t in threading.enumerate())
     assert len(progress) < 10
+
+
+def _mapped_kib(path: Path) -> int:
+    """Resident KiB of this process's mappings of ``path`` (/proc/self/smaps)."""
+    total, mine = 0, False
+    for line in Path("/proc/self/smaps").read_text().splitlines():
+        if line[:1].isdigit() or line[:1] in "abcdef" and "-" in line.split()[0]:
+            mine = line.rstrip().endswith(str(path))
+        elif mine and line.startswith("Rss:"):
+            total += int(line.split()[1])
+    return total
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/smaps")
+def test_release_behind_gives_the_walked_pages_back(tmp_path: Path) -> None:
+    path = tmp_path / "log.bin"
+    path.write_bytes(bytes(range(256)) * (8 << 12))  # 8 MiB
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        assert sum(mm[i] for i in range(0, len(mm), mmap.PAGESIZE)) >= 0  # every page touched
+        assert _mapped_kib(path) >= 8000
+        done = release_behind(mm, 0, len(mm) - 5000)
+        assert done == len(mm) - mmap.PAGESIZE * 2 and _mapped_kib(path) <= 8
+        assert release_behind(mm, done, done + 1) == done  # less than a page further: nothing to give back
+    assert release_behind(b"not a mapping", 0, 1 << 20) == 0
+
+
+@pytest.mark.parametrize("kind", ["mcap", "ros1"])
+def test_unindexed_walks_give_back_the_file_behind_them(tmp_path: Path, kind: str,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """An unindexed MCAP and a ROS 1 bag with no index are read by their record walks: every message is kept,
+    and the pages behind each walk are given back as it goes (every 64 KiB here), up to the last stretch."""
+    msgs = trial(n=400)
+    if kind == "mcap":
+        path = write_mcap(tmp_path / "t.mcap", msgs, compression="none", chunked=False, summary=False,
+                          indexes=False)
+    else:
+        path = write_rosbag1_unindexed(tmp_path / "t.bag", msgs)
+    module = mcap_reader if kind == "mcap" else rosbag1
+    given: list[tuple[int, int]] = []
+
+    def spy(buf: object, done: int, pos: int) -> int:
+        new = release_behind(buf, done, pos)  # type: ignore[arg-type]
+        if isinstance(buf, mmap.mmap):
+            given.append((done, new))
+        return new
+
+    monkeypatch.setattr(module, "RELEASE_BYTES", 64 << 10)
+    monkeypatch.setattr(module, "release_behind", spy)
+    with open_log(path) as reader:
+        topics = reader.read(REQUESTS).topics
+    want = expected(msgs)
+    assert {t: d.read for t, d in topics.items()} == {t: len(c["log_ns"]) for t, c in want.items()}
+    size = path.stat().st_size
+    walks = [i for i, (done, _) in enumerate(given) if done == 0]
+    assert len(walks) >= 2  # the catalog's walk and the read's
+    for start, stop in zip(walks, [*walks[1:], len(given)], strict=True):
+        steps = given[start:stop]
+        assert all(a == b_prev for (a, _), (_, b_prev) in zip(steps[1:], steps, strict=False))  # no gap
+        assert steps[-1][1] >= size - (64 << 10) - 2 * mmap.PAGESIZE
+    assert base.RELEASE_BYTES == 16 << 20

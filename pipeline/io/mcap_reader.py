@@ -22,7 +22,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, RawReader, Restart, SalvageInfo, TopicInfo, stream_walk
+from pipeline.io.base import (
+    RELEASE_BYTES,
+    Batch,
+    RawReader,
+    Restart,
+    SalvageInfo,
+    TopicInfo,
+    release_behind,
+    stream_walk,
+)
 from pipeline.io.dedup import Seen, crc
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 
@@ -150,7 +159,10 @@ def _walk_records(
     on_message: Callable[[int, int, bytes | None], None] | None, wanted: set[int] | None, *, tolerant: bool,
     origin: int, in_chunk: bool = False,
 ) -> None:
+    done = 0  # the file's pages before this are given back (release_behind)
     while pos < end:
+        if pos - done >= RELEASE_BYTES and not in_chunk:
+            done = release_behind(buf, done, pos)
         if pos + 9 > end:
             raise Damaged("record header cut short", origin + pos)
         op, length = _REC.unpack_from(buf, pos)

@@ -21,7 +21,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import Batch, RawReader, Restart, SalvageInfo, TopicInfo, stream_walk
+from pipeline.io.base import (
+    RELEASE_BYTES,
+    Batch,
+    RawReader,
+    Restart,
+    SalvageInfo,
+    TopicInfo,
+    release_behind,
+    stream_walk,
+)
 from pipeline.io.dedup import Seen, crc
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
 from pipeline.io.mcap_reader import Damaged
@@ -104,9 +113,12 @@ def walk_records(
     wanted: set[int] | None, *, tolerant: bool, origin: int | None = None, stop_at: int = 0,
 ) -> None:
     """Walk records from ``pos``; ``origin`` is the file offset of a chunk's data (None: top level)."""
+    done = 0  # the file's pages before this are given back (release_behind)
     while pos < end:
         if stop_at and origin is None and pos >= stop_at:
             return
+        if pos - done >= RELEASE_BYTES and origin is None:
+            done = release_behind(buf, done, pos)
         at = pos if origin is None else origin
         if pos + 4 > end:
             raise Damaged("record header length cut short", at)
