@@ -4,6 +4,7 @@
     nice python bench/ingest.py --minutes 60 --logs /tmp/trial60 --repeat 3 --json /tmp/b60.json   # issue 15
     python bench/ingest.py --minutes 60 --logs /tmp/trial60 --pin core0 --skip-inproc
     python bench/ingest.py --minutes 240 --logs /tmp/trial240 --repeat 1 --skip-rosbags --formats ros2-mcap
+    python bench/ingest.py --minutes 60 --logs /tmp/trial60 --formats mcap-unindexed ros1-unindexed  # streamed
 
 The trial: IMU 120 Hz (sensor_msgs/Imu), gyro 100 Hz (geometry_msgs/Vector3Stamped), pressure 10 Hz
 (sensor_msgs/FluidPressure), DVL 4 Hz (a custom type, defined only in the file, with a 10 s drop-out every
@@ -51,6 +52,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 FORMATS = ("ros2-mcap", "mcap-zstd", "ros2-sqlite3", "ros1")
+#: Derived from the generated files: the zstd MCAP without its message indexes and summary, and the ROS 1 bag
+#: with its index cut off (a recorder killed before closing). auvid streams them by its record walk; rosbags
+#: reads neither, so only auvid and cat are measured on them.
+UNINDEXED = {"mcap-unindexed": "mcap-zstd", "ros1-unindexed": "ros1"}
 DVL_MSG = """std_msgs/Header header
 geometry_msgs/Vector3 velocity
 float32 altitude
@@ -360,6 +365,54 @@ def logs_in(outdir: Path, minutes: float, formats: list[str]) -> dict[str, dict[
     return {f: logs[f] for f in formats}
 
 
+def unindexed_logs(outdir: Path, logs: dict[str, dict[str, Path]], formats: list[str]) -> dict[str, dict[str, Path]]:
+    """The unindexed copies asked for (:data:`UNINDEXED`), written under ``outdir/unindexed`` once."""
+    out = {}
+    for fmt in formats:
+        if fmt not in UNINDEXED:
+            continue
+        src = logs[UNINDEXED[fmt]]["auvid"]
+        dst = outdir / "unindexed" / ("mcap_unindexed.mcap" if fmt == "mcap-unindexed" else "trial_unindexed.bag")
+        if not dst.exists():
+            dst.parent.mkdir(exist_ok=True)
+            tmp = dst.with_suffix(".partial")
+            (strip_mcap_index if fmt == "mcap-unindexed" else strip_bag_index)(src, tmp)
+            tmp.replace(dst)
+        out[fmt] = {"auvid": dst}
+    return out
+
+
+def strip_mcap_index(src: Path, dst: Path) -> None:
+    """``src`` without message indexes, summary and summary offsets: the data section's records up to DataEnd (its
+    CRC zeroed), then a footer that points at no summary."""
+    import struct
+
+    data = src.read_bytes()
+    magic = data[:8]
+    out, pos = [magic], 8
+    while True:
+        op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
+        if op == 0x0F:  # DataEnd: the data section ends here
+            break
+        if op != 0x07:  # message indexes go
+            out.append(data[pos:pos + 9 + length])
+        pos += 9 + length
+    out.append(struct.pack("<BQI", 0x0F, 4, 0))
+    out.append(struct.pack("<BQQQI", 0x02, 20, 0, 0, 0))
+    out.append(magic)
+    dst.write_bytes(b"".join(out))
+
+
+def strip_bag_index(src: Path, dst: Path) -> None:
+    """``src`` cut at its index section, with index_pos 0 in the bag header (as a recorder killed mid-trial
+    leaves it)."""
+    data = bytearray(src.read_bytes())
+    at = data.index(b"index_pos=") + len(b"index_pos=")
+    index_pos = int.from_bytes(data[at:at + 8], "little")
+    data[at:at + 8] = bytes(8)
+    dst.write_bytes(bytes(data[:index_pos]))
+
+
 def _loadavg() -> str:
     with open("/proc/loadavg") as fh:
         return " ".join(fh.read().split()[:3])
@@ -518,7 +571,7 @@ def inproc_row(fmt: str, pin: bool, b: dict[str, dict[str, Any]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0)
-    parser.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
+    parser.add_argument("--formats", nargs="+", choices=[*FORMATS, *UNINDEXED], default=list(FORMATS))
     parser.add_argument("--logs", type=Path, default=None, help="generate into / reuse the logs of this directory")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each measurement (the tables show the min)")
     parser.add_argument("--pin", choices=("both", "any", "core0"), default="both",
@@ -534,7 +587,10 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(measure(args.measure, args.path, args.ros1)))
         return 0
     outdir = args.logs or Path(tempfile.mkdtemp(prefix="auvid-bench-"))
-    logs = logs_in(outdir, args.minutes, args.formats)
+    base = list(dict.fromkeys(UNINDEXED.get(f, f) for f in args.formats))
+    logs = logs_in(outdir, args.minutes, base)
+    logs = {**logs, **unindexed_logs(outdir, logs, args.formats)}
+    logs = {f: logs[f] for f in args.formats}
     vehicle = vehicle_yaml(outdir)
     pins = {"both": [False, True], "any": [False], "core0": [True]}[args.pin]
     methods = [m for m in METHODS if not (args.skip_rosbags and m in ("raw", "deser"))
@@ -543,11 +599,12 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.minutes:g} min, min of {args.repeat}, {' '.join(auvid_command())}", flush=True)
     rows, process_lines, inproc_lines = [], [], []
     for fmt, paths in logs.items():
-        ros1 = fmt == "ros1"
-        runs: dict[str, list[dict[str, Any]]] = {f"{m}/{int(p)}": [] for m in methods for p in pins}
+        ros1 = fmt.startswith("ros1")
+        todo = [m for m in methods if "rosbags" in paths or m not in ("raw", "deser")]
+        runs: dict[str, list[dict[str, Any]]] = {f"{m}/{int(p)}": [] for m in todo for p in pins}
         for _ in range(args.repeat):  # interleaved: every method and pinning once per round
             for pin in pins:
-                for method in methods:
+                for method in todo:
                     if method == "auvid":
                         got = process_auvid(paths["auvid"], vehicle, pin)
                     elif method == "cat":
@@ -559,7 +616,7 @@ def main(argv: list[str] | None = None) -> int:
         size = _size_mb(paths["auvid"])
         load = _loadavg()
         for pin in pins:
-            best = {m: _best(runs[f"{m}/{int(pin)}"]) for m in methods}
+            best = {m: _best(runs[f"{m}/{int(pin)}"]) for m in todo}
             process_lines.append(process_row(fmt, size, pin, best))
             inproc_lines.append(inproc_row(fmt, pin, best))
             print(process_lines[-1], flush=True)
