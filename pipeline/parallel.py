@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 ENV_SCHEDULER = "AUVID_SCHEDULER"
 ENV_JOBS = "AUVID_JOBS"
 ENV_POOL_MIN_BYTES = "AUVID_POOL_MIN_BYTES"
+ENV_POOL_START = "AUVID_POOL_START"
 CONNECT_TIMEOUT_S = 10.0
 LOCAL = "local"
 
@@ -247,12 +248,29 @@ def _indexed(fn: Callable[[T], R], index: int, item: T) -> tuple[int, R]:
 
 def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, work_bytes: int | None = None,
          on_done: Callable[[int, int, int], Any] | None = None) -> list[R]:
-    """``[fn(x) for x in items]`` through joblib in the active backend, results in input order.
+    """``[fn(x) for x in items]`` in the active backend (:func:`imap`), results in input order.
 
-    Runs inline (no process start-up for nothing) for a single item, ``jobs == 1`` locally, or ``work_bytes``
-    (the input the items will read) below :data:`POOL_MIN_BYTES` locally (:func:`pool_pays`).
     ``on_done(done, total, index)`` is called as each item finishes (in completion order when parallel):
     ``done`` items finished so far, ``index`` the position in ``items`` of the one that just did.
+    """
+    items = list(items)
+    ordered: list[Any] = [None] * len(items)
+    for done, (index, result) in enumerate(imap(fn, items, jobs=jobs, work_bytes=work_bytes), start=1):
+        ordered[index] = result
+        if on_done is not None:
+            on_done(done, len(items), index)
+    return ordered
+
+
+def imap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, work_bytes: int | None = None,
+         in_order: bool = False) -> Iterator[tuple[int, R]]:
+    """``(index, fn(items[index]))`` for every item, as each finishes (input order when inline or ``in_order``:
+    a result then waits for those before it).
+
+    Inline (no process start-up for nothing) for a single item, ``jobs == 1`` locally, or ``work_bytes`` (the
+    input the items will read) below :data:`POOL_MIN_BYTES` locally (:func:`pool_pays`). Otherwise, locally:
+    ``jobs`` worker processes forked from this one (:func:`_forked_map`; joblib's loky pool where fork is not
+    available); on a Dask cluster: joblib's dask backend.
     """
     items = list(items)
     jobs = n_jobs() if jobs is None else jobs
@@ -260,21 +278,94 @@ def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, w
     if not pool_pays(total, work_bytes, jobs):
         if total > 1 and work_bytes is not None and jobs > 1:
             log.debug("%d item(s), %d input bytes < %d: serial", total, work_bytes, pool_min_bytes())
-        results = []
         for index, item in enumerate(items):
-            results.append(fn(item))
-            if on_done is not None:
-                on_done(index + 1, total, index)
-        return results
+            yield index, fn(item)
+        return
     if _active["scheduler"] is None:
         jobs = min(jobs, total)
-    ordered: list[Any] = [None] * total
-    import joblib
+    if _active["scheduler"] is None and _fork_pool_available():
+        done: Iterator[tuple[int, R]] = _forked_map(fn, items, jobs)
+    else:
+        import joblib
 
-    tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
-    for done, (index, result) in enumerate(joblib.Parallel(n_jobs=jobs, return_as="generator_unordered")(tasks),
-                                           start=1):
-        ordered[index] = result
-        if on_done is not None:
-            on_done(done, total, index)
-    return ordered
+        tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
+        done = joblib.Parallel(n_jobs=jobs, return_as="generator_unordered")(tasks)
+    yield from (_input_order(done) if in_order else done)
+
+
+def _input_order(done: Iterable[tuple[int, R]]) -> Iterator[tuple[int, R]]:
+    """``(index, result)`` pairs given in any order, yielded by index as soon as every earlier one is there."""
+    waiting: dict[int, R] = {}
+    next_index = 0
+    for index, result in done:
+        waiting[index] = result
+        while next_index in waiting:
+            yield next_index, waiting.pop(next_index)
+            next_index += 1
+
+
+def _fork_pool_available() -> bool:
+    """Whether local fan-out can fork its workers from this process (Linux; ``AUVID_POOL_START=loky`` keeps
+    joblib's loky pool, the benchmark's comparison)."""
+    import multiprocessing
+
+    if os.environ.get(ENV_POOL_START, "").strip().lower() == "loky":
+        return False
+    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+
+
+def _forked_worker_init() -> None:
+    """Set up a forked pool worker: one BLAS / OpenMP thread and one Arrow CPU thread (the workers are the
+    parallelism; the parent's threads would oversubscribe the cores), and Ctrl-C left to the parent, which ends
+    the workers (an idle worker would otherwise die on SIGINT with a traceback)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - scikit-learn brings it
+        pass
+    else:
+        threadpool_limits(1)
+    pyarrow = sys.modules.get("pyarrow")
+    if pyarrow is not None:
+        pyarrow.set_cpu_count(1)
+
+
+def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tuple[int, R]]:
+    """``(index, fn(items[index]))`` in completion order, from ``jobs`` worker processes forked from this one.
+
+    A forked worker starts with everything this process has imported (the stage modules, numpy, pandas, pyarrow)
+    and costs a few ms, where a spawned loky worker starts an interpreter and imports them again (~1 CPU-s each on
+    the development machine). Any exception (a worker's, or Ctrl-C here) cancels what has not started and ends
+    the workers before it propagates.
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    try:
+        import threadpoolctl  # noqa: F401  (imported once here rather than in each worker's set-up)
+    except ImportError:  # pragma: no cover - scikit-learn brings it
+        pass
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
+                               initializer=_forked_worker_init)
+    try:
+        futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+    except BaseException:
+        _terminate_workers(pool)  # as joblib does on an error; outputs are written atomically
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _terminate_workers(pool: Any) -> None:
+    """End a ProcessPoolExecutor's workers now (``terminate_workers`` from Python 3.14 on)."""
+    terminate = getattr(pool, "terminate_workers", None)
+    if callable(terminate):
+        terminate()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.is_alive():
+            process.terminate()

@@ -29,7 +29,7 @@ from pipeline.config import Params, Vehicle
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import ingest_log, trial_id
-from pipeline.parallel import usable_cpus
+from pipeline.parallel import imap, usable_cpus
 from pipeline.tableio import write_json, write_parquet
 from stages.common import StageResult, stage_main
 
@@ -110,6 +110,10 @@ def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bo
     return {"trial": trial, "outputs": outputs, "salvage": out.report.get("salvage"), "file": shown}
 
 
+def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool]) -> dict[str, Any]:
+    return ingest_one(*job)
+
+
 def _cleanup_stale(root: Path) -> None:
     parent = Path(root) / layout.SIGNALS
     if parent.is_dir():
@@ -149,15 +153,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
     log.info("ingest: %d log(s)", len(jobs))
 
     salvage = params.ingest.salvage
-    if n_jobs == 1 or len(jobs) < 2:
-        outcomes: Iterable[dict[str, Any]] = (ingest_one(root, vehicle, p, t, salvage) for p, t in jobs)
-    else:
-        from joblib import Parallel, delayed
-
-        outcomes = Parallel(n_jobs=n_jobs, return_as="generator")(
-            delayed(ingest_one)(root, vehicle, p, t, salvage) for p, t in jobs)
+    # n_jobs > 1: the logs go to worker processes (forked: they start with this process's imports), the
+    # outcomes come back in log order as each is ready
+    outcomes = imap(_ingest_job, [(root, vehicle, p, t, salvage) for p, t in jobs], jobs=n_jobs, in_order=True)
     salvaged: list[dict[str, Any]] = []
-    for outcome in outcomes:
+    for _, outcome in outcomes:
         trial = outcome["trial"]
         if "quarantine" in outcome:
             entry = outcome["quarantine"]

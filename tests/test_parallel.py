@@ -255,3 +255,44 @@ def test_quiet_run_on_a_local_cluster_prints_one_line(tmp_path) -> None:
                           timeout=120)
     assert done.returncode == 0, done.stderr
     assert len(done.stdout.splitlines()) == 1 and done.stderr == "", (done.stdout, done.stderr)
+
+
+# ------------------------------------------------------------------ the forked local pool
+
+
+def _fail_on_two(x: int) -> int:
+    if x == 2:
+        raise ValueError("item two failed")
+    return x
+
+
+def _worker_threads(_: int) -> tuple[list[int], int]:
+    import pyarrow
+    from threadpoolctl import threadpool_info
+
+    return [pool["num_threads"] for pool in threadpool_info()], pyarrow.cpu_count()
+
+
+def test_forked_pool_passes_a_worker_error_on_and_leaves_no_worker(monkeypatch: pytest.MonkeyPatch) -> None:
+    import multiprocessing
+
+    monkeypatch.delenv(parallel.ENV_POOL_START, raising=False)
+    before = set(multiprocessing.active_children())  # loky workers earlier tests left for reuse
+    with parallel.parallel_backend(None):
+        assert parallel._fork_pool_available()
+        with pytest.raises(ValueError, match="item two failed"):
+            parallel.pmap(_fail_on_two, range(8), jobs=2)
+    assert set(multiprocessing.active_children()) - before == set()
+
+
+def test_forked_workers_run_one_blas_and_one_arrow_thread_each(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The workers are the parallelism: a BLAS or Arrow pool per worker as wide as the machine oversubscribes it."""
+    import numpy  # noqa: F401  (its BLAS is loaded here, so the workers inherit it)
+    import pyarrow  # noqa: F401
+
+    monkeypatch.delenv(parallel.ENV_POOL_START, raising=False)
+    with parallel.parallel_backend(None):
+        seen = parallel.pmap(_worker_threads, range(4), jobs=2)
+    for blas_threads, arrow_threads in seen:
+        assert blas_threads and set(blas_threads) == {1}
+        assert arrow_threads == 1
