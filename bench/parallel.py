@@ -11,7 +11,11 @@ The modes:
 
 * ``serial``: ``AUVID_JOBS=1``, every fan-out inline;
 * ``pool``: the local process pool on every usable core, whatever the input size (``AUVID_POOL_MIN_BYTES=0``);
-* ``auto``: the default, serial below ``pipeline.parallel.POOL_MIN_BYTES`` of input per fan-out, else the pool;
+* ``auto``: the default, serial below ``pipeline.parallel.POOL_MIN_BYTES`` of input per fan-out, else the pool
+  (worker processes forked from the run's process, one BLAS and one Arrow thread each);
+* ``loky`` (``--modes ... loky``): the same with joblib's loky workers instead (``AUVID_POOL_START=loky``: fresh
+  interpreters that import the pipeline again; the default before the forked pool, and the fallback where fork
+  is not available);
 * ``dask`` (``--modes ... dask``): ``--scheduler local``, a Dask LocalCluster with one worker per usable core.
 
 The trials are copies of one simulated DAGON log (``pipeline.sim.writers.example``; the per-trial work does not
@@ -20,11 +24,14 @@ depend on what the vehicle did, only on how long it logged), named ``trial01`` .
 runs ``--repeat`` times, interleaved; the table shows medians. ``--sweep`` runs serial and pool over several
 trial counts and durations and prints, per stage, its input bytes and its time in both modes (from the run's
 per-stage lines): the smallest input at which the pool is faster is where ``POOL_MIN_BYTES`` belongs.
+Every run's outputs (all of ``data/`` but the raw logs) are hashed: the table says whether each mode wrote the
+same bytes as serial.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import re
 import shutil
@@ -41,7 +48,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 MODES = {"serial": {"AUVID_JOBS": "1"}, "pool": {"AUVID_POOL_MIN_BYTES": "0"}, "auto": {},
-         "dask": {"AUVID_SCHEDULER": "local"}}
+         "loky": {"AUVID_POOL_START": "loky"}, "dask": {"AUVID_SCHEDULER": "local"}}
+KNOBS = ("AUVID_JOBS", "AUVID_POOL_MIN_BYTES", "AUVID_POOL_START", "AUVID_SCHEDULER")
 STAGE_LINE = re.compile(r"^\[(\w+)\] .* in ([0-9.]+) s$")
 PER_TRIAL_DIRS = {"ingest": "data/raw", "sync": "data/signals", "differentiate": "data/synced",
                   "derive": "data/kinematics"}
@@ -117,11 +125,7 @@ def _tree_cpu(proc: subprocess.Popen[bytes], every_s: float = 0.1) -> float:
 
 def run_once(root: Path, mode: str) -> dict[str, Any]:
     clean(root)
-    env = {**os.environ, **MODES[mode]}
-    if mode != "dask":
-        env.pop("AUVID_SCHEDULER", None)
-    if mode != "serial":
-        env.pop("AUVID_JOBS", None)
+    env = {**{k: v for k, v in os.environ.items() if k not in KNOBS}, **MODES[mode]}
     cmd = [str(Path(sys.executable).with_name("auvid")), "run", "--root", str(root), "--vehicle",
            str(root / "vehicle.yaml"), "--to", "derive"]
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
@@ -135,7 +139,19 @@ def run_once(root: Path, mode: str) -> dict[str, Any]:
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} exited {proc.returncode}:\n{stdout}\n{stderr}")
     stages = {m.group(1): float(m.group(2)) for m in map(STAGE_LINE.match, stdout.splitlines()) if m}
-    return {"wall": wall, "cpu": cpu, "stages": stages}
+    return {"wall": wall, "cpu": cpu, "stages": stages, "outputs": outputs_digest(root)}
+
+
+def outputs_digest(root: Path) -> str:
+    """sha256 over every file under ``data/`` but the raw logs: names and bytes, in name order."""
+    digest = hashlib.sha256()
+    data = root / "data"
+    for path in sorted(p for p in data.rglob("*") if p.is_file() and p.relative_to(data).parts[0] != "raw"):
+        digest.update(path.relative_to(data).as_posix().encode() + b"\0")
+        with path.open("rb") as fh:
+            while chunk := fh.read(1 << 20):
+                digest.update(chunk)
+    return digest.hexdigest()
 
 
 def measure(root: Path, modes: list[str], repeat: int) -> dict[str, list[dict[str, Any]]]:
@@ -165,14 +181,17 @@ def cmd_speedup(args: argparse.Namespace, cache: Path, work: Path) -> None:
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, POOL_MIN_BYTES = {POOL_MIN_BYTES / 1e6:g} MB, "
           f"median of {args.repeat}")
     print()
-    print("| mode | wall s | CPU s | speed-up (wall, vs serial) | " + " | ".join(f"{s} s" for s in PER_TRIAL_DIRS)
-          + " |")
-    print("|---|---|---|---|" + "---|" * len(PER_TRIAL_DIRS))
+    print("| mode | wall s | CPU s | cores busy | speed-up (wall, vs serial) | per round | "
+          + " | ".join(f"{s} s" for s in PER_TRIAL_DIRS) + " | same bytes as serial |")
+    print("|---|---|---|---|---|---|" + "---|" * len(PER_TRIAL_DIRS) + "---|")
     base = median(runs["serial"], "wall")
+    reference = runs["serial"][0]["outputs"]
     for mode in modes:
-        wall = median(runs[mode], "wall")
-        print(f"| {mode} | {wall:.1f} | {median(runs[mode], 'cpu'):.1f} | {base / wall:.2f}x | "
-              + " | ".join(f"{median(runs[mode], 'stages', s):.1f}" for s in PER_TRIAL_DIRS) + " |")
+        wall, cpu = median(runs[mode], "wall"), median(runs[mode], "cpu")
+        rounds = ", ".join(f"{s['wall'] / r['wall']:.2f}" for s, r in zip(runs["serial"], runs[mode], strict=True))
+        same = "yes" if all(r["outputs"] == reference for r in runs[mode]) else "**no**"
+        print(f"| {mode} | {wall:.1f} | {cpu:.1f} | {cpu / wall:.2f} | {base / wall:.2f}x | {rounds} | "
+              + " | ".join(f"{median(runs[mode], 'stages', s):.1f}" for s in PER_TRIAL_DIRS) + f" | {same} |")
     print()
     print("input per stage (MB): " + ", ".join(f"{s} {b / 1e6:.1f}" for s, b in sizes.items()))
 
