@@ -137,6 +137,9 @@ _RESTARTS = 64  # each restart moves one more file (of a split bag) to its salva
 
 
 BATCH_BYTES = 16 << 20
+#: Batches of a streamed record walk (:func:`stream_walk`): smaller, since up to ``ahead`` + 2 of them are alive at
+#: once (queued, being filled, being decoded), each as its payloads and then their joined copy.
+WALK_BATCH_BYTES = 4 << 20
 #: A record walk over a memory-mapped file gives back the pages behind it every this many bytes.
 RELEASE_BYTES = 16 << 20
 
@@ -197,7 +200,7 @@ class _Stopped(Exception):
 _DONE = object()
 
 
-def stream_walk(walk: Callable[[Callable[[str, int, bytes], None]], object], limit: int = BATCH_BYTES,
+def stream_walk(walk: Callable[[Callable[[str, int, bytes], None]], object], limit: int = WALK_BATCH_BYTES,
                 ahead: int = 2) -> Iterator[Batch]:
     """Batches of ~``limit`` bytes from a callback-style record walk, as the walk goes.
 
