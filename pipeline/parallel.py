@@ -56,7 +56,9 @@ POOL_MIN_BYTES = 64_000_000
 T = TypeVar("T")
 R = TypeVar("R")
 
-_active: dict[str, Any] = {"scheduler": None, "client": None, "local": None}
+#: ``workers``: None outside a local backend (each fan-out forks and ends its own workers); inside one, a dict that
+#: holds the forked pool the fan-outs share (``pool``, ``size``) until :func:`release_workers` or the context's end.
+_active: dict[str, Any] = {"scheduler": None, "client": None, "local": None, "workers": None}
 
 
 def scheduler_from_env() -> str | None:
@@ -181,7 +183,7 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
         return
     if scheduler is None:
         previous = dict(_active)
-        _active.update(scheduler=None, client=None, local=None)
+        _active.update(scheduler=None, client=None, local=None, workers={})
         try:
             if "joblib" not in sys.modules:  # nothing has configured joblib: its default backend is loky
                 yield "loky"
@@ -191,6 +193,7 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
                 with joblib.parallel_config(backend="loky"):
                     yield "loky"
         finally:
+            release_workers()
             _active.update(previous)
         return
     address = getattr(scheduler, "scheduler_address", scheduler)
@@ -199,7 +202,7 @@ def parallel_backend(scheduler: Any = None) -> Iterator[str]:
         return
     client = _connect(scheduler)
     previous = dict(_active)
-    _active.update(scheduler=address, client=client, local=None)
+    _active.update(scheduler=address, client=client, local=None, workers=None)
     log.info("joblib work goes to the Dask cluster at %s", address)
     import joblib
 
@@ -337,8 +340,10 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
 
     A forked worker starts with everything this process has imported (the stage modules, numpy, pandas, pyarrow)
     and costs a few ms, where a spawned loky worker starts an interpreter and imports them again (~1 CPU-s each on
-    the development machine). Any exception (a worker's, or Ctrl-C here) cancels what has not started and ends
-    the workers before it propagates.
+    the development machine). Inside a local backend the workers are kept for the next fan-out (the next stage):
+    a fresh process also pays for faulting in its heap again (~0.1 CPU-s per worker and stage on the 8 one-hour
+    trials). Any exception (a worker's, or Ctrl-C here) cancels what has not started and ends the workers before
+    it propagates.
     """
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -347,17 +352,39 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
         import threadpoolctl  # noqa: F401  (imported once here rather than in each worker's set-up)
     except ImportError:  # pragma: no cover - scikit-learn brings it
         pass
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
-                               initializer=_forked_worker_init)
+    shared = _active["workers"]
+    if shared is not None and shared.get("pool") is not None and shared["size"] >= jobs:
+        pool = shared["pool"]
+    else:
+        release_workers()
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
+                                   initializer=_forked_worker_init)
+        if shared is not None:
+            shared.update(pool=pool, size=jobs)
     try:
         futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
         for future in as_completed(futures):
             yield futures[future], future.result()
     except BaseException:
         _terminate_workers(pool)  # as joblib does on an error; outputs are written atomically
+        if shared is not None:
+            shared.clear()
         raise
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        if shared is None or shared.get("pool") is not pool:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def release_workers() -> None:
+    """End the forked workers the fan-outs of the active local backend share (see :func:`_forked_map`); the next
+    fan-out forks new ones. ``run_stages`` calls it after the last stage that fans out: the workers would hold
+    their memory through the model stages."""
+    shared = _active["workers"]
+    if shared:
+        pool = shared.pop("pool", None)
+        shared.clear()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _terminate_workers(pool: Any) -> None:

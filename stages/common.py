@@ -268,10 +268,13 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
     """
     import time
 
+    from pipeline.parallel import release_workers
+
     ordered = [s for s in STAGE_ORDER if s in set(stages)]
     require_stages(ordered)
+    last_fan_out = max((i for i, s in enumerate(ordered) if s == "ingest" or s in PER_TRIAL), default=-1)
     results = []
-    for name in ordered:
+    for i, name in enumerate(ordered):
         if on_stage is not None:
             on_stage(name, None, 0.0)
         start = time.perf_counter()
@@ -282,6 +285,8 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
             close = getattr(progress, "close", None)
             if callable(close):
                 close()
+            if i == last_fan_out:  # the pool's workers, kept from stage to stage, are not needed any more
+                release_workers()
         results.append(result)
         if on_stage is not None:
             on_stage(name, result, time.perf_counter() - start)

@@ -296,3 +296,30 @@ def test_forked_workers_run_one_blas_and_one_arrow_thread_each(monkeypatch: pyte
     for blas_threads, arrow_threads in seen:
         assert blas_threads and set(blas_threads) == {1}
         assert arrow_threads == 1
+
+
+def _pid(_: int) -> int:
+    import os
+    import time
+
+    time.sleep(0.05)  # both workers get items
+    return os.getpid()
+
+
+def test_forked_workers_are_kept_from_fan_out_to_fan_out_inside_a_local_backend(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import multiprocessing
+
+    monkeypatch.delenv(parallel.ENV_POOL_START, raising=False)
+    before = set(multiprocessing.active_children())
+    with parallel.parallel_backend(None):
+        first = set(parallel.pmap(_pid, range(6), jobs=2))
+        second = set(parallel.pmap(_pid, range(6), jobs=2))
+        assert first == second and len(first) == 2  # the next stage finds the same two workers
+        parallel.release_workers()
+        assert set(multiprocessing.active_children()) - before == set()
+        third = set(parallel.pmap(_pid, range(6), jobs=2))
+        assert not third & first
+    assert set(multiprocessing.active_children()) - before == set()  # the context's end ends them
+    once = set(parallel.pmap(_pid, range(4), jobs=2))  # outside a backend: the fan-out's own workers
+    assert not once & third and set(multiprocessing.active_children()) - before == set()
