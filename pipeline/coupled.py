@@ -163,10 +163,12 @@ def noise_std_from(frame: pd.DataFrame | None) -> tuple[float, ...] | None:
 
 
 def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams, *,
-                train: pd.DataFrame | None = None) -> Any:
+                train: pd.DataFrame | None = None, noise_std: Sequence[float] | None = None) -> Any:
     """An unfitted estimator predicting all outputs; ``hyper`` maps output -> SVR hyperparameters (a gray-box
     model's: its residual WDSE-SVR's). ``train`` (optional): the training rows, for the explicit models' noise SDs
-    (:func:`noise_std_from`)."""
+    (:func:`noise_std_from`); ``noise_std`` (optional) gives them instead."""
+    if noise_std is None:
+        noise_std = noise_std_from(train)
     if model in EXPLICIT_MODELS:
         refine = {}
         if params.explicit_refine:
@@ -174,7 +176,7 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
                 raise ModelError("explicit_refine needs the training rows' t_ns to know the grid step")
             refine = {"refine": True, "dt_s": grid_step_s(train["t_ns"].to_numpy()),
                       "refine_horizon_s": params.refine_horizon_s}
-        return _EXPLICIT_CLASSES[model](solver="wtls", noise_std=noise_std_from(train), **refine)
+        return _EXPLICIT_CLASSES[model](solver="wtls", noise_std=noise_std, **refine)
     known = list(SVR_MODELS) + list(EXPLICIT_MODELS) + list(GRAYBOX_MODELS)
     if model not in SVR_MODELS and model not in GRAYBOX_MODELS:
         raise ModelError(f"unknown model {model!r}; expected {known}")
@@ -184,7 +186,7 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         cols = model_inputs(model, params)
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
-        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std_from(train))
+        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std)
         residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity) for out in params.outputs])
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
                        residual_columns=tuple(res_cols))
@@ -213,13 +215,16 @@ def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any]
 
 
 def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
-         progress: Callable[..., Any] | None = None) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
+         progress: Callable[..., Any] | None = None, noise_std: Sequence[float] | None = None
+         ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
     """Search hyperparameters of every SVR model and output on one block: the tuning split (``split="tuning"``,
     the papers' protocol) or, with ``params.tuning == "nested"``, the train_test block (``split="train_test"``).
     Rows of any other split are refused.
 
     A gray-box model's residual WDSE-SVR is tuned on the residuals ``y - base.predict`` of its explicit base fitted
-    on the (whole, time-ordered) tuning block; its search runs the same RBF -> 2-weights -> WDSE chain on the
+    on the (whole, time-ordered) tuning block, weighted by ``noise_std`` (default :func:`noise_std_from` the block:
+    the same weights :func:`build_model` gives the base it is fitted with, or the residual it was tuned on is not
+    the residual it learns); its search runs the same RBF -> 2-weights -> WDSE chain on the
     residual (the SVRs' optima are no warm start: the target differs). Returns ``(hyper, trace)``:
     ``hyper[model][output]`` = flat hyperparameters, ``trace[model][output]`` = the :class:`SearchResult` as a
     dict. ``progress(done, total, desc)`` (optional): each search's candidates, ``desc`` naming the search
@@ -263,7 +268,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         log.info("%s searched as the warm start of a richer kernel only", model)
         del hyper[model], trace[model]
     for model in graybox:
-        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std_from(tuning))
+        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](
+            solver="wtls", noise_std=noise_std if noise_std is not None else noise_std_from(tuning))
         base.fit(tuning[EXPLICIT_INPUTS].to_numpy(float), tuning[params.outputs].to_numpy(float))
         resid = data[params.outputs].to_numpy(float) - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
         hyper[model], trace[model] = {}, {}
@@ -286,19 +292,22 @@ class NestedTuned(RegressorMixin, BaseEstimator):
     """A coupled SVR or gray-box model whose hyperparameters are searched (:func:`tune`) on the rows it is fitted
     on, then fitted there: the estimator of each CV fold under ``params.tuning == "nested"``, so that no fold's
     test block has a say in its hyperparameters. ``X`` holds :func:`model_inputs` columns in order, ``y`` the
-    outputs. Fitted: ``hyperparameters_`` (output -> params), ``estimator_``."""
+    outputs. ``noise_std``: a gray-box base's errors-in-variables weights (:func:`noise_std_from` the rows the
+    fold is cut from: ``X`` has no SD columns). Fitted: ``hyperparameters_`` (output -> params), ``estimator_``."""
 
-    def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None) -> None:
+    def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None,
+                 noise_std: Sequence[float] | None = None) -> None:
         self.model = model
         self.params = params
+        self.noise_std = noise_std
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
         params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
         frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
-        hyper, _ = tune(frame, params, n_jobs=1)
+        hyper, _ = tune(frame, params, n_jobs=1, noise_std=self.noise_std)
         self.hyperparameters_ = hyper[self.model]
-        self.estimator_ = build_model(self.model, self.hyperparameters_, params, train=frame).fit(X, y)
+        self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std).fit(X, y)
         return self
 
     def predict(self, X: np.ndarray) -> np.ndarray:
@@ -366,7 +375,8 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     X = train_test[cols].to_numpy(float)
     # nested: each fold searches its own hyperparameters on its training blocks; the final model (below) uses the
     # tune stage's, searched on the whole train_test block it is fitted on
-    cv_est = NestedTuned(model, params) if params.tuning == "nested" and model not in EXPLICIT_MODELS else est
+    nested = params.tuning == "nested" and model not in EXPLICIT_MODELS
+    cv_est = NestedTuned(model, params, noise_std_from(train_test)) if nested else est
     folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
                                    outputs=params.outputs, n_jobs=n_jobs, progress=progress)
     final_est = est.fit(X, y)

@@ -18,7 +18,7 @@ from urllib.parse import quote
 
 from pipeline import store
 from pipeline.config import Params, Vehicle, config_hash
-from pipeline.coupled import EXPLICIT_MODELS, evaluate_models, fold_boxplot, model_inputs, table3
+from pipeline.coupled import EXPLICIT_MODELS, NOISE_STD_COLUMNS, evaluate_models, fold_boxplot, model_inputs, table3
 from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
@@ -44,10 +44,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
                          f"now say {cp.tuning!r}; run stages.tune again", file=hp)
     hyper = tuned.get("hyperparameters", {})
     cols = ["t_ns", *sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.outputs))]
-    sd_cols = [f"{d}_smooth_std_{u}" for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps"))] + [
-        f"{d}dot_std_{u}2" for d, u in (("u", "mps"), ("v", "mps"), ("r", "radps"))]
     available = set(store.dataset(root).schema.names)
-    cols += [c for c in sd_cols if c in available]  # the explicit models' errors-in-variables weights
+    cols += [c for c in NOISE_STD_COLUMNS if c in available]  # the explicit models' errors-in-variables weights
     tt = store.load(root, vehicle=vehicle.name, split="train_test", columns=cols)
     te = store.load(root, vehicle=vehicle.name, split="test", columns=cols)
     tuning_keys = store.load(root, vehicle=vehicle.name, split="tuning", columns=["t_ns"])

@@ -10,7 +10,7 @@ from typing import Any
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
-from pipeline.coupled import model_inputs, table2, tune
+from pipeline.coupled import NOISE_STD_COLUMNS, model_inputs, table2, tune
 from pipeline.layout import EVALUATION, MODELS
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
@@ -30,6 +30,9 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     cp = params.coupled
     block = "train_test" if cp.tuning == "nested" else "tuning"
     cols = sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.inputs) | set(cp.outputs))
+    # a gray box's base is weighted by the smoother's SDs here as in train, so its residual is the one tuned on
+    available = set(store.dataset(root).schema.names)
+    cols += [c for c in NOISE_STD_COLUMNS if c in available]
     frame = store.load(root, vehicle=vehicle.name, split=block, columns=[*cols, "split"])
     hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs, split=block, progress=progress)
     out_eval = Path(root) / EVALUATION / "coupled"

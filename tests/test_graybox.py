@@ -71,3 +71,31 @@ def test_graybox_columns_and_clone():
     X = np.zeros((5, 9))
     with pytest.raises(ValueError, match="outside X"):
         GrayBox(base_columns=(0, 1, 2, 3, 4, 12)).fit(X, np.zeros((5, 3)))
+
+
+def test_nested_cv_folds_weight_the_gray_box_base_as_the_final_model(monkeypatch):
+    """Each nested CV fold tunes a gray box whose base carries the same errors-in-variables weights (the smoother's
+    SDs of the train_test block) as the final model's base; the fold's X has no SD columns to take them from."""
+    import pipeline.coupled as coupled
+    from pipeline.coupled import NOISE_STD_COLUMNS, evaluate_models, noise_std_from
+
+    frame = synthetic_frame(240, rate_hz=2.0, seed=4, noise=0.02, split="train_test")
+    for k, col in enumerate(NOISE_STD_COLUMNS):
+        frame[col] = 0.01 * (k + 1)
+    params = CoupledParams(models=["graybox"], folds=2, tuning_folds=2, max_evals=2)
+    seen: list = []
+    real = coupled.tune
+
+    def recording(*a, **kw):
+        seen.append(kw.get("noise_std"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(coupled, "tune", recording)
+    hyper = {o: {"gammas": [0.1] * 6, "C": 1.0, "epsilon": 0.01} for o in params.outputs}
+    out = evaluate_models(frame, frame.iloc[:0], {"graybox": hyper}, params)
+    expected = noise_std_from(frame)
+    assert expected is not None and len(seen) == params.folds
+    for fold_noise in seen:  # (tau's entries are NaN: estimated from the data; assert_array_equal matches NaNs)
+        np.testing.assert_array_equal(np.asarray(fold_noise, float), np.asarray(expected, float))
+    np.testing.assert_array_equal(np.asarray(out["graybox"]["estimator"].base_.noise_std, float),
+                                  np.asarray(expected, float))

@@ -193,3 +193,40 @@ def test_explicit_refine_refines_from_wtls_and_says_so_on_the_card(run_root, veh
         assert changed == ref["refined"] == (cost["refined"] < cost["wtls"])
     assert any(load_model(tmp_path / f"data/models/coupled/{m}.joblib")[1]["refinement"]["refined"]
                for m in explicit)
+
+
+def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehicle: Vehicle, tmp_path: Path,
+                                                                 monkeypatch) -> None:
+    """The tune stage weights the gray box's explicit base by the smoother's SDs as train does: the residual its
+    WDSE search sees is the residual of the base the trained model carries (an unweighted base in tune gave other
+    residuals, so the hyperparameters were searched on a target the model never learns)."""
+    import shutil
+
+    import pipeline.coupled as coupled
+    from pipeline.coupled import NOISE_STD_COLUMNS, build_model, model_inputs, noise_std_from
+
+    root, _ = run_root
+    shutil.copytree(root / "data/features", tmp_path / "data/features")
+    params = study_params(models=["graybox"], search="fast")
+    seen: list[np.ndarray] = []
+    real = coupled.search
+
+    def recording(model, X, y, *a, **kw):
+        seen.append(np.array(y))
+        return real(model, X, y, *a, **kw)
+
+    monkeypatch.setattr(coupled, "search", recording)
+    tune_stage.run(tmp_path, vehicle, params)
+    cp = params.coupled
+    tt = store.load(tmp_path, split="train_test")
+    assert all(c in tt.columns for c in NOISE_STD_COLUMNS) and noise_std_from(tt) is not None
+    sub = tt.iloc[np.unique(np.linspace(0, len(tt) - 1, cp.max_samples).round().astype(int))]
+    base = build_model("graybox", {o: {"gammas": [1.0] * 6, "C": 1.0, "epsilon": 0.1} for o in cp.outputs}, cp,
+                       train=tt).base
+    base.fit(tt[model_inputs("mcfarland_whitcomb", cp)].to_numpy(float), tt[cp.outputs].to_numpy(float))
+    resid = sub[cp.outputs].to_numpy(float) - base.predict(sub[model_inputs("mcfarland_whitcomb", cp)].to_numpy(float))
+    # per output: the residual's RBF -> 2-weights -> WDSE chain, three searches on the same residual
+    assert len(seen) == 3 * len(cp.outputs)
+    for k in range(len(cp.outputs)):
+        for y in seen[3 * k:3 * k + 3]:
+            np.testing.assert_allclose(y, resid[:, k], rtol=1e-9, atol=1e-12)
