@@ -1,0 +1,115 @@
+"""Two code trees, interleaved: whole ``auvid ingest`` processes and the imports' CPU (issue 15's before / after).
+
+    git archive OLD pipeline stages bench | tar -x -C /tmp/before      # (mkdir first) a snapshot of each tree
+    git archive NEW pipeline stages bench | tar -x -C /tmp/after
+    nice python bench/ingest_ab.py --trees before=/tmp/before after=/tmp/after --logs /tmp/ib60 --repeat 3
+
+The logs are those ``bench/ingest.py --logs DIR`` generated (and, with ``--formats mcap-unindexed ros1-unindexed``,
+derived) under ``--logs``. Each round runs every format once per tree, the trees taking turns, each child pinned
+to core 0 (``taskset -c 0``) with ``PYTHONPATH`` set to its tree; the table shows the min of N for CPU and wall and
+the max for peak RSS (bench/ingest.py's lean spawner). The imports' CPU is that of a fresh interpreter importing
+exactly the modules a tiny ``auvid ingest`` of each tree leaves in ``sys.modules`` (the log: ``--imports-log``,
+default the one-hour uncompressed MCAP), min of 7, the bare interpreter's start reported beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import ingest as bench  # noqa: E402 - the bench beside this file
+
+LOGS = {"ros2-mcap": "ros2_mcap", "mcap-zstd": "mcap_zstd/mcap_zstd_0.mcap", "ros2-sqlite3": "ros2_sqlite3",
+        "ros1": "trial.bag", "mcap-unindexed": "unindexed/mcap_unindexed.mcap",
+        "ros1-unindexed": "unindexed/trial_unindexed.bag"}
+
+PROBE = """
+import json, sys, tempfile
+from pipeline.cli import main
+assert main(['ingest', '-q', '--root', tempfile.mkdtemp(), '--vehicle', {vehicle!r}, {log!r}]) == 0
+print('MODULES=' + json.dumps(sorted(sys.modules)))
+"""
+
+
+def imports_cpu(tree: str, log: Path, vehicle: Path, n: int = 7) -> tuple[float, float, int]:
+    """(CPU s of importing what an ingest of ``log`` imports, CPU s of a bare interpreter, modules), min of n."""
+    env = {**os.environ, "PYTHONPATH": tree}
+    got = subprocess.run([sys.executable, "-c", PROBE.format(vehicle=str(vehicle), log=str(log))], env=env,
+                         capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
+    line = next(ln for ln in got.stdout.splitlines() if ln.startswith("MODULES="))
+    modules = [m for m in json.loads(line[len("MODULES="):]) if m not in sys.builtin_module_names
+               and not m.startswith("__")]
+    code = (f"import importlib\nfor m in {modules!r}:\n    try:\n        importlib.import_module(m)\n"
+            "    except Exception:\n        pass\n")
+
+    def cpu(args: list[str]) -> float:
+        best = float("inf")
+        for _ in range(n):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            subprocess.run([sys.executable, *args], env=env, check=True, cwd=tempfile.gettempdir())
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            best = min(best, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+        return best
+
+    return cpu(["-c", code]), cpu(["-c", "pass"]), len(modules)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--trees", nargs=2, required=True, metavar="NAME=PATH")
+    parser.add_argument("--logs", type=Path, required=True)
+    parser.add_argument("--formats", nargs="+", choices=list(LOGS), default=list(LOGS))
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--imports-log", type=Path, default=None)
+    args = parser.parse_args(argv)
+    trees = dict(t.split("=", 1) for t in args.trees)
+    vehicle = bench.vehicle_yaml(args.logs)
+    logs = {f: args.logs / LOGS[f] for f in args.formats if (args.logs / LOGS[f]).exists()}
+    print(f"load average {bench._loadavg()}", flush=True)
+    res: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for _ in range(args.repeat):
+        for fmt, log in logs.items():
+            for name, tree in trees.items():
+                bench.CHILD_ENV = {**os.environ, "PYTHONPATH": tree}
+                tmp = tempfile.mkdtemp(prefix="auvid-ab-")
+                try:
+                    got = bench.run_process([*bench.auvid_command(), "ingest", "-q", "--root", tmp, "--vehicle",
+                                             str(vehicle), str(log)], True)
+                finally:
+                    shutil.rmtree(tmp)
+                res.setdefault((fmt, name), []).append(got)
+    a, b = trees
+    print(f"load average {bench._loadavg()}\n")
+    print(f"| format | {a} CPU s | {b} CPU s | {b} ÷ {a}, CPU | {a} wall s | {b} wall s "
+          f"| peak RSS MiB {a} / {b} |")
+    print("|---|---|---|---|---|---|---|")
+    for fmt in logs:
+        x, y = res[(fmt, a)], res[(fmt, b)]
+
+        def low(runs: list[dict[str, Any]], key: str) -> float:
+            return min(r[key] for r in runs)
+
+        print(f"| {fmt} | {low(x, 'cpu_s'):.2f} | {low(y, 'cpu_s'):.2f} | {low(y, 'cpu_s') / low(x, 'cpu_s'):.2f} "
+              f"| {low(x, 'wall_s'):.2f} | {low(y, 'wall_s'):.2f} "
+              f"| {max(r['rss_mib'] for r in x):.0f} / {max(r['rss_mib'] for r in y):.0f} |")
+    imports_log = args.imports_log or args.logs / LOGS["ros2-mcap"]
+    print()
+    for name, tree in trees.items():
+        cpu, bare, n = imports_cpu(tree, imports_log, vehicle)
+        print(f"imports of an ingest, {name}: {cpu:.3f} s CPU ({n} modules; bare interpreter {bare:.3f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,68 @@
+"""Where one ingest's CPU goes, in one process after its imports (issue 15's floors): the file's sha256, the
+storage read alone (the reader's batches, nothing decoded), ``ingest_log`` (read, decode, tables, and the sha256 in
+its thread) and ``write_trial`` (the Parquet files); min of N each.
+
+    nice python bench/ingest_parts.py /tmp/ib60/ros2_sqlite3 --repeat 3          # a log bench/ingest.py generated
+    nice python bench/ingest_parts.py /tmp/ib60/trial.bag --tree /tmp/before      # another tree's code
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+
+
+def cpu(fn: Callable[[], Any], n: int) -> tuple[float, Any]:
+    """Min CPU seconds (every thread of the process) of ``n`` calls, and the last result."""
+    best, out = float("inf"), None
+    for _ in range(n):
+        start = time.process_time()
+        out = fn()
+        best = min(best, time.process_time() - start)
+    return best, out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("log", type=Path)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--tree", type=Path, default=HERE.parent, help="the code tree to measure (default: this)")
+    args = parser.parse_args(argv)
+    sys.path[:0] = [str(args.tree), str(args.tree / "bench")]
+    import ingest as bench
+
+    from pipeline.ingest import ingest_log
+    from pipeline.io import open_log
+    from pipeline.tableio import file_sha256
+    from stages.ingest import write_trial
+
+    vehicle = bench.bench_vehicle()
+    path: Path = args.log
+    files = [path] if path.is_file() else sorted(p for p in path.iterdir() if p.suffix in (".db3", ".mcap"))
+
+    def read_only() -> int:
+        with open_log(path) as reader:
+            return sum(1 for _ in reader._batches(list(reader.catalog())))  # noqa: SLF001
+
+    def write(out: Any) -> None:
+        with tempfile.TemporaryDirectory() as tmp:
+            write_trial(Path(tmp), "trial", out.tables, out.provenance, out.report)
+
+    sha, _ = cpu(lambda: [file_sha256(f) for f in files], args.repeat)
+    read, batches = cpu(read_only, args.repeat)
+    ingest, out = cpu(lambda: ingest_log(path, vehicle), args.repeat)
+    written, _ = cpu(lambda: write(out), args.repeat)
+    print(f"{path.name} ({args.tree}): sha256 {sha:.3f} | storage read alone {read:.3f} ({batches} batches) | "
+          f"ingest_log {ingest:.3f} | write_trial {written:.3f} CPU s, min of {args.repeat}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
