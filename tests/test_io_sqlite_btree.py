@@ -155,3 +155,27 @@ def test_another_schema_is_left_to_sqlite(tmp_path: Path, schema: str) -> None:
            for t, s in zip(tid, stamps, strict=True)]
     con.close()
     assert got == [(1, 10 * i) for i in range(1, 30)]
+
+
+def test_a_write_ahead_log_beside_the_file_leaves_the_pages_to_sqlite(tmp_path: Path) -> None:
+    """Rows committed to a -wal file are not on the pages yet: the pages are not read then."""
+    path = tmp_path / "m.db3"
+    writer = sqlite3.connect(path)
+    writer.execute("PRAGMA journal_mode = WAL")
+    writer.execute("PRAGMA wal_autocheckpoint = 0")
+    writer.execute(SCHEMA)
+    writer.executemany("INSERT INTO messages (topic_id, timestamp, data) VALUES (?, ?, ?)",
+                       [(1, i, bytes(8)) for i in range(50)])
+    writer.commit()
+    assert Path(f"{path}-wal").stat().st_size > 0
+    reader = sqlite3.connect(path)
+    try:
+        assert rosbag2._messages_root(reader, path) is None
+    finally:
+        reader.close()
+        writer.close()
+    reader = sqlite3.connect(path)  # closing the last connection checkpointed the log into the file
+    try:
+        assert not Path(f"{path}-wal").exists() and rosbag2._messages_root(reader, path) == root_of(path)
+    finally:
+        reader.close()
