@@ -172,79 +172,90 @@ def _layout(data: np.ndarray, off: int) -> tuple[int, int, int, int]:
 
 
 def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: int = BATCH_BYTES) -> Iterator[Batch]:
-    parts: list[np.ndarray] = []
-    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    """Batches of ~``limit`` bytes of (decompressed) chunks holding wanted messages, in file order. An
+    uncompressed chunk is read straight into the batch's buffer (reused batch after batch); the messages of a batch
+    are located at once, per connection and header layout (:func:`_located`), not chunk by chunk."""
+    scratch = [np.empty(0, dtype=np.uint8)]
     size = 0
-    scratch = [np.empty(0, dtype=np.uint8)]  # reused batch after batch (fresh pages cost more than the copy)
-
-    def flush() -> Batch:
-        if len(scratch[0]) < size:
-            scratch[0] = np.empty(size + (size >> 3), dtype=np.uint8)
-        buf = scratch[0][:size]
-        at = 0
-        for part in parts:
-            buf[at:at + len(part)] = part
-            at += len(part)
-        rows = {}
-        for topic, got in pieces.items():
-            starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
-            rows[topic] = Rows(starts, lengths, stamps)
-        return Batch(buf, rows)
-
+    groups: dict[tuple[int, tuple[int, int, int, int]], list[tuple[np.ndarray, int, int]]] = {}
     fd = os.open(path, os.O_RDONLY)
     try:
         for chunk in bag.chunks:
             mine = {cid: offs for cid, offs in chunk.index.items() if cid in wanted and len(offs)}
             if not mine:
                 continue
-            raw = os.pread(fd, chunk.length, chunk.data)
-            try:
-                dec = _decompress(chunk.compression, raw, partial=False)
-            except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
-                raise Damaged(f"chunk does not decompress ({err})", chunk.at) from err
-            if len(dec) != chunk.size:
-                raise Damaged("chunk size mismatch (corrupt bytes)", chunk.at)
-            data = np.frombuffer(dec, dtype=np.uint8)
-            by_topic: dict[str, list[tuple[int, np.ndarray]]] = {}
+            data = _room(scratch, size, chunk.size, limit)[size:size + chunk.size]
+            if chunk.compression == "none" and chunk.length == chunk.size:
+                if os.preadv(fd, [data], chunk.data) != chunk.size:
+                    raise Damaged("chunk size mismatch (corrupt bytes)", chunk.at)
+            else:
+                raw = os.pread(fd, chunk.length, chunk.data)
+                try:
+                    dec = _decompress(chunk.compression, raw, partial=False)
+                except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
+                    raise Damaged(f"chunk does not decompress ({err})", chunk.at) from err
+                if len(dec) != chunk.size:
+                    raise Damaged("chunk size mismatch (corrupt bytes)", chunk.at)
+                data[:] = np.frombuffer(dec, dtype=np.uint8)
             for cid, offs in mine.items():
-                by_topic.setdefault(wanted[cid], []).append((cid, offs.astype(np.int64)))
-            for topic, got in by_topic.items():
-                starts_l, lengths_l, stamps_l = [], [], []
-                for cid, offs in got:
-                    s, ln, t = _locate(data, offs, cid, chunk.at)
-                    starts_l.append(s)
-                    lengths_l.append(ln)
-                    stamps_l.append(t)
-                starts, lengths, stamps = (np.concatenate(x) for x in (starts_l, lengths_l, stamps_l))
-                order = np.argsort(starts, kind="stable")
-                pieces.setdefault(topic, []).append((starts[order] + size, lengths[order], stamps[order]))
-            parts.append(data)
-            size += len(data)
+                offs = offs.astype(np.int64)
+                if offs.min() < 0 or offs.max() + 8 > chunk.size:
+                    raise Damaged("bag index points outside its chunk", chunk.at)
+                try:
+                    layout = _layout(data, int(offs[0]))
+                except (struct.error, KeyError) as err:
+                    raise Damaged(f"bag index points at a malformed record ({err})", chunk.at) from err
+                groups.setdefault((cid, layout), []).append((offs + size, size + chunk.size, chunk.at))
+            size += chunk.size
             if size >= limit:
-                yield flush()
-                parts, pieces, size = [], {}, 0
-        if parts:
-            yield flush()
+                yield _located(scratch[0][:size], groups, wanted)
+                size, groups = 0, {}
+        if groups:
+            yield _located(scratch[0][:size], groups, wanted)
     finally:
         os.close(fd)
 
 
-def _locate(data: np.ndarray, offs: np.ndarray, cid: int, at: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    end = len(data)
-    if offs.min() < 0 or offs.max() + 8 > end:
-        raise Damaged("bag index points outside its chunk", at)
-    try:
-        hlen, op_at, conn_at, time_at = _layout(data, int(offs[0]))
-    except (struct.error, KeyError) as err:
-        raise Damaged(f"bag index points at a malformed record ({err})", at) from err
-    hl = _u32(data, offs)
-    if (hl != hlen).any() or (offs.max() + 8 + hlen > end):
-        raise Damaged("message records of one connection differ in header layout", at)
-    head = offs + 4
-    if (data[head + op_at] != 2).any() or (_u32(data, head + conn_at) != cid).any():
-        raise Damaged("bag index points at a record that is not a message of its connection", at)
-    dlen = _u32(data, head + hlen)
-    if (offs + 8 + hlen + dlen > end).any():
-        raise Damaged("message record overruns its chunk", at)
-    stamps = _u32(data, head + time_at) * 1_000_000_000 + _u32(data, head + time_at + 4)
-    return offs + 8 + hlen, dlen, stamps
+def _room(scratch: list[np.ndarray], size: int, more: int, limit: int) -> np.ndarray:
+    """The reused batch buffer, grown (keeping its first ``size`` bytes) to hold ``more`` bytes after them: at once
+    to a whole batch (``limit`` and a chunk), so that filling the first batch does not copy it again and again."""
+    need = size + more
+    if len(scratch[0]) < need:
+        grown = np.empty(max(need, limit + more) + (need >> 3), dtype=np.uint8)
+        grown[:size] = scratch[0][:size]
+        scratch[0] = grown
+    return scratch[0]
+
+
+def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]], list[tuple[np.ndarray, int, int]]],
+             wanted: dict[int, str]) -> Batch:
+    """The batch's wanted messages from the index offsets of each (connection, header layout): every record's
+    header is checked against the layout (same length, ``op=2``, its connection) and must end in its chunk."""
+    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for (cid, (hlen, op_at, conn_at, time_at)), parts in groups.items():
+        offs = np.concatenate([p[0] for p in parts]) if len(parts) > 1 else parts[0][0]
+        ends = np.repeat([p[1] for p in parts], [len(p[0]) for p in parts])
+        ats = np.repeat([p[2] for p in parts], [len(p[0]) for p in parts])
+
+        def damaged(bad: np.ndarray, why: str, ats: np.ndarray = ats) -> Damaged:
+            return Damaged(why, int(ats[int(np.argmax(bad))]))
+
+        bad = (_u32(buf, offs) != hlen) | (offs + 8 + hlen > ends)
+        if bad.any():
+            raise damaged(bad, "message records of one connection differ in header layout")
+        head = offs + 4
+        bad = (buf[head + op_at] != 2) | (_u32(buf, head + conn_at) != cid)
+        if bad.any():
+            raise damaged(bad, "bag index points at a record that is not a message of its connection")
+        dlen = _u32(buf, head + hlen)
+        bad = offs + 8 + hlen + dlen > ends
+        if bad.any():
+            raise damaged(bad, "message record overruns its chunk")
+        stamps = _u32(buf, head + time_at) * 1_000_000_000 + _u32(buf, head + time_at + 4)
+        pieces.setdefault(wanted[cid], []).append((offs + 8 + hlen, dlen, stamps))
+    rows = {}
+    for topic, got in pieces.items():
+        starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
+        order = np.argsort(starts, kind="stable")  # file order across the topic's connections
+        rows[topic] = Rows(starts[order], lengths[order], stamps[order])
+    return Batch(buf, rows)

@@ -1,0 +1,68 @@
+"""The indexed path through a ROS 1 bag locates a batch's messages at once, per connection and header layout: the
+payloads and times are those of the record walk in batches of any size, and an index entry that does not point
+at a message record of its connection is damage (the read then walks the bag record by record)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from io_helpers import REQUESTS, expected, trial, write_rosbag1
+
+from pipeline.io import open_log, rosbag1_index
+from pipeline.io.mcap_reader import Damaged
+from pipeline.io.rosbag1 import Rosbag1Reader, walk
+from pipeline.io.rosbag1_index import chunk_batches, index_walk
+
+
+def _walked(path: Path) -> dict[int, list[tuple[int, bytes]]]:
+    """connection -> (log time, payload) of every message, by the record walk."""
+    out: dict[int, list[tuple[int, bytes]]] = {}
+    walk(path, lambda cid, t, payload: out.setdefault(cid, []).append((t, payload)))
+    return out
+
+
+@pytest.mark.parametrize("limit", [1, 3000, 16 << 20])
+@pytest.mark.parametrize("compression", [None, "lz4"])
+def test_batches_of_any_size_give_the_walks_messages(tmp_path: Path, limit: int, compression: str | None) -> None:
+    path = write_rosbag1(tmp_path / "t.bag", trial(n=60, seed=2), compression=compression, chunk_threshold=700)
+    bag = index_walk(path)
+    assert bag is not None and len(bag.chunks) > 5
+    topics = {cid: c.topic for cid, c in bag.walk.connections.items()}
+    got: dict[str, list[tuple[int, bytes]]] = {}
+    for batch in chunk_batches(path, bag, topics, limit=limit):
+        for topic, rows in batch.rows.items():
+            got.setdefault(topic, []).extend(
+                (int(t), batch.buf[s:s + n].tobytes())
+                for s, n, t in zip(rows.starts, rows.lengths, rows.log_ns, strict=True))
+    want = {topics[cid]: msgs for cid, msgs in _walked(path).items()}
+    assert got == want
+
+
+@pytest.mark.parametrize("shift", [1, -4, 10**6])
+def test_an_index_entry_off_its_record_is_damage_and_the_read_walks_the_bag(
+        tmp_path: Path, shift: int, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    msgs = trial(n=60, seed=3)
+    path = write_rosbag1(tmp_path / "t.bag", msgs, chunk_threshold=700)
+    bag = index_walk(path)
+    assert bag is not None
+    chunk = bag.chunks[len(bag.chunks) // 2]
+    cid, offs = next((c, o) for c, o in chunk.index.items() if len(o) > 1)
+    offs = offs.astype(np.int64)
+    offs[-1] += shift
+    chunk.index[cid] = offs
+    topics = {c: conn.topic for c, conn in bag.walk.connections.items()}
+    with pytest.raises(Damaged) as info:
+        list(chunk_batches(path, bag, topics))
+    assert info.value.at == chunk.at  # the damaged chunk is named
+
+    monkeypatch.setattr(rosbag1_index, "index_walk", lambda p: bag)  # the reader meets the same bad index
+    with open_log(path) as reader, caplog.at_level("WARNING"):
+        assert isinstance(reader, Rosbag1Reader)
+        topics_read = reader.read(REQUESTS).topics
+    assert f"at byte {chunk.at}; reading it record by record" in caplog.text
+    want = expected(msgs)
+    assert {t: d.read for t, d in topics_read.items()} == {t: len(c["log_ns"]) for t, c in want.items()}
+    for topic, cols in want.items():
+        np.testing.assert_array_equal(topics_read[topic].log_ns, cols["log_ns"])
