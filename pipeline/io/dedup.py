@@ -15,17 +15,24 @@ so memory stays at a few dozen bytes per chunk and per recent message however lo
 from __future__ import annotations
 
 import mmap
-import zlib
 from collections import deque
 from collections.abc import Hashable
+from typing import Any
+
+try:  # ISA-L's CRC-32 (the optional package isal): the same values as zlib's, ~6x faster (14 against 2.3 GB/s)
+    from isal.isal_zlib import crc32 as _crc32
+except ImportError:
+    from zlib import crc32 as _crc32
 
 Buffer = bytes | mmap.mmap
 
 WINDOW = 256  # recent message records compared with a new one that does not advance the log time
 
 
-def crc(data: bytes | memoryview) -> int:
-    return zlib.crc32(data)
+def crc(data: bytes | memoryview | Any) -> int:
+    """CRC-32 (zlib's polynomial, as MCAP's chunk CRCs) of a bytes-like object. The check of every MCAP chunk costs
+    ~0.09 s of CPU an hour of log (210 MB) through zlib, ~0.015 s through ISA-L when ``isal`` is installed."""
+    return int(_crc32(data))
 
 
 class Seen:

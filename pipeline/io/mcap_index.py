@@ -18,7 +18,6 @@ from __future__ import annotations
 import logging
 import os
 import struct
-import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, take_rows
+from pipeline.io.dedup import crc
 from pipeline.io.mcap_reader import (
     MAGIC,
     OP_CHANNEL,
@@ -98,7 +98,7 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 return None
             if op == OP_CHUNK:
                 head = os.pread(fd, min(length, 4096), body)
-                _s, _e, usize, crc = struct.unpack_from("<QQQI", head, 0)
+                _s, _e, usize, check = struct.unpack_from("<QQQI", head, 0)
                 compression, p = _str(head, 28)
                 (rlen,) = struct.unpack_from("<Q", head, p)
                 if p + 8 + rlen != length or implausible_chunk(compression, rlen, usize) is not None:
@@ -106,7 +106,7 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 if head[:p + 8] in heads:
                     return None  # a chunk written twice: the record walk drops and reports it
                 heads.add(head[:p + 8])
-                chunks.append(ChunkRef(body + p + 8, rlen, usize, crc, compression, pos))
+                chunks.append(ChunkRef(body + p + 8, rlen, usize, check, compression, pos))
             elif op == OP_MESSAGE_INDEX:
                 if not chunks:
                     return None
@@ -211,7 +211,7 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
             raise Damaged("chunk cut short", group[0].at)
         where = [(c, c.body - lo) for c in group]
         for chunk, at in where:
-            if chunk.length != chunk.usize or (chunk.crc and zlib.crc32(buf[at:at + chunk.length]) != chunk.crc):
+            if chunk.length != chunk.usize or (chunk.crc and crc(buf[at:at + chunk.length]) != chunk.crc):
                 raise Damaged("chunk CRC or size mismatch (corrupt bytes)", chunk.at)
     else:
         buf = _scratch(scratch, sum(c.usize for c in group))
@@ -254,7 +254,7 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
         raise Damaged(dmg.reason, chunk.at) from None
     except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types
         raise Damaged(f"chunk does not decompress ({err})", chunk.at) from err
-    if len(data) != chunk.usize or (chunk.crc and zlib.crc32(data) != chunk.crc):
+    if len(data) != chunk.usize or (chunk.crc and crc(data) != chunk.crc):
         raise Damaged("chunk CRC or size mismatch (corrupt bytes)", chunk.at)
     return data
 

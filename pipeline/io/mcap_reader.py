@@ -15,7 +15,6 @@ from __future__ import annotations
 import logging
 import mmap
 import struct
-import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -245,7 +244,7 @@ def _chunk(
         raise Damaged(dmg.reason, origin) from None
     except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types
         raise Damaged(f"chunk does not decompress ({err})", origin) from err
-    if len(data) != usize or (check and zlib.crc32(data) != check):
+    if len(data) != usize or (check and crc(data) != check):
         raise Damaged("chunk CRC or size mismatch (corrupt bytes)", origin)
     # Validate the whole chunk before delivering any of it: a corrupt chunk is dropped as a unit.
     if on_message is not None:
