@@ -131,10 +131,15 @@ def main() -> None:
     ap.add_argument("--no-inflow", action="store_true",
                     help="no inflow loss (the truth's linear and cubic damping stay outside the explicit families)")
     ap.add_argument("--json", type=Path, default=None, help="also write the per-seed results here")
+    ap.add_argument("--max-samples", type=int, default=None,
+                    help="coupled.max_samples for this run (the tuning subsample; default: the params file's)")
     ap.add_argument("--no-cv", action="store_true",
                     help="skip the train stage's CV folds: fit the final models as it does (same test scores)")
     args = ap.parse_args()
     params = Params.model_validate(yaml.safe_load(args.params.read_text()) or {})
+    if args.max_samples is not None:
+        params = params.model_copy(update={"coupled": params.coupled.model_copy(
+            update={"max_samples": args.max_samples})})
     results = []
     for seed in args.seeds:
         res = one_seed(seed, args.duration, params, not args.no_inflow, args.models, cv=not args.no_cv)
@@ -146,7 +151,7 @@ def main() -> None:
     models = sorted({m for r in results for m in r["models"]})
     print(f"\nR² against the TRUE accelerations of the unseen trial s3 ({args.duration:.0f}-s trials, "
           f"{'inflow loss on' if not args.no_inflow else 'no inflow loss, damping outside the explicit families'}, "
-          f"seeds {args.seeds})")
+          f"seeds {args.seeds}, coupled.max_samples {params.coupled.max_samples})")
     print("| model | " + " | ".join(f"{o} mean" for o in OUTPUTS) + " | " + " | ".join(f"{o} worst" for o in OUTPUTS)
           + " |")
     print("| --- |" + " ---: |" * 6)
