@@ -24,7 +24,8 @@ the max of N for peak RSS. Methods:
   child process (rosbags' import and typestore included in its CPU; its own clock starts after the typestore);
 * ``cat``: ``cat`` of the log's files to /dev/null, the floor of reading the bytes (warm page cache).
 
-Whole-process figures come from ``os.wait4``: CPU = user + sys of the child (all its threads; insensitive to the
+The tree's sources are compiled to bytecode first (``compile_sources``), as an installed copy is. Whole-process
+figures come from ``os.wait4``: CPU = user + sys of the child (all its threads; insensitive to the
 load on other cores), wall = fork to exit, peak RSS = ``ru_maxrss``. Ratios > 1 mean auvid is faster, except
 ``auvid ÷ cat`` (how many times reading the bytes auvid takes). The load average is printed at the start, after
 each format and at the end. In-process memory: the child's RSS after imports (base), its peak during
@@ -413,6 +414,17 @@ def strip_bag_index(src: Path, dst: Path) -> None:
     dst.write_bytes(bytes(data[:index_pos]))
 
 
+def compile_sources(root: Path) -> None:
+    """Compile the tree's ``pipeline`` and ``stages`` to bytecode (``__pycache__``, ignored by git), as ``pip
+    install`` does: with ``PYTHONDONTWRITEBYTECODE`` set (as in some CI and sandbox environments) every child
+    would otherwise compile the sources again, ~0.04 s of CPU that no installed copy pays."""
+    import compileall
+
+    for sub in ("pipeline", "stages"):
+        if (root / sub).is_dir():
+            compileall.compile_dir(root / sub, quiet=1)
+
+
 def _loadavg() -> str:
     with open("/proc/loadavg") as fh:
         return " ".join(fh.read().split()[:3])
@@ -587,6 +599,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(measure(args.measure, args.path, args.ros1)))
         return 0
     outdir = args.logs or Path(tempfile.mkdtemp(prefix="auvid-bench-"))
+    compile_sources(ROOT)
     base = list(dict.fromkeys(UNINDEXED.get(f, f) for f in args.formats))
     logs = logs_in(outdir, args.minutes, base)
     logs = {**logs, **unindexed_logs(outdir, logs, args.formats)}

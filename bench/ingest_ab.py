@@ -7,7 +7,8 @@
 The logs are those ``bench/ingest.py --logs DIR`` generated (and, with ``--formats mcap-unindexed ros1-unindexed``,
 derived) under ``--logs``. Each round runs every format once per tree, the trees taking turns, each child pinned
 to core 0 (``taskset -c 0``) with ``PYTHONPATH`` set to its tree; the table shows the min of N for CPU and wall and
-the max for peak RSS (bench/ingest.py's lean spawner). The imports' CPU is that of a fresh interpreter importing
+the max for peak RSS (bench/ingest.py's lean spawner); each tree's sources are compiled to bytecode first, as an
+installed copy is (``bench/ingest.py``'s ``compile_sources``). The imports' CPU is that of a fresh interpreter importing
 exactly the modules a tiny ``auvid ingest`` of each tree leaves in ``sys.modules`` (the log: ``--imports-log``,
 default the one-hour uncompressed MCAP), min of 7, the bare interpreter's start reported beside it.
 """
@@ -74,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--imports-log", type=Path, default=None)
     args = parser.parse_args(argv)
     trees = dict(t.split("=", 1) for t in args.trees)
+    for tree in trees.values():
+        for entry in tree.split(os.pathsep):
+            bench.compile_sources(Path(entry))
     vehicle = bench.vehicle_yaml(args.logs)
     logs = {f: args.logs / LOGS[f] for f in args.formats if (args.logs / LOGS[f]).exists()}
     print(f"load average {bench._loadavg()}", flush=True)
