@@ -10,6 +10,8 @@ system of the process and of every process below it, pool workers included, samp
 The modes:
 
 * ``serial``: ``AUVID_JOBS=1``, every fan-out inline;
+* ``serial1`` (``--modes ... serial1``): the same with one BLAS thread (``OPENBLAS_NUM_THREADS=1``), as the pool's
+  workers run: how much of serial's speed comes from its own BLAS threads;
 * ``pool``: the local process pool on every usable core, whatever the input size (``AUVID_POOL_MIN_BYTES=0``);
 * ``auto``: the default, serial below ``pipeline.parallel.POOL_MIN_BYTES`` of input per fan-out, else the pool
   (worker processes forked from the run's process, one BLAS and one Arrow thread each);
@@ -25,7 +27,8 @@ runs ``--repeat`` times, interleaved; the table shows medians. ``--sweep`` runs 
 trial counts and durations and prints, per stage, its input bytes and its time in both modes (from the run's
 per-stage lines): the smallest input at which the pool is faster is where ``POOL_MIN_BYTES`` belongs.
 Every run's outputs (all of ``data/`` but the raw logs) are hashed: the table says whether each mode wrote the
-same bytes as serial.
+same bytes as serial. The tree's ``pipeline`` and ``stages`` are compiled to bytecode first, as an installed copy
+is (with ``PYTHONDONTWRITEBYTECODE`` set every process, and every loky worker, would compile them again).
 """
 
 from __future__ import annotations
@@ -47,12 +50,22 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-MODES = {"serial": {"AUVID_JOBS": "1"}, "pool": {"AUVID_POOL_MIN_BYTES": "0"}, "auto": {},
-         "loky": {"AUVID_POOL_START": "loky"}, "dask": {"AUVID_SCHEDULER": "local"}}
-KNOBS = ("AUVID_JOBS", "AUVID_POOL_MIN_BYTES", "AUVID_POOL_START", "AUVID_SCHEDULER")
+ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+MODES = {"serial": {"AUVID_JOBS": "1"}, "serial1": {"AUVID_JOBS": "1", **ONE_THREAD},
+         "pool": {"AUVID_POOL_MIN_BYTES": "0"}, "auto": {}, "loky": {"AUVID_POOL_START": "loky"},
+         "dask": {"AUVID_SCHEDULER": "local"}}
+KNOBS = ("AUVID_JOBS", "AUVID_POOL_MIN_BYTES", "AUVID_POOL_START", "AUVID_SCHEDULER", *ONE_THREAD)
 STAGE_LINE = re.compile(r"^\[(\w+)\] .* in ([0-9.]+) s$")
 PER_TRIAL_DIRS = {"ingest": "data/raw", "sync": "data/signals", "differentiate": "data/synced",
                   "derive": "data/kinematics"}
+
+
+def compile_sources() -> None:
+    """``pipeline`` and ``stages`` to bytecode (``__pycache__``, ignored by git), as ``pip install`` does."""
+    import compileall
+
+    for sub in ("pipeline", "stages"):
+        compileall.compile_dir(ROOT / sub, quiet=1)
 
 
 def make_log(cache: Path, seconds: float) -> tuple[Path, Path]:
@@ -229,6 +242,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sweep-trials", type=int, nargs="+", default=[2, 4, 8])
     parser.add_argument("--sweep-seconds", type=float, nargs="+", default=[30.0, 120.0, 600.0])
     args = parser.parse_args(argv)
+    compile_sources()
     args.load0 = " ".join(f"{x:.2f}" for x in os.getloadavg())
     with tempfile.TemporaryDirectory(prefix="auvid-par-") as tmp:
         cache = args.logs or Path(tmp)
