@@ -3,17 +3,21 @@
 Every fan-out in the pipeline (per-trial stages, CV folds, hyperparameter search) goes through joblib. This
 module picks joblib's backend once, at the top of a run:
 
-* default: joblib's own local process pool (``loky``), ``n_jobs`` = the number of usable cores;
+* default: local processes, ``n_jobs`` = the number of usable cores: the per-trial and per-log fan-out of the
+  stages (:func:`pmap`, :func:`imap`) forks its workers from the run's process (they start with its imports, one
+  BLAS and one Arrow thread each, and are kept from stage to stage; ``AUVID_POOL_START=loky`` or a platform
+  without fork: joblib's loky workers); joblib's own pool (``loky``) for the rest;
 * ``--scheduler ADDRESS`` on the CLI, or the environment variable ``AUVID_SCHEDULER``: a
   ``dask.distributed.Client`` connected to ``ADDRESS`` and joblib's ``"dask"`` backend, so that the same
   ``Parallel(...)`` calls run on the cluster's workers;
 * ``--scheduler local`` or ``local:N``: the same on a ``dask.distributed.LocalCluster`` started for the run
   (N worker processes, default one per usable core, one thread each) and closed after it.
 
-A local process pool costs its start-up (new interpreters importing numpy, pandas, scipy, the pipeline) and the
-pickling of every task; on small inputs that is more than the work. ``pmap(..., work_bytes=...)`` therefore runs
-serially when the work is below :data:`POOL_MIN_BYTES` (measured by ``bench/parallel.py``, see
-docs/benchmarks.md, "Per-trial fan-out"). A Dask scheduler the user asked for is always used.
+A local process pool costs its start-up (forking, or for loky new interpreters importing numpy, pandas, scipy,
+the pipeline) and the pickling of every task; on small inputs that is more than the work.
+``pmap(..., work_bytes=...)`` therefore runs serially when the work is below :data:`POOL_MIN_BYTES` (measured by
+``bench/parallel.py``, see docs/benchmarks.md, "Per-trial fan-out"). A Dask scheduler the user asked for is always
+used.
 
 Library code does not care which: it calls ``joblib.Parallel(n_jobs=n_jobs())`` (or scikit-learn's
 ``n_jobs=n_jobs()``) inside whatever backend is active. ``parallel_backend(scheduler)`` is the context
@@ -51,6 +55,9 @@ LOCAL = "local"
 #: 3.9 s, pool 10.9 s for the whole ``auvid run --to derive``), so it pays once a stage has more than ~5 s of
 #: serial work; the heaviest stage per byte, differentiate (0.09 s/MB), gets there at ~60 MB, the others
 #: (ingest 0.012, sync 0.019, derive 0.046 s/MB) later. The issue's six small logs (a few MB) stay serial.
+#: Those were loky workers; forked ones cost far less (2 trials of 30 s at load ~5: serial 2.3 s, pool 2.7 s), so
+#: the pool would pay earlier, but 8 x 10 min (53 MB for differentiate) under load was still no faster in the
+#: pool (0.77-1.14x per round): the value stays until a sweep on idle cores says where it belongs.
 POOL_MIN_BYTES = 64_000_000
 
 T = TypeVar("T")
@@ -341,7 +348,7 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
     A forked worker starts with everything this process has imported (the stage modules, numpy, pandas, pyarrow)
     and costs a few ms, where a spawned loky worker starts an interpreter and imports them again (~1 CPU-s each on
     the development machine). Inside a local backend the workers are kept for the next fan-out (the next stage):
-    a fresh process also pays for faulting in its heap again (~0.1 CPU-s per worker and stage on the 8 one-hour
+    a fresh process also pays for faulting in its heap again (~0.15 CPU-s per worker and stage on the 8 one-hour
     trials). Any exception (a worker's, or Ctrl-C here) cancels what has not started and ends the workers before
     it propagates.
     """
