@@ -1,9 +1,10 @@
 """ROS 2 bags: a directory of sqlite3 or MCAP storage files, with or without ``metadata.yaml``.
 
-Storage is read directly (sqlite rows fetched in bulk; MCAP records walked by :mod:`pipeline.io.mcap_reader`),
-so the counts come from the storage itself (``COUNT(*)`` per topic, MCAP records) and a split bag is one
-recording. Per-file compression (``*.db3.zstd``, ``*.mcap.zstd``) is undone into a temporary directory that
-:meth:`Rosbag2Reader.close` removes; per-message compression is undone per payload.
+Storage is read directly (the sqlite ``messages`` table parsed from its b-tree pages by :mod:`.sqlite_btree`, or
+fetched in bulk through sqlite; MCAP records walked by :mod:`pipeline.io.mcap_reader`), so the counts come from the
+storage itself (metadata.yaml's counts checked against the rows read, else ``COUNT(*)`` per topic; MCAP records)
+and a split bag is one recording. Per-file compression (``*.db3.zstd``, ``*.mcap.zstd``) is undone into a
+temporary directory that :meth:`Rosbag2Reader.close` removes; per-message compression is undone per payload.
 """
 
 from __future__ import annotations
