@@ -55,9 +55,9 @@ LOCAL = "local"
 #: 3.9 s, pool 10.9 s for the whole ``auvid run --to derive``), so it pays once a stage has more than ~5 s of
 #: serial work; the heaviest stage per byte, differentiate (0.09 s/MB), gets there at ~60 MB, the others
 #: (ingest 0.012, sync 0.019, derive 0.046 s/MB) later. The issue's six small logs (a few MB) stay serial.
-#: Those were loky workers; forked ones cost far less (2 trials of 30 s at load ~5: serial 2.3 s, pool 2.7 s), so
-#: the pool would pay earlier, but 8 x 10 min (53 MB for differentiate) under load was still no faster in the
-#: pool (0.77-1.14x per round): the value stays until a sweep on idle cores says where it belongs.
+#: Those were loky workers; forked ones cost far less: on idle cores (``--sweep --repeat 2``, 544ffc2) the pool
+#: pays for differentiate from ~1.5 MB and for a whole run from ~4 MB of logs, but under load (~3-5) it was still
+#: no faster at 18 and 53 MB. The value stays, the conservative side for a machine shared with other work.
 POOL_MIN_BYTES = 64_000_000
 
 T = TypeVar("T")
