@@ -446,3 +446,13 @@ class RawReader:
 
     def _batches(self, topics: list[str]) -> Iterator[Batch]:  # pragma: no cover - abstract
         raise NotImplementedError
+
+
+def scratch_buffer(scratch: list, size: int):
+    """The first ``size`` bytes of the reusable uint8 buffer ``scratch[0]``, grown (with 1/8 headroom) when too
+    small: the batched readers fill it with each batch's pages or chunks instead of allocating one per batch."""
+    import numpy as np  # here: a plain ``import pipeline.io`` stays free of numpy
+
+    if len(scratch[0]) < size:
+        scratch[0] = np.empty(size + (size >> 3), dtype=np.uint8)
+    return scratch[0][:size]

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, take_rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, scratch_buffer, take_rows
 from pipeline.io.dedup import crc
 from pipeline.io.mcap_reader import (
     MAGIC,
@@ -197,16 +197,10 @@ def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
         os.close(fd)
 
 
-def _scratch(scratch: list[np.ndarray], size: int) -> np.ndarray:
-    if len(scratch[0]) < size:
-        scratch[0] = np.empty(size + (size >> 3), dtype=np.uint8)
-    return scratch[0][:size]
-
-
 def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list[np.ndarray]) -> Batch:
     if all(c.compression == "" for c in group):
         lo, hi = group[0].body, group[-1].body + group[-1].length
-        buf = _scratch(scratch, hi - lo)
+        buf = scratch_buffer(scratch, hi - lo)
         if os.preadv(fd, [buf], lo) != hi - lo:
             raise Damaged("chunk cut short", group[0].at)
         where = [(c, c.body - lo) for c in group]
@@ -214,7 +208,7 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
             if chunk.length != chunk.usize or (chunk.crc and crc(buf[at:at + chunk.length]) != chunk.crc):
                 raise Damaged("chunk CRC or size mismatch (corrupt bytes)", chunk.at)
     else:
-        buf = _scratch(scratch, sum(c.usize for c in group))
+        buf = scratch_buffer(scratch, sum(c.usize for c in group))
         where, at = [], 0
         for chunk in group:
             buf[at:at + chunk.usize] = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)

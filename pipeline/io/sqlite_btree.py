@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.io.base import scratch_buffer
+
 LEAF, INTERIOR = 0x0D, 0x05
 MAX_DEPTH = 32
 #: Bytes gathered from the start of every cell: payload size, rowid, the record's header, topic_id and timestamp
@@ -138,12 +140,6 @@ def row_batches(path: str | Path, root: int, limit: int = 16 << 20) -> Iterator[
         os.close(fd)
 
 
-def _scratch(scratch: list[np.ndarray], size: int) -> np.ndarray:
-    if len(scratch[0]) < size:
-        scratch[0] = np.empty(size + (size >> 3), dtype=np.uint8)
-    return scratch[0][:size]
-
-
 def _read_pages(fd: int, layout: Layout, group: np.ndarray, scratch: list[np.ndarray]) -> tuple[np.ndarray, ...]:
     """The pages of ``group`` in one buffer, and where each starts in it: one read of the span they lie in when
     that span is mostly theirs (a bag written in order), else one read a page. :data:`PREFIX` bytes of slack
@@ -152,11 +148,11 @@ def _read_pages(fd: int, layout: Layout, group: np.ndarray, scratch: list[np.nda
     lo, hi = int(group.min()), int(group.max())
     span = hi - lo + 1
     if span <= 2 * len(group) + 16:
-        buf = _scratch(scratch, span * ps + PREFIX)
+        buf = scratch_buffer(scratch, span * ps + PREFIX)
         if os.preadv(fd, [buf[:span * ps]], (lo - 1) * ps) != span * ps:
             raise NotPlain("leaf pages cut short")
         return buf, (group - lo) * ps
-    buf = _scratch(scratch, len(group) * ps + PREFIX)
+    buf = scratch_buffer(scratch, len(group) * ps + PREFIX)
     for k, pgno in enumerate(group.tolist()):
         if os.preadv(fd, [buf[k * ps:(k + 1) * ps]], (pgno - 1) * ps) != ps:
             raise NotPlain("a leaf page cut short")
