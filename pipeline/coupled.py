@@ -187,11 +187,11 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
         base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std)
-        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity) for out in params.outputs])
+        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate) for out in params.outputs])
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
                        residual_columns=tuple(res_cols))
     n_velocity = params.n_velocity_inputs()
-    return PerOutputRegressor([make_svr(model, hyper[out], n_velocity) for out in params.outputs])
+    return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate) for out in params.outputs])
 
 
 def _check_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
@@ -411,6 +411,8 @@ def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], 
         first = per_out[outputs[0]]
         rows: list[tuple[str, list[float]]] = [("epsilon", [per_out[o]["epsilon"] for o in outputs]),
                                                ("C", [per_out[o]["C"] for o in outputs])]
+        if all("C_rows" in per_out[o] for o in outputs):  # the rows that C was chosen on (svr.scaled_C)
+            rows.append(("C chosen on rows", [per_out[o]["C_rows"] for o in outputs]))
         if "gammas" in first:
             rows += [(f"gamma_{inp}", [per_out[o]["gammas"][i] for o in outputs]) for i, inp in enumerate(inputs)]
         else:

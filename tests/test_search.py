@@ -78,3 +78,18 @@ def test_the_searchs_gp_fits_run_on_one_blas_thread(monkeypatch):
     with threadpool_limits(2, user_api="blas"):  # as on a 2-core machine, whatever this one has
         fast_search("wdse_svr", X, y, max_evals=6, n_explore=0)
     assert len(seen) >= 3 and set(seen) == {1}, seen
+
+
+@pytest.mark.parametrize("method", ["fast", "paper_grid"])
+def test_the_best_params_name_the_rows_their_C_was_chosen_on(method):
+    """3-fold blocked CV on 150 rows trains each candidate on 100: the tuned C is the C of 100 rows, and the
+    tuned model fitted on all 150 uses C (100 / 150)^0.5."""
+    from pipeline.models.search import make_svr, search
+
+    X, y = _two_of_six()
+    grid = {"gamma": [0.1, 1.0], "C": [1.0, 10.0], "epsilon": [0.01]}
+    kw = {"max_evals": 4} if method == "fast" else {"grid": grid}
+    res = search("rbf_svr", X, y, method, n_folds=3, **kw)
+    assert res.best_params["C_rows"] == 100
+    est = make_svr("rbf_svr", res.best_params, C_rate=0.5).fit(X, y)
+    assert est.C_ == pytest.approx(res.best_params["C"] * (100 / 150) ** 0.5, rel=1e-12)

@@ -70,3 +70,20 @@ def test_per_output_pickle_and_clone():
     again = pickle.loads(pickle.dumps(model))
     np.testing.assert_array_equal(again.predict(X), model.predict(X))
     assert model.estimators_[0].C == 1.0 and model.estimators_[1].gamma == 0.5
+
+
+@pytest.mark.parametrize("make", [lambda **kw: RBFSVR(gamma=0.2, epsilon=0.05, **kw),
+                                  lambda **kw: TwoWeightsSVR(gamma_velocity=0.3, gamma_actuator=0.02, **kw),
+                                  lambda **kw: WDSESVR(gammas=[0.3, 2.0, 0.05, 1e-3, 0.1, 0.7], **kw)])
+def test_C_chosen_on_fewer_rows_is_scaled_to_the_rows_fitted(make):
+    """A C searched on C_rows rows and fitted on n: C (C_rows / n)^C_rate, the same model as that C given plainly
+    (200 rows, C_rows 50: C_rate 0.5 halves C, C_rate 1 quarters it, no C_rows keeps it)."""
+    X, y = _data()
+    cases = [(dict(C_rows=50, C_rate=0.5), 2.0), (dict(C_rows=50, C_rate=1.0), 1.0), (dict(C_rate=1.0), 4.0),
+             (dict(C_rows=800, C_rate=0.5), 8.0)]
+    for kw, expected in cases:
+        est = make(C=4.0, **kw).fit(X, y)
+        assert est.C_ == pytest.approx(expected, rel=1e-12)
+        np.testing.assert_array_equal(est.predict(X), make(C=expected).fit(X, y).predict(X))
+    with pytest.raises(ValueError, match="C_rows"):
+        make(C=4.0, C_rows=0).fit(X, y)

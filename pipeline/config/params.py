@@ -131,6 +131,10 @@ class CoupledParams(Frozen):
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
+    c_rate: float = Field(
+        0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
+        "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "
+        "n^-c_rate (0: C kept as searched, regularization ~ 1/n; 1: regularization kept). docs/models.md.")
     seed: int = 0
     explicit_refine: bool = Field(
         False, description="Output-error refinement of the explicit models (Gertler-Hagen, McFarland-Whitcomb): "
@@ -143,7 +147,9 @@ class CoupledParams(Frozen):
         "final model on the whole train_test block (the tune stage). split: the papers' protocol, on the tuning "
         "split (the first tuning_fraction of each trial) once, then fixed; on realistic trials that block is too "
         "short to rank hyperparameters the way the whole training set needs them (docs/models.md).")
-    tuning_folds: int = Field(3, ge=2, description="Blocked CV folds inside each search's data (search score).")
+    tuning_folds: int = Field(5, ge=2, description="Blocked CV folds inside each search's data (search score). "
+                              "5: each candidate is scored on 5 test blocks (3 gave WDSE's 8 hyperparameters a "
+                              "noisier choice; docs/models.md).")
     max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "

@@ -79,15 +79,18 @@ class SearchResult:
         return asdict(self)
 
 
-def make_svr(model: str, params: dict[str, Any], n_velocity: int = 3) -> Any:
-    """An unfitted SVR variant from a flat hyperparameter dict (as stored in the tuning JSON)."""
+def make_svr(model: str, params: dict[str, Any], n_velocity: int = 3, C_rate: float = 0.5) -> Any:
+    """An unfitted SVR variant from a flat hyperparameter dict (as stored in the tuning JSON). Its ``C_rows``
+    (written by :func:`search`; absent in older files: C kept) and ``C_rate`` scale C to the rows it is fitted on
+    (:func:`pipeline.models.svr.scaled_C`)."""
+    scale = {"C_rows": params.get("C_rows"), "C_rate": C_rate}
     if model == "rbf_svr":
-        return RBFSVR(gamma=params["gamma"], C=params["C"], epsilon=params["epsilon"])
+        return RBFSVR(gamma=params["gamma"], C=params["C"], epsilon=params["epsilon"], **scale)
     if model == "two_weights_svr":
         return TwoWeightsSVR(gamma_velocity=params["gamma_velocity"], gamma_actuator=params["gamma_actuator"],
-                             C=params["C"], epsilon=params["epsilon"], n_velocity=n_velocity)
+                             C=params["C"], epsilon=params["epsilon"], n_velocity=n_velocity, **scale)
     if model == "wdse_svr":
-        return WDSESVR(gammas=list(params["gammas"]), C=params["C"], epsilon=params["epsilon"])
+        return WDSESVR(gammas=list(params["gammas"]), C=params["C"], epsilon=params["epsilon"], **scale)
     raise ModelError(f"unknown SVR model {model!r}; expected one of {list(SVR_MODELS)}")
 
 
@@ -464,12 +467,18 @@ def _smoothest_within(trace: list[dict[str, Any]], best: float, tolerance: float
 
 
 def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
-    """Dispatch to :func:`fast_search` or :func:`grid_search` (``method="paper_grid"``)."""
+    """Dispatch to :func:`fast_search` or :func:`grid_search` (``method="paper_grid"``). The best parameters carry
+    ``C_rows``: the mean training rows of the search's folds, the rows its C was chosen on (see
+    :func:`pipeline.models.svr.scaled_C`)."""
     if method == "fast":
-        return fast_search(model, X, y, **kw)
-    if method == "paper_grid":
+        res = fast_search(model, X, y, **kw)
+    elif method == "paper_grid":
         for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "n_explore",
                     "local", "model_share", "initial_step", "min_step"):
             kw.pop(key, None)
-        return grid_search(model, X, y, keep_trace=False, **kw)
-    raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")
+        res = grid_search(model, X, y, keep_trace=False, **kw)
+    else:
+        raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")
+    train_rows = [len(train) for train, _ in blocked_folds(len(X), res.n_folds)]
+    res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
+    return res

@@ -8,6 +8,13 @@ equals an RBF kernel with gamma = 1 on inputs scaled by sqrt(gamma_i), so every 
 standardized inputs by a per-column factor, then ``SVR(kernel='rbf', gamma=1)``": exact, as fast as a plain
 RBF-SVR, and picklable (no callable kernel, no Gram matrix). The gammas refer to STANDARDIZED inputs.
 
+``C`` is libsvm's: it multiplies the SUM of the training losses, so the regularization of the equivalent
+regularized risk, lambda = 1 / (2 C n), falls as 1/n when one C is fitted on more rows. Hyperparameters are
+searched on a subsample (``coupled.max_samples``) and the model is then fitted on every row: with ``C_rows`` (the
+rows per search fold the C was chosen on) a fit on n rows uses ``C * (C_rows / n) ** C_rate`` (:func:`scaled_C`),
+so lambda goes as n^-C_rate between the search and the fit (0: C kept, lambda ~ 1/n; 1: lambda kept). The default
+0.5 (lambda ~ n^-1/2) is the measured choice of docs/models.md.
+
 Each estimator is single-output; :class:`PerOutputRegressor` fits one estimator per output column so that
 every output keeps its own hyperparameters (Table II of the paper).
 """
@@ -25,7 +32,17 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RBFSVR", "TwoWeightsSVR", "WDSESVR", "PerOutputRegressor", "wdse_gram"]
+__all__ = ["RBFSVR", "TwoWeightsSVR", "WDSESVR", "PerOutputRegressor", "scaled_C", "wdse_gram"]
+
+
+def scaled_C(C: float, C_rows: int | None, n_rows: int, C_rate: float = 0.5) -> float:
+    """The C a fit on ``n_rows`` rows uses when ``C`` was chosen on ``C_rows`` rows (None: ``C`` unchanged)."""
+    if C_rows is None:
+        return float(C)
+    if C_rows <= 0 or n_rows <= 0 or not 0.0 <= C_rate <= 1.0:
+        raise ValueError(f"C_rows and the rows fitted must be > 0 and C_rate in [0, 1], got C_rows {C_rows}, "
+                         f"{n_rows} rows, C_rate {C_rate}")
+    return float(C) * (C_rows / n_rows) ** C_rate
 
 
 class _ScaledRBFSVR(RegressorMixin, BaseEstimator):
@@ -35,7 +52,7 @@ class _ScaledRBFSVR(RegressorMixin, BaseEstimator):
         raise NotImplementedError
 
     def _svr(self) -> SVR:
-        return SVR(kernel="rbf", gamma=1.0, C=self.C, epsilon=self.epsilon, tol=self.tol,
+        return SVR(kernel="rbf", gamma=1.0, C=self.C_, epsilon=self.epsilon, tol=self.tol,
                    cache_size=self.cache_size, max_iter=self.max_iter)
 
     def _transform(self, X: np.ndarray) -> np.ndarray:
@@ -49,6 +66,7 @@ class _ScaledRBFSVR(RegressorMixin, BaseEstimator):
         self.gammas_ = gammas
         self.feature_scale_ = np.sqrt(gammas)
         self.scaler_ = StandardScaler().fit(X)
+        self.C_ = scaled_C(self.C, self.C_rows, len(X), self.C_rate)
         self.svr_ = self._svr().fit(self._transform(X), y)
         self.n_iter_ = int(np.max(self.svr_.n_iter_))
         return self
@@ -68,13 +86,16 @@ class RBFSVR(_ScaledRBFSVR):
     """RBF-SVR on standardized inputs: k(x, x') = exp(-gamma ||x - x'||^2)."""
 
     def __init__(self, gamma: float = 0.1, C: float = 1.0, epsilon: float = 0.1, *, tol: float = 1e-3,
-                 cache_size: float = 200.0, max_iter: int = -1) -> None:
+                 cache_size: float = 200.0, max_iter: int = -1, C_rows: int | None = None,
+                 C_rate: float = 0.5) -> None:
         self.gamma = gamma
         self.C = C
         self.epsilon = epsilon
         self.tol = tol
         self.cache_size = cache_size
         self.max_iter = max_iter
+        self.C_rows = C_rows
+        self.C_rate = C_rate
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:
         return np.full(n_features, float(self.gamma))
@@ -88,7 +109,7 @@ class TwoWeightsSVR(_ScaledRBFSVR):
 
     def __init__(self, gamma_velocity: float = 0.1, gamma_actuator: float = 0.1, C: float = 1.0,
                  epsilon: float = 0.1, *, n_velocity: int = 3, tol: float = 1e-3, cache_size: float = 200.0,
-                 max_iter: int = -1) -> None:
+                 max_iter: int = -1, C_rows: int | None = None, C_rate: float = 0.5) -> None:
         self.gamma_velocity = gamma_velocity
         self.gamma_actuator = gamma_actuator
         self.C = C
@@ -97,6 +118,8 @@ class TwoWeightsSVR(_ScaledRBFSVR):
         self.tol = tol
         self.cache_size = cache_size
         self.max_iter = max_iter
+        self.C_rows = C_rows
+        self.C_rate = C_rate
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:
         if self.n_velocity < 0:
@@ -114,13 +137,16 @@ class WDSESVR(_ScaledRBFSVR):
     """
 
     def __init__(self, gammas: Sequence[float] | None = None, C: float = 1.0, epsilon: float = 0.1, *,
-                 tol: float = 1e-3, cache_size: float = 200.0, max_iter: int = -1) -> None:
+                 tol: float = 1e-3, cache_size: float = 200.0, max_iter: int = -1, C_rows: int | None = None,
+                 C_rate: float = 0.5) -> None:
         self.gammas = gammas
         self.C = C
         self.epsilon = epsilon
         self.tol = tol
         self.cache_size = cache_size
         self.max_iter = max_iter
+        self.C_rows = C_rows
+        self.C_rate = C_rate
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:
         if self.gammas is None:

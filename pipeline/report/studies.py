@@ -116,7 +116,8 @@ def _table2(doc: dict[str, Any], outputs: Sequence[str], inputs: Sequence[str]) 
             rows.append({"regressor": label(model) if i == 0 else "", "hyperparameter": name,
                          **{OUTPUT_LABELS.get(o, o): (per_out.get(o) or {}).get(name) for o in outputs}})
     return H.table(rows, caption="Table II — hyperparameters (paper 000): the SVRs' hyperparameters per output "
-                                 "(γ on standardized inputs; C and ε in the output's unit)")
+                                 "(γ on standardized inputs; C and ε in the output's unit; C as chosen on C_rows "
+                                 "rows, a fit on n rows uses C·(C_rows/n)^coupled.c_rate)")
 
 
 def _table3(doc: dict[str, Any], outputs: Sequence[str]) -> tuple[str, list[dict[str, Any]]]:
