@@ -138,3 +138,22 @@ def test_the_gray_box_residual_search_is_warm_started_by_its_own_chain(study):
     params, out = study
     for o in params.outputs:
         assert out["trace"]["graybox"][o]["warm_start_score"] is not None, o
+
+
+def test_the_final_models_C_follows_the_rows_they_are_fitted_on(study):
+    """The study's models were searched on folds of C_rows rows and fitted on the whole train_test block: each SVR
+    (and the gray box's residual SVR) fits with C (C_rows / n)^c_rate; c_rate 0 keeps the searched C."""
+    from pipeline.coupled import build_model, model_inputs
+
+    params, out = study
+    frame = synthetic_frame(900, seed=3)
+    for model in ("rbf_svr", "two_weights_svr", "wdse_svr"):
+        hyper = out["hyper"][model]
+        X, y = frame[model_inputs(model, params)].to_numpy(float), frame[params.outputs].to_numpy(float)
+        for rate in (0.5, 0.0, 1.0):
+            est = build_model(model, hyper, params.model_copy(update={"c_rate": rate})).fit(X, y)
+            for k, o in enumerate(params.outputs):
+                searched, rows = hyper[o]["C"], hyper[o]["C_rows"]
+                assert 0 < rows < len(X)
+                assert est.estimators_[k].C_ == pytest.approx(searched * (rows / len(X)) ** rate, rel=1e-12)
+    assert "C chosen on rows" in table2(out["hyper"], params.outputs, params.inputs)
