@@ -187,7 +187,8 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
         base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std)
-        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate) for out in params.outputs])
+        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate)
+                                       for out in params.outputs])
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
                        residual_columns=tuple(res_cols))
     n_velocity = params.n_velocity_inputs()

@@ -129,13 +129,14 @@ def test_simulate_stage_rolls_out_trained_coupled_models(run_root, vehicle: Vehi
 
 #: Issue 4's acceptance setup (docs/models.md): three 300-s DAGON trials from pipeline.sim with coupled damping and the
 #: propellers' thrust loss to inflow (DAGON_INFLOW_LOSS, which DAGON's static K n|n| curve in the vehicle config,
-#: hence the store's tau, does not know), each cut from a run already in motion (30 s warm-up); tuning block: the
-#: first 20 % of s1 and s2, searched with 5 blocked folds and 20 candidates per model and output; 5-fold blocked CV
-#: on the rest; final check on s3. About 6 min on 2 cores: the slowest test of the suite, and always run, since it is
+#: hence the store's tau, does not know), each cut from a run already in motion (30 s warm-up). Searched as by
+#: default (nested) on a 600-row subsample of s1 and s2's train_test block, 5 blocked folds and 20 candidates per
+#: model and output, and again inside each of 2 blocked CV folds; final check on s3. About 4 min on 2 cores: the
+#: slowest test of the suite, and always run, since it is
 #: the acceptance criterion of the coupled-model study.
 ACCEPTANCE_TRIALS = {"s1": 11, "s2": 12, "s3": 13}
 ACCEPTANCE_DURATION_S, ACCEPTANCE_WARMUP_S = 300.0, 30.0
-ACCEPTANCE_COUPLED = {"folds": 5, "tuning_folds": 5, "max_evals": 20, "tuning": "split",  # the papers' protocol
+ACCEPTANCE_COUPLED = {"folds": 2, "tuning_folds": 5, "max_evals": 20, "max_samples": 600, "tuning": "nested",
                       "models": ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb"]}
 
 
@@ -152,13 +153,18 @@ def test_acceptance_wdse_beats_rbf_and_explicit_on_test_trial(tmp_path: Path) ->
     metrics = train_stage.run(tmp_path, vehicle, params).summary["metrics"]
     final = {m: {o: metrics[m][o]["final_r2"] for o in ("udot_mps2", "vdot_mps2", "rdot_radps2")}
              for m in ("rbf_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb")}
-    # With the realistic DVL (the simulator's default since issue 12) and weighted TLS (issue 13), the papers'
-    # ranking does not hold on this seed: McFarland-Whitcomb by WTLS reaches 0.95 on u_dot, WDSE 0.80, RBF 0.81
-    # (docs/models.md: the tuning block's CV does not pick hyperparameters that transfer). What must hold: the
-    # kernel models are within seed noise of each other, and the best model of each output has real skill.
+    # The default protocol (coupled.tuning: nested, C scaled to the rows fitted, 5 search folds). Under the papers'
+    # split protocol this seed ranked nothing (WDSE 0.80 / 0.81 / 0.91 against RBF 0.79 / 0.85 / 0.91: the tuning
+    # block's CV does not pick hyperparameters that transfer, docs/models.md). Nested, on this seed (2026-11-25):
+    # WDSE 0.948 / 0.929 / 0.971, RBF 0.947 / 0.853 / 0.931, McFarland-Whitcomb 0.951 / 0.891 / 0.852,
+    # Gertler-Hagen 0.664 / 0.874 / 0.803. What must hold: WDSE at least RBF's skill on every output (within seed
+    # noise), above both explicit models where their structure misses the truth (v_dot, r_dot), and real skill.
     for out in ("udot_mps2", "vdot_mps2", "rdot_radps2"):
-        assert final["wdse_svr"][out] > final["rbf_svr"][out] - 0.03, (out, final)
-        assert max(f[out] for f in final.values()) > 0.85, (out, final)
+        assert final["wdse_svr"][out] > final["rbf_svr"][out] - 0.01, (out, final)
+        if out != "udot_mps2":
+            assert final["wdse_svr"][out] > max(final["gertler_hagen"][out], final["mcfarland_whitcomb"][out]), \
+                (out, final)
+        assert max(f[out] for f in final.values()) > 0.9, (out, final)
 
 
 def test_train_refuses_hyperparameters_of_the_other_tuning_mode(run_root, vehicle: Vehicle, tmp_path: Path) -> None:
