@@ -258,7 +258,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
             kw: dict[str, Any] = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
             if params.search == "fast":
                 kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
-                          warm_start=hyper[simpler][out] if simpler else None)
+                          one_se=params.selection == "one_se", warm_start=hyper[simpler][out] if simpler else None)
             k_search += 1
             kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
             res = search(model, X, data[out].to_numpy(float), params.search, **kw)
@@ -277,7 +277,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         for k, out in enumerate(params.outputs):
             kw = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
             if params.search == "fast":  # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs above
-                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance)
+                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
+                          one_se=params.selection == "one_se")
                 for simpler in SVR_MODELS[:-1]:
                     kw["warm_start"] = search(simpler, X, resid[:, k], params.search, **kw).best_params
             k_search += 1  # progress: the residual's WDSE search (its warm-start chain reports nothing)

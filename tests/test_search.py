@@ -93,3 +93,19 @@ def test_the_best_params_name_the_rows_their_C_was_chosen_on(method):
     assert res.best_params["C_rows"] == 100
     est = make_svr("rbf_svr", res.best_params, C_rate=0.5).fit(X, y)
     assert est.C_ == pytest.approx(res.best_params["C"] * (100 / 150) ** 0.5, rel=1e-12)
+
+
+def test_one_se_keeps_the_smoothest_kernel_within_a_standard_error_of_the_best():
+    """The one-standard-error rule: every candidate's fold scores give its standard error; the pick is the widest
+    kernel (smallest sum of log gammas) among those whose mean is within one SE of the best mean."""
+    X, y = _two_of_six(150, seed=2)  # a data set where the best mean is not the widest near-tie
+    plain = fast_search("wdse_svr", X, y, max_evals=20, n_folds=5)
+    ruled = fast_search("wdse_svr", X, y, max_evals=20, n_folds=5, one_se=True)
+    assert [t["params"] for t in ruled.trace] == [t["params"] for t in plain.trace]  # same search, another pick
+    best = max(ruled.trace, key=lambda t: t["score"])
+    assert best["se"] > 0 and plain.best_params == best["params"]
+    near = [t for t in ruled.trace if t["score"] >= best["score"] - best["se"]]
+    assert len(near) > 1
+    widest = min(near, key=lambda t: np.sum(np.log(t["params"]["gammas"])))
+    assert ruled.best_params == widest["params"] != best["params"]
+    assert np.sum(np.log(ruled.best_params["gammas"])) < np.sum(np.log(best["params"]["gammas"]))

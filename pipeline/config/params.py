@@ -154,6 +154,9 @@ class CoupledParams(Frozen):
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")
+    selection: Literal["best", "one_se"] = Field(
+        "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
+        "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")
     n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
 
     @field_validator("models")

@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
-__all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_score", "grid_search", "fast_search",
+__all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search", "fast_search",
            "search", "SearchResult"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
@@ -140,15 +140,20 @@ def _fold_r2(est: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np
     return float(r2_score(y[test], fitted.predict(X[test])))
 
 
+def cv_fold_scores(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
+                   folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None = 1, n_velocity: int = 3
+                   ) -> list[float]:
+    """Test R² of one candidate on each of the given (blocked) folds."""
+    est = make_svr(model, params, n_velocity)
+    if n_jobs == 1:
+        return [_fold_r2(est, X, y, tr, te) for tr, te in folds]
+    return list(Parallel(n_jobs=n_jobs)(delayed(_fold_r2)(est, X, y, tr, te) for tr, te in folds))
+
+
 def cv_score(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
              folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None = 1, n_velocity: int = 3) -> float:
     """Mean test R² of one candidate over the given (blocked) folds."""
-    est = make_svr(model, params, n_velocity)
-    if n_jobs == 1:
-        scores = [_fold_r2(est, X, y, tr, te) for tr, te in folds]
-    else:
-        scores = Parallel(n_jobs=n_jobs)(delayed(_fold_r2)(est, X, y, tr, te) for tr, te in folds)
-    return float(np.mean(scores))
+    return float(np.mean(cv_fold_scores(model, params, X, y, folds, n_jobs, n_velocity)))
 
 
 def _check_xy(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -256,7 +261,8 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
-                smooth_tolerance: float = 0.0, n_explore: int | None = None, local: str = "model",
+                smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
+                local: str = "model",
                 model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
     """GP-seeded adaptive pattern search on log scale (see module docstring).
 
@@ -276,7 +282,9 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     tried and how close they came) and a warning is logged.
 
     ``smooth_tolerance`` > 0: return the smoothest candidate within that much R² of the best (see
-    :func:`_smoothest_within`) rather than the best itself.
+    :func:`_smoothest_within`) rather than the best itself. ``one_se``: the same within one standard error of
+    the best candidate's mean fold score (its fold scores' SD / sqrt(folds); the one-standard-error rule of
+    Breiman et al. 1984, Hastie et al. 2009 §7.10), or ``smooth_tolerance`` if that is larger.
 
     ``progress(done, total, desc)`` (optional) is called after each new candidate (``total``: the budget).
     """
@@ -304,8 +312,10 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
         key = tuple(np.round(v, 6))
         if key not in cache:
             params = _to_params(model, names, np.exp(v))
-            cache[key] = cv_score(model, params, X, y, folds, n_jobs, n_velocity)
-            trace.append({"params": params, "score": cache[key], "phase": phase})
+            scores = cv_fold_scores(model, params, X, y, folds, n_jobs, n_velocity)
+            cache[key] = float(np.mean(scores))
+            se = float(np.std(scores, ddof=1) / math.sqrt(len(scores))) if len(scores) > 1 else 0.0
+            trace.append({"params": params, "score": cache[key], "se": se, "phase": phase})
             if progress is not None:
                 progress(min(len(cache), max_evals), max_evals, f"{model} {phase}")
         return cache[key]
@@ -339,8 +349,11 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
             result.warm_start_kept = True
             result.note = _kept_note(trace, cache[warm_key], n_folds)
             log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
-    if smooth_tolerance > 0:
-        result.best_params, result.best_score = _smoothest_within(trace, best, smooth_tolerance)
+    tolerance = smooth_tolerance
+    if one_se:  # the one-standard-error rule: the best candidate's fold scores say how sure its lead is
+        tolerance = max(tolerance, next(t["se"] for t in trace if t["score"] == best))
+    if tolerance > 0:
+        result.best_params, result.best_score = _smoothest_within(trace, best, tolerance)
     result.elapsed_s = time.perf_counter() - t0
     return result
 
@@ -473,7 +486,7 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
     if method == "fast":
         res = fast_search(model, X, y, **kw)
     elif method == "paper_grid":
-        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "n_explore",
+        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "one_se", "n_explore",
                     "local", "model_share", "initial_step", "min_step"):
             kw.pop(key, None)
         res = grid_search(model, X, y, keep_trace=False, **kw)
