@@ -47,8 +47,8 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
-__all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search", "fast_search",
-           "search", "SearchResult"]
+__all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
+           "fast_search", "search", "SearchResult"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -486,8 +486,8 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
     if method == "fast":
         res = fast_search(model, X, y, **kw)
     elif method == "paper_grid":
-        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "one_se", "n_explore",
-                    "local", "model_share", "initial_step", "min_step"):
+        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "one_se",
+                    "n_explore", "local", "model_share", "initial_step", "min_step"):
             kw.pop(key, None)
         res = grid_search(model, X, y, keep_trace=False, **kw)
     else:
