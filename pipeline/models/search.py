@@ -262,8 +262,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
-                local: str = "model",
-                model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
+                local: str = "model", model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
     """GP-seeded adaptive pattern search on log scale (see module docstring).
 
     Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. Phases, each
