@@ -130,6 +130,20 @@ def _add_config(p: argparse.ArgumentParser, vehicle_required: bool = False) -> N
                    help="params YAML (default: <root>/params.yaml if present, else built-in defaults)")
 
 
+def _add_ingest_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-checksum", dest="checksum", action="store_const", const="none", default=None,
+                   help="do not compute each raw log's sha256 for the outputs' provenance (params ingest.checksum: "
+                        "none for this call; provenance then says checksum none); saves reading the log once more")
+
+
+def _with_overrides(params: Any, args: argparse.Namespace) -> Any:
+    """Params with the command line's overrides (``--no-checksum``: ``ingest.checksum: none``)."""
+    checksum = getattr(args, "checksum", None)
+    if checksum is None or checksum == params.ingest.checksum:
+        return params
+    return params.model_copy(update={"ingest": params.ingest.model_copy(update={"checksum": checksum})})
+
+
 def _add_definitions(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", type=Path, default=None, help="vehicle config: its message_definitions and the "
                    "CSV options of its streams are used")
@@ -171,6 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "  auvid run --root runs/basin --vehicle dagon.yaml --from features\n")
     _add_config(run)
     run.add_argument("logs", nargs="*", type=_abs_path, help="logs to ingest (default: everything under data/raw/)")
+    _add_ingest_options(run)
     run.add_argument("--from", dest="first", choices=_stage_names(), help="start at this stage")
     run.add_argument("--to", dest="last", choices=_stage_names(), help="stop after this stage")
     _add_run_options(run)
@@ -186,6 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "ingest":
             p.add_argument("logs", nargs="*", type=_abs_path, help="logs to ingest (default: everything under "
                            "data/raw/)")
+            _add_ingest_options(p)
         if name in ("sync", "differentiate", "derive"):
             p.add_argument("--trial", default=None, help="one trial (default: every trial with input)")
         _add_run_options(p)
@@ -374,6 +390,7 @@ def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
 
     _check_inputs(args, stages)
     vehicle, params = _load(args)
+    params = _with_overrides(params, args)
     logs = list(getattr(args, "logs", None) or []) or None
     start = time.perf_counter()
     if getattr(args, "trial", None):

@@ -34,7 +34,7 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -53,6 +53,7 @@ if TYPE_CHECKING:  # pyarrow is imported where tables are built: `auvid inspect`
 log = logging.getLogger(__name__)
 
 QUAT_COMPONENTS = ("w", "x", "y", "z")
+CHECKSUMS = ("sha256", "none")  # params ingest.checksum
 _LOG_SUFFIXES = (".mcap", ".bag", ".db3", ".csv", ".tsv", ".txt", ".dat", ".gz", ".zst", ".zstd", ".active")
 
 
@@ -156,12 +157,16 @@ def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
 
 
 def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, salvage: bool = True,
-               source_name: str | None = None) -> IngestOutput:
+               source_name: str | None = None, checksum: Literal["sha256", "none"] = "sha256") -> IngestOutput:
     """Read one log and build one table per configured stream (see the module docstring).
 
     ``source_name`` is what provenance records as ``source_file`` (the stage passes a root-relative path, so
-    that outputs do not depend on where the run directory lives); default: ``str(path)``.
+    that outputs do not depend on where the run directory lives); default: ``str(path)``. ``checksum``: the
+    log's sha256 goes into the report and provenance as ``source_sha256`` (a CSV file's also as
+    ``file_sha256``), or with ``"none"`` no hash is computed and both are ``None``; ``checksum`` records which.
     """
+    if checksum not in CHECKSUMS:
+        raise ValueError(f"checksum must be one of {list(CHECKSUMS)}, got {checksum!r}")
     path = Path(path)
     out = IngestOutput(trial=trial or trial_id(path))
     overrides = vehicle.trial_overrides(out.trial)
@@ -170,6 +175,9 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
     # Provenance keeps the hash of the whole vehicle config (overrides included), as every later stage records it.
     chash = config_hash(vehicle)
     vehicle = vehicle.for_trial(out.trial)
+    if checksum == "none":
+        return _ingest(path, vehicle, out, salvage=salvage, source_name=source_name, sha_job=None,
+                       chash=chash, overrides=overrides)
     # The file's sha256 (provenance) is computed while the log is read: hashlib and file reads release the GIL.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256") as pool:
         sha_job = pool.submit(file_sha256, path)
@@ -181,7 +189,8 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
 
 
 def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, source_name: str | None,
-            sha_job: Any, chash: str, overrides: dict[str, Any]) -> IngestOutput:
+            sha_job: Any | None, chash: str, overrides: dict[str, Any]) -> IngestOutput:
+    """The read and the tables; ``sha_job`` is the sha256's future, None with ``checksum: none``."""
     absent: dict[str, dict[str, Any]] = {}  # optional streams this trial lacks
 
     def lack(name: str, source: str, reason: str) -> None:
@@ -252,10 +261,11 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
     if result.salvage is not None and not salvage:
         raise IngestError(f"file is damaged ({result.salvage.reason}); salvage is disabled in params",
                           file=path)
-    sha = sha_job.result()
+    sha = sha_job.result() if sha_job is not None else None
+    checksum = "none" if sha_job is None else "sha256"
     source_file = source_name if source_name is not None else str(path)
     report: dict[str, Any] = {
-        "trial": out.trial, "source_file": source_file, "source_sha256": sha, "format": fmt,
+        "trial": out.trial, "source_file": source_file, "source_sha256": sha, "checksum": checksum, "format": fmt,
         "config_hash": chash, "salvage": asdict(result.salvage) if result.salvage else None,
         "failed_topics": dict(sorted(result.failed.items())), "skipped_streams": skipped,
         "trial_overrides": overrides, "absent_streams": absent, "topics": {}, "streams": {},
@@ -290,7 +300,7 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         stream_report.update(_stamp_report(out.trial, path, name, source, stream, data, checked))
         report["streams"][name] = stream_report
         prov: dict[str, Any] = {
-            "trial": out.trial, "stream": name, "source_file": source_file, "source_sha256": sha,
+            "trial": out.trial, "stream": name, "source_file": source_file, "source_sha256": sha, "checksum": checksum,
             "message_type": data.msgtype, "clock": stream.clock, "offset_s": stream.offset_s,
             **({"time_rate_hz": stream.time.rate_hz} if stream.time is not None else {}),
             "config_hash": chash, "decode_path": data.path, "reader_format": fmt,
@@ -299,7 +309,8 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         }
         if is_csv:
             prov["file"] = source
-            prov["file_sha256"] = file_sha256(reader.path / source if reader.path.is_dir() else reader.path)
+            csv_path = reader.path / source if reader.path.is_dir() else reader.path
+            prov["file_sha256"] = file_sha256(csv_path) if sha_job is not None else None
         else:
             prov["topic"] = source
         if result.salvage is not None:

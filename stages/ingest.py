@@ -22,7 +22,7 @@ import tempfile
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pipeline import layout
 from pipeline.config import Params, Vehicle
@@ -93,11 +93,12 @@ def write_trial(root: Path, trial: str, tables: dict[str, Any], provenance: dict
     return [layout.stream_path(root, trial, s) for s in sorted(tables)] + [layout.ingest_report_path(root, trial)]
 
 
-def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bool) -> dict[str, Any]:
+def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bool,
+               checksum: Literal["sha256", "none"] = "sha256") -> dict[str, Any]:
     """Ingest and write one log; returns {"trial", "outputs"} or {"trial", "quarantine": entry}."""
     shown = _display(path, root)
     try:
-        out = ingest_log(path, vehicle, trial=trial, salvage=salvage, source_name=shown)
+        out = ingest_log(path, vehicle, trial=trial, salvage=salvage, source_name=shown, checksum=checksum)
     except PipelineError as err:
         entry = {**err.as_dict(), "file": shown, "trial": trial}
         return {"trial": trial, "quarantine": entry}
@@ -110,7 +111,7 @@ def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bo
     return {"trial": trial, "outputs": outputs, "salvage": out.report.get("salvage"), "file": shown}
 
 
-def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool]) -> dict[str, Any]:
+def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool, Literal["sha256", "none"]]) -> dict[str, Any]:
     return ingest_one(*job)
 
 
@@ -152,10 +153,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
         jobs.append((path, trial))
     log.info("ingest: %d log(s)", len(jobs))
 
-    salvage = params.ingest.salvage
+    salvage, checksum = params.ingest.salvage, params.ingest.checksum
     # n_jobs > 1: the logs go to worker processes (forked: they start with this process's imports), the
     # outcomes come back in log order as each is ready
-    outcomes = imap(_ingest_job, [(root, vehicle, p, t, salvage) for p, t in jobs], jobs=n_jobs, in_order=True)
+    outcomes = imap(_ingest_job, [(root, vehicle, p, t, salvage, checksum) for p, t in jobs], jobs=n_jobs,
+                    in_order=True)
     salvaged: list[dict[str, Any]] = []
     for _, outcome in outcomes:
         trial = outcome["trial"]

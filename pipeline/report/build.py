@@ -94,7 +94,7 @@ def _ingest_section(root: Path, trials: list[str], metrics: dict[str, Any],
             continue
         streams = rep.get("streams", {})
         parts.append(f"<h3>{H.esc(trial)}</h3><p class='muted'>{H.esc(rep.get('source_file'))} "
-                     f"({H.esc(rep.get('format'))}), sha256 {H.esc(str(rep.get('source_sha256'))[:16])}…</p>")
+                     f"({H.esc(rep.get('format'))}), {H.esc(_source_checksum(rep, 16))}</p>")
         rows = []
         for name, s in streams.items():
             row = {"stream": name, "source": s.get("topic") or s.get("file"), "clock": s.get("clock"),
@@ -269,12 +269,21 @@ def _artifact_section(root: Path, base: str, figs: dict[str, bytes], used: set[s
     return "".join(parts)
 
 
+def _source_checksum(rep: dict[str, Any], digits: int | None = None) -> str:
+    """The raw log's sha256 from its ingest report (the first ``digits``), or why there is none."""
+    sha = rep.get("source_sha256")
+    if sha is None:
+        return ("no checksum (ingested with ingest.checksum: none)" if rep.get("checksum") == "none"
+                else "no checksum recorded")
+    return f"sha256 {sha[:digits]}…" if digits else str(sha)
+
+
 def _provenance_section(root: Path, vehicle: Vehicle, params: Params, trials: list[str]) -> str:
     inputs = []
     for trial in trials:
         rep = _read_json(layout.ingest_report_path(root, trial)) or {}
         if rep:
-            inputs.append({"trial": trial, "file": rep.get("source_file"), "sha256": rep.get("source_sha256")})
+            inputs.append({"trial": trial, "file": rep.get("source_file"), "sha256": _source_checksum(rep)})
     info = {"auvid version": __version__, "vehicle": vehicle.name, "vehicle config hash": config_hash(vehicle),
             "params hash": config_hash(params)}
     return (H.kv_table(info) + "<h3>Inputs</h3>" + H.table(inputs, ["trial", "file", "sha256"])
