@@ -5,6 +5,7 @@
     python bench/ingest.py --minutes 60 --logs /tmp/trial60 --pin core0 --skip-inproc
     python bench/ingest.py --minutes 240 --logs /tmp/trial240 --repeat 1 --skip-rosbags --formats ros2-mcap
     python bench/ingest.py --minutes 60 --logs /tmp/trial60 --formats mcap-unindexed ros1-unindexed  # streamed
+    python bench/ingest.py --minutes 60 --logs /tmp/trial60 --pin core0 --checksum both   # sha256 on and off
 
 The trial: IMU 120 Hz (sensor_msgs/Imu), gyro 100 Hz (geometry_msgs/Vector3Stamped), pressure 10 Hz
 (sensor_msgs/FluidPressure), DVL 4 Hz (a custom type, defined only in the file, with a 10 s drop-out every
@@ -17,7 +18,8 @@ round once on any core and once under ``taskset -c 0`` (``--pin``). The tables s
 the max of N for peak RSS. Methods:
 
 * ``auvid``: the whole ``auvid ingest -q --root TMP --vehicle V LOG`` process (console script, imports included,
-  into a fresh run directory): what a user or a DVC stage pays;
+  into a fresh run directory): what a user or a DVC stage pays; ``--checksum none`` adds ``--no-checksum`` (no
+  sha256 of the log for provenance), ``--checksum both`` measures both, interleaved, one table row each;
 * ``inproc``: the earlier in-process figure: ``pipeline.ingest.ingest_log`` + the stage's ``write_trial`` timed
   inside a child after its imports are warmed (the ADBC driver included);
 * ``raw`` / ``deser``: rosbags ``AnyReader`` iterating every message without / with ``deserialize``, each a whole
@@ -497,15 +499,19 @@ def vehicle_yaml(outdir: Path) -> Path:
     return path
 
 
-def process_auvid(log: Path, vehicle: Path, pin: bool) -> dict[str, Any]:
-    """A whole ``auvid ingest -q`` process into a fresh run directory (removed after, outside the measurement)."""
+def process_auvid(log: Path, vehicle: Path, pin: bool, checksum: str = "sha256") -> dict[str, Any]:
+    """A whole ``auvid ingest -q`` process into a fresh run directory (removed after, outside the measurement);
+    ``checksum`` ``none``: with ``--no-checksum``."""
+    flags = ["--no-checksum"] if checksum == "none" else []
     with tempfile.TemporaryDirectory(prefix="auvid-bench-run-") as tmp:
-        got = run_process([*auvid_command(), "ingest", "-q", "--root", tmp, "--vehicle", str(vehicle), str(log)],
-                          pin)
+        got = run_process([*auvid_command(), "ingest", "-q", "--root", tmp, "--vehicle", str(vehicle), *flags,
+                           str(log)], pin)
         reports = sorted(Path(tmp).glob("data/signals/*/ingest_report.json"))
         if len(reports) != 1:
             raise RuntimeError(f"auvid ingest of {log} wrote {len(reports)} reports: {got['stdout'][-2000:]}")
         report = json.loads(reports[0].read_text())
+        if report.get("checksum", "sha256") != checksum:
+            raise RuntimeError(f"auvid ingest of {log} ran with checksum {report.get('checksum')}, not {checksum}")
     got["messages"] = sum(t["messages_read"] for t in report["topics"].values())
     got["paths"] = sorted({t["decode_path"] for t in report["topics"].values()})
     return got
@@ -526,6 +532,8 @@ def process_cat(path: Path, pin: bool) -> dict[str, Any]:
 
 
 METHODS = ("auvid", "inproc", "raw", "deser", "cat")
+#: The whole-process auvid method of each checksum mode (``--checksum``); "auvid-none" runs ``--no-checksum``.
+AUVID_METHODS = {"sha256": "auvid", "none": "auvid-none"}
 
 
 def _best(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -590,6 +598,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="run each child on any core, pinned to core 0 (taskset -c 0), or both (default)")
     parser.add_argument("--skip-rosbags", action="store_true", help="no rosbags references")
     parser.add_argument("--skip-inproc", action="store_true", help="no in-process auvid figure")
+    parser.add_argument("--checksum", choices=("sha256", "none", "both"), default="sha256",
+                        help="auvid ingest with the log's sha256 (default), with --no-checksum, or both (interleaved, "
+                             "one row each); the in-process figure keeps the default")
     parser.add_argument("--json", type=Path, default=None, help="also write every run as JSON here")
     parser.add_argument("--measure", choices=("auvid", "raw", "deser"), help=argparse.SUPPRESS)
     parser.add_argument("--path", type=Path, help=argparse.SUPPRESS)
@@ -606,8 +617,10 @@ def main(argv: list[str] | None = None) -> int:
     logs = {f: logs[f] for f in args.formats}
     vehicle = vehicle_yaml(outdir)
     pins = {"both": [False, True], "any": [False], "core0": [True]}[args.pin]
-    methods = [m for m in METHODS if not (args.skip_rosbags and m in ("raw", "deser"))
-               and not (args.skip_inproc and m == "inproc")]
+    checksums = ["sha256", "none"] if args.checksum == "both" else [args.checksum]
+    auvid_methods = [AUVID_METHODS[c] for c in checksums]
+    methods = [*auvid_methods, *(m for m in METHODS[1:] if not (args.skip_rosbags and m in ("raw", "deser"))
+                                 and not (args.skip_inproc and m == "inproc"))]
     print(f"{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, load average {_loadavg()}; "
           f"{args.minutes:g} min, min of {args.repeat}, {' '.join(auvid_command())}", flush=True)
     rows, process_lines, inproc_lines = [], [], []
@@ -618,8 +631,9 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(args.repeat):  # interleaved: every method and pinning once per round
             for pin in pins:
                 for method in todo:
-                    if method == "auvid":
-                        got = process_auvid(paths["auvid"], vehicle, pin)
+                    if method in auvid_methods:
+                        checksum = "none" if method == AUVID_METHODS["none"] else "sha256"
+                        got = process_auvid(paths["auvid"], vehicle, pin, checksum)
                     elif method == "cat":
                         got = process_cat(paths["auvid"], pin)
                     else:
@@ -629,14 +643,19 @@ def main(argv: list[str] | None = None) -> int:
         size = _size_mb(paths["auvid"])
         load = _loadavg()
         for pin in pins:
-            best = {m: _best(runs[f"{m}/{int(pin)}"]) for m in todo}
-            process_lines.append(process_row(fmt, size, pin, best))
-            inproc_lines.append(inproc_row(fmt, pin, best))
-            print(process_lines[-1], flush=True)
-            if "raw" in best and best["raw"]["messages"] != best["auvid"]["messages"]:
-                print(f"  note: rosbags read {best['raw']['messages']} messages, auvid {best['auvid']['messages']}")
-            rows.append({"format": fmt, "size_mb": size, "minutes": args.minutes, "pinned": pin, "load": load,
-                         **best})
+            measured = {m: _best(runs[f"{m}/{int(pin)}"]) for m in todo}
+            others = {m: b for m, b in measured.items() if m not in auvid_methods}
+            for checksum in checksums:
+                best = {**others, "auvid": measured[AUVID_METHODS[checksum]]}
+                label = fmt if len(checksums) == 1 and checksum == "sha256" else f"{fmt}, checksum {checksum}"
+                process_lines.append(process_row(label, size, pin, best))
+                print(process_lines[-1], flush=True)
+                if "raw" in best and best["raw"]["messages"] != best["auvid"]["messages"]:
+                    print(f"  note: rosbags read {best['raw']['messages']} messages, auvid "
+                          f"{best['auvid']['messages']}")
+                rows.append({"format": fmt, "size_mb": size, "minutes": args.minutes, "pinned": pin, "load": load,
+                             "checksum": checksum, **best})
+            inproc_lines.append(inproc_row(fmt, pin, others))
         rows[-1]["runs"] = runs
         print(f"  ({fmt} done, load average {load})", flush=True)
     print(f"\nWhole process, min of {args.repeat} (load average at the end {_loadavg()}):\n")
