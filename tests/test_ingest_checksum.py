@@ -167,6 +167,6 @@ def test_report_says_why_a_log_has_no_checksum() -> None:
     sha = "ab" * 32
     assert _source_checksum({"source_sha256": sha, "checksum": "sha256"}) == sha
     assert _source_checksum({"source_sha256": sha}, 16) == f"sha256 {sha[:16]}…"
-    assert _source_checksum({"source_sha256": None, "checksum": "none"}, 16) == \
-        "no checksum (ingested with ingest.checksum: none)"
+    none = "no checksum (ingested with ingest.checksum: none)"
+    assert _source_checksum({"source_sha256": None, "checksum": "none"}, 16) == none
     assert _source_checksum({}) == "no checksum recorded"
