@@ -34,7 +34,7 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
@@ -53,7 +53,8 @@ if TYPE_CHECKING:  # pyarrow is imported where tables are built: `auvid inspect`
 log = logging.getLogger(__name__)
 
 QUAT_COMPONENTS = ("w", "x", "y", "z")
-CHECKSUMS = ("sha256", "none")  # params ingest.checksum
+Checksum = Literal["sha256", "none"]  # params ingest.checksum
+CHECKSUMS = get_args(Checksum)
 _LOG_SUFFIXES = (".mcap", ".bag", ".db3", ".csv", ".tsv", ".txt", ".dat", ".gz", ".zst", ".zstd", ".active")
 
 
@@ -157,7 +158,7 @@ def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
 
 
 def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, salvage: bool = True,
-               source_name: str | None = None, checksum: Literal["sha256", "none"] = "sha256") -> IngestOutput:
+               source_name: str | None = None, checksum: Checksum = "sha256") -> IngestOutput:
     """Read one log and build one table per configured stream (see the module docstring).
 
     ``source_name`` is what provenance records as ``source_file`` (the stage passes a root-relative path, so

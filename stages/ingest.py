@@ -22,13 +22,13 @@ import tempfile
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
-from pipeline.ingest import ingest_log, trial_id
+from pipeline.ingest import Checksum, ingest_log, trial_id
 from pipeline.parallel import imap, usable_cpus
 from pipeline.tableio import write_json, write_parquet
 from stages.common import StageResult, stage_main
@@ -94,7 +94,7 @@ def write_trial(root: Path, trial: str, tables: dict[str, Any], provenance: dict
 
 
 def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bool,
-               checksum: Literal["sha256", "none"] = "sha256") -> dict[str, Any]:
+               checksum: Checksum = "sha256") -> dict[str, Any]:
     """Ingest and write one log; returns {"trial", "outputs"} or {"trial", "quarantine": entry}."""
     shown = _display(path, root)
     try:
@@ -111,7 +111,7 @@ def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bo
     return {"trial": trial, "outputs": outputs, "salvage": out.report.get("salvage"), "file": shown}
 
 
-def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool, Literal["sha256", "none"]]) -> dict[str, Any]:
+def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool, Checksum]) -> dict[str, Any]:
     return ingest_one(*job)
 
 
