@@ -79,8 +79,8 @@ def final_models(root: Path, params: Params) -> dict:
 
 
 def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: np.ndarray) -> dict:
-    """Per output: R² against the truth of every WDSE-SVR candidate of the tune stage's search, fitted on the
-    train_test block as the final model is (its C scaled from the rows the search fitted), best and chosen."""
+    """Per output: the best R² against the truth over every WDSE-SVR candidate of the tune stage's search, each
+    fitted on the train_test block as the final model is (its C scaled from the rows the search fitted)."""
     from pipeline.coupled import model_inputs
     from pipeline.models.search import make_svr
 
@@ -171,6 +171,8 @@ def main() -> None:
     ap.add_argument("--oracle", nargs="+", default=None, choices=OUTPUTS, metavar="OUTPUT",
                     help="also the best WDSE-SVR search candidate per seed on the test truth (a bound; see above)")
     args = ap.parse_args()
+    if args.oracle and args.models and "wdse_svr" not in args.models:
+        ap.error("--oracle bounds the WDSE-SVR: add wdse_svr to --models")
     params = Params.model_validate(yaml.safe_load(args.params.read_text()) or {})
     if args.max_samples is not None:
         params = params.model_copy(update={"coupled": params.coupled.model_copy(
@@ -202,7 +204,7 @@ def main() -> None:
         print("\nbest WDSE-SVR candidate of the search, chosen on the test truth (a bound, not a method); per seed")
         for o in args.oracle:
             per = [r["oracle"][o]["best"] for r in results]
-            chosen = [r["models"]["wdse_svr"][o] for r in results if "wdse_svr" in r["models"]]
+            chosen = [r["models"]["wdse_svr"][o] for r in results]
             ceiling = [r["ceiling"][o] for r in results]
             print(f"{o}: best {np.round(per, 3).tolist()} (mean {np.mean(per):.3f}), chosen "
                   f"{np.round(chosen, 3).tolist()}, ceiling {np.round(ceiling, 3).tolist()} "
