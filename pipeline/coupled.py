@@ -1,7 +1,8 @@
 """The coupled 3-DOF motion-model study (paper 000): tune -> blocked CV -> final check -> tables and figures.
 
 Pure functions over DataFrames (feature-store rows); the stage shells ``stages/tune.py`` and ``stages/train.py``
-read and write. Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``[u v r n1 n2 n3]``, one SVR per
+read and write. Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``coupled.inputs``, by default
+``[u v r T1 T2 T3]``, the thrusters' static thrust, where the paper has their speeds ``n1 n2 n3``; one SVR per
 output with its own hyperparameters) and ``gertler_hagen``, ``mcfarland_whitcomb`` (inputs ``[u v r tau_u tau_v
 tau_r]``, all outputs at once, TLS). Outputs ``[udot vdot rdot]``.
 
@@ -12,6 +13,7 @@ the Gertler–Hagen / McFarland–Whitcomb structures (for tests and benchmarks)
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -121,6 +123,7 @@ def synthetic_frame(n_samples: int = 1500, *, rate_hz: float = 2.0, seed: int = 
         k4, _ = _accel(x + dt * k3, nk)
         x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
     nudot, tau = _accel(nu, n_rpm)
+    thrust_static = _K_THRUST * n_rpm * np.abs(n_rpm)  # the derive stage's T_<thruster>_N
     noisy = [a + noise * a.std(axis=0) * rng.normal(size=a.shape) for a in (nu, nudot)]
     frame = pd.DataFrame({
         "vehicle": vehicle, "trial": trial,
@@ -128,6 +131,7 @@ def synthetic_frame(n_samples: int = 1500, *, rate_hz: float = 2.0, seed: int = 
         "segment": np.zeros(n_samples, dtype=np.int32),
         "u_mps": noisy[0][:, 0], "v_mps": noisy[0][:, 1], "r_radps": noisy[0][:, 2],
         "n1_rpm": n_rpm[:, 0], "n2_rpm": n_rpm[:, 1], "n3_rpm": n_rpm[:, 2],
+        **{f"T_th{i + 1}_N": thrust_static[:, i] for i in range(3)},
         "tau_u_N": tau[:, 0], "tau_v_N": tau[:, 1], "tau_r_Nm": tau[:, 2],
         "udot_mps2": noisy[1][:, 0], "vdot_mps2": noisy[1][:, 1], "rdot_radps2": noisy[1][:, 2],
     })
@@ -195,10 +199,16 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
     return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate) for out in params.outputs])
 
 
+_THRUST_COLUMN = re.compile(r"^T_.+_N$")
+
+
 def _check_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
     missing = [c for c in columns if c not in frame.columns]
     if missing:
-        raise ModelError(f"{what}: feature table lacks columns {missing}")
+        thrust = [c for c in frame.columns if _THRUST_COLUMN.match(c)]
+        raise ModelError(f"{what}: feature table lacks columns {missing} named in params coupled.inputs / outputs; "
+                         f"its thrusters' thrust columns are {thrust} (T_<thruster>_N, one per thruster of the "
+                         f"vehicle config)")
 
 
 def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:

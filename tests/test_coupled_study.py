@@ -66,6 +66,15 @@ def test_tune_refuses_non_tuning_rows():
         tune(frame, CoupledParams())
 
 
+def test_tune_names_the_missing_inputs_and_the_thrust_columns_the_table_has():
+    """The default inputs are the thrusters' thrust columns of DAGON (T_th1_N ...): a vehicle whose thrusters have
+    other names is told which columns to list in coupled.inputs, before any search runs."""
+    from pipeline.coupled import tune
+    frame = synthetic_frame(100, seed=0, split="tuning").rename(columns={"T_th1_N": "T_port_N"})
+    with pytest.raises(ModelError, match=r"lacks columns \['T_th1_N'\].*coupled.inputs.*\['T_port_N', 'T_th2_N'"):
+        tune(frame, CoupledParams())
+
+
 def test_card_roundtrip(tmp_path, study):
     _, out = study
     est = out["results"]["mcfarland_whitcomb"]["estimator"]

@@ -62,7 +62,7 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
                  "search_trace.json"):
         assert (ev / name).stat().st_size > 0, name
     assert (ev / "fold_test_r2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "WDSE-SVR" in (ev / "table3.md").read_text() and "gamma_n3_rpm" in (ev / "table2.md").read_text()
+    assert "WDSE-SVR" in (ev / "table3.md").read_text() and "gamma_T_th3_N" in (ev / "table2.md").read_text()
     hyper = json.loads((md / "hyperparameters.json").read_text())
     assert hyper["n_tuning_rows"] > 0 and set(hyper["hyperparameters"]) == {*MODELS[:3], "graybox"}
     # nested (the default): searched on the train_test block, the rows the final models are fitted on
@@ -93,7 +93,7 @@ def test_leakage_guard_fires_on_a_bad_split(run_root) -> None:
     root, _ = run_root
     cp = study_params().coupled
     hyper = json.loads((root / "data/models/coupled/hyperparameters.json").read_text())["hyperparameters"]
-    cols = ["t_ns", "u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm", "tau_u_N", "tau_v_N", "tau_r_Nm",
+    cols = ["t_ns", "u_mps", "v_mps", "r_radps", "T_th1_N", "T_th2_N", "T_th3_N", "tau_u_N", "tau_v_N", "tau_r_Nm",
             "udot_mps2", "vdot_mps2", "rdot_radps2"]
     tt = store.load(root, split="train_test", columns=cols)
     tuning = store.load(root, split="tuning", columns=["t_ns"])
@@ -119,7 +119,7 @@ def test_simulate_stage_rolls_out_trained_coupled_models(run_root, vehicle: Vehi
         simulate_stage.coupled_models(tmp_path, ["u", "v", "r"])
     (tmp_path / "data/models/coupled/mcfarland_whitcomb.card.json").unlink()
     found = simulate_stage.coupled_models(tmp_path, ["u", "v", "r"])
-    assert set(found) == {"coupled_wdse_svr"} and found["coupled_wdse_svr"][1] == ["n1_rpm", "n2_rpm", "n3_rpm"]
+    assert set(found) == {"coupled_wdse_svr"} and found["coupled_wdse_svr"][1] == ["T_th1_N", "T_th2_N", "T_th3_N"]
     params = study_params().model_copy(update={"simulate": study_params().simulate.model_copy(
         update={"horizons_s": [1.0], "outage_windows_s": [5.0]})})
     result = simulate_stage.run(tmp_path, vehicle, params)

@@ -120,7 +120,12 @@ _BODY_VELOCITY = re.compile(r"^[uvwpqr](_smooth|_meas)?_(mps|radps)$")
 
 
 class CoupledParams(Frozen):
-    inputs: list[str] = Field(default_factory=lambda: ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"])
+    inputs: list[str] = Field(
+        default_factory=lambda: ["u_mps", "v_mps", "r_radps", "T_th1_N", "T_th2_N", "T_th3_N"],
+        description="The SVRs' inputs, velocities first, then actuators: feature-store columns. The default feeds "
+        "each horizontal thruster's static thrust (T_<thruster>_N, the derive stage's thrust map of its speed or "
+        "PWM), not its speed: the paper's n1 n2 n3 ([u_mps, v_mps, r_radps, n1_rpm, n2_rpm, n3_rpm]) leave the "
+        "kernel to learn n|n|, which it cannot extrapolate to a trial with wider excitation (docs/models.md).")
     actuator_inputs: list[str] | None = Field(None, description=(
         "The inputs that are actuators or control inputs (thruster speeds, PWM, thrust, rudder angle): the 2-weights "
         "kernel gives them one gamma, the velocities another. They must come last in `inputs`. None: every input "

@@ -6,7 +6,7 @@ McFarland-Whitcomb, :mod:`pipeline.models.explicit`) carries the physics and ext
 propeller inflow, which the static tau of the feature store does not carry). Fit: the base on ``(X_base, y)``,
 then the residual model on ``(X_res, y - base.predict(X_base))`` of the same rows.
 
-With the coupled study's columns ``X = [u v r tau_u tau_v tau_r n1 n2 n3]`` (the union of the explicit and the SVR
+With the coupled study's columns ``X = [u v r tau_u tau_v tau_r T1 T2 T3]`` (the union of the explicit and the SVR
 inputs, velocities first, as the simulate stage needs), ``base_columns = (0..5)``, ``residual_columns =
 (0, 1, 2, 6, 7, 8)``.
 """

@@ -104,7 +104,7 @@ class RBFSVR(_ScaledRBFSVR):
 class TwoWeightsSVR(_ScaledRBFSVR):
     """"2-weights-RBF" SVR: ``gamma_velocity`` for the first ``n_velocity`` inputs, ``gamma_actuator`` for the rest.
 
-    With the default column order ``u v r n1 n2 n3``, ``n_velocity=3``.
+    With the default column order ``u v r T1 T2 T3`` (or the paper's ``u v r n1 n2 n3``), ``n_velocity=3``.
     """
 
     def __init__(self, gamma_velocity: float = 0.1, gamma_actuator: float = 0.1, C: float = 1.0,
