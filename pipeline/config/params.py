@@ -134,9 +134,9 @@ class CoupledParams(Frozen):
     models: list[str] = Field(
         default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
                                  "graybox"],
-        description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual): the "
-        "best model on every output of the realistic benchmark (docs/models.md); graybox_gh is the same on "
-        "Gertler-Hagen.")
+        description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual): on "
+        "the realistic benchmark with thrust inputs the best on u_dot and the WDSE-SVR the best on v_dot and r_dot "
+        "(docs/models.md); graybox_gh is the same on Gertler-Hagen.")
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
