@@ -458,3 +458,23 @@ def test_params_naming_signals_the_vehicle_lacks_are_refused(tmp_path: Path, dif
     ok = _write(tmp_path, yaml.safe_dump({"differentiate": {"noise_sd": {"dvl_x_mps": 0.02},
                                                             "sigma_s_per_signal": {"u_mps": 0.3}}}), "ok.yaml")
     assert load_configs(tmp_path, DAGON, ok)[1].differentiate.noise_sd == {"dvl_x_mps": 0.02}
+
+
+def test_thrust_inputs_of_thrusters_the_vehicle_lacks_are_said_when_the_configs_load(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The default coupled.inputs name DAGON's thrust columns (T_th1_N ...): a vehicle whose thrusters have other
+    names hears it when the configs load, before ingest ... features run, not only at the tune stage. A warning:
+    a run whose params train no model taking coupled.inputs says nothing."""
+    from stages.common import load_configs
+
+    renamed = _write(tmp_path, TEXT.replace("name: th1\n", "name: port\n"), "vehicle.yaml")
+    params = _write(tmp_path, "{}\n", "params.yaml")
+    load_configs(tmp_path, renamed, params)
+    assert "coupled.inputs names ['T_th1_N'], thrust columns of thrusters the vehicle" in caplog.text
+    assert "'T_port_N', 'T_th2_N'" in caplog.text and str(params) in caplog.text
+    caplog.clear()
+    load_configs(tmp_path, DAGON, params)
+    explicit = _write(tmp_path, yaml.safe_dump({"coupled": {"models": ["gertler_hagen", "mcfarland_whitcomb"]}}),
+                      "explicit.yaml")
+    load_configs(tmp_path, renamed, explicit)
+    assert "coupled.inputs" not in caplog.text

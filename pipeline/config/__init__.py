@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
+import re
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -27,6 +29,8 @@ __all__ = ["Params", "Vehicle", "check_params_against_vehicle", "config_hash", "
            "write_schemas"]
 
 M = TypeVar("M", bound=BaseModel)
+
+log = logging.getLogger(__name__)
 
 
 def _key(item: Any) -> str:
@@ -104,6 +108,26 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
             raise ConfigError(f"differentiate.{key} names {unknown}, which are not "
                               + ("signals of the vehicle's streams" if key == "noise_sd" else "velocity columns")
                               + f"; known: {sorted(valid)}", file=params_path, field=f"differentiate.{key}")
+    _warn_thrust_inputs(vehicle, params, params_path)
+
+
+_THRUST_INPUT = re.compile(r"^T_(.+)_N$")
+_MODELS_WITHOUT_INPUTS = {"gertler_hagen", "mcfarland_whitcomb"}  # inputs nu and tau, not coupled.inputs
+
+
+def _warn_thrust_inputs(vehicle: Vehicle, params: Params, params_path: str | Path | None) -> None:
+    """``coupled.inputs`` naming the thrust of a thruster the vehicle does not have (the default names DAGON's
+    th1 th2 th3) is said when the configs load, not only when the tune stage, after ingest ... features, refuses
+    it. A warning, not an error: a run that never reaches the coupled models must not be stopped by them."""
+    if not set(params.coupled.models) - _MODELS_WITHOUT_INPUTS:
+        return
+    names = {t.name for t in vehicle.thrusters}
+    unknown = [c for c in params.coupled.inputs if (m := _THRUST_INPUT.match(c)) and m.group(1) not in names]
+    if unknown:
+        log.warning("%scoupled.inputs names %s, thrust columns of thrusters the vehicle %r does not have; its "
+                    "thrusters' columns are %s: the tune stage will refuse the coupled models' inputs until "
+                    "coupled.inputs lists them", f"{params_path}: " if params_path else "", unknown, vehicle.name,
+                    [f"T_{t.name}_N" for t in vehicle.thrusters])
 
 
 def config_hash(model: BaseModel) -> str:
