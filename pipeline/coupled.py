@@ -13,7 +13,6 @@ the Gertler–Hagen / McFarland–Whitcomb structures (for tests and benchmarks)
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -21,7 +20,8 @@ import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator, RegressorMixin
 
-from pipeline.config.params import CoupledParams
+from pipeline.config.params import EXPLICIT_MODELS, CoupledParams
+from pipeline.config.vehicle import THRUST_COLUMN
 from pipeline.errors import ModelError
 from pipeline.evaluate import (
     MODEL_FAILURES,
@@ -46,7 +46,6 @@ __all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "NestedTuned", "
            "build_model", "model_inputs",
            "evaluate_models"]
 
-EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb")
 #: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
 GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen"}
 MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
@@ -199,13 +198,10 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
     return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate) for out in params.outputs])
 
 
-_THRUST_COLUMN = re.compile(r"^T_.+_N$")
-
-
 def _check_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
     missing = [c for c in columns if c not in frame.columns]
     if missing:
-        thrust = [c for c in frame.columns if _THRUST_COLUMN.match(c)]
+        thrust = [c for c in frame.columns if THRUST_COLUMN.match(c)]
         raise ModelError(f"{what}: feature table lacks columns {missing} named in params coupled.inputs / outputs; "
                          f"its thrusters' thrust columns are {thrust} (T_<thruster>_N, one per thruster of the "
                          f"vehicle config)")

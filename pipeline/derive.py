@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline import physics
-from pipeline.config.vehicle import Vehicle
+from pipeline.config.vehicle import Vehicle, thrust_column
 from pipeline.errors import SchemaError
 from pipeline.estimation.motion import DOFS, accel_std_column, std_column
 from pipeline.kinematics import ACCELERATION, SMOOTH
@@ -39,10 +39,6 @@ from pipeline.kinematics import ACCELERATION, SMOOTH
 log = logging.getLogger(__name__)
 
 TERMS = ("tau", "Mnudot", "Cnu", "g", "d")
-
-
-def thrust_column(thruster_name: str) -> str:
-    return f"T_{thruster_name}_N"
 
 
 def derived_columns(vehicle: Vehicle) -> list[str]:

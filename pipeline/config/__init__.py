@@ -12,15 +12,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import re
 from pathlib import Path
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
 from pipeline.config.checks import KeyedError
-from pipeline.config.params import Params
-from pipeline.config.vehicle import Vehicle
+from pipeline.config.params import EXPLICIT_MODELS, Params
+from pipeline.config.vehicle import THRUST_COLUMN, Vehicle, thrust_column
 from pipeline.config.yamlload import load_yaml
 from pipeline.errors import ConfigError
 from pipeline.tableio import canonical_json
@@ -111,23 +110,20 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
     _warn_thrust_inputs(vehicle, params, params_path)
 
 
-_THRUST_INPUT = re.compile(r"^T_(.+)_N$")
-_MODELS_WITHOUT_INPUTS = {"gertler_hagen", "mcfarland_whitcomb"}  # inputs nu and tau, not coupled.inputs
-
 
 def _warn_thrust_inputs(vehicle: Vehicle, params: Params, params_path: str | Path | None) -> None:
     """``coupled.inputs`` naming the thrust of a thruster the vehicle does not have (the default names DAGON's
     th1 th2 th3) is said when the configs load, not only when the tune stage, after ingest ... features, refuses
     it. A warning, not an error: a run that never reaches the coupled models must not be stopped by them."""
-    if not set(params.coupled.models) - _MODELS_WITHOUT_INPUTS:
+    if not set(params.coupled.models) - set(EXPLICIT_MODELS):
         return
-    names = {t.name for t in vehicle.thrusters}
-    unknown = [c for c in params.coupled.inputs if (m := _THRUST_INPUT.match(c)) and m.group(1) not in names]
+    columns = [thrust_column(t.name) for t in vehicle.thrusters]
+    unknown = [c for c in params.coupled.inputs if THRUST_COLUMN.match(c) and c not in columns]
     if unknown:
         log.warning("%scoupled.inputs names %s, thrust columns of thrusters the vehicle %r does not have; its "
                     "thrusters' columns are %s: the tune stage will refuse the coupled models' inputs until "
                     "coupled.inputs lists them", f"{params_path}: " if params_path else "", unknown, vehicle.name,
-                    [f"T_{t.name}_N" for t in vehicle.thrusters])
+                    columns)
 
 
 def config_hash(model: BaseModel) -> str:

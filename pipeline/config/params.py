@@ -18,6 +18,8 @@ DOFS = ("u", "v", "w", "p", "q", "r")
 #: params too); tests/test_config_refuses.py keeps them equal to pipeline.coupled's and pipeline.models.decoupled's.
 COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox",
                   "graybox_gh")
+#: the coupled models whose inputs are nu and tau (not ``coupled.inputs``)
+EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb")
 DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]

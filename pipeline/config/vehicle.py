@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import fnmatch
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -82,6 +83,15 @@ class ThrustCurve(Frozen):
             raise ValueError("table_voltage_column and voltage_V go together: give the table's voltage column and "
                              "the vehicle's supply voltage")
         return self
+
+
+#: the feature-store column of a thruster's thrust (the derive stage writes it): ``T_<thruster name>_N``
+THRUST_COLUMN = re.compile(r"^T_([A-Za-z0-9_\-]+)_N$")
+
+
+def thrust_column(thruster_name: str) -> str:
+    """The feature-store column of a thruster's thrust, ``T_<name>_N`` (:data:`THRUST_COLUMN`)."""
+    return f"T_{thruster_name}_N"
 
 
 class Thruster(Frozen):
