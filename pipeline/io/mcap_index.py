@@ -200,7 +200,7 @@ def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
 def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list[np.ndarray]) -> Batch:
     if all(c.compression == "" for c in group):
         lo, hi = group[0].body, group[-1].body + group[-1].length
-        buf = scratch_buffer(scratch, hi - lo)
+        buf = scratch_buffer(scratch, hi - lo, phase=lo)
         if os.preadv(fd, [buf], lo) != hi - lo:
             raise Damaged("chunk cut short", group[0].at)
         where = [(c, c.body - lo) for c in group]

@@ -148,7 +148,7 @@ def _read_pages(fd: int, layout: Layout, group: np.ndarray, scratch: list[np.nda
     lo, hi = int(group.min()), int(group.max())
     span = hi - lo + 1
     if span <= 2 * len(group) + 16:
-        buf = scratch_buffer(scratch, span * ps + PREFIX)
+        buf = scratch_buffer(scratch, span * ps + PREFIX, phase=(lo - 1) * ps)
         if os.preadv(fd, [buf[:span * ps]], (lo - 1) * ps) != span * ps:
             raise NotPlain("leaf pages cut short")
         return buf, (group - lo) * ps
