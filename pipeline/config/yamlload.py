@@ -50,8 +50,8 @@ def _yaml_message(err: yaml.YAMLError, text: str) -> str:
                 "special character)")
     mark = getattr(err, "problem_mark", None)
     if isinstance(err, yaml.MarkedYAMLError) and mark is not None and "maximum nesting depth" in (err.problem or ""):
-        return (f"nested too deeply for the YAML parser (it gave up at line {mark.line + 1}, column {mark.column + 1}); "
-                "a config is a few levels deep")
+        return (f"nested too deeply for the YAML parser (it gave up at line {mark.line + 1}, column "
+                f"{mark.column + 1}); a config is a few levels deep")
     if isinstance(err, yaml.MarkedYAMLError) and mark is not None:
         what = ", ".join(x for x in (err.context, err.problem) if x)
         return f"not valid YAML at line {mark.line + 1}, column {mark.column + 1}: {what}"
