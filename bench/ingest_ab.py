@@ -3,6 +3,7 @@
     git archive OLD pipeline stages bench | tar -x -C /tmp/before      # (mkdir first) a snapshot of each tree
     git archive NEW pipeline stages bench | tar -x -C /tmp/after
     nice python bench/ingest_ab.py --trees before=/tmp/before after=/tmp/after --logs /tmp/ib60 --repeat 3
+    (add --no-checksum to compare both trees without the log's sha256)
 
 The logs are those ``bench/ingest.py --logs DIR`` generated (and, with ``--formats mcap-unindexed ros1-unindexed``,
 derived) under ``--logs``. Each round runs every format once per tree, the trees taking turns, each child pinned
@@ -73,6 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--formats", nargs="+", choices=list(LOGS), default=list(LOGS))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--imports-log", type=Path, default=None)
+    parser.add_argument("--no-checksum", action="store_true", help="both trees ingest with --no-checksum (no sha256)")
     args = parser.parse_args(argv)
     trees = dict(t.split("=", 1) for t in args.trees)
     for tree in trees.values():
@@ -88,8 +90,9 @@ def main(argv: list[str] | None = None) -> int:
                 bench.CHILD_ENV = {**os.environ, "PYTHONPATH": tree}
                 tmp = tempfile.mkdtemp(prefix="auvid-ab-")
                 try:
-                    got = bench.run_process([*bench.auvid_command(), "ingest", "-q", "--root", tmp, "--vehicle",
-                                             str(vehicle), str(log)], True)
+                    flag = ["--no-checksum"] if args.no_checksum else []
+                    got = bench.run_process([*bench.auvid_command(), "ingest", "-q", *flag, "--root", tmp,
+                                             "--vehicle", str(vehicle), str(log)], True)
                 finally:
                     shutil.rmtree(tmp)
                 res.setdefault((fmt, name), []).append(got)
