@@ -282,9 +282,25 @@ TEXT_CASES = [
 ]
 
 
+@pytest.fixture(params=["libyaml", "pure-python"])
+def yaml_parser(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Each YAML case through libyaml's parser (the default where PyYAML has it) and through PyYAML's pure-Python
+    one (the fallback where it does not): the same refusals, the same messages and lines."""
+    from pipeline.config import yamlload
+
+    if request.param == "libyaml":
+        if not yaml.__with_libyaml__:
+            pytest.fail("PyYAML without libyaml: the install should have its wheel, which has it")
+        assert yamlload._Loader is yaml.CSafeLoader  # the default where libyaml is there
+    else:
+        monkeypatch.setattr(yamlload, "_Loader", yaml.SafeLoader)
+    return request.param
+
+
 @pytest.mark.parametrize(("data", "field", "says"), TEXT_CASES)
 def test_unreadable_yaml_is_a_config_error_naming_file_and_line(tmp_path: Path, data: str | bytes,
-                                                                field: str | None, says: list[str]) -> None:
+                                                                field: str | None, says: list[str],
+                                                                yaml_parser: str) -> None:
     err = _refused(load_vehicle, _write(tmp_path, data))
     assert err.field == field
     for text in says:
