@@ -307,6 +307,20 @@ def test_unreadable_yaml_is_a_config_error_naming_file_and_line(tmp_path: Path, 
         assert text in str(err), f"{text!r} not in: {err}"
 
 
+def test_running_out_of_stack_while_building_the_values_is_a_config_error(tmp_path: Path, yaml_parser: str,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Python's recursion limit met past the parser (libyaml's loader has no position to give then): still the
+    "nested too deeply" ConfigError naming the file, never a traceback."""
+    from pipeline.config import yamlload
+
+    def too_deep(self: Any, node: Any) -> Any:
+        raise RecursionError("maximum recursion depth exceeded")
+
+    monkeypatch.setattr(yamlload._Loader, "construct_document", too_deep)
+    err = _refused(load_vehicle, _write(tmp_path, "name: [[1]]\n"))
+    assert "nested too deeply" in str(err) and "vehicle.yaml" in str(err)
+
+
 def test_merge_keys_may_be_overridden(tmp_path: Path) -> None:
     """``<<: *anchor`` then a key of the anchor: YAML's override, not a duplicate."""
     text = TEXT.replace("  - name: th2\n", "  - &second\n    name: th2\n").replace(

@@ -131,10 +131,11 @@ def load_yaml(path: str | Path) -> Any:
         data = loader.construct_document(node)
     except yaml.YAMLError as err:
         raise ConfigError(_yaml_message(err, text), file=path) from None
-    except RecursionError:
-        mark = loader.get_mark()
-        raise ConfigError(f"nested too deeply for the YAML parser (it gave up at line {mark.line + 1}, column "
-                          f"{mark.column + 1}); a config is a few levels deep", file=path) from None
+    except RecursionError:  # the pure-Python parser (libyaml stops at 1,000 levels with a YAMLError above)
+        mark = loader.get_mark() if hasattr(loader, "get_mark") else None
+        where = f" (it gave up at line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        raise ConfigError(f"nested too deeply for the YAML parser{where}; a config is a few levels deep",
+                          file=path) from None
     finally:
         loader.dispose()
     _check_size(data, path)
