@@ -110,7 +110,6 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
     _warn_thrust_inputs(vehicle, params, params_path)
 
 
-
 def _warn_thrust_inputs(vehicle: Vehicle, params: Params, params_path: str | Path | None) -> None:
     """``coupled.inputs`` naming the thrust of a thruster the vehicle does not have (the default names DAGON's
     th1 th2 th3) is said when the configs load, not only when the tune stage, after ingest ... features, refuses

@@ -44,9 +44,10 @@ def _decode(raw: bytes, path: Path) -> str:
 def _yaml_message(err: yaml.YAMLError, text: str) -> str:
     """What the parser refused and where (line, column), without its "<unicode string>" placeholder for the file."""
     if isinstance(err, yaml.reader.ReaderError):
-        # libyaml counts the position in UTF-8 bytes, the pure-Python reader in characters
-        before = text.encode("utf-8")[: err.position] if _Loader is not yaml.SafeLoader else text[: err.position]
-        line = before.count(b"\n" if isinstance(before, bytes) else "\n") + 1
+        if _Loader is yaml.SafeLoader:  # the pure-Python reader counts the position in characters
+            line = text[: err.position].count("\n") + 1
+        else:  # libyaml in UTF-8 bytes
+            line = text.encode("utf-8")[: err.position].count(b"\n") + 1
         return (f"not valid YAML at line {line}: character #x{err.character:04x} is not allowed (a control or "
                 "special character)")
     mark = getattr(err, "problem_mark", None)
