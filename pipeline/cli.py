@@ -304,10 +304,10 @@ def _vehicle_path(args: argparse.Namespace) -> Path:
     return here if here.exists() or not (args.root / "vehicle.yaml").exists() else args.root / "vehicle.yaml"
 
 
-def _load(args: argparse.Namespace) -> tuple[Any, Any]:
+def _load(args: argparse.Namespace, stages: list[str]) -> tuple[Any, Any]:
     from stages.common import load_configs
 
-    return load_configs(args.root, _vehicle_path(args), args.params)
+    return load_configs(args.root, _vehicle_path(args), args.params, snapshot=stages == ["ingest"])
 
 
 def _salvaged(result: Any) -> list[str]:
@@ -389,7 +389,7 @@ def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
     from stages.common import run_stages
 
     _check_inputs(args, stages)
-    vehicle, params = _load(args)
+    vehicle, params = _load(args, stages)
     params = _with_overrides(params, args)
     logs = list(getattr(args, "logs", None) or []) or None
     start = time.perf_counter()

@@ -38,8 +38,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
-from pipeline.config import Vehicle, config_hash
-from pipeline.config.sources import StreamSource
+from pipeline.config.snapshot import config_hash
 from pipeline.errors import ConfigError, IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo
 from pipeline.io.msgdefs import UserTypes, load_user_types
@@ -49,6 +48,9 @@ from pipeline.units import conversion
 
 if TYPE_CHECKING:  # pyarrow is imported where tables are built: `auvid inspect` uses this module's time_stats
     import pyarrow as pa
+
+    from pipeline.config import Vehicle  # a model, or the snapshot's view of one (pipeline.config.snapshot)
+    from pipeline.config.sources import StreamSource
 
 log = logging.getLogger(__name__)
 

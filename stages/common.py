@@ -28,11 +28,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pipeline.config import Params, Vehicle, check_params_against_vehicle, load_params, load_vehicle
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.parallel import backend
+
+if TYPE_CHECKING:  # pydantic (~0.2 s of CPU) is imported where configs are validated, not by importing a stage
+    from pipeline.config import Params, Vehicle
 
 log = logging.getLogger(__name__)
 
@@ -70,9 +72,19 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
-def load_configs(root: Path, vehicle_path: Path, params_path: Path | None) -> tuple[Vehicle, Params]:
+def load_configs(root: Path, vehicle_path: Path, params_path: Path | None, *,
+                 snapshot: bool = False) -> tuple[Vehicle, Params]:
+    """The vehicle config and params (default: ``<root>/params.yaml`` if there), validated and checked against each
+    other. ``snapshot`` (a run of ingest alone): files validated before by the same code are read back from their
+    snapshot, without pydantic (:mod:`pipeline.config.snapshot`); ingest takes the views as it takes the models."""
     if params_path is None and (root / "params.yaml").exists():
         params_path = root / "params.yaml"
+    if snapshot:
+        from pipeline.config.snapshot import load_for_ingest
+
+        return load_for_ingest(vehicle_path, params_path)
+    from pipeline.config import check_params_against_vehicle, load_params, load_vehicle
+
     vehicle, params = load_vehicle(vehicle_path), load_params(params_path)
     check_params_against_vehicle(vehicle, params, params_path)
     return vehicle, params
@@ -90,7 +102,7 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
                         format="%(levelname)s %(name)s: %(message)s")
     kwargs = {k: v for k, v in vars(args).items() if k not in {"root", "vehicle", "params", "verbose"}}
     try:
-        vehicle, params = load_configs(args.root, args.vehicle, args.params)
+        vehicle, params = load_configs(args.root, args.vehicle, args.params, snapshot=name == "ingest")
         with backend():  # AUVID_SCHEDULER sends joblib fan-out to a Dask cluster, else local processes
             result = run(args.root, vehicle, params, **kwargs)
     except ConfigError as err:

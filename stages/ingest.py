@@ -22,16 +22,18 @@ import tempfile
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline import layout
-from pipeline.config import Params, Vehicle
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import Checksum, ingest_log, trial_id
 from pipeline.parallel import imap, usable_cpus
 from pipeline.tableio import write_json, write_parquet
 from stages.common import StageResult, stage_main
+
+if TYPE_CHECKING:  # the configs may be a snapshot's views (pipeline.config.snapshot): no pydantic to ingest
+    from pipeline.config import Params, Vehicle
 
 log = logging.getLogger(__name__)
 

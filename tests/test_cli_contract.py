@@ -75,7 +75,7 @@ def _csv_root(tmp_path: Path, trials: tuple[str, ...] = ("trial01", "trial02")) 
 
 def _use_vehicle(monkeypatch: pytest.MonkeyPatch, streams: dict[str, Any]) -> None:
     monkeypatch.setenv("AUVID_JOBS", "1")
-    monkeypatch.setattr(cli, "_load", lambda args: (make_vehicle(streams), Params()))
+    monkeypatch.setattr(cli, "_load", lambda args, stages: (make_vehicle(streams), Params()))
 
 
 def test_misspelt_field_in_every_log_is_a_config_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,

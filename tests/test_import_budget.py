@@ -123,6 +123,19 @@ def test_auvid_ingest_loads_no_modelling_stack(tmp_path: Path, write: Callable[[
     assert found == [], f"auvid ingest of {log.name} loaded {found}"
 
 
+def test_auvid_ingest_with_configs_validated_before_loads_no_pydantic(tmp_path: Path) -> None:
+    """The first run validates the configs (pydantic, ~0.2 s of CPU) and keeps a snapshot; the next reads that
+    (pipeline.config.snapshot) and needs neither pydantic nor, for an MCAP file, a YAML parser."""
+    log = io.write_mcap(tmp_path / "trial01.mcap", io.trial(n=12))
+    vehicle = tmp_path / "vehicle.yaml"
+    vehicle.write_text(yaml.safe_dump(VEHICLE), encoding="utf-8")
+    code = ("from pipeline.cli import main\n"
+            f"code = main(['ingest', '-q', '--root', {str(tmp_path / 'run')!r}, '--vehicle', {str(vehicle)!r}, "
+            f"{str(log)!r}])\nassert code == 0, code")
+    assert loaded(code, ("pydantic", "yaml"), tmp_path) == ["pydantic", "yaml"]
+    assert loaded(code, ("pydantic", "yaml") + MODELLING + POOL, tmp_path) == []
+
+
 def test_auvid_inspect_starts_no_pool_machinery(tmp_path: Path) -> None:
     """inspect, init, models and export fan out no joblib work: the CLI enters no parallel backend for them; and
     pandas parses text logs only, so inspecting a binary one does not import it."""

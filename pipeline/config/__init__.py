@@ -5,138 +5,44 @@ the file and the key (``thrusters.1.direction``) on any problem: bytes that are 
 refuses or cannot nest, a key given twice (:mod:`pipeline.config.yamlload`), or a value the models refuse.
 ``config_hash`` is the sha256 of the canonical JSON of a model: it goes into every output's provenance.
 ``python -m pipeline.config`` writes the JSON Schemas into ``schemas/``.
+
+The names below are loaded on first use (PEP 562): pydantic and the models (~0.2 s of CPU) are imported by the
+first ``from pipeline.config import Vehicle`` (or ``load_vehicle``, ...), not by importing a light submodule such
+as :mod:`pipeline.config.checks` or :mod:`pipeline.config.snapshot`, which ``auvid ingest`` reads its configs
+through when they were validated before (:mod:`pipeline.config.snapshot`).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
-import logging
-from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ValidationError
+if TYPE_CHECKING:
+    from pipeline.config.loading import (
+        EXPLICIT_MODELS,
+        THRUST_COLUMN,
+        Params,
+        Vehicle,
+        check_params_against_vehicle,
+        load_params,
+        load_vehicle,
+        parse,
+        thrust_column,
+        todo_markers,
+        write_schemas,
+    )
+    from pipeline.config.snapshot import config_hash
 
-from pipeline.config.checks import KeyedError
-from pipeline.config.params import EXPLICIT_MODELS, Params
-from pipeline.config.vehicle import THRUST_COLUMN, Vehicle, thrust_column
-from pipeline.config.yamlload import load_yaml
-from pipeline.errors import ConfigError
-from pipeline.tableio import canonical_json
-
-__all__ = ["Params", "Vehicle", "check_params_against_vehicle", "config_hash", "load_params", "load_vehicle", "parse",
-           "write_schemas"]
-
-M = TypeVar("M", bound=BaseModel)
-
-log = logging.getLogger(__name__)
-
-
-def _key(item: Any) -> str:
-    """The dotted key of one pydantic error; a :class:`KeyedError` adds the key below where its check ran."""
-    loc = [str(p) for p in item["loc"]]
-    error = (item.get("ctx") or {}).get("error")
-    if isinstance(error, KeyedError):
-        loc.append(error.key)
-    return ".".join(loc)
+__all__ = ["EXPLICIT_MODELS", "THRUST_COLUMN", "Params", "Vehicle", "check_params_against_vehicle", "config_hash",
+           "load_params", "load_vehicle", "parse", "thrust_column", "todo_markers", "write_schemas"]
 
 
-def _describe(err: ValidationError) -> str:
-    return "; ".join(f"{_key(item) or '(top level)'}: {item['msg']}" for item in err.errors())
+def __getattr__(name: str) -> Any:
+    if name == "config_hash":
+        from pipeline.config.snapshot import config_hash
 
+        return config_hash
+    if name in __all__:
+        from pipeline.config import loading
 
-def parse(model: type[M], data: Any, source: str | Path = "<memory>") -> M:
-    """Validate ``data`` as ``model``; a ConfigError names ``source`` and every offending key."""
-    try:
-        return model.model_validate(data if data is not None else {})
-    except ValidationError as err:
-        first_key = _key(err.errors()[0]) if err.errors() else None
-        raise ConfigError(f"invalid {model.__name__} config: {_describe(err)}", file=source,
-                          field=first_key or None) from None
-    except ConfigError as err:  # raised inside a validator by a helper: add the file
-        if err.file is not None:
-            raise
-        raise ConfigError(err.reason, file=source, field=err.field) from None
-
-
-def todo_markers(data: Any, key: str = "") -> list[tuple[str, str]]:
-    """(key, what to give) of every ``"TODO: ..."`` value left in a config (``auvid init`` writes them)."""
-    if isinstance(data, dict):
-        return [m for k, v in data.items() for m in todo_markers(v, f"{key}.{k}" if key else str(k))]
-    if isinstance(data, list):
-        return [m for i, v in enumerate(data) for m in todo_markers(v, f"{key}.{i}")]
-    if isinstance(data, str) and data.strip().upper().startswith("TODO"):
-        return [(key or "(top level)", data.strip()[4:].lstrip(" :") or "a value")]
-    return []
-
-
-def load_vehicle(path: str | Path) -> Vehicle:
-    """Load and validate a vehicle config YAML file; a config with ``TODO`` values left lists each of them."""
-    data = load_yaml(path)
-    todo = todo_markers(data)
-    if todo:
-        listed = "; ".join(f"{key}: {what}" for key, what in todo)
-        raise ConfigError(f"{len(todo)} value(s) still to fill in (TODO): {listed}", file=path, field=todo[0][0])
-    vehicle = parse(Vehicle, data, path)
-    vehicle._base_dir = Path(path).resolve().parent
-    return vehicle
-
-
-def load_params(path: str | Path | None) -> Params:
-    """Load and validate ``params.yaml``; ``None`` gives the defaults."""
-    if path is None:
-        return Params()
-    return parse(Params, load_yaml(path), path)
-
-
-_VELOCITY_COLUMNS = ("u_mps", "v_mps", "w_mps", "p_radps", "q_radps", "r_radps")  # pipeline.kinematics.VELOCITY
-
-
-def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: str | Path | None = None) -> None:
-    """Params that name signals must name signals of the vehicle: ``differentiate.noise_sd`` keys are signals of
-    its streams (any trial's overrides included), ``differentiate.sigma_s_per_signal`` keys body-velocity columns.
-    A misspelt key would otherwise be ignored and the noise estimated from the data without a word."""
-    known = set(vehicle.signal_names())
-    for trial in vehicle.trials:
-        known |= set(vehicle.for_trial(trial).signal_names())
-    checks = (("noise_sd", params.differentiate.noise_sd, known),
-              ("sigma_s_per_signal", params.differentiate.sigma_s_per_signal, set(_VELOCITY_COLUMNS)))
-    for key, given, valid in checks:
-        unknown = sorted(set(given) - valid)
-        if unknown:
-            raise ConfigError(f"differentiate.{key} names {unknown}, which are not "
-                              + ("signals of the vehicle's streams" if key == "noise_sd" else "velocity columns")
-                              + f"; known: {sorted(valid)}", file=params_path, field=f"differentiate.{key}")
-    _warn_thrust_inputs(vehicle, params, params_path)
-
-
-def _warn_thrust_inputs(vehicle: Vehicle, params: Params, params_path: str | Path | None) -> None:
-    """``coupled.inputs`` naming the thrust of a thruster the vehicle does not have (the default names DAGON's
-    th1 th2 th3) is said when the configs load, not only when the tune stage, after ingest ... features, refuses
-    it. A warning, not an error: a run that never reaches the coupled models must not be stopped by them."""
-    if not set(params.coupled.models) - set(EXPLICIT_MODELS):
-        return
-    columns = [thrust_column(t.name) for t in vehicle.thrusters]
-    unknown = [c for c in params.coupled.inputs if THRUST_COLUMN.match(c) and c not in columns]
-    if unknown:
-        log.warning("%scoupled.inputs names %s, thrust columns of thrusters the vehicle %r does not have; its "
-                    "thrusters' columns are %s: the tune stage will refuse the coupled models' inputs until "
-                    "coupled.inputs lists them", f"{params_path}: " if params_path else "", unknown, vehicle.name,
-                    columns)
-
-
-def config_hash(model: BaseModel) -> str:
-    """sha256 of the canonical JSON of a config model."""
-    return hashlib.sha256(canonical_json(model.model_dump(mode="json")).encode()).hexdigest()
-
-
-def write_schemas(directory: str | Path) -> list[Path]:
-    """Write the JSON Schemas of the vehicle config and the params into ``directory``."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, model in (("vehicle", Vehicle), ("params", Params)):
-        target = directory / f"{name}.schema.json"
-        target.write_text(json.dumps(model.model_json_schema(), indent=2, sort_keys=True) + "\n")
-        written.append(target)
-    return written
+        return getattr(loading, name)
+    raise AttributeError(f"module 'pipeline.config' has no attribute {name!r}")

@@ -346,10 +346,15 @@ class Vehicle(Frozen):
         """A path from the config (a thrust table), relative to the vehicle file's directory."""
         return self._base_dir / relative
 
+    def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """Every trial override as given: ``{pattern: {stream: {key: value}}}``, in config order."""
+        return {pattern: {name: o.model_dump(mode="json", exclude_unset=True) for name, o in t.streams.items()}
+                for pattern, t in self.trials.items()}
+
     def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
         """The overrides that apply to ``trial``: ``{pattern: {stream: {key: value}}}``, in config order."""
-        return {pattern: {name: o.model_dump(mode="json", exclude_unset=True) for name, o in t.streams.items()}
-                for pattern, t in self.trials.items() if pattern == trial or fnmatch.fnmatchcase(trial, pattern)}
+        return {pattern: given for pattern, given in self.override_keys().items()
+                if pattern == trial or fnmatch.fnmatchcase(trial, pattern)}
 
     def for_trial(self, trial: str) -> Vehicle:
         """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none

@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import numpy as np
-import yaml
 
 from pipeline.errors import IngestError
 from pipeline.io.base import (
@@ -483,6 +482,8 @@ class Rosbag2Reader(RawReader):
 
 def _load_metadata(meta: Path) -> dict[str, Any]:
     """``rosbag2_bagfile_information`` of a metadata.yaml, with the shapes the reader relies on checked."""
+    import yaml  # here, not at the top: an MCAP file's ingest, whose configs come from a snapshot, needs no YAML
+
     def bad(why: str) -> IngestError:
         return IngestError(f"metadata.yaml is not a rosbag2 metadata file: {why}", file=meta)
 

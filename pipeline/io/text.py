@@ -35,11 +35,12 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
 
 if TYPE_CHECKING:  # pandas parses the text where a file is read: `auvid inspect` of a bag imports this module too
     import pandas as pd
+
+    from pipeline.config.sources import CsvOptions  # (pydantic: the options come validated)
 from pipeline.io.base import ReadResult, SalvageInfo, TopicData, TopicInfo
 from pipeline.units import TIME_UNITS_NS
 

@@ -1,0 +1,293 @@
+"""Validated configs kept between runs: ``auvid ingest`` reads a vehicle config and params.yaml it has validated
+before without importing pydantic.
+
+Validating takes pydantic: importing it and building the config models costs ~0.2 s of CPU, a quarter of a one-hour
+log's whole ingest and more of a ten-minute one's (docs/benchmarks.md). So after validating a pair of files,
+:func:`load_for_ingest` writes a *snapshot* of the result: each model's fields as the model holds them, the YAML
+as read (to build the real model where a trial's overrides need it) and the warnings the checks gave. A later
+run given the same files reads the snapshot back as :class:`ConfigView` objects, which have the model's fields as
+attributes, ``model_dump(mode="json")`` (so :func:`config_hash`, and with it every output's provenance, is the
+same) and ``model_copy(update=...)``; the vehicle's view has its methods that ingest uses. The warnings are logged
+again.
+
+A snapshot is found by the sha256 of the two files' paths and bytes (and the Python version), and used only while
+the code that validated it is the same: the sha256 of every ``pipeline`` module loaded when it was written, of
+PyYAML's and of pydantic's version files, are stored and compared. Anything else is a miss: the files are
+validated again and the snapshot rewritten. A snapshot that cannot be read is a miss; one that cannot be
+written is not an error (a read-only home works, at the old cost).
+
+Where: ``$AUVID_CACHE_DIR/configs/`` (default ``$XDG_CACHE_HOME/auvid``, else ``~/.cache/auvid``);
+``AUVID_CACHE_DIR=off`` validates every time. This module imports no pydantic and no YAML parser.
+"""
+
+from __future__ import annotations
+
+import copy
+import fnmatch
+import hashlib
+import importlib.util
+import json
+import logging
+import os
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pipeline.tableio import atomic_path, canonical_json
+
+if TYPE_CHECKING:
+    from pipeline.config.loading import Params, Vehicle
+
+log = logging.getLogger(__name__)
+
+CACHE_ENV = "AUVID_CACHE_DIR"
+#: Bumped when the layout of a snapshot changes: an older one is then a miss.
+FORMAT = 1
+#: Third-party code whose version decides what a config validates to (each package's file that names its version).
+_DEPENDENCIES = (("yaml", "__init__.py"), ("pydantic", "version.py"))
+
+
+def config_hash(model: Any) -> str:
+    """sha256 of the canonical JSON of a config model (or of a :class:`ConfigView` of one)."""
+    return hashlib.sha256(canonical_json(model.model_dump(mode="json")).encode()).hexdigest()
+
+
+def cache_dir() -> Path | None:
+    """Where snapshots go, or None when ``AUVID_CACHE_DIR=off``."""
+    given = os.environ.get(CACHE_ENV, "").strip()
+    if given.lower() == "off":
+        return None
+    if given:
+        return Path(given) / "configs"
+    base = os.environ.get("XDG_CACHE_HOME", "").strip() or Path.home() / ".cache"
+    return Path(base) / "auvid" / "configs"
+
+
+class ConfigView:
+    """The validated values of one config model, read from a snapshot: its fields as attributes (nested models as
+    views; lists, tuples and dicts as the model holds them). Read-only, like the model."""
+
+    def __init__(self, model: str, fields: dict[str, Any]) -> None:
+        self.__dict__.update(fields)
+        object.__setattr__(self, "_model", model)
+        object.__setattr__(self, "_fields", tuple(fields))
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{self._model} is frozen: cannot set {name!r}")
+
+    def __repr__(self) -> str:
+        return f"{self._model}View({', '.join(f'{k}={getattr(self, k)!r}' for k in self._fields)})"
+
+    def model_dump(self, *, mode: str = "python") -> dict[str, Any]:
+        """The fields as JSON values, as the model's ``model_dump(mode="json")`` gives them."""
+        if mode != "json":
+            raise TypeError(f"a snapshot's {self._model} gives JSON values only: model_dump(mode='json')")
+        return {k: _json_value(getattr(self, k)) for k in self._fields}
+
+    def model_copy(self, *, update: dict[str, Any] | None = None) -> ConfigView:
+        """A copy with some fields replaced (not validated, as with the model's ``model_copy``)."""
+        unknown = sorted(set(update or {}) - set(self._fields))
+        if unknown:
+            raise AttributeError(f"{self._model} has no field(s) {unknown}")
+        clone = copy.copy(self)
+        clone.__dict__.update(update or {})
+        return clone
+
+
+class VehicleView(ConfigView):
+    """A snapshot's vehicle: the fields, and the methods of :class:`~pipeline.config.vehicle.Vehicle` that ingest
+    uses. A trial that an override applies to gets the real model (pydantic is imported then)."""
+
+    def __init__(self, model: str, fields: dict[str, Any], *, base_dir: Path, overrides: dict[str, Any],
+                 raw: Any, source: str) -> None:
+        super().__init__(model, fields)
+        for name, value in (("_base_dir", base_dir), ("_overrides", overrides), ("_raw", raw), ("_source", source)):
+            object.__setattr__(self, name, value)
+
+    def resolve(self, relative: str | Path) -> Path:
+        return self._base_dir / relative
+
+    def signal_names(self) -> list[str]:
+        return [name for stream in self.streams.values() for name in stream.signals]
+
+    def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
+        return copy.deepcopy(self._overrides)
+
+    def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
+        return {pattern: given for pattern, given in self.override_keys().items()
+                if pattern == trial or fnmatch.fnmatchcase(trial, pattern)}
+
+    def for_trial(self, trial: str) -> VehicleView | Vehicle:
+        if not any(self.trial_overrides(trial).values()):
+            return self
+        from pipeline.config.loading import Vehicle, parse
+
+        vehicle = parse(Vehicle, self._raw, self._source)
+        vehicle._base_dir = self._base_dir
+        return vehicle.for_trial(trial)
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, ConfigView):
+        return value.model_dump(mode="json")
+    if isinstance(value, list | tuple):
+        return [_json_value(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _json_value(v) for k, v in value.items()}
+    return value
+
+
+def _encode(value: Any, model_type: type) -> Any:
+    """A model's value as JSON that keeps its Python types: models, dicts and tuples tagged, lists as lists."""
+    if isinstance(value, model_type):
+        return {"model": type(value).__name__,
+                "fields": {k: _encode(getattr(value, k), model_type) for k in type(value).model_fields}}
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError("a dict with keys that are not strings")
+        return {"dict": {k: _encode(v, model_type) for k, v in value.items()}}
+    if isinstance(value, tuple):
+        return {"tuple": [_encode(v, model_type) for v in value]}
+    if isinstance(value, list):
+        return [_encode(v, model_type) for v in value]
+    if value is None or isinstance(value, str | int | float | bool):
+        return value
+    raise TypeError(f"a value of type {type(value).__name__}")
+
+
+def _decode(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_decode(v) for v in value]
+    if not isinstance(value, dict):
+        return value
+    if "model" in value:
+        return ConfigView(value["model"], {k: _decode(v) for k, v in value["fields"].items()})
+    if "dict" in value:
+        return {k: _decode(v) for k, v in value["dict"].items()}
+    return tuple(_decode(v) for v in value["tuple"])
+
+
+def _file_digest(path: str) -> str:
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def _code_files() -> list[str]:
+    """The source files whose code decides what a config validates to: every loaded ``pipeline`` module (the
+    config models and what they import, and more: a change to any of them is a miss) and the dependencies'
+    version files."""
+    files = {m.__file__ for name, m in list(sys.modules.items())
+             if (name == "pipeline" or name.startswith("pipeline.")) and getattr(m, "__file__", None)}
+    for package, version_file in _DEPENDENCIES:
+        spec = importlib.util.find_spec(package)
+        if spec is not None and spec.submodule_search_locations:
+            files.add(os.path.join(next(iter(spec.submodule_search_locations)), version_file))
+    return sorted(str(f) for f in files)
+
+
+def _key(vehicle_path: Path, vehicle_bytes: bytes, params_path: Path | None, params_bytes: bytes | None) -> str:
+    h = hashlib.sha256(f"auvid config snapshot {FORMAT}\0{sys.version}\0{vehicle_path}\0".encode())
+    h.update(vehicle_bytes)
+    h.update(f"\0{params_path}\0".encode())
+    h.update(params_bytes if params_bytes is not None else b"(defaults)")
+    return h.hexdigest()
+
+
+def _read_bytes(vehicle_path: Path, params_path: Path | None) -> tuple[bytes, bytes | None] | None:
+    try:
+        return vehicle_path.read_bytes(), params_path.read_bytes() if params_path is not None else None
+    except OSError:
+        return None  # the loader says what is wrong with the file
+
+
+def load_for_ingest(vehicle_path: str | Path, params_path: str | Path | None) -> tuple[Vehicle, Params]:
+    """The vehicle config and params (``None``: the defaults), validated and checked against each other as
+    :func:`pipeline.config.load_vehicle`, :func:`~pipeline.config.load_params` and
+    :func:`~pipeline.config.check_params_against_vehicle` do; from the snapshot when these files were validated
+    before by the same code (views), else validated (the models) and a snapshot written."""
+    vehicle_path = Path(vehicle_path)
+    params_path = Path(params_path) if params_path is not None else None
+    directory = cache_dir()
+    read = _read_bytes(vehicle_path, params_path) if directory is not None else None
+    if directory is None or read is None:
+        return _validate(vehicle_path, params_path)[:2]
+    target = directory / f"{_key(vehicle_path, read[0], params_path, read[1])}.json"
+    found = _load_snapshot(target, vehicle_path)
+    if found is not None:
+        return found
+    vehicle, params, records = _validate(vehicle_path, params_path)
+    if _read_bytes(vehicle_path, params_path) == read:  # not rewritten while it was validated
+        _write_snapshot(target, vehicle, params, records, vehicle_path)
+    return vehicle, params
+
+
+@contextmanager
+def _kept_warnings() -> Iterator[list[list[Any]]]:
+    """The warnings that ``pipeline`` loggers give inside the block, as [logger, level, message]."""
+    records: list[list[Any]] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append([record.name, record.levelno, record.getMessage()])
+
+    handler = Keep(logging.WARNING)
+    logger = logging.getLogger("pipeline")
+    logger.addHandler(handler)
+    try:
+        yield records
+    finally:
+        logger.removeHandler(handler)
+
+
+def _validate(vehicle_path: Path, params_path: Path | None) -> tuple[Vehicle, Params, list[list[Any]]]:
+    from pipeline.config.loading import check_params_against_vehicle, load_params, load_vehicle
+
+    with _kept_warnings() as records:
+        vehicle, params = load_vehicle(vehicle_path), load_params(params_path)
+        check_params_against_vehicle(vehicle, params, params_path)
+    return vehicle, params, records
+
+
+def _write_snapshot(target: Path, vehicle: Vehicle, params: Params, records: list[list[Any]],
+                    vehicle_path: Path) -> None:
+    from pydantic import BaseModel
+
+    from pipeline.config.yamlload import load_yaml
+
+    try:
+        doc = {"format": FORMAT, "code": {f: _file_digest(f) for f in _code_files()},
+               "vehicle": _encode(vehicle, BaseModel), "params": _encode(params, BaseModel),
+               "vehicle_raw": load_yaml(vehicle_path), "overrides": vehicle.override_keys(), "warnings": records}
+        text = json.dumps(doc, allow_nan=False)  # not sorted: the order of streams and trials is the config's
+        with atomic_path(target) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    except (OSError, TypeError, ValueError) as err:  # an unwritable cache, a value JSON cannot hold
+        log.debug("config snapshot %s not written: %s", target, err)
+
+
+def _load_snapshot(target: Path, vehicle_path: Path) -> tuple[Vehicle, Params] | None:
+    """The views of a snapshot whose code is the same as now; None when there is none or it is not usable."""
+    try:
+        doc = json.loads(target.read_text(encoding="utf-8"))
+        if doc["format"] != FORMAT:
+            return None
+        for path, digest in doc["code"].items():
+            if _file_digest(path) != digest:
+                log.debug("config snapshot %s: %s changed; validating again", target, path)
+                return None
+        vehicle_doc = doc["vehicle"]
+        fields = {k: _decode(v) for k, v in vehicle_doc["fields"].items()}
+        vehicle = VehicleView(vehicle_doc["model"], fields, base_dir=vehicle_path.resolve().parent,
+                              overrides=doc["overrides"], raw=doc["vehicle_raw"], source=str(vehicle_path))
+        params = _decode(doc["params"])
+        warnings = doc["warnings"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        if not isinstance(err, FileNotFoundError):
+            log.debug("config snapshot %s unusable (%s); validating again", target, err)
+        return None
+    for name, level, message in warnings:
+        logging.getLogger(name).log(level, "%s", message)
+    log.debug("configs %s read from snapshot %s", vehicle_path, target)
+    return vehicle, params  # type: ignore[return-value]  # views with the models' attributes

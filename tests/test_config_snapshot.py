@@ -1,0 +1,200 @@
+"""Config snapshots (issue 15, imports on a budget): ``auvid ingest`` reads a vehicle config and params it validated
+before from a snapshot, without pydantic, and writes the same bytes as when it validated them; anything that could
+make the snapshot wrong (other bytes, other code, a damaged file) validates again."""
+
+from __future__ import annotations
+
+import json
+import logging
+import pickle
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from pydantic import BaseModel
+from test_optional_streams import csv_trial
+from test_trial_overrides import with_trials
+
+from pipeline import layout
+from pipeline.cli import main
+from pipeline.config import Vehicle, config_hash, snapshot
+from pipeline.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+DAGON = ROOT / "pipeline" / "sim" / "dagon.yaml"
+PARAMS = ROOT / "params.yaml"
+#: trial02's depth file is named otherwise and its nav clock is 0.25 s late: an override for that trial only
+OVERRIDES = {"trial02": {"streams": {"nav": {"offset_s": 0.25}, "depth": {"file": "pressure.csv"}}},
+             "sea*": {"streams": {"depth": {"optional": True}}}}
+
+
+def overridden_vehicle(path: Path) -> Path:
+    doc = with_trials(OVERRIDES).model_dump(mode="json", exclude_unset=True)
+    path.write_text(yaml.safe_dump({**doc, "trials": OVERRIDES}, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def two_trials(root: Path) -> None:
+    csv_trial(root / layout.RAW / "trial01", depth=True)
+    (csv_trial(root / layout.RAW / "trial02", depth=True) / "depth_a.csv").rename(
+        root / layout.RAW / "trial02" / "pressure.csv")
+
+
+def outputs(root: Path) -> dict[str, bytes]:
+    signals = root / layout.SIGNALS
+    return {p.relative_to(signals).as_posix(): p.read_bytes() for p in sorted(signals.rglob("*")) if p.is_file()}
+
+
+def snapshots(cache: Path) -> list[Path]:
+    return sorted((cache / "configs").glob("*.json"))
+
+
+def no_validation(monkeypatch: pytest.MonkeyPatch) -> None:
+    """From here on a miss fails the test: what follows is answered by the snapshot."""
+    def refuse(*_: Any) -> None:
+        raise AssertionError("the configs were validated again: the snapshot was not used")
+    monkeypatch.setattr(snapshot, "_validate", refuse)
+
+
+def test_second_ingest_reads_the_snapshot_and_writes_the_same_bytes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, _config_snapshots_per_test: Path) -> None:
+    root = tmp_path / "run"
+    two_trials(root)
+    vehicle = overridden_vehicle(tmp_path / "vehicle.yaml")
+    (root / "params.yaml").write_bytes(PARAMS.read_bytes())
+    command = ["ingest", "-q", "--root", str(root), "--vehicle", str(vehicle)]
+    assert main(command) == 0
+    validated = outputs(root)
+    assert len(snapshots(_config_snapshots_per_test)) == 1
+    report = json.loads(validated["trial02/ingest_report.json"])
+    assert report["streams"]["nav"]["offset_s"] == 0.25  # the override reached trial02 ...
+    assert json.loads(validated["trial01/ingest_report.json"])["streams"]["nav"]["offset_s"] == 0.0  # only it
+
+    no_validation(monkeypatch)
+    assert main(command) == 0
+    assert outputs(root) == validated  # values, provenance (config hash, trial overrides), report: every byte
+    assert main([*command, "--no-checksum"]) == 0  # the params view takes the command line's override
+    assert json.loads(layout.ingest_report_path(root, "trial01").read_text())["checksum"] == "none"
+
+
+def assert_same_values(view: Any, model: Any, where: str) -> None:
+    """The view holds what the model holds: the same types (a tuple stays a tuple), the same dict order."""
+    if isinstance(model, BaseModel):
+        assert isinstance(view, snapshot.ConfigView) and view._model == type(model).__name__, where
+        assert set(view._fields) == set(type(model).model_fields), where
+        for name in type(model).model_fields:
+            assert_same_values(getattr(view, name), getattr(model, name), f"{where}.{name}")
+    elif isinstance(model, dict):
+        assert type(view) is dict and list(view) == list(model), where
+        for key in model:
+            assert_same_values(view[key], model[key], f"{where}.{key}")
+    elif isinstance(model, list | tuple):
+        assert type(view) is type(model) and len(view) == len(model), where
+        for i, (v, m) in enumerate(zip(view, model, strict=True)):
+            assert_same_values(v, m, f"{where}.{i}")
+    else:
+        assert type(view) is type(model) and view == model, where
+
+
+@pytest.mark.parametrize("which", ["dagon", "overrides"])
+def test_views_hold_what_the_models_hold(tmp_path: Path, which: str) -> None:
+    path = DAGON if which == "dagon" else overridden_vehicle(tmp_path / "vehicle.yaml")
+    vehicle, params = snapshot.load_for_ingest(path, PARAMS)
+    assert isinstance(vehicle, Vehicle)  # validated: nothing was there
+    view, pview = snapshot.load_for_ingest(path, PARAMS)
+    assert isinstance(view, snapshot.VehicleView) and isinstance(pview, snapshot.ConfigView)
+    assert_same_values(view, vehicle, "vehicle")
+    assert_same_values(pview, params, "params")
+    assert view.model_dump(mode="json") == vehicle.model_dump(mode="json")
+    assert config_hash(view) == config_hash(vehicle) and config_hash(pview) == config_hash(params)
+    assert view.resolve("msgs") == vehicle.resolve("msgs") == path.resolve().parent / "msgs"
+    assert view.signal_names() == vehicle.signal_names()
+    for trial in ("trial01", "trial02", "sea7", "sea*"):
+        assert view.trial_overrides(trial) == vehicle.trial_overrides(trial)
+    assert_same_values(pickle.loads(pickle.dumps(view)), vehicle, "pickled")  # ingest --n-jobs sends it to workers
+    with pytest.raises(AttributeError, match="frozen"):
+        view.name = "other"
+
+
+def test_a_trial_with_overrides_gets_the_real_model_with_them_applied(tmp_path: Path) -> None:
+    path = overridden_vehicle(tmp_path / "vehicle.yaml")
+    vehicle, _ = snapshot.load_for_ingest(path, None)
+    view, _ = snapshot.load_for_ingest(path, None)
+    assert view.for_trial("trial01") is view  # nothing applies: the view itself
+    for trial in ("trial02", "sea3"):
+        applied = view.for_trial(trial)
+        assert isinstance(applied, Vehicle) and applied.resolve("x") == vehicle.resolve("x")
+        assert applied.model_dump(mode="json") == vehicle.for_trial(trial).model_dump(mode="json")
+    assert view.for_trial("trial02").streams["nav"].offset_s == 0.25
+    assert view.for_trial("sea3").streams["depth"].optional is True
+
+
+def test_warnings_of_the_checks_are_given_again(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The default coupled.inputs name DAGON's thrust columns: a vehicle whose thruster is t1 hears it on every
+    run, read from the snapshot as well."""
+    path = overridden_vehicle(tmp_path / "vehicle.yaml")
+    for expected in (Vehicle, snapshot.VehicleView):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            vehicle, _ = snapshot.load_for_ingest(path, PARAMS)
+        assert isinstance(vehicle, expected)
+        said = [r for r in caplog.records if "coupled.inputs names ['T_th1_N', 'T_th2_N', 'T_th3_N']" in r.message]
+        assert len(said) == 1 and said[0].name == "pipeline.config" and str(PARAMS) in said[0].message
+
+
+def test_other_bytes_other_code_or_a_damaged_snapshot_validate_again(
+        tmp_path: Path, _config_snapshots_per_test: Path) -> None:
+    path = tmp_path / "vehicle.yaml"
+    path.write_bytes(DAGON.read_bytes())
+    snapshot.load_for_ingest(path, None)
+    assert isinstance(snapshot.load_for_ingest(path, None)[0], snapshot.VehicleView)
+
+    path.write_text(DAGON.read_text(encoding="utf-8").replace("name: dagon", "name: dagon2"), encoding="utf-8")
+    vehicle, _ = snapshot.load_for_ingest(path, None)
+    assert isinstance(vehicle, Vehicle) and vehicle.name == "dagon2"  # the edit is seen, not the old snapshot
+    view, _ = snapshot.load_for_ingest(path, None)
+    assert isinstance(view, snapshot.VehicleView) and view.name == "dagon2"
+
+    (stored,) = [p for p in snapshots(_config_snapshots_per_test) if b'"dagon2"' in p.read_bytes()]
+    doc = json.loads(stored.read_text())
+    code = sorted(doc["code"])
+    assert any(f.endswith(("pipeline/config/vehicle.py", "pipeline\\config\\vehicle.py")) for f in code)
+    assert any(f.endswith("version.py") and "pydantic" in f for f in code)
+    doc["code"][code[0]] = "0" * 64  # as if that source file had changed since
+    stored.write_text(json.dumps(doc))
+    assert isinstance(snapshot.load_for_ingest(path, None)[0], Vehicle)
+    assert isinstance(snapshot.load_for_ingest(path, None)[0], snapshot.VehicleView)  # rewritten
+
+    for damage in ("{not json", json.dumps({"format": snapshot.FORMAT}), ""):
+        stored.write_text(damage)
+        assert isinstance(snapshot.load_for_ingest(path, None)[0], Vehicle)
+
+    params = tmp_path / "params.yaml"
+    params.write_text("ingest: {checksum: sha256}\n", encoding="utf-8")
+    for _ in range(2):
+        assert snapshot.load_for_ingest(path, params)[1].ingest.checksum == "sha256"
+    params.write_text("ingest: {checksum: none}\n", encoding="utf-8")
+    assert snapshot.load_for_ingest(path, params)[1].ingest.checksum == "none"  # the params' bytes count too
+
+
+def test_off_or_unwritable_cache_validates_every_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(snapshot.CACHE_ENV, "off")
+    assert snapshot.cache_dir() is None
+    for _ in range(2):
+        assert isinstance(snapshot.load_for_ingest(DAGON, None)[0], Vehicle)
+    blocked = tmp_path / "blocked"
+    blocked.write_text("a file where the cache directory would be")
+    monkeypatch.setenv(snapshot.CACHE_ENV, str(blocked))
+    for _ in range(2):
+        assert isinstance(snapshot.load_for_ingest(DAGON, None)[0], Vehicle)  # not written, not an error
+
+
+def test_a_refused_config_is_refused_every_time(tmp_path: Path, _config_snapshots_per_test: Path) -> None:
+    path = tmp_path / "vehicle.yaml"
+    path.write_text(DAGON.read_text(encoding="utf-8").replace("name: dagon", "name: 'da gon'"), encoding="utf-8")
+    for _ in range(2):
+        with pytest.raises(ConfigError, match="name") as err:
+            snapshot.load_for_ingest(path, None)
+        assert str(path) in str(err.value)
+    assert snapshots(_config_snapshots_per_test) == []
