@@ -6,6 +6,7 @@
     python bench/ingest.py --minutes 240 --logs /tmp/trial240 --repeat 1 --skip-rosbags --formats ros2-mcap
     python bench/ingest.py --minutes 60 --logs /tmp/trial60 --formats mcap-unindexed ros1-unindexed  # streamed
     python bench/ingest.py --minutes 60 --logs /tmp/trial60 --pin core0 --checksum both   # sha256 on and off
+    python bench/ingest.py --minutes 60 --logs /tmp/trial60 --pin core0 --configs both    # snapshot / validated
 
 The trial: IMU 120 Hz (sensor_msgs/Imu), gyro 100 Hz (geometry_msgs/Vector3Stamped), pressure 10 Hz
 (sensor_msgs/FluidPressure), DVL 4 Hz (a custom type, defined only in the file, with a 10 s drop-out every
@@ -19,7 +20,11 @@ the max of N for peak RSS. Methods:
 
 * ``auvid``: the whole ``auvid ingest -q --root TMP --vehicle V LOG`` process (console script, imports included,
   into a fresh run directory): what a user or a DVC stage pays; ``--checksum none`` adds ``--no-checksum`` (no
-  sha256 of the log for provenance), ``--checksum both`` measures both, interleaved, one table row each;
+  sha256 of the log for provenance), ``--checksum both`` measures both, interleaved, one table row each. The
+  configs come from their snapshot (:mod:`pipeline.config.snapshot`, in a cache directory of the bench's own,
+  written by one untimed run first), as in every ingest after the first with the same configs; ``--configs
+  validate`` validates them in every run (``AUVID_CACHE_DIR=off``: pydantic imported, the first run's cost),
+  ``--configs both`` measures both;
 * ``inproc``: the earlier in-process figure: ``pipeline.ingest.ingest_log`` + the stage's ``write_trial`` timed
   inside a child after its imports are warmed (the ADBC driver included);
 * ``raw`` / ``deser``: rosbags ``AnyReader`` iterating every message without / with ``deserialize``, each a whole
@@ -37,10 +42,12 @@ each format and at the end. In-process memory: the child's RSS after imports (ba
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import math
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -457,7 +464,7 @@ for line in sys.stdin:
 _spawner: list[subprocess.Popen[str]] = []
 
 
-def run_process(cmd: list[str], pin: bool, capture: bool = True) -> dict[str, Any]:
+def run_process(cmd: list[str], pin: bool, capture: bool = True, env: dict[str, str] | None = None) -> dict[str, Any]:
     """Run ``cmd`` as a child (under ``taskset -c 0`` when ``pin``) and return its own resource use.
 
     The lean spawner (:data:`SPAWNER`) starts it and reads ``os.wait4``'s rusage: CPU = user + sys of every thread
@@ -472,7 +479,7 @@ def run_process(cmd: list[str], pin: bool, capture: bool = True) -> dict[str, An
     with tempfile.NamedTemporaryFile("r") as out, tempfile.NamedTemporaryFile("r") as err:
         assert spawner.stdin is not None and spawner.stdout is not None
         spawner.stdin.write(json.dumps({"cmd": full, "out": out.name, "err": err.name, "capture": capture,
-                                        "cwd": str(ROOT), "env": CHILD_ENV}) + "\n")
+                                        "cwd": str(ROOT), "env": {**CHILD_ENV, **(env or {})}}) + "\n")
         spawner.stdin.flush()
         got = json.loads(spawner.stdout.readline())
         stdout, stderr = out.read(), err.read()
@@ -499,13 +506,15 @@ def vehicle_yaml(outdir: Path) -> Path:
     return path
 
 
-def process_auvid(log: Path, vehicle: Path, pin: bool, checksum: str = "sha256") -> dict[str, Any]:
+def process_auvid(log: Path, vehicle: Path, pin: bool, checksum: str = "sha256",
+                  configs: str = "snapshot") -> dict[str, Any]:
     """A whole ``auvid ingest -q`` process into a fresh run directory (removed after, outside the measurement);
-    ``checksum`` ``none``: with ``--no-checksum``."""
+    ``checksum`` ``none``: with ``--no-checksum``; ``configs`` ``validate``: with ``AUVID_CACHE_DIR=off``."""
     flags = ["--no-checksum"] if checksum == "none" else []
+    env = {"AUVID_CACHE_DIR": "off"} if configs == "validate" else None
     with tempfile.TemporaryDirectory(prefix="auvid-bench-run-") as tmp:
         got = run_process([*auvid_command(), "ingest", "-q", "--root", tmp, "--vehicle", str(vehicle), *flags,
-                           str(log)], pin)
+                           str(log)], pin, env=env)
         reports = sorted(Path(tmp).glob("data/signals/*/ingest_report.json"))
         if len(reports) != 1:
             raise RuntimeError(f"auvid ingest of {log} wrote {len(reports)} reports: {got['stdout'][-2000:]}")
@@ -532,8 +541,10 @@ def process_cat(path: Path, pin: bool) -> dict[str, Any]:
 
 
 METHODS = ("auvid", "inproc", "raw", "deser", "cat")
-#: The whole-process auvid method of each checksum mode (``--checksum``); "auvid-none" runs ``--no-checksum``.
-AUVID_METHODS = {"sha256": "auvid", "none": "auvid-none"}
+#: The whole-process auvid method of each checksum mode (``--checksum``; "-none": ``--no-checksum``) and way to the
+#: configs (``--configs``; "-validate": validated in the run, no snapshot).
+AUVID_METHODS = {("sha256", "snapshot"): "auvid", ("none", "snapshot"): "auvid-none",
+                 ("sha256", "validate"): "auvid-validate", ("none", "validate"): "auvid-none-validate"}
 
 
 def _best(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -601,6 +612,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--checksum", choices=("sha256", "none", "both"), default="sha256",
                         help="auvid ingest with the log's sha256 (default), with --no-checksum, or both (interleaved, "
                              "one row each); the in-process figure keeps the default")
+    parser.add_argument("--configs", choices=("snapshot", "validate", "both"), default="snapshot",
+                        help="auvid ingest reading the configs from their snapshot (default: as every run after the "
+                             "first), validating them (AUVID_CACHE_DIR=off: the first run's cost), or both")
     parser.add_argument("--json", type=Path, default=None, help="also write every run as JSON here")
     parser.add_argument("--measure", choices=("auvid", "raw", "deser"), help=argparse.SUPPRESS)
     parser.add_argument("--path", type=Path, help=argparse.SUPPRESS)
@@ -618,7 +632,14 @@ def main(argv: list[str] | None = None) -> int:
     vehicle = vehicle_yaml(outdir)
     pins = {"both": [False, True], "any": [False], "core0": [True]}[args.pin]
     checksums = ["sha256", "none"] if args.checksum == "both" else [args.checksum]
-    auvid_methods = [AUVID_METHODS[c] for c in checksums]
+    ways = ["snapshot", "validate"] if args.configs == "both" else [args.configs]
+    variants = [(c, w) for c in checksums for w in ways]
+    auvid_methods = [AUVID_METHODS[v] for v in variants]
+    by_method = {AUVID_METHODS[v]: v for v in variants}
+    CHILD_ENV["AUVID_CACHE_DIR"] = tempfile.mkdtemp(prefix="auvid-bench-cache-")  # the bench's own snapshots
+    atexit.register(shutil.rmtree, CHILD_ENV["AUVID_CACHE_DIR"], True)
+    if "snapshot" in ways:  # written once, untimed: every timed run with the snapshot reads it
+        process_auvid(next(iter(logs.values()))["auvid"], vehicle, pin=False, checksum="none")
     methods = [*auvid_methods, *(m for m in METHODS[1:] if not (args.skip_rosbags and m in ("raw", "deser"))
                                  and not (args.skip_inproc and m == "inproc"))]
     print(f"{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, load average {_loadavg()}; "
@@ -632,8 +653,7 @@ def main(argv: list[str] | None = None) -> int:
             for pin in pins:
                 for method in todo:
                     if method in auvid_methods:
-                        checksum = "none" if method == AUVID_METHODS["none"] else "sha256"
-                        got = process_auvid(paths["auvid"], vehicle, pin, checksum)
+                        got = process_auvid(paths["auvid"], vehicle, pin, *by_method[method])
                     elif method == "cat":
                         got = process_cat(paths["auvid"], pin)
                     else:
@@ -645,16 +665,19 @@ def main(argv: list[str] | None = None) -> int:
         for pin in pins:
             measured = {m: _best(runs[f"{m}/{int(pin)}"]) for m in todo}
             others = {m: b for m, b in measured.items() if m not in auvid_methods}
-            for checksum in checksums:
-                best = {**others, "auvid": measured[AUVID_METHODS[checksum]]}
-                label = fmt if len(checksums) == 1 and checksum == "sha256" else f"{fmt}, checksum {checksum}"
+            for checksum, way in variants:
+                best = {**others, "auvid": measured[AUVID_METHODS[checksum, way]]}
+                said = ([f"checksum {checksum}"] if len(checksums) > 1 or checksum != "sha256" else []) + (
+                    [f"configs {'from snapshot' if way == 'snapshot' else 'validated'}"]
+                    if len(ways) > 1 or way != "snapshot" else [])
+                label = ", ".join([fmt, *said])
                 process_lines.append(process_row(label, size, pin, best))
                 print(process_lines[-1], flush=True)
                 if "raw" in best and best["raw"]["messages"] != best["auvid"]["messages"]:
                     print(f"  note: rosbags read {best['raw']['messages']} messages, auvid "
                           f"{best['auvid']['messages']}")
                 rows.append({"format": fmt, "size_mb": size, "minutes": args.minutes, "pinned": pin, "load": load,
-                             "checksum": checksum, **best})
+                             "checksum": checksum, "configs": way, **best})
             inproc_lines.append(inproc_row(fmt, pin, others))
         rows[-1]["runs"] = runs
         print(f"  ({fmt} done, load average {load})", flush=True)
