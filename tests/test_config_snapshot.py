@@ -4,6 +4,7 @@ make the snapshot wrong (other bytes, other code, a damaged file) validates agai
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import pickle
@@ -166,9 +167,16 @@ def test_other_bytes_other_code_or_a_damaged_snapshot_validate_again(
     assert isinstance(snapshot.load_for_ingest(path, None)[0], Vehicle)
     assert isinstance(snapshot.load_for_ingest(path, None)[0], snapshot.VehicleView)  # rewritten
 
-    for damage in ("{not json", json.dumps({"format": snapshot.FORMAT}), ""):
+    good = stored.read_text()
+    doc = json.loads(good)
+    empty = hashlib.sha256(b"").hexdigest()
+    damaged = [{**doc, "code": {**doc["code"], "/dev/null": empty}},  # not a regular file: never read, a miss
+               {**doc, "warnings": [["pipeline", "not a level"]]}, {**doc, "params": [1]},
+               {**doc, "vehicle": {"model": "Vehicle", "fields": [1]}}, {"format": snapshot.FORMAT}, []]
+    for damage in ["{not json", "", *map(json.dumps, damaged)]:
         stored.write_text(damage)
-        assert isinstance(snapshot.load_for_ingest(path, None)[0], Vehicle)
+        assert isinstance(snapshot.load_for_ingest(path, None)[0], Vehicle), damage[:80]
+        assert stored.read_text() == good  # and rewritten
 
     params = tmp_path / "params.yaml"
     params.write_text("ingest: {checksum: sha256}\n", encoding="utf-8")
@@ -176,6 +184,19 @@ def test_other_bytes_other_code_or_a_damaged_snapshot_validate_again(
         assert snapshot.load_for_ingest(path, params)[1].ingest.checksum == "sha256"
     params.write_text("ingest: {checksum: none}\n", encoding="utf-8")
     assert snapshot.load_for_ingest(path, params)[1].ingest.checksum == "none"  # the params' bytes count too
+
+
+def test_the_newest_snapshots_are_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                       _config_snapshots_per_test: Path) -> None:
+    monkeypatch.setattr(snapshot, "KEEP", 2)
+    path = tmp_path / "vehicle.yaml"
+    for i in range(4):
+        path.write_text(DAGON.read_text(encoding="utf-8").replace("name: dagon", f"name: dagon{i}"), encoding="utf-8")
+        snapshot.load_for_ingest(path, None)
+    kept = snapshots(_config_snapshots_per_test)
+    assert len(kept) == 2 and {json.loads(p.read_text())["vehicle"]["fields"]["name"] for p in kept} == {
+        "dagon2", "dagon3"}
+    assert isinstance(snapshot.load_for_ingest(path, None)[0], snapshot.VehicleView)  # the newest one answers
 
 
 def test_off_or_unwritable_cache_validates_every_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -17,7 +17,8 @@ validated again and the snapshot rewritten. A snapshot that cannot be read is a 
 written is not an error (a read-only home works, at the old cost).
 
 Where: ``$AUVID_CACHE_DIR/configs/`` (default ``$XDG_CACHE_HOME/auvid``, else ``~/.cache/auvid``);
-``AUVID_CACHE_DIR=off`` validates every time. This module imports no pydantic and no YAML parser.
+``AUVID_CACHE_DIR=off`` validates every time. The newest :data:`KEEP` snapshots are kept. This module imports no
+pydantic and no YAML parser.
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ log = logging.getLogger(__name__)
 CACHE_ENV = "AUVID_CACHE_DIR"
 #: Bumped when the layout of a snapshot changes: an older one is then a miss.
 FORMAT = 1
+#: Snapshots kept: writing one more removes the oldest beyond this many (each is a few tens of kB).
+KEEP = 64
 #: Third-party code whose version decides what a config validates to (each package's file that names its version).
 _DEPENDENCIES = (("yaml", "__init__.py"), ("pydantic", "version.py"))
 
@@ -170,6 +173,9 @@ def _decode(value: Any) -> Any:
 
 
 def _file_digest(path: str) -> str:
+    """sha256 of a source file's bytes; "" for anything that is not a regular file (never read: a device)."""
+    if not os.path.isfile(path):
+        return ""
     with open(path, "rb") as f:
         return hashlib.sha256(f.read()).hexdigest()
 
@@ -263,8 +269,21 @@ def _write_snapshot(target: Path, vehicle: Vehicle, params: Params, records: lis
         text = json.dumps(doc, allow_nan=False)  # not sorted: the order of streams and trials is the config's
         with atomic_path(target) as tmp:
             tmp.write_text(text, encoding="utf-8")
+        _prune(target.parent)
     except (OSError, TypeError, ValueError) as err:  # an unwritable cache, a value JSON cannot hold
         log.debug("config snapshot %s not written: %s", target, err)
+
+
+def _prune(directory: Path) -> None:
+    """Remove the oldest snapshots beyond :data:`KEEP` (a config edited many times leaves one per version)."""
+    found = []
+    for path in directory.glob("*.json"):
+        try:
+            found.append((path.stat().st_mtime_ns, path.name, path))
+        except OSError:  # removed meanwhile by another run
+            continue
+    for *_, path in sorted(found, reverse=True)[KEEP:]:
+        path.unlink(missing_ok=True)
 
 
 def _load_snapshot(target: Path, vehicle_path: Path) -> tuple[Vehicle, Params] | None:
@@ -282,8 +301,10 @@ def _load_snapshot(target: Path, vehicle_path: Path) -> tuple[Vehicle, Params] |
         vehicle = VehicleView(vehicle_doc["model"], fields, base_dir=vehicle_path.resolve().parent,
                               overrides=doc["overrides"], raw=doc["vehicle_raw"], source=str(vehicle_path))
         params = _decode(doc["params"])
-        warnings = doc["warnings"]
-    except (OSError, ValueError, KeyError, TypeError) as err:
+        if not isinstance(params, ConfigView):
+            raise TypeError("no params model")
+        warnings = [(str(name), int(level), str(message)) for name, level, message in doc["warnings"]]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
         if not isinstance(err, FileNotFoundError):
             log.debug("config snapshot %s unusable (%s); validating again", target, err)
         return None
