@@ -7,7 +7,11 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import pickle
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -219,3 +223,41 @@ def test_a_refused_config_is_refused_every_time(tmp_path: Path, _config_snapshot
             snapshot.load_for_ingest(path, None)
         assert str(path) in str(err.value)
     assert snapshots(_config_snapshots_per_test) == []
+
+
+PROBE = """
+import sys
+from pipeline.config import snapshot
+vehicle, _ = snapshot.load_for_ingest({path!r}, None)
+print(type(vehicle).__name__, vehicle.streams["thrusters"].offset_s)
+"""
+
+
+def test_another_checkout_sharing_the_cache_validates_with_its_own_code(tmp_path: Path) -> None:
+    """Two copies of auvid (two checkouts, two environments) with one cache: each answers with what its own code
+    validates, never with a snapshot the other wrote. Here the second copy's streams default to another offset."""
+    trees = {}
+    for name in ("a", "b"):
+        trees[name] = tmp_path / name
+        shutil.copytree(ROOT / "pipeline", trees[name] / "pipeline", ignore=shutil.ignore_patterns("__pycache__"))
+    sources = trees["b"] / "pipeline" / "config" / "sources.py"
+    text = sources.read_text(encoding="utf-8")
+    default = 'offset_s: float = Field(0.0, description="Constant offset added to every stamp of this stream.")'
+    assert default in text
+    sources.write_text(text.replace(default, default.replace("Field(0.0", "Field(0.5")), encoding="utf-8")
+
+    dagon = DAGON.read_text(encoding="utf-8")
+    thrusters = dagon.index("\n  thrusters:\n", dagon.index("\nstreams:"))
+    vehicle = tmp_path / "vehicle.yaml"  # DAGON with the thrusters' stream at the default offset
+    vehicle.write_text(dagon[:thrusters] + dagon[thrusters:].replace("    offset_s: 0.0\n", "", 1), encoding="utf-8")
+
+    def run(tree: str) -> str:
+        env = {**os.environ, "PYTHONPATH": str(trees[tree])}
+        got = subprocess.run([sys.executable, "-c", PROBE.format(path=str(vehicle))], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=120, check=False)
+        assert got.returncode == 0, got.stderr[-3000:]
+        return got.stdout.strip()
+
+    assert [run("a"), run("a")] == ["Vehicle 0.0", "VehicleView 0.0"]
+    assert [run("b"), run("b")] == ["Vehicle 0.5", "VehicleView 0.5"]
+    assert run("a") == "VehicleView 0.0"

@@ -10,8 +10,9 @@ attributes, ``model_dump(mode="json")`` (so :func:`config_hash`, and with it eve
 same) and ``model_copy(update=...)``; the vehicle's view has its methods that ingest uses. The warnings are logged
 again.
 
-A snapshot is found by the sha256 of the two files' paths and bytes (and the Python version), and used only while
-the code that validated it is the same: the sha256 of every ``pipeline`` module loaded when it was written, of
+A snapshot is found by the sha256 of the two files' paths and bytes, the Python version and where this
+interpreter's auvid, PyYAML and pydantic live (another checkout or environment sharing the cache keeps its own),
+and used only while the code that validated it is the same: the sha256 of every ``pipeline`` module loaded when it was written, of
 PyYAML's and of pydantic's version files, are stored and compared. Anything else is a miss: the files are
 validated again and the snapshot rewritten. A snapshot that cannot be read is a miss; one that cannot be
 written is not an error (a read-only home works, at the old cost).
@@ -186,15 +187,25 @@ def _code_files() -> list[str]:
     version files."""
     files = {m.__file__ for name, m in list(sys.modules.items())
              if (name == "pipeline" or name.startswith("pipeline.")) and getattr(m, "__file__", None)}
+    return sorted(str(f) for f in files | set(_dependency_files()))
+
+
+def _dependency_files() -> list[str]:
+    """The version file of each dependency in :data:`_DEPENDENCIES`, where this interpreter imports it from."""
+    found = []
     for package, version_file in _DEPENDENCIES:
         spec = importlib.util.find_spec(package)
         if spec is not None and spec.submodule_search_locations:
-            files.add(os.path.join(next(iter(spec.submodule_search_locations)), version_file))
-    return sorted(str(f) for f in files)
+            found.append(os.path.join(next(iter(spec.submodule_search_locations)), version_file))
+    return found
 
 
 def _key(vehicle_path: Path, vehicle_bytes: bytes, params_path: Path | None, params_bytes: bytes | None) -> str:
-    h = hashlib.sha256(f"auvid config snapshot {FORMAT}\0{sys.version}\0{vehicle_path}\0".encode())
+    """Which snapshot answers: the files' paths and bytes, and where this interpreter's code comes from (another
+    checkout or environment sharing the cache has snapshots of its own; its files' digests are checked on a hit)."""
+    running = "\0".join([sys.version, os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                         *_dependency_files()])
+    h = hashlib.sha256(f"auvid config snapshot {FORMAT}\0{running}\0{vehicle_path}\0".encode())
     h.update(vehicle_bytes)
     h.update(f"\0{params_path}\0".encode())
     h.update(params_bytes if params_bytes is not None else b"(defaults)")
