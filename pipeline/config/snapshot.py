@@ -1,8 +1,8 @@
 """Validated configs kept between runs: ``auvid ingest`` reads a vehicle config and params.yaml it has validated
 before without importing pydantic.
 
-Validating takes pydantic: importing it and building the config models costs ~0.2 s of CPU, a quarter of a one-hour
-log's whole ingest and more of a ten-minute one's (docs/benchmarks.md). So after validating a pair of files,
+Validating takes pydantic: importing it and building the config models costs ~0.2 s of CPU, 15-25 % of a one-hour
+log's whole ingest and a third of a ten-minute one's (docs/benchmarks.md). So after validating a pair of files,
 :func:`load_for_ingest` writes a *snapshot* of the result: each model's fields as the model holds them, the YAML
 as read (to build the real model where a trial's overrides need it) and the warnings the checks gave. A later
 run given the same files reads the snapshot back as :class:`ConfigView` objects, which have the model's fields as
