@@ -12,12 +12,15 @@ import pickle
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
+import io_helpers as io
 import pytest
 import yaml
 from pydantic import BaseModel
+from test_import_budget import VEHICLE as BUDGET_VEHICLE
 from test_optional_streams import csv_trial
 from test_trial_overrides import with_trials
 
@@ -120,12 +123,31 @@ def test_views_hold_what_the_models_hold(tmp_path: Path, which: str) -> None:
     assert_same_values(pickle.loads(pickle.dumps(view)), vehicle, "pickled")  # ingest --n-jobs sends it to workers
     with pytest.raises(AttributeError, match="frozen"):
         view.name = "other"
+    copied = pview.model_copy(update={"ingest": pview.ingest.model_copy(update={"checksum": "none"})})
+    assert copied.model_dump(mode="json") == params.model_copy(update={"ingest": params.ingest.model_copy(
+        update={"checksum": "none"})}).model_dump(mode="json") != params.model_dump(mode="json")
+
+
+def test_the_hash_is_that_of_the_dump_the_model_gave(tmp_path: Path, _config_snapshots_per_test: Path) -> None:
+    """config_hash (every output's provenance) hashes what pydantic's model_dump gave when the snapshot was written,
+    not a rebuild of it from the fields, which a serializer added to a model one day would make differ."""
+    path = tmp_path / "vehicle.yaml"
+    path.write_bytes(DAGON.read_bytes())
+    vehicle, _ = snapshot.load_for_ingest(path, None)
+    (stored,) = snapshots(_config_snapshots_per_test)
+    doc = json.loads(stored.read_text())
+    assert doc["vehicle_dump"] == vehicle.model_dump(mode="json")
+    doc["vehicle_dump"]["name"] = "as the model dumped it"
+    stored.write_text(json.dumps(doc))
+    view, _ = snapshot.load_for_ingest(path, None)
+    assert view.name == "dagon" and view.model_dump(mode="json")["name"] == "as the model dumped it"
 
 
 def test_a_trial_with_overrides_gets_the_real_model_with_them_applied(tmp_path: Path) -> None:
     path = overridden_vehicle(tmp_path / "vehicle.yaml")
     vehicle, _ = snapshot.load_for_ingest(path, None)
     view, _ = snapshot.load_for_ingest(path, None)
+    assert isinstance(vehicle, Vehicle) and isinstance(view, snapshot.VehicleView)
     assert view.for_trial("trial01") is view  # nothing applies: the view itself
     for trial in ("trial02", "sea3"):
         applied = view.for_trial(trial)
@@ -133,6 +155,8 @@ def test_a_trial_with_overrides_gets_the_real_model_with_them_applied(tmp_path: 
         assert applied.model_dump(mode="json") == vehicle.for_trial(trial).model_dump(mode="json")
     assert view.for_trial("trial02").streams["nav"].offset_s == 0.25
     assert view.for_trial("sea3").streams["depth"].optional is True
+    renamed = view.model_copy(update={"name": "renamed"})  # the real model's copy: overrides and file follow
+    assert isinstance(renamed, Vehicle) and renamed.name == "renamed" and renamed.resolve("x") == vehicle.resolve("x")
 
 
 def test_warnings_of_the_checks_are_given_again(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -146,6 +170,20 @@ def test_warnings_of_the_checks_are_given_again(tmp_path: Path, caplog: pytest.L
         assert isinstance(vehicle, expected)
         said = [r for r in caplog.records if "coupled.inputs names ['T_th1_N', 'T_th2_N', 'T_th3_N']" in r.message]
         assert len(said) == 1 and said[0].name == "pipeline.config" and str(PARAMS) in said[0].message
+
+
+def test_warnings_kept_from_a_quiet_run_are_given_by_the_next(tmp_path: Path,
+                                                                caplog: pytest.LogCaptureFixture) -> None:
+    """``auvid ingest -q`` shows errors only: the run that validates keeps the warning all the same, and a later
+    run that shows warnings gives it from the snapshot."""
+    path = overridden_vehicle(tmp_path / "vehicle.yaml")
+    with caplog.at_level(logging.ERROR):
+        assert isinstance(snapshot.load_for_ingest(path, PARAMS)[0], Vehicle)
+    assert "coupled.inputs" not in caplog.text  # quiet stays quiet
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert isinstance(snapshot.load_for_ingest(path, PARAMS)[0], snapshot.VehicleView)
+    assert caplog.text.count("coupled.inputs names ['T_th1_N', 'T_th2_N', 'T_th3_N']") == 1
 
 
 def test_other_bytes_other_code_or_a_damaged_snapshot_validate_again(
@@ -176,8 +214,11 @@ def test_other_bytes_other_code_or_a_damaged_snapshot_validate_again(
     empty = hashlib.sha256(b"").hexdigest()
     damaged = [{**doc, "code": {**doc["code"], "/dev/null": empty}},  # not a regular file: never read, a miss
                {**doc, "warnings": [["pipeline", "not a level"]]}, {**doc, "params": [1]},
-               {**doc, "vehicle": {"model": "Vehicle", "fields": [1]}}, {"format": snapshot.FORMAT}, []]
-    for damage in ["{not json", "", *map(json.dumps, damaged)]:
+               {**doc, "vehicle": {"model": "Vehicle", "fields": [1]}}, {**doc, "overrides": []},
+               {**doc, "overrides": {"trial02": {"nav": 1}}}, {**doc, "vehicle_raw": None},
+               {**doc, "params_dump": []}, {"format": snapshot.FORMAT}, []]
+    deep = "[" * 100_000 + "]" * 100_000  # deeper than the JSON parser recurses
+    for damage in ["{not json", "", deep, *map(json.dumps, damaged)]:
         stored.write_text(damage)
         assert isinstance(snapshot.load_for_ingest(path, None)[0], Vehicle), damage[:80]
         assert stored.read_text() == good  # and rewritten
@@ -197,10 +238,18 @@ def test_the_newest_snapshots_are_kept(tmp_path: Path, monkeypatch: pytest.Monke
     for i in range(4):
         path.write_text(DAGON.read_text(encoding="utf-8").replace("name: dagon", f"name: dagon{i}"), encoding="utf-8")
         snapshot.load_for_ingest(path, None)
+        for old in snapshots(_config_snapshots_per_test):  # written seconds apart, whatever the file clock
+            if f'"dagon{i}"'.encode() in old.read_bytes():
+                os.utime(old, (time.time() - 100 + i,) * 2)
     kept = snapshots(_config_snapshots_per_test)
     assert len(kept) == 2 and {json.loads(p.read_text())["vehicle"]["fields"]["name"] for p in kept} == {
         "dagon2", "dagon3"}
     assert isinstance(snapshot.load_for_ingest(path, None)[0], snapshot.VehicleView)  # the newest one answers
+    for name, answered_by in (("dagon2", snapshot.VehicleView), ("dagon4", Vehicle)):  # dagon2 read: kept
+        path.write_text(DAGON.read_text(encoding="utf-8").replace("name: dagon", f"name: {name}"), encoding="utf-8")
+        assert isinstance(snapshot.load_for_ingest(path, None)[0], answered_by)
+    assert {json.loads(p.read_text())["vehicle"]["fields"]["name"] for p in snapshots(_config_snapshots_per_test)} == {
+        "dagon2", "dagon4"}
 
 
 def test_off_or_unwritable_cache_validates_every_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -213,6 +262,16 @@ def test_off_or_unwritable_cache_validates_every_time(tmp_path: Path, monkeypatc
     monkeypatch.setenv(snapshot.CACHE_ENV, str(blocked))
     for _ in range(2):
         assert isinstance(snapshot.load_for_ingest(DAGON, None)[0], Vehicle)  # not written, not an error
+
+
+def test_no_home_directory_validates_every_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    def no_home() -> Path:
+        raise RuntimeError("Could not determine home directory.")
+    monkeypatch.delenv(snapshot.CACHE_ENV)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setattr(Path, "home", no_home)
+    assert snapshot.cache_dir() is None
+    assert isinstance(snapshot.load_for_ingest(DAGON, None)[0], Vehicle)
 
 
 def test_a_refused_config_is_refused_every_time(tmp_path: Path, _config_snapshots_per_test: Path) -> None:
@@ -245,6 +304,8 @@ def test_another_checkout_sharing_the_cache_validates_with_its_own_code(tmp_path
     default = 'offset_s: float = Field(0.0, description="Constant offset added to every stamp of this stream.")'
     assert default in text
     sources.write_text(text.replace(default, default.replace("Field(0.0", "Field(0.5")), encoding="utf-8")
+    past = time.time() - 60
+    os.utime(sources, (past, past))  # edited a minute ago, before the processes below start
 
     dagon = DAGON.read_text(encoding="utf-8")
     thrusters = dagon.index("\n  thrusters:\n", dagon.index("\nstreams:"))
@@ -261,3 +322,50 @@ def test_another_checkout_sharing_the_cache_validates_with_its_own_code(tmp_path
     assert [run("a"), run("a")] == ["Vehicle 0.0", "VehicleView 0.0"]
     assert [run("b"), run("b")] == ["Vehicle 0.5", "VehicleView 0.5"]
     assert run("a") == "VehicleView 0.0"
+
+
+def test_a_vehicle_config_from_a_pipe_is_read_once(tmp_path: Path) -> None:
+    """``--vehicle /dev/stdin``: the bytes of a pipe can be read only once, so such a config is validated from them
+    and no snapshot is kept (reading it again for a snapshot found it empty: a config error)."""
+    log = io.write_mcap(tmp_path / "trial01.mcap", io.trial(n=12))
+    run = tmp_path / "run"
+    for _ in range(2):
+        got = subprocess.run([sys.executable, "-m", "pipeline.cli", "ingest", "-q", "--root", str(run),
+                              "--vehicle", "/dev/stdin", str(log)], input=yaml.safe_dump(BUDGET_VEHICLE),
+                             capture_output=True, text=True, cwd=ROOT, timeout=120, check=False)
+        assert got.returncode == 0, got.stderr[-3000:]
+        assert (run / "data" / "signals" / "trial01" / "dvl.parquet").exists()
+
+
+CHANGED_MEANWHILE = """
+import pathlib, sys, time
+import pipeline.config.loading  # the validators as this process imported them
+from pipeline.config import snapshot
+sources = pathlib.Path(pipeline.config.loading.__file__).with_name("sources.py")
+default = 'offset_s: float = Field(0.0, description="Constant offset added to every stamp of this stream.")'
+time.sleep(0.1)
+sources.write_text(sources.read_text().replace(default, default.replace("Field(0.0", "Field(0.5")))
+vehicle, _ = snapshot.load_for_ingest({path!r}, None)  # validated by the code imported before the edit
+print(type(vehicle).__name__, vehicle.streams["thrusters"].offset_s)
+"""
+
+
+def test_code_changed_on_disk_while_a_process_runs_writes_no_snapshot(tmp_path: Path) -> None:
+    """A ``git pull`` beside a running notebook: what that process validates is the old code's answer; stored under
+    the new files' digests, it would answer a fresh process that runs the new code."""
+    tree = tmp_path / "tree"
+    shutil.copytree(ROOT / "pipeline", tree / "pipeline", ignore=shutil.ignore_patterns("__pycache__"))
+    dagon = DAGON.read_text(encoding="utf-8")
+    thrusters = dagon.index("\n  thrusters:\n", dagon.index("\nstreams:"))
+    vehicle = tmp_path / "vehicle.yaml"
+    vehicle.write_text(dagon[:thrusters] + dagon[thrusters:].replace("    offset_s: 0.0\n", "", 1), encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+
+    def run(code: str) -> str:
+        got = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True,
+                             timeout=120, check=False)
+        assert got.returncode == 0, got.stderr[-3000:]
+        return got.stdout.strip()
+
+    assert run(CHANGED_MEANWHILE.format(path=str(vehicle))) == "Vehicle 0.0"
+    assert [run(PROBE.format(path=str(vehicle))) for _ in range(2)] == ["Vehicle 0.5", "VehicleView 0.5"]

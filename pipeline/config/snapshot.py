@@ -12,10 +12,13 @@ again.
 
 A snapshot is found by the sha256 of the two files' paths and bytes, the Python version and where this
 interpreter's auvid, PyYAML and pydantic live (another checkout or environment sharing the cache keeps its own),
-and used only while the code that validated it is the same: the sha256 of every ``pipeline`` module loaded when it was written, of
-PyYAML's and of pydantic's version files, are stored and compared. Anything else is a miss: the files are
-validated again and the snapshot rewritten. A snapshot that cannot be read is a miss; one that cannot be
-written is not an error (a read-only home works, at the old cost).
+and used only while the code that validated it is the same: the sha256 of every ``pipeline`` module loaded when it
+was written and of PyYAML's and pydantic's version files are stored and compared (none is written when one of
+those files changed on disk after the process started). Anything else is a miss: the files are validated again
+and the snapshot rewritten. A snapshot that cannot be read, or whose parts have another shape, is a miss; one that
+cannot be written is not an error (a read-only home works, at the old cost). A config given as a pipe
+(``--vehicle /dev/stdin``) is validated every time. The warnings of the checks are kept whatever the logging level
+of the run that validated them (``-q``) and given by every run.
 
 Where: ``$AUVID_CACHE_DIR/configs/`` (default ``$XDG_CACHE_HOME/auvid``, else ``~/.cache/auvid``);
 ``AUVID_CACHE_DIR=off`` validates every time. The newest :data:`KEEP` snapshots are kept. This module imports no
@@ -65,7 +68,12 @@ def cache_dir() -> Path | None:
         return None
     if given:
         return Path(given) / "configs"
-    base = os.environ.get("XDG_CACHE_HOME", "").strip() or Path.home() / ".cache"
+    base = os.environ.get("XDG_CACHE_HOME", "").strip()
+    if not base:
+        try:
+            base = str(Path.home() / ".cache")
+        except RuntimeError:  # no HOME and no passwd entry: nowhere to keep them, validate every time
+            return None
     return Path(base) / "auvid" / "configs"
 
 
@@ -73,10 +81,11 @@ class ConfigView:
     """The validated values of one config model, read from a snapshot: its fields as attributes (nested models as
     views; lists, tuples and dicts as the model holds them). Read-only, like the model."""
 
-    def __init__(self, model: str, fields: dict[str, Any]) -> None:
+    def __init__(self, model: str, fields: dict[str, Any], dump: dict[str, Any] | None = None) -> None:
         self.__dict__.update(fields)
         object.__setattr__(self, "_model", model)
         object.__setattr__(self, "_fields", tuple(fields))
+        object.__setattr__(self, "_dump", dump)  # the model's own model_dump(mode="json"), where stored
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError(f"{self._model} is frozen: cannot set {name!r}")
@@ -85,18 +94,24 @@ class ConfigView:
         return f"{self._model}View({', '.join(f'{k}={getattr(self, k)!r}' for k in self._fields)})"
 
     def model_dump(self, *, mode: str = "python") -> dict[str, Any]:
-        """The fields as JSON values, as the model's ``model_dump(mode="json")`` gives them."""
+        """The fields as JSON values: what the model's ``model_dump(mode="json")`` gave when the snapshot was written
+        (the vehicle and the params; :func:`config_hash` hashes it), else built from the fields."""
         if mode != "json":
             raise TypeError(f"a snapshot's {self._model} gives JSON values only: model_dump(mode='json')")
+        if self._dump is not None:
+            return copy.deepcopy(self._dump)
         return {k: _json_value(getattr(self, k)) for k in self._fields}
 
     def model_copy(self, *, update: dict[str, Any] | None = None) -> ConfigView:
         """A copy with some fields replaced (not validated, as with the model's ``model_copy``)."""
-        unknown = sorted(set(update or {}) - set(self._fields))
+        update = dict(update or {})
+        unknown = sorted(set(update) - set(self._fields))
         if unknown:
             raise AttributeError(f"{self._model} has no field(s) {unknown}")
         clone = copy.copy(self)
-        clone.__dict__.update(update or {})
+        clone.__dict__.update(update)
+        if self._dump is not None:
+            object.__setattr__(clone, "_dump", {**self._dump, **{k: _json_value(v) for k, v in update.items()}})
         return clone
 
 
@@ -104,9 +119,9 @@ class VehicleView(ConfigView):
     """A snapshot's vehicle: the fields, and the methods of :class:`~pipeline.config.vehicle.Vehicle` that ingest
     uses. A trial that an override applies to gets the real model (pydantic is imported then)."""
 
-    def __init__(self, model: str, fields: dict[str, Any], *, base_dir: Path, overrides: dict[str, Any],
-                 raw: Any, source: str) -> None:
-        super().__init__(model, fields)
+    def __init__(self, model: str, fields: dict[str, Any], dump: dict[str, Any], *, base_dir: Path,
+                 overrides: dict[str, Any], raw: Any, source: str) -> None:
+        super().__init__(model, fields, dump)
         for name, value in (("_base_dir", base_dir), ("_overrides", overrides), ("_raw", raw), ("_source", source)):
             object.__setattr__(self, name, value)
 
@@ -126,11 +141,19 @@ class VehicleView(ConfigView):
     def for_trial(self, trial: str) -> VehicleView | Vehicle:
         if not any(self.trial_overrides(trial).values()):
             return self
+        return self.model().for_trial(trial)
+
+    def model_copy(self, *, update: dict[str, Any] | None = None) -> Vehicle:  # type: ignore[override]
+        """The real model's copy: its overrides and file follow the update (nothing on the ingest path copies it)."""
+        return self.model().model_copy(update=update)
+
+    def model(self) -> Vehicle:
+        """The real model, validated again from the YAML the snapshot keeps (pydantic is imported here)."""
         from pipeline.config.loading import Vehicle, parse
 
         vehicle = parse(Vehicle, self._raw, self._source)
         vehicle._base_dir = self._base_dir
-        return vehicle.for_trial(trial)
+        return vehicle
 
 
 def _json_value(value: Any) -> Any:
@@ -213,10 +236,15 @@ def _key(vehicle_path: Path, vehicle_bytes: bytes, params_path: Path | None, par
 
 
 def _read_bytes(vehicle_path: Path, params_path: Path | None) -> tuple[bytes, bytes | None] | None:
+    """Both files' bytes; None for a path that is not a regular file (a pipe such as ``--vehicle /dev/stdin`` is
+    read once, by the loader) or cannot be read (the loader says what is wrong with it)."""
+    paths = [p for p in (vehicle_path, params_path) if p is not None]
+    if not all(p.is_file() for p in paths):
+        return None
     try:
         return vehicle_path.read_bytes(), params_path.read_bytes() if params_path is not None else None
     except OSError:
-        return None  # the loader says what is wrong with the file
+        return None
 
 
 def load_for_ingest(vehicle_path: str | Path, params_path: str | Path | None) -> tuple[Vehicle, Params]:
@@ -236,13 +264,15 @@ def load_for_ingest(vehicle_path: str | Path, params_path: str | Path | None) ->
         return found
     vehicle, params, records = _validate(vehicle_path, params_path)
     if _read_bytes(vehicle_path, params_path) == read:  # not rewritten while it was validated
-        _write_snapshot(target, vehicle, params, records, vehicle_path)
+        _write_snapshot(target, vehicle, params, records, vehicle_path, read[0])
     return vehicle, params
 
 
 @contextmanager
 def _kept_warnings() -> Iterator[list[list[Any]]]:
-    """The warnings that ``pipeline`` loggers give inside the block, as [logger, level, message]."""
+    """The warnings that ``pipeline`` loggers give inside the block, as [logger, level, message], whatever level
+    the caller's logging shows (``-q``: errors only): a snapshot keeps them all, and each is logged when the block
+    ends, as a run that reads the snapshot logs them, so that both runs log the same."""
     records: list[list[Any]] = []
 
     class Keep(logging.Handler):
@@ -251,11 +281,22 @@ def _kept_warnings() -> Iterator[list[list[Any]]]:
 
     handler = Keep(logging.WARNING)
     logger = logging.getLogger("pipeline")
+    level, propagate = logger.level, logger.propagate
     logger.addHandler(handler)
+    logger.setLevel(logging.WARNING)
+    logger.propagate = False
     try:
         yield records
     finally:
         logger.removeHandler(handler)
+        logger.setLevel(level)
+        logger.propagate = propagate
+        _log_again(records)
+
+
+def _log_again(records: list[list[Any]] | list[tuple[str, int, str]]) -> None:
+    for name, level, message in records:
+        logging.getLogger(name).log(level, "%s", message)
 
 
 def _validate(vehicle_path: Path, params_path: Path | None) -> tuple[Vehicle, Params, list[list[Any]]]:
@@ -267,21 +308,43 @@ def _validate(vehicle_path: Path, params_path: Path | None) -> tuple[Vehicle, Pa
     return vehicle, params, records
 
 
+def _code_changed_since_import(files: list[str]) -> str | None:
+    """A source file changed on disk since this process imported ``pipeline`` (a ``git pull`` beside a notebook
+    or a service): what ran may not be what the digests would say. 50 ms of margin for coarse file clocks."""
+    from pipeline import IMPORTED_NS
+
+    for path in files:
+        try:
+            if os.stat(path).st_mtime_ns > IMPORTED_NS - 50_000_000:
+                return path
+        except OSError:
+            return path
+    return None
+
+
 def _write_snapshot(target: Path, vehicle: Vehicle, params: Params, records: list[list[Any]],
-                    vehicle_path: Path) -> None:
+                    vehicle_path: Path, vehicle_bytes: bytes) -> None:
     from pydantic import BaseModel
 
-    from pipeline.config.yamlload import load_yaml
+    from pipeline.config.yamlload import parse_yaml
+    from pipeline.errors import PipelineError
 
     try:
-        doc = {"format": FORMAT, "code": {f: _file_digest(f) for f in _code_files()},
+        files = _code_files()
+        changed = _code_changed_since_import(files)
+        if changed is not None:
+            log.debug("config snapshot %s not written: %s changed since this process started", target, changed)
+            return
+        doc = {"format": FORMAT, "code": {f: _file_digest(f) for f in files},
                "vehicle": _encode(vehicle, BaseModel), "params": _encode(params, BaseModel),
-               "vehicle_raw": load_yaml(vehicle_path), "overrides": vehicle.override_keys(), "warnings": records}
+               "vehicle_dump": vehicle.model_dump(mode="json"), "params_dump": params.model_dump(mode="json"),
+               "vehicle_raw": parse_yaml(vehicle_bytes, vehicle_path), "overrides": vehicle.override_keys(),
+               "warnings": records}
         text = json.dumps(doc, allow_nan=False)  # not sorted: the order of streams and trials is the config's
         with atomic_path(target) as tmp:
             tmp.write_text(text, encoding="utf-8")
         _prune(target.parent)
-    except (OSError, TypeError, ValueError) as err:  # an unwritable cache, a value JSON cannot hold
+    except (OSError, TypeError, ValueError, PipelineError) as err:  # an unwritable cache, a value JSON cannot hold
         log.debug("config snapshot %s not written: %s", target, err)
 
 
@@ -298,7 +361,8 @@ def _prune(directory: Path) -> None:
 
 
 def _load_snapshot(target: Path, vehicle_path: Path) -> tuple[Vehicle, Params] | None:
-    """The views of a snapshot whose code is the same as now; None when there is none or it is not usable."""
+    """The views of a snapshot whose code is the same as now; None when there is none or it is not usable (a
+    snapshot's parts are checked for their shapes, not trusted to be well formed)."""
     try:
         doc = json.loads(target.read_text(encoding="utf-8"))
         if doc["format"] != FORMAT:
@@ -307,19 +371,29 @@ def _load_snapshot(target: Path, vehicle_path: Path) -> tuple[Vehicle, Params] |
             if _file_digest(path) != digest:
                 log.debug("config snapshot %s: %s changed; validating again", target, path)
                 return None
+        overrides = doc["overrides"]
+        if not all(isinstance(streams, dict) and all(isinstance(v, dict) for v in streams.values())
+                   for streams in overrides.values()):
+            raise TypeError("overrides of another shape")
         vehicle_doc = doc["vehicle"]
         fields = {k: _decode(v) for k, v in vehicle_doc["fields"].items()}
-        vehicle = VehicleView(vehicle_doc["model"], fields, base_dir=vehicle_path.resolve().parent,
-                              overrides=doc["overrides"], raw=doc["vehicle_raw"], source=str(vehicle_path))
         params = _decode(doc["params"])
-        if not isinstance(params, ConfigView):
-            raise TypeError("no params model")
+        dumps = doc["vehicle_dump"], doc["params_dump"]
+        if not (isinstance(params, ConfigView) and isinstance(doc["vehicle_raw"], dict)
+                and all(isinstance(d, dict) for d in dumps)):
+            raise TypeError("parts of another shape")
+        object.__setattr__(params, "_dump", dumps[1])
+        vehicle = VehicleView(vehicle_doc["model"], fields, dumps[0], base_dir=vehicle_path.resolve().parent,
+                              overrides=overrides, raw=doc["vehicle_raw"], source=str(vehicle_path))
         warnings = [(str(name), int(level), str(message)) for name, level, message in doc["warnings"]]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as err:
         if not isinstance(err, FileNotFoundError):
             log.debug("config snapshot %s unusable (%s); validating again", target, err)
         return None
-    for name, level, message in warnings:
-        logging.getLogger(name).log(level, "%s", message)
+    try:
+        os.utime(target)  # read: the newest again, the last to be pruned
+    except OSError:
+        pass
+    _log_again(warnings)
     log.debug("configs %s read from snapshot %s", vehicle_path, target)
     return vehicle, params  # type: ignore[return-value]  # views with the models' attributes

@@ -120,6 +120,12 @@ def load_yaml(path: str | Path) -> Any:
         raise ConfigError("expected a YAML file, found a directory", file=path) from None
     except OSError as err:
         raise ConfigError(f"cannot read the config file: {err.strerror or err}", file=path) from None
+    return parse_yaml(raw, path)
+
+
+def parse_yaml(raw: bytes, path: str | Path) -> Any:
+    """:func:`load_yaml` of bytes already read from ``path`` (named in the errors)."""
+    path = Path(path)
     text = _decode(raw, path)
     try:
         loader = _Loader(text)  # its reader refuses control characters here already
