@@ -273,20 +273,23 @@ def _kept_warnings() -> Iterator[list[list[Any]]]:
     """The warnings that ``pipeline`` loggers give inside the block, as [logger, level, message], whatever level
     the caller's logging shows (``-q``: errors only): a snapshot keeps them all, and each is logged when the block
     ends, as a run that reads the snapshot logs them, so that both runs log the same."""
-    records: list[list[Any]] = []
+    records: list[list[Any]] = []  # every record (debug ones too, under -v), logged again at the end
+    kept: list[list[Any]] = []  # the warnings and errors, for the snapshot
 
     class Keep(logging.Handler):
         def emit(self, record: logging.LogRecord) -> None:
             records.append([record.name, record.levelno, record.getMessage()])
+            if record.levelno >= logging.WARNING:
+                kept.append(records[-1])
 
-    handler = Keep(logging.WARNING)
+    handler = Keep()
     logger = logging.getLogger("pipeline")
     level, propagate = logger.level, logger.propagate
     logger.addHandler(handler)
-    logger.setLevel(logging.WARNING)
+    logger.setLevel(min(logger.getEffectiveLevel(), logging.WARNING))
     logger.propagate = False
     try:
-        yield records
+        yield kept
     finally:
         logger.removeHandler(handler)
         logger.setLevel(level)
