@@ -12,6 +12,9 @@ the Gertler–Hagen / McFarland–Whitcomb structures (for tests and benchmarks)
 
 from __future__ import annotations
 
+import copy
+import hashlib
+import json
 import logging
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -34,7 +37,7 @@ from pipeline.evaluate import (
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.graybox import GrayBox
-from pipeline.models.search import SVR_MODELS, make_svr, search
+from pipeline.models.search import SVR_MODELS, SearchResult, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.simulate import grid_step_s
 from pipeline.units import axis_label
@@ -221,6 +224,35 @@ def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any]
     return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
 
 
+#: The searches this process ran, by their inputs (:func:`_search_once`), the newest :data:`_SEARCHES_KEPT`.
+_SEARCHES: dict[str, SearchResult] = {}
+_SEARCHES_KEPT = 64
+
+
+def _search_once(model: str, X: np.ndarray, y: np.ndarray, method: str, **kw: Any) -> SearchResult:
+    """:func:`~pipeline.models.search.search`, run once per inputs in this process. Nested tuning searches each CV
+    fold once per model, and a model's fast search runs the simpler kernels' chain first: in one fold the WDSE's
+    chain repeats the RBF and 2-weights searches that the RBF and 2-weights models of that fold ran, on the same
+    rows with the same settings. A search is deterministic in its inputs, so the repeat gives the result the first
+    gave (a copy of it; its log lines are not given twice). ``progress`` is not an input."""
+    given = {k: v for k, v in kw.items() if k != "progress"}
+    # the layout too: a strided column (a residual's) sums in another order than a contiguous copy of it, and a
+    # search's choices can turn on the last bit
+    layout = [(np.asarray(v).shape, np.asarray(v).strides, str(np.asarray(v).dtype)) for v in (X, y)]
+    h = hashlib.sha256(json.dumps([model, method, layout, given], sort_keys=True, default=repr).encode())
+    for values in (X, y):
+        h.update(np.ascontiguousarray(values, dtype=float).tobytes())
+    key = h.hexdigest()
+    if key not in _SEARCHES:
+        _SEARCHES[key] = search(model, X, y, method, **kw)
+        while len(_SEARCHES) > _SEARCHES_KEPT:
+            del _SEARCHES[next(iter(_SEARCHES))]
+    else:
+        log.debug("%s search on %d rows: the same inputs as an earlier search of this process, its result", model,
+                  len(X))
+    return copy.deepcopy(_SEARCHES[key])
+
+
 def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
          progress: Callable[..., Any] | None = None, noise_std: Sequence[float] | None = None
          ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
@@ -267,7 +299,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
                           one_se=params.selection == "one_se", warm_start=hyper[simpler][out] if simpler else None)
             k_search += 1
             kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
-            res = search(model, X, data[out].to_numpy(float), params.search, **kw)
+            res = _search_once(model, X, data[out].to_numpy(float), params.search, **kw)
             log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
             trace[model][out] = res.to_dict()
@@ -286,10 +318,10 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
                 kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
                           one_se=params.selection == "one_se")
                 for simpler in SVR_MODELS[:-1]:
-                    kw["warm_start"] = search(simpler, X, resid[:, k], params.search, **kw).best_params
+                    kw["warm_start"] = _search_once(simpler, X, resid[:, k], params.search, **kw).best_params
             k_search += 1  # progress: the residual's WDSE search (its warm-start chain reports nothing)
             kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
-            res = search("wdse_svr", X, resid[:, k], params.search, **kw)
+            res = _search_once("wdse_svr", X, resid[:, k], params.search, **kw)
             log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
             trace[model][out] = res.to_dict()

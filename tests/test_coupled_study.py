@@ -192,3 +192,37 @@ def test_the_final_models_C_follows_the_rows_they_are_fitted_on(study):
                 assert 0 < rows < len(X)
                 assert est.estimators_[k].C_ == pytest.approx(searched * (rows / len(X)) ** rate, rel=1e-12)
     assert "C chosen on rows" in table2(out["hyper"], params.outputs, params.inputs)
+
+
+def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
+    """coupled.tuning = nested with the three kernels: in each fold the WDSE's fast-search chain (RBF, then
+    2-weights, then WDSE) repeats the searches the RBF and 2-weights models of that fold ran on the same rows. Each
+    runs once; the scores are those of running every search (the memo cleared before each)."""
+    from pipeline import coupled
+
+    frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
+                       synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
+    params = CoupledParams(models=["rbf_svr", "two_weights_svr", "wdse_svr"], outputs=["udot_mps2"], max_evals=3,
+                           folds=2, tuning="nested")
+    ran: list[str] = []
+    real_search = coupled.search
+
+    def counted(model, X, y, method="fast", **kw):
+        ran.append(model)
+        return real_search(model, X, y, method, **kw)
+
+    monkeypatch.setattr(coupled, "search", counted)
+    monkeypatch.setattr(coupled, "_SEARCHES", {})
+    memo = coupled.run_study(frame, params)
+    # the tune stage's call (one chain), then per fold the three kernels' chains: 3 + 2 x 3, not 3 + 2 x (1 + 2 + 3)
+    assert sorted(ran) == sorted(["rbf_svr", "two_weights_svr", "wdse_svr"] * (1 + params.folds))
+
+    def fresh(*args, **kw):
+        coupled._SEARCHES.clear()
+        return real_search(*args, **kw)
+
+    monkeypatch.setattr(coupled, "search", fresh)
+    every = coupled.run_study(frame, params)
+    for model in params.models:
+        assert memo["hyper"][model] == every["hyper"][model], model
+        assert memo["results"][model]["summary"] == every["results"][model]["summary"], model
