@@ -7,6 +7,7 @@ A validator that knows *which key* is wrong (a matrix entry, a signal's unit) ra
 
 from __future__ import annotations
 
+import fnmatch
 import re
 from collections.abc import Sequence
 
@@ -33,6 +34,11 @@ class KeyedError(ValueError):
     def __init__(self, key: str, message: str) -> None:
         self.key = key
         super().__init__(message)
+
+
+def applies_to(pattern: str, trial: str) -> bool:
+    """Whether a ``trials`` key (a trial name or a glob) names ``trial``."""
+    return pattern == trial or fnmatch.fnmatchcase(trial, pattern)
 
 
 def check_safe_name(name: str, what: str) -> str:

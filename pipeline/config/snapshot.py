@@ -28,7 +28,6 @@ pydantic and no YAML parser.
 from __future__ import annotations
 
 import copy
-import fnmatch
 import hashlib
 import importlib.util
 import json
@@ -40,7 +39,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.tableio import atomic_path, canonical_json
+from pipeline.config.checks import applies_to
+from pipeline.tableio import atomic_path, canonical_json, file_sha256
 
 if TYPE_CHECKING:
     from pipeline.config.loading import Params, Vehicle
@@ -136,7 +136,7 @@ class VehicleView(ConfigView):
 
     def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
         return {pattern: given for pattern, given in self.override_keys().items()
-                if pattern == trial or fnmatch.fnmatchcase(trial, pattern)}
+                if applies_to(pattern, trial)}
 
     def for_trial(self, trial: str) -> VehicleView | Vehicle:
         if not any(self.trial_overrides(trial).values()):
@@ -198,10 +198,7 @@ def _decode(value: Any) -> Any:
 
 def _file_digest(path: str) -> str:
     """sha256 of a source file's bytes; "" for anything that is not a regular file (never read: a device)."""
-    if not os.path.isfile(path):
-        return ""
-    with open(path, "rb") as f:
-        return hashlib.sha256(f.read()).hexdigest()
+    return file_sha256(path) if os.path.isfile(path) else ""
 
 
 def _code_files() -> list[str]:
@@ -380,12 +377,11 @@ def _load_snapshot(target: Path, vehicle_path: Path) -> tuple[Vehicle, Params] |
             raise TypeError("overrides of another shape")
         vehicle_doc = doc["vehicle"]
         fields = {k: _decode(v) for k, v in vehicle_doc["fields"].items()}
-        params = _decode(doc["params"])
         dumps = doc["vehicle_dump"], doc["params_dump"]
-        if not (isinstance(params, ConfigView) and isinstance(doc["vehicle_raw"], dict)
-                and all(isinstance(d, dict) for d in dumps)):
+        if not (isinstance(doc["vehicle_raw"], dict) and all(isinstance(d, dict) for d in dumps)):
             raise TypeError("parts of another shape")
-        object.__setattr__(params, "_dump", dumps[1])
+        params_doc = doc["params"]
+        params = ConfigView(params_doc["model"], {k: _decode(v) for k, v in params_doc["fields"].items()}, dumps[1])
         vehicle = VehicleView(vehicle_doc["model"], fields, dumps[0], base_dir=vehicle_path.resolve().parent,
                               overrides=overrides, raw=doc["vehicle_raw"], source=str(vehicle_path))
         warnings = [(str(name), int(level), str(message)) for name, level, message in doc["warnings"]]

@@ -6,7 +6,6 @@ choose which DOFs they use (``dofs``), nothing here hard-wires 3 DOF.
 
 from __future__ import annotations
 
-import fnmatch
 import math
 import re
 from dataclasses import dataclass
@@ -354,14 +353,14 @@ class Vehicle(Frozen):
     def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
         """The overrides that apply to ``trial``: ``{pattern: {stream: {key: value}}}``, in config order."""
         return {pattern: given for pattern, given in self.override_keys().items()
-                if pattern == trial or fnmatch.fnmatchcase(trial, pattern)}
+                if checks.applies_to(pattern, trial)}
 
     def for_trial(self, trial: str) -> Vehicle:
         """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none
         applies. Each override was validated on its own at load; two matching keys that only together make an invalid
         stream raise a ConfigError here, naming the trial, the keys and the stream."""
         matching = [(pattern, t) for pattern, t in self.trials.items()
-                    if pattern == trial or fnmatch.fnmatchcase(trial, pattern)]
+                    if checks.applies_to(pattern, trial)]
         if not any(t.streams for _, t in matching):
             return self
         streams = dict(self.streams)
