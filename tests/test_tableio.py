@@ -42,3 +42,54 @@ def test_foreign_parquet_is_a_schema_error(tmp_path: Path) -> None:
     pq.write_table(_table(), tmp_path / "x.parquet")
     with pytest.raises(SchemaError, match="no auvid metadata"):
         read_meta(tmp_path / "x.parquet")
+
+
+def test_every_column_type_comes_back_bit_for_bit(tmp_path: Path) -> None:
+    """Byte-stream-split floats and delta-packed integers give back the same bits: NaN payloads, -0.0, the
+    smallest subnormal, the integer extremes (deltas that overflow), nulls; other types stay plain."""
+    i64, u64 = np.iinfo(np.int64), np.iinfo(np.uint64)
+    payload_nan = np.array([0x7FF8_0000_0000_1234], dtype=np.uint64).view(np.float64)[0]
+    floats = np.array([payload_nan, -0.0, np.inf, -np.inf, 5e-324, 1.0, -2.5])
+    table = pa.table({
+        "t_ns": pa.array([i64.min, i64.max, 0, i64.min, -1, None, 7], pa.int64()),
+        "n": pa.array([u64.max, 0, u64.max, 2**63, 1, None, 3], pa.uint64()),
+        "k": pa.array([-128, 127, None, 0, -1, 5, 6], pa.int8()),
+        "x": pa.array(floats),
+        "y": pa.array(floats.astype(np.float32)),
+        "stamp": pa.array([1, None, i64.max, -5, 0, 2, 3], pa.timestamp("ns")),
+        "ok": pa.array([True, None, False, True, True, False, True]),
+        "name": pa.array(["a", None, "c", "", "e", "f", "g"]),
+        "v": pa.array([[1.0], [2.0, 3.0], None, [], [4.0], [5.0], [6.0]], pa.list_(pa.float64())),
+    })
+    path = write_parquet(table, tmp_path / "all.parquet", {})
+    back, _ = read_parquet(path)
+    assert back.schema.remove_metadata() == table.schema
+    for name in ("x", "y"):
+        want, got = table[name].to_numpy(), back[name].to_numpy()
+        assert got.view(np.uint8).tobytes() == want.view(np.uint8).tobytes(), name
+    for name in ("t_ns", "n", "k", "stamp", "ok", "name", "v"):
+        assert back[name].equals(table[name]), name
+
+    import pyarrow.parquet as pq
+
+    meta = pq.ParquetFile(path).metadata.row_group(0)
+    encodings = {meta.column(i).path_in_schema: meta.column(i).encodings for i in range(meta.num_columns)}
+    assert "BYTE_STREAM_SPLIT" in encodings["x"] and "BYTE_STREAM_SPLIT" in encodings["y"]
+    assert all("DELTA_BINARY_PACKED" in encodings[c] for c in ("t_ns", "n", "k", "stamp"))
+    assert all("PLAIN" in encodings[c] for c in ("ok", "name", "v.list.element"))
+
+
+def test_sensor_streams_take_fewer_bytes_than_plain_encoding(tmp_path: Path) -> None:
+    """A ten-minute 120 Hz IMU-like stream (clock stamps with jitter, noisy smooth signals): the encodings cut
+    the file well below what the same compression gives on plain-encoded columns."""
+    import pyarrow.parquet as pq
+
+    rng = np.random.default_rng(7)
+    n = 72_000
+    t_ns = np.arange(n, dtype=np.int64) * 8_333_333 + rng.integers(-20_000, 20_000, n)
+    phase = 2 * np.pi * 0.1 * t_ns / 1e9
+    table = pa.table({"t_ns": t_ns, "r_radps": 0.3 * np.sin(phase) + rng.normal(0, 1e-3, n),
+                      "ax_mps2": 0.05 * np.cos(phase) + rng.normal(0, 2e-2, n)})
+    ours = write_parquet(table, tmp_path / "ours.parquet", {})
+    pq.write_table(table, tmp_path / "plain.parquet", compression="zstd", compression_level=1, use_dictionary=False)
+    assert ours.stat().st_size < 0.8 * (tmp_path / "plain.parquet").stat().st_size
