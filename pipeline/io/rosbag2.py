@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
-import sqlite3
 import tempfile
 import warnings
 from collections.abc import Iterator
@@ -42,6 +41,8 @@ from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
 from pipeline.io.mcap_reader import Damaged, salvage_info, walk
 
 if TYPE_CHECKING:
+    import sqlite3
+
     from pipeline.io.mcap_index import IndexedFile
     from pipeline.io.sqlite_pages import MessageRows
 
@@ -270,6 +271,8 @@ class Rosbag2Reader(RawReader):
                 self._disagrees(name, want, have)
 
     def _connect(self, path: Path, *, tolerant: bool = False) -> sqlite3.Connection:
+        import sqlite3  # here: a bag of MCAP storage (or an MCAP file, which detection looks at) needs no sqlite
+
         try:
             con = sqlite3.connect(_read_only_uri(path), uri=True)
             if tolerant:  # read what is there of a file whose header claims more pages than it holds
@@ -279,6 +282,8 @@ class Rosbag2Reader(RawReader):
             raise IngestError(f"cannot open sqlite storage: {err}", file=path) from err
 
     def _scan_sqlite(self, path: Path, ids: dict[int, str], add: Any, *, stats: bool = True) -> None:
+        import sqlite3
+
         from pipeline.io.sqlite_pages import cut_short
 
         cut = cut_short(path)
@@ -451,6 +456,8 @@ class Rosbag2Reader(RawReader):
         rows come through the sqlite3 module one by one (:func:`_fetched_rows`), as they do when ``_row_fetch``
         is set. A damaged file is read from its intact pages instead (:meth:`_salvage_sqlite`).
         """
+        import sqlite3
+
         if path in self._pages:
             yield from self._page_batches(path, wanted)
             return
