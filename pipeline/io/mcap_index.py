@@ -214,26 +214,33 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
             buf[at:at + chunk.usize] = np.frombuffer(_chunk_data(fd, chunk), dtype=np.uint8)
             where.append((chunk, at))
             at += chunk.usize
-    # Message offsets of each topic over the whole batch (chunk by chunk, each chunk's in file order).
-    offsets: dict[str, list[np.ndarray]] = {}
-    limits: dict[str, list[np.ndarray]] = {}
+    # Message offsets of each topic over the whole batch: each chunk's index entries moved by where the chunk lies
+    # in the buffer, joined in one go (a few numpy calls per topic and batch, not per chunk and channel).
+    pieces: dict[str, list[tuple[np.ndarray, int, ChunkRef]]] = {}
     channels: dict[str, set[int]] = {}
     for chunk, at in where:
-        by_topic: dict[str, list[np.ndarray]] = {}
         for cid, offs in chunk.index.items():
             if cid in wanted and len(offs):
-                by_topic.setdefault(wanted[cid], []).append(offs.astype(np.int64))
+                pieces.setdefault(wanted[cid], []).append((offs, at, chunk))
                 channels.setdefault(wanted[cid], set()).add(cid)
-        for topic, offs_list in by_topic.items():
-            offs = np.sort(np.concatenate(offs_list)) if len(offs_list) > 1 else np.sort(offs_list[0])
-            if offs[0] < 0 or offs[-1] + 31 > chunk.usize:
-                raise Damaged("message index points outside its chunk", chunk.at)
-            offsets.setdefault(topic, []).append(offs + at)
-            limits.setdefault(topic, []).append(np.full(len(offs), at + chunk.usize, dtype=np.int64))
+    located: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for topic, parts in pieces.items():
+        counts = [len(o) for o, _, _ in parts]
+        offs = np.concatenate([o for o, _, _ in parts]).astype(np.int64)
+        offs += np.repeat(np.array([at for _, at, _ in parts], dtype=np.int64), counts)
+        end = np.repeat(np.array([at + chunk.usize for _, at, chunk in parts], dtype=np.int64), counts)
+        outside = offs + 31 > end
+        if outside.any():
+            _, _, bad = parts[int(np.searchsorted(np.cumsum(counts), int(np.argmax(outside)), side="right"))]
+            raise Damaged("message index points outside its chunk", bad.at)
+        located[topic] = offs, end
     rows = {}
-    for topic, offs_list in offsets.items():
-        offs = np.concatenate(offs_list) if len(offs_list) > 1 else offs_list[0]
-        end = np.concatenate(limits[topic]) if len(offs_list) > 1 else limits[topic][0]
+    for topic, (offs, end) in located.items():
+        # Storage order: each chunk's records by offset. The chunks lie one after another in the buffer and every
+        # offset is inside its own, so one sort of the whole (needed only when a chunk's index is out of order
+        # or a topic has several channels) keeps each row with its chunk and its chunk's end.
+        if len(offs) > 1 and not (offs[1:] >= offs[:-1]).all():
+            offs = np.sort(offs, kind="stable")
         rows[topic] = Rows(*_locate(buf, offs, end, channels[topic], where[0][0].at))
     return Batch(buf, rows)
 
