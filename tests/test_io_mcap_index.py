@@ -123,3 +123,25 @@ def test_an_index_entry_outside_its_chunk_is_damage_at_that_chunk(tmp_path: Path
     bad.index[cid][-1] = bad.usize - 31  # the last place a record's header fits: not this check's business
     with pytest.raises(Damaged, match="not a message|another channel|overruns"):
         list(mcap_index.chunk_batches(path, indexed, wanted, limit=4 << 10))
+
+
+@pytest.mark.parametrize("window", [16, 200, 5000])
+def test_the_index_walk_reads_the_same_through_any_window(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                         window: int) -> None:
+    """The walk reads the records between chunks through one window: records that straddle its end, or are
+    larger than it, give what one read of each gives."""
+    path = _write(tmp_path / "two.mcap", _messages(3000), compression="zstd")
+    whole = mcap_index.index_walk(path)
+    init = mcap_index._Window.__init__  # noqa: SLF001
+    monkeypatch.setattr(mcap_index._Window, "__init__", lambda self, fd: init(self, fd, window))  # noqa: SLF001
+    small = mcap_index.index_walk(path)
+    assert whole is not None and small is not None
+    assert [(c.body, c.length, c.usize, c.crc, c.at) for c in small.chunks] == \
+        [(c.body, c.length, c.usize, c.crc, c.at) for c in whole.chunks]
+    for a, b in zip(small.chunks, whole.chunks, strict=True):
+        assert a.index.keys() == b.index.keys()
+        for cid in a.index:
+            np.testing.assert_array_equal(a.index[cid], b.index[cid])
+    assert (small.walk.counts, small.walk.first, small.walk.last, small.walk.schemas) == \
+        (whole.walk.counts, whole.walk.first, whole.walk.last, whole.walk.schemas)
+    assert sum(small.walk.counts.values()) == 3000

@@ -79,11 +79,30 @@ def index_walk(path: Path) -> IndexedFile | None:
         return None
 
 
+class _Window:
+    """Positioned reads of a file through one window of ``size`` bytes: the records between two chunks (the
+    chunk's header, its message indexes, the next header) come with one system call, not two per record."""
+
+    def __init__(self, fd: int, size: int = 256 << 10) -> None:
+        self.fd, self.size = fd, size
+        self.lo, self.buf = 0, b""
+
+    def read(self, pos: int, n: int) -> bytes:
+        at = pos - self.lo
+        if 0 <= at and at + n <= len(self.buf):
+            return self.buf[at:at + n]
+        if n >= self.size:
+            return os.pread(self.fd, n, pos)
+        self.lo, self.buf = pos, os.pread(self.fd, self.size, pos)
+        return self.buf[:n]
+
+
 def _index_walk(path: Path) -> IndexedFile | None:
     out = Walk()
     chunks: list[ChunkRef] = []
     heads: set[bytes] = set()  # chunk headers (times, sizes, CRC, compression) seen so far
     fd = os.open(path, os.O_RDONLY)
+    win = _Window(fd)
     try:
         size = os.fstat(fd).st_size
         if size < 16 or os.pread(fd, 8, 0) != MAGIC or os.pread(fd, 8, size - 8) != MAGIC:
@@ -92,12 +111,12 @@ def _index_walk(path: Path) -> IndexedFile | None:
         while True:
             if pos + 9 > size - 8:
                 return None
-            op, length = struct.unpack("<BQ", os.pread(fd, 9, pos))
+            op, length = struct.unpack("<BQ", win.read(pos, 9))
             body, stop = pos + 9, pos + 9 + length
             if stop > size - 8:
                 return None
             if op == OP_CHUNK:
-                head = os.pread(fd, min(length, 4096), body)
+                head = win.read(body, min(length, 4096))
                 _s, _e, usize, check = struct.unpack_from("<QQQI", head, 0)
                 compression, p = _str(head, 28)
                 (rlen,) = struct.unpack_from("<Q", head, p)
@@ -110,7 +129,7 @@ def _index_walk(path: Path) -> IndexedFile | None:
             elif op == OP_MESSAGE_INDEX:
                 if not chunks:
                     return None
-                raw = os.pread(fd, length, body)
+                raw = win.read(body, length)
                 cid, n = struct.unpack_from("<HI", raw, 0)
                 if n % 16 or 6 + n > length:
                     return None
@@ -127,7 +146,7 @@ def _index_walk(path: Path) -> IndexedFile | None:
                     out.first[cid] = min(out.first.get(cid, lo), lo)
                     out.last[cid] = max(out.last.get(cid, hi), hi)
             elif op in (OP_SCHEMA, OP_CHANNEL, OP_STATISTICS):
-                raw = os.pread(fd, length, body)
+                raw = win.read(body, length)
                 _record(op, raw, out)
             elif op == OP_FOOTER:
                 if stop != size - 8:
