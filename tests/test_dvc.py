@@ -411,3 +411,22 @@ def test_dvc_plots_show_gives_the_model_plots(model_study: Path, tmp_path: Path)
         spec = ids[name][0]["content"]
         assert spec["encoding"]["color"]["field"] == "series" and spec["mark"]["type"] == "line"
     assert ids["coupled_r2"][0]["content"]["encoding"]["x"]["field"] == "final_r2"
+
+
+def test_the_dvc_extra_gives_dvc_ruamels_c_parser_with_the_same_values() -> None:
+    """DVC parses dvc.yaml, dvc.lock and params.yaml with ``YAML(typ="safe")`` ~14 times a command; ruamel.yaml
+    0.19 no longer pulls in its C parser, and without it a `dvc repro` with nothing to do spends ~0.3 s more
+    (docs/benchmarks.md, sixth round). The ``[dvc]`` extra installs it; it reads our files (and YAML 1.1/1.2
+    corner cases) to the same values as the pure-Python parser."""
+    import tomllib
+
+    from ruamel.yaml import YAML
+    from ruamel.yaml.main import CParser
+
+    extras = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    for extra in ("dvc", "test"):
+        assert any(req.startswith("ruamel.yaml.clib") for req in extras[extra]), extra
+    assert CParser is not None and YAML(typ="safe").Parser is CParser
+    tricky = "a: on\nb: yes\nc: 0777\nd: 1_000\ne: 12:30\nf: 1e3\ng: .5\nh: ~\ni: NO\nj: 0o17\nk: 2001-12-14\n"
+    for text in (DVC.read_text(), (REPO / "params.yaml").read_text(), tricky):
+        assert YAML(typ="safe").load(text) == YAML(typ="safe", pure=True).load(text)
