@@ -80,10 +80,12 @@ def index_walk(path: Path) -> IndexedFile | None:
 
 
 class _Window:
-    """Positioned reads of a file through one window of ``size`` bytes: the records between two chunks (the
-    chunk's header, its message indexes, the next header) come with one system call, not two per record."""
+    """Positioned reads of a file through one window of ``size`` bytes: the small records between two chunks
+    (a chunk's header, short message indexes, the next header) come with one system call, not two per record.
+    64 KiB: a larger window copies more than the indexes it serves (the four-hour trial's walk: 0.098 s with a
+    read per record, 0.080 s with 64 KiB, 0.103 s with 256 KiB)."""
 
-    def __init__(self, fd: int, size: int = 256 << 10) -> None:
+    def __init__(self, fd: int, size: int = 64 << 10) -> None:
         self.fd, self.size = fd, size
         self.lo, self.buf = 0, b""
 
