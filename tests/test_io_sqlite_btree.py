@@ -109,6 +109,26 @@ def test_a_damaged_leaf_is_not_plain(tmp_path: Path) -> None:
         paged(path, 4096)
 
 
+@pytest.mark.parametrize("bad", ["twice", "outside", "zero"])
+def test_an_interior_page_pointing_twice_or_outside_the_file_is_not_plain(tmp_path: Path, bad: str) -> None:
+    """A child page met twice (a loop, or two parents sharing a leaf), past the file's last page or page 0: the
+    parser would read rows twice or garbage, so it stops before reading any leaf."""
+    path = tmp_path / "m.db3"
+    write_db(path, [(1, i, bytes(100)) for i in range(2000)], 1024, index=False)
+    root = root_of(path)
+    raw = bytearray(path.read_bytes())
+    head = (root - 1) * 1024 + (100 if root == 1 else 0)
+    assert raw[head] == 0x05 and int.from_bytes(raw[head + 3:head + 5], "big") >= 1  # an interior table page
+    at = (root - 1) * 1024 + int.from_bytes(raw[head + 12:head + 14], "big")  # the first cell's left child
+    child = {"twice": raw[head + 8:head + 12],  # the right-most child's number
+             "outside": (len(raw) // 1024 + 1).to_bytes(4, "big"), "zero": bytes(4)}[bad]
+    assert raw[at:at + 4] != child
+    raw[at:at + 4] = child
+    path.write_bytes(bytes(raw))
+    with open(path, "rb") as fh, pytest.raises(NotPlain, match="outside the file, or met twice"):
+        sqlite_btree.leaf_pages(fh.fileno(), sqlite_btree.Layout.of(fh.fileno()), root)
+
+
 def test_the_reader_goes_on_through_sqlite_after_the_last_row_handed_on(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     """The page parser gives up at its third batch: sqlite's aggregates read the rows after the last id yielded,
