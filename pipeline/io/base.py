@@ -137,8 +137,9 @@ _RESTARTS = 64  # each restart moves one more file (of a split bag) to its salva
 
 
 #: Batches of the indexed readers (MCAP and ROS 1 chunks): 4 MB, not 16, so that a batch's record headers and
-#: payloads are still in the CPU's caches when they are located and gathered after the read (a one-hour MCAP's
-#: ingest ~13 % less CPU, a four-hour one ~16 %, ROS 1 ~19 %; docs/benchmarks.md, sixth round).
+#: payloads are still in the CPU's caches when they are located and gathered after the read (``ingest_log`` of the
+#: one-hour plain MCAP 0.278 -> 0.230 s of CPU, the four-hour one 0.859 -> 0.735; zstd and ROS 1 the same or a
+#: little better; bench/ingest_knobs.py batch, docs/benchmarks.md sixth round).
 BATCH_BYTES = 4 << 20
 #: Batches of a streamed record walk (:func:`stream_walk`): smaller, since up to ``ahead`` + 2 of them are alive at
 #: once (queued, being filled, being decoded), each as its payloads and then their joined copy.
