@@ -9,11 +9,11 @@ The logs are those ``bench/ingest.py --logs DIR`` generated (and, with ``--forma
 derived) under ``--logs``. Each round runs every format once per tree, the trees taking turns, each child pinned
 to core 0 (``taskset -c 0``) with ``PYTHONPATH`` set to its tree; the table shows the min of N for CPU and wall and
 the max for peak RSS (bench/ingest.py's lean spawner); each tree's sources are compiled to bytecode first, as an
-installed copy is (``bench/ingest.py``'s ``compile_sources``). The imports' CPU is that of a fresh interpreter importing
-exactly the modules a tiny ``auvid ingest`` of each tree leaves in ``sys.modules`` (the log: ``--imports-log``,
-default the one-hour uncompressed MCAP), pinned to core 0, min of 7, the bare interpreter's start reported beside it. A tree that
-keeps config snapshots (:mod:`pipeline.config.snapshot`) keeps them in a cache directory of this run's, written
-before anything is timed: what every ingest after the first pays.
+installed copy is (``bench/ingest.py``'s ``compile_sources``). The imports' CPU is that of a fresh interpreter
+importing exactly the modules a tiny ``auvid ingest`` of each tree leaves in ``sys.modules`` (the log:
+``--imports-log``, default the one-hour uncompressed MCAP), pinned to core 0, min of 7, the bare interpreter's start
+reported beside it. A tree that keeps config snapshots (:mod:`pipeline.config.snapshot`) keeps them in a cache
+directory of this run's, written before anything is timed: what every ingest after the first pays.
 """
 
 from __future__ import annotations
