@@ -66,3 +66,72 @@ def test_an_index_entry_off_its_record_is_damage_and_the_read_walks_the_bag(
     assert {t: d.read for t, d in topics_read.items()} == {t: len(c["log_ns"]) for t, c in want.items()}
     for topic, cols in want.items():
         np.testing.assert_array_equal(topics_read[topic].log_ns, cols["log_ns"])
+
+
+def _chunk_records(path: Path, chunk: rosbag1_index.ChunkRef) -> list[tuple[int, int]]:
+    """(offset in the chunk, op) of every record of an uncompressed chunk."""
+    data = path.read_bytes()[chunk.data:chunk.data + chunk.size]
+    out, pos = [], 0
+    while pos < len(data):
+        hlen = int.from_bytes(data[pos:pos + 4], "little")
+        header = data[pos + 4:pos + 4 + hlen]
+        op = header[header.index(b"op=") + 3]
+        out.append((pos, op))
+        pos += 8 + hlen + int.from_bytes(data[pos + 4 + hlen:pos + 8 + hlen], "little")
+    return out
+
+
+def _damaged(path: Path, bag: rosbag1_index.IndexedBag) -> Damaged:
+    topics = {c: conn.topic for c, conn in bag.walk.connections.items()}
+    with pytest.raises(Damaged) as info:
+        list(chunk_batches(path, bag, topics))
+    return info.value
+
+
+def test_an_index_entry_at_another_connections_message_is_damage(tmp_path: Path) -> None:
+    """Every message record has the same header layout: only its ``conn`` field tells whose it is."""
+    path = write_rosbag1(tmp_path / "t.bag", trial(n=60, seed=4), chunk_threshold=700)
+    bag = index_walk(path)
+    assert bag is not None
+    chunk = next(c for c in bag.chunks[1:] if len(c.index) >= 2 and all(len(o) for o in c.index.values()))
+    (a, offs_a), (_, offs_b) = sorted(chunk.index.items())[:2]
+    offs = offs_a.astype(np.int64)
+    offs[-1] = int(offs_b[0])
+    chunk.index[a] = offs
+    err = _damaged(path, bag)
+    assert err.reason == "bag index points at a record that is not a message of its connection"
+    assert err.at == chunk.at
+
+
+def test_a_message_record_with_another_header_length_is_damage(tmp_path: Path) -> None:
+    """A record whose header length is not its connection's (its op and conn fields still where the layout
+    says): its data length and payload would be read from the wrong bytes."""
+    path = write_rosbag1(tmp_path / "t.bag", trial(n=60, seed=4), chunk_threshold=700)
+    bag = index_walk(path)
+    assert bag is not None
+    chunk = bag.chunks[len(bag.chunks) // 2]
+    cid, offs = next((c, o) for c, o in chunk.index.items() if len(o) > 1)
+    raw = bytearray(path.read_bytes())
+    at = chunk.data + int(offs[-1])  # not the first: the connection's layout is read from that one
+    hlen = int.from_bytes(raw[at:at + 4], "little")
+    raw[at:at + 4] = (hlen + 4).to_bytes(4, "little")
+    path.write_bytes(bytes(raw))
+    err = _damaged(path, bag)
+    assert err.reason == "message records of one connection differ in header layout"
+    assert err.at == chunk.at
+
+
+def test_a_message_whose_data_runs_past_its_chunk_is_damage(tmp_path: Path) -> None:
+    path = write_rosbag1(tmp_path / "t.bag", trial(n=60, seed=4), chunk_threshold=700)
+    bag = index_walk(path)
+    assert bag is not None
+    chunk = bag.chunks[len(bag.chunks) // 2]
+    pos = next(p for p, op in _chunk_records(path, chunk) if op == 2)  # the chunk's first message record
+    raw = bytearray(path.read_bytes())
+    at = chunk.data + pos
+    hlen = int.from_bytes(raw[at:at + 4], "little")
+    raw[at + 4 + hlen:at + 8 + hlen] = (chunk.size + 1).to_bytes(4, "little")  # its data length
+    path.write_bytes(bytes(raw))
+    err = _damaged(path, bag)
+    assert err.reason == "message record overruns its chunk"
+    assert err.at == chunk.at

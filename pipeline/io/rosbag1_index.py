@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows, take_rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, take_rows
 from pipeline.io.mcap_reader import Damaged
 from pipeline.io.rosbag1 import (
     MAGIC,
@@ -240,18 +240,23 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
         def damaged(bad: np.ndarray, why: str, ats: np.ndarray = ats) -> Damaged:
             return Damaged(why, int(ats[int(np.argmax(bad))]))
 
-        bad = (_u32(buf, offs) != hlen) | (offs + 8 + hlen > ends)
+        bad = offs + 8 + hlen > ends
         if bad.any():
             raise damaged(bad, "message records of one connection differ in header layout")
-        head = offs + 4
-        bad = (buf[head + op_at] != 2) | (_u32(buf, head + conn_at) != cid)
+        # Each record's header length, header and data length with one gather, read as strided fields.
+        rec = take_rows(buf, offs, 8 + hlen)
+        bad = field_view(rec, 0, "<u4") != hlen
+        if bad.any():
+            raise damaged(bad, "message records of one connection differ in header layout")
+        bad = (field_view(rec, 4 + op_at, "u1") != 2) | (field_view(rec, 4 + conn_at, "<u4") != cid)
         if bad.any():
             raise damaged(bad, "bag index points at a record that is not a message of its connection")
-        dlen = _u32(buf, head + hlen)
+        dlen = field_view(rec, 4 + hlen, "<u4").astype(np.int64)
         bad = offs + 8 + hlen + dlen > ends
         if bad.any():
             raise damaged(bad, "message record overruns its chunk")
-        stamps = _u32(buf, head + time_at) * 1_000_000_000 + _u32(buf, head + time_at + 4)
+        stamps = (field_view(rec, 4 + time_at, "<u4").astype(np.int64) * 1_000_000_000
+                  + field_view(rec, 4 + time_at + 4, "<u4"))
         pieces.setdefault(wanted[cid], []).append((offs + 8 + hlen, dlen, stamps))
     rows = {}
     for topic, got in pieces.items():
