@@ -4,6 +4,11 @@ its thread) and ``write_trial`` (the Parquet files); min of N each.
 
     nice python bench/ingest_parts.py /tmp/ib60/ros2_sqlite3 --repeat 3          # a log bench/ingest.py generated
     nice python bench/ingest_parts.py /tmp/ib60/trial.bag --tree /tmp/before      # another tree's code
+    nice python bench/ingest_parts.py /tmp/ib240/ros2_mcap/ros2_mcap.mcap --floor  # the floor beside ``cat``
+
+``--floor`` adds what an ingest costs without any decoding, beside ``cat`` of the same file (issue 15's four-hour
+target, within 10x of ``cat``): the imports of an ingest of this log (a fresh interpreter, pinned, as
+``bench/ingest_ab.py`` measures them) + the storage read alone + ``write_trial``.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("log", type=Path)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--tree", type=Path, default=HERE.parent, help="the code tree to measure (default: this)")
+    parser.add_argument("--floor", action="store_true", help="also the floor without decoding, beside cat")
     args = parser.parse_args(argv)
     sys.path[:0] = [str(args.tree), str(args.tree / "bench")]
     import ingest as bench
@@ -61,6 +67,18 @@ def main(argv: list[str] | None = None) -> int:
     written, _ = cpu(lambda: write(out), args.repeat)
     print(f"{path.name} ({args.tree}): sha256 {sha:.3f} | storage read alone {read:.3f} ({batches} batches) | "
           f"ingest_log {ingest:.3f} | write_trial {written:.3f} CPU s, min of {args.repeat}")
+    if args.floor:
+        import ingest_ab
+
+        with tempfile.TemporaryDirectory() as tmp:
+            ingest_ab.CACHE["AUVID_CACHE_DIR"] = str(Path(tmp) / "cache")
+            imports, bare, modules = ingest_ab.imports_cpu(str(args.tree), path, bench.vehicle_yaml(Path(tmp)),
+                                                           n=args.repeat)
+        cat = min(bench.process_cat(path, pin=True)["wall_s"] for _ in range(args.repeat))
+        floor = imports + read + written
+        print(f"floor without decoding: imports {imports:.3f} ({modules} modules; bare interpreter {bare:.3f}) + "
+              f"storage read {read:.3f} + write_trial {written:.3f} = {floor:.3f} s CPU | cat {cat:.3f} s wall | "
+              f"floor / cat = {floor / cat:.1f}x (the four-hour target: 10x)")
     return 0
 
 
