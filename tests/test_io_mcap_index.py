@@ -16,7 +16,7 @@ import pytest
 
 from pipeline.io import mcap_index, open_log
 from pipeline.io.mcap_reader import Damaged
-from tests.io_helpers import DVL, build, ros2_store
+from tests.io_helpers import DVL, Msg, build, ros2_store
 
 TOPIC = "/dvl"
 FIELD = "velocity.x"
@@ -32,8 +32,6 @@ def _messages(n: int) -> list[tuple[int, int, float]]:
 def _write(path: Path, msgs: list[tuple[int, int, float]], *, compression: str) -> Path:
     """One topic on two channels (as a recorder that restarted mid-trial writes it), big chunks."""
     from mcap.writer import CompressionType, Writer
-
-    from tests.io_helpers import Msg
 
     store = ros2_store()
     comp = {"zstd": CompressionType.ZSTD, "none": CompressionType.NONE}[compression]
