@@ -444,9 +444,18 @@ def _uniform_columns(
         if cache is not None:
             cache[width] = lay
     checks, fields, spans = lay.checks, lay.fields, lay.spans
+    # Byte ranges, each as (offset of its first column in the payload, (n, w) bytes): what the reader gathered
+    # with the record headers (every payload is ``width`` long here, so all of it that lies before ``width`` is
+    # the message's own), then a gather per span it does not cover.
     got: list[tuple[int, np.ndarray]] = []
+    pre = rows.head
+    covered = 0
+    if pre is not None:
+        covered = min(pre.shape[1] - rows.head_at, width)
+        got.append((-rows.head_at, pre))
     for lo, hi in spans:
-        got.append((lo, take_rows(buf, rows.starts + lo, hi - lo)))
+        if hi > covered:
+            got.append((lo, take_rows(buf, rows.starts + lo, hi - lo)))
 
     def part(a: int, w: int, dtype: np.dtype | str | None = None) -> np.ndarray:
         """Bytes [a, a + w) of every message: a (n, w) byte view, or with ``dtype`` (itemsize w) its values."""
@@ -510,6 +519,9 @@ class TopicDecoder:
         self.paths: set[str] = set()
         self.read = 0
         self._layouts: dict[int, _Layout] = {}  # message width -> fast-path layout, reused batch after batch
+        #: Payload bytes this decoder reads from the start of each message on the fast path (its layout's first
+        #: span): a reader may gather them with the record headers (:attr:`.base.Rows.head`); 0: none wanted.
+        self.prefix = 0
 
     def _put(self, name: str, values: np.ndarray, dtype: type) -> None:
         col = self.out.get(name)
@@ -533,6 +545,9 @@ class TopicDecoder:
             columns, stamps = fast_columns(self.registry, info.msgtype, buf, rows, self.plans, ros1=self.ros1,
                                            has_header=info.has_header, cache=self._layouts)
             self.paths.add("fast")
+            lay = self._layouts.get(int(rows.lengths[0]))
+            near = lay is not None and lay.spans and lay.spans[0][0] <= SPAN_GAP
+            self.prefix = lay.spans[0][1] if near else 0
         except Bail as why:
             if "fast" in self.paths or not self.paths:
                 log.debug("topic %s: per-message decoding of %d messages (%s)", info.topic, n, why)
@@ -541,6 +556,7 @@ class TopicDecoder:
             columns, stamps = slow_columns(self.registry, info.msgtype, payloads, self.plans, ros1=self.ros1,
                                            has_header=info.has_header)
             self.paths.add("per-message")
+            self.prefix = 0
         for name, values in columns.items():
             self._put(name, values, np.float64)
         if stamps is not None:

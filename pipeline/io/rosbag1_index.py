@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import struct
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -171,10 +172,18 @@ def _layout(data: np.ndarray, off: int) -> tuple[int, int, int, int]:
     return hlen, at[b"op"], at[b"conn"], at[b"time"]
 
 
-def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: int = BATCH_BYTES) -> Iterator[Batch]:
+def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: int | None = None,
+                  prefix: dict[str, int] | None = None) -> Iterator[Batch]:
     """Batches of ~``limit`` bytes of (decompressed) chunks holding wanted messages, in file order. An
     uncompressed chunk is read straight into the batch's buffer (reused batch after batch); the messages of a batch
-    are located at once, per connection and header layout (:func:`_located`), not chunk by chunk."""
+    are located at once, per connection and header layout (:func:`_located`), not chunk by chunk.
+
+    ``prefix`` (topic -> bytes, read at each batch: the decoders fill it as they learn their layouts): that many
+    bytes of each payload are gathered with its record header, into :attr:`Rows.head`, where the topic's records
+    share one header layout in the batch. ``limit``: :data:`BATCH_BYTES` when None.
+    """
+    prefix = {} if prefix is None else prefix
+    limit = BATCH_BYTES if limit is None else limit
     scratch = [np.empty(0, dtype=np.uint8)]
     size = 0
     groups: dict[tuple[int, tuple[int, int, int, int]], list[tuple[np.ndarray, int, int]]] = {}
@@ -208,10 +217,10 @@ def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: in
                 groups.setdefault((cid, layout), []).append((offs + size, size + chunk.size, chunk.at))
             size += chunk.size
             if size >= limit:
-                yield _located(scratch[0][:size], groups, wanted)
+                yield _located(scratch[0][:size], groups, wanted, prefix)
                 size, groups = 0, {}
         if groups:
-            yield _located(scratch[0][:size], groups, wanted)
+            yield _located(scratch[0][:size], groups, wanted, prefix)
     finally:
         os.close(fd)
 
@@ -228,10 +237,11 @@ def _room(scratch: list[np.ndarray], size: int, more: int, limit: int) -> np.nda
 
 
 def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]], list[tuple[np.ndarray, int, int]]],
-             wanted: dict[int, str]) -> Batch:
+             wanted: dict[int, str], prefix: dict[str, int]) -> Batch:
     """The batch's wanted messages from the index offsets of each (connection, header layout): every record's
     header is checked against the layout (same length, ``op=2``, its connection) and must end in its chunk."""
-    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    pieces: dict[str, list[Rows]] = {}
+    alone = Counter(wanted[cid] for cid, _ in groups)  # topics whose records share one layout in this batch
     for (cid, (hlen, op_at, conn_at, time_at)), parts in groups.items():
         offs = np.concatenate([p[0] for p in parts]) if len(parts) > 1 else parts[0][0]
         ends = np.repeat([p[1] for p in parts], [len(p[0]) for p in parts])
@@ -243,8 +253,13 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
         bad = offs + 8 + hlen > ends
         if bad.any():
             raise damaged(bad, "message records of one connection differ in header layout")
-        # Each record's header length, header and data length with one gather, read as strided fields.
-        rec = take_rows(buf, offs, 8 + hlen)
+        # Each record's header length, header and data length with one gather, read as strided fields (and the
+        # payload's first bytes with them, when the decoder asked for them and every record has that many after it).
+        width = 8 + hlen
+        more = prefix.get(wanted[cid], 0) if alone[wanted[cid]] == 1 else 0
+        if more > 0 and int(offs.max()) + width + more <= len(buf):
+            width += more
+        rec = take_rows(buf, offs, width)
         bad = field_view(rec, 0, "<u4") != hlen
         if bad.any():
             raise damaged(bad, "message records of one connection differ in header layout")
@@ -257,10 +272,16 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
             raise damaged(bad, "message record overruns its chunk")
         stamps = (field_view(rec, 4 + time_at, "<u4").astype(np.int64) * 1_000_000_000
                   + field_view(rec, 4 + time_at + 4, "<u4"))
-        pieces.setdefault(wanted[cid], []).append((offs + 8 + hlen, dlen, stamps))
+        head = Rows(offs + 8 + hlen, dlen, stamps, rec if width > 8 + hlen else None, 8 + hlen)
+        pieces.setdefault(wanted[cid], []).append(head)
     rows = {}
     for topic, got in pieces.items():
-        starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
+        starts = got[0].starts
+        if len(got) == 1 and (len(starts) < 2 or (starts[1:] >= starts[:-1]).all()):  # chunks' indexes in order
+            rows[topic] = got[0]
+            continue
+        starts, lengths, stamps = (np.concatenate([getattr(r, name) for r in got])
+                                   for name in ("starts", "lengths", "log_ns"))
         order = np.argsort(starts, kind="stable")  # file order across the topic's connections
         rows[topic] = Rows(starts[order], lengths[order], stamps[order])
     return Batch(buf, rows)
