@@ -375,6 +375,44 @@ def test_signalling_nan_in_a_float32_field_is_quiet() -> None:
         assert np.isnan(_as_float(snan, "float32")).all()
 
 
+@pytest.mark.parametrize("n", [1, 40])  # one message (per-message layout walk), many (uniform fast path)
+def test_signalling_nan_in_a_float32_field_reads_as_nan_without_a_warning(tmp_path: Path, n: int) -> None:
+    """The fast path converts a float32 field to float64 as it stores the batch: a signalling NaN (damaged bytes)
+    must come out a NaN beside its neighbours' values, with no RuntimeWarning."""
+    import warnings
+
+    from io_helpers import DVL, ros2_store
+    from mcap.writer import CompressionType, Writer
+
+    store = ros2_store()
+    types = store.types
+    text, _ = store.generate_msgdef(DVL, ros_version=2)
+    path = tmp_path / "snan.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.NONE)
+        w.start(profile="ros2", library="auvid-tests")
+        cid = w.register_channel(topic="/dvl", message_encoding="cdr",
+                                 schema_id=w.register_schema(name=DVL, encoding="ros2msg", data=text.encode()))
+        for i in range(n):
+            header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=i, nanosec=7),
+                                                  frame_id="dvl")
+            msg = types[DVL](header=header, velocity=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                             bottom_lock=True, altitude=2.5 + i)
+            raw = bytearray(store.serialize_cdr(msg, DVL))
+            if i % 3 == 0:
+                raw[-4:] = struct.pack("<I", 0x7F800001)  # altitude, the last float32 of the payload
+            w.add_message(cid, log_time=10**9 * (i + 1), data=bytes(raw), publish_time=10**9 * (i + 1), sequence=i)
+        w.finish()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with open_log(path) as reader:
+            got = reader.read({"/dvl": ["altitude"]}).topics["/dvl"]
+    want = np.array([np.nan if i % 3 == 0 else 2.5 + i for i in range(n)])
+    np.testing.assert_array_equal(got.columns["altitude"], want)
+    assert got.header_ns.tolist() == [10**9 * i + 7 for i in range(n)]
+    assert got.path == "fast"
+
+
 @pytest.mark.parametrize("kw", [{}, {"write_content_size": False}, {"write_checksum": True}])
 def test_zstd_frames_tell_a_cut_stream(tmp_path: Path, kw: dict) -> None:
     import zstandard

@@ -313,7 +313,7 @@ def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
 def fast_columns(
     registry: TypeRegistry, msgtype: str, buf: np.ndarray, rows: Rows, plans: list[FieldPath], *, ros1: bool,
     has_header: bool, cache: dict[int, _Layout] | None = None,
-) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+) -> tuple[dict[str, np.ndarray], Stamps | None]:
     """Columns of one batch of one topic without decoding messages; raises :class:`Bail` when it cannot.
 
     ``cache``: a dict kept from batch to batch of the topic, where the layouts of uniform batches are reused.
@@ -363,12 +363,19 @@ def _wanted(plans: list[FieldPath], has_header: bool) -> list[tuple[str, tuple[S
     return wanted
 
 
+#: Header stamps as read: the (sec, nanosec) fields, combined into nanoseconds where they are stored.
+Stamps = tuple[np.ndarray, np.ndarray]
+
+
 def _finish(raw: dict[str, tuple[np.ndarray, str]], plans: list[FieldPath],
-            has_header: bool) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
-    out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
-    stamps = None
-    if has_header:
-        stamps = raw["\0sec"][0].astype(np.int64) * 1_000_000_000 + raw["\0nanosec"][0].astype(np.int64)
+            has_header: bool) -> tuple[dict[str, np.ndarray], Stamps | None]:
+    """The fields as read (often strided views of the gathered bytes, in their own types; booleans as 0 / 1):
+    :meth:`TopicDecoder.feed` converts them to float64 as it stores them, one pass over each."""
+    out = {}
+    for fp in plans:
+        values, leaf = raw[fp.text]
+        out[fp.text] = values != 0 if leaf == "bool" else values
+    stamps = (raw["\0sec"][0], raw["\0nanosec"][0]) if has_header else None
     return out, stamps
 
 
@@ -424,7 +431,7 @@ def _layout(registry: TypeRegistry, msgtype: str, first: np.ndarray, plans: list
 def _uniform_columns(
     registry: TypeRegistry, msgtype: str, buf: np.ndarray, rows: Rows, plans: list[FieldPath], *, ros1: bool,
     has_header: bool, cache: dict[int, _Layout] | None = None,
-) -> tuple[dict[str, np.ndarray], np.ndarray | None] | None:
+) -> tuple[dict[str, np.ndarray], Stamps | None] | None:
     """Columns when every message has the first one's layout: equal lengths and equal bytes in every length
     prefix (and in the key strings of selections), so that each field lies at one offset in all of them.
 
@@ -523,15 +530,26 @@ class TopicDecoder:
         #: span): a reader may gather them with the record headers (:attr:`.base.Rows.head`); 0: none wanted.
         self.prefix = 0
 
-    def _put(self, name: str, values: np.ndarray, dtype: type) -> None:
+    def _slot(self, name: str, n: int, dtype: type) -> np.ndarray:
+        """Where the next ``n`` values of column ``name`` go."""
         col = self.out.get(name)
-        end = self.read + len(values)
+        end = self.read + n
         if col is None or end > len(col):
             grown = np.empty(max(end, self.info.count, 2 * len(col) if col is not None else 0), dtype=dtype)
             if col is not None:
                 grown[:self.read] = col[:self.read]
             self.out[name] = col = grown
-        col[self.read:end] = values
+        return col[self.read:end]
+
+    def _put(self, name: str, values: np.ndarray, dtype: type) -> None:
+        """Store a batch's values, converted to ``dtype`` in the same pass (a float32 field's signalling NaN
+        becomes a quiet NaN without a warning, as the cast of :func:`_as_float`)."""
+        slot = self._slot(name, len(values), dtype)
+        if values.dtype == np.float32:
+            with np.errstate(invalid="ignore"):
+                slot[...] = values
+        else:
+            slot[...] = values
 
     def feed(self, buf: np.ndarray, rows: Rows) -> None:
         """Decode one batch (raises what rosbags raises on a payload the definition does not describe)."""
@@ -559,7 +577,12 @@ class TopicDecoder:
             self.prefix = 0
         for name, values in columns.items():
             self._put(name, values, np.float64)
-        if stamps is not None:
+        if isinstance(stamps, tuple):  # sec * 1e9 + nanosec, computed in place in the column
+            sec, nanosec = stamps
+            slot = self._slot("\0header_ns", n, np.int64)
+            np.multiply(sec, 1_000_000_000, out=slot, dtype=np.int64)
+            np.add(slot, nanosec, out=slot, dtype=np.int64)
+        elif stamps is not None:
             self._put("\0header_ns", stamps, np.int64)
         self._put("\0log_ns", rows.log_ns, np.int64)
         self.read += n
