@@ -92,20 +92,11 @@ class LogReader(Protocol):
 
 @dataclass
 class Rows:
-    """Where the payloads of one topic lie in a batch's buffer, in storage order, with their log times.
-
-    ``head``: optionally, the bytes a reader already gathered at each row while checking its record headers, as
-    a C-contiguous (n, width) byte array whose column ``head_at`` is each payload's first byte. A reader asked for
-    a payload prefix (:attr:`RawReader.prefix`) gathers it with the record header, one gather per message instead
-    of two; the bytes past a payload shorter than the prefix are whatever follows it in the buffer, so a decoder
-    reads a field from ``head`` only where every payload is known to be long enough.
-    """
+    """Where the payloads of one topic lie in a batch's buffer, in storage order, with their log times."""
 
     starts: np.ndarray
     lengths: np.ndarray
     log_ns: np.ndarray
-    head: np.ndarray | None = None
-    head_at: int = 0
 
 
 @dataclass
@@ -289,9 +280,6 @@ class RawReader:
         self.user_types: UserTypes | None = None  # the user's message definitions, for types the log lacks
         self.allow_fast = True
         self.salvage: SalvageInfo | None = None
-        #: topic -> how many payload bytes its decoder reads from each message (from the layout of its last batch):
-        #: an indexed reader gathers them with the record header (:attr:`Rows.head`). Set while reading.
-        self.prefix: dict[str, int] = {}
 
     # -- protocol -------------------------------------------------------------------------------------------
     def topics(self) -> dict[str, TopicInfo]:
@@ -407,15 +395,12 @@ class RawReader:
                                         allow_fast=self.allow_fast) for t, fplans in plans.items()}
         result = ReadResult(topics={}, failed=dict(failed))
         broken: dict[str, str] = {}
-        self.prefix.clear()
         for batch in (self._batches(list(plans)) if plans else ()):
             for topic, rows in batch.rows.items():
                 if topic in broken or topic not in decoders:
                     continue
                 try:
-                    dec = decoders[topic]
-                    dec.feed(batch.buf, rows)
-                    self.prefix[topic] = dec.prefix
+                    decoders[topic].feed(batch.buf, rows)
                 except Exception as err:  # noqa: BLE001 - a payload the definition does not describe
                     log.warning("%s: topic %s failed to decode: %s", self.path, topic, err)
                     broken[topic] = f"decoding failed: {type(err).__name__}: {err}"

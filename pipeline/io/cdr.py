@@ -313,7 +313,7 @@ def _as_float(values: np.ndarray, base_type: str) -> np.ndarray:
 def fast_columns(
     registry: TypeRegistry, msgtype: str, buf: np.ndarray, rows: Rows, plans: list[FieldPath], *, ros1: bool,
     has_header: bool, cache: dict[int, _Layout] | None = None,
-) -> tuple[dict[str, np.ndarray], Stamps | None]:
+) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """Columns of one batch of one topic without decoding messages; raises :class:`Bail` when it cannot.
 
     ``cache``: a dict kept from batch to batch of the topic, where the layouts of uniform batches are reused.
@@ -363,19 +363,12 @@ def _wanted(plans: list[FieldPath], has_header: bool) -> list[tuple[str, tuple[S
     return wanted
 
 
-#: Header stamps as read: the (sec, nanosec) fields, combined into nanoseconds where they are stored.
-Stamps = tuple[np.ndarray, np.ndarray]
-
-
 def _finish(raw: dict[str, tuple[np.ndarray, str]], plans: list[FieldPath],
-            has_header: bool) -> tuple[dict[str, np.ndarray], Stamps | None]:
-    """The fields as read (often strided views of the gathered bytes, in their own types; booleans as 0 / 1):
-    :meth:`TopicDecoder.feed` converts them to float64 as it stores them, one pass over each."""
-    out = {}
-    for fp in plans:
-        values, leaf = raw[fp.text]
-        out[fp.text] = values != 0 if leaf == "bool" else values
-    stamps = (raw["\0sec"][0], raw["\0nanosec"][0]) if has_header else None
+            has_header: bool) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    out = {fp.text: _as_float(*raw[fp.text]) for fp in plans}
+    stamps = None
+    if has_header:
+        stamps = raw["\0sec"][0].astype(np.int64) * 1_000_000_000 + raw["\0nanosec"][0].astype(np.int64)
     return out, stamps
 
 
@@ -431,7 +424,7 @@ def _layout(registry: TypeRegistry, msgtype: str, first: np.ndarray, plans: list
 def _uniform_columns(
     registry: TypeRegistry, msgtype: str, buf: np.ndarray, rows: Rows, plans: list[FieldPath], *, ros1: bool,
     has_header: bool, cache: dict[int, _Layout] | None = None,
-) -> tuple[dict[str, np.ndarray], Stamps | None] | None:
+) -> tuple[dict[str, np.ndarray], np.ndarray | None] | None:
     """Columns when every message has the first one's layout: equal lengths and equal bytes in every length
     prefix (and in the key strings of selections), so that each field lies at one offset in all of them.
 
@@ -451,18 +444,9 @@ def _uniform_columns(
         if cache is not None:
             cache[width] = lay
     checks, fields, spans = lay.checks, lay.fields, lay.spans
-    # Byte ranges, each as (offset of its first column in the payload, (n, w) bytes): what the reader gathered
-    # with the record headers (every payload is ``width`` long here, so all of it that lies before ``width`` is
-    # the message's own), then a gather per span it does not cover.
     got: list[tuple[int, np.ndarray]] = []
-    pre = rows.head
-    covered = 0
-    if pre is not None:
-        covered = min(pre.shape[1] - rows.head_at, width)
-        got.append((-rows.head_at, pre))
     for lo, hi in spans:
-        if hi > covered:
-            got.append((lo, take_rows(buf, rows.starts + lo, hi - lo)))
+        got.append((lo, take_rows(buf, rows.starts + lo, hi - lo)))
 
     def part(a: int, w: int, dtype: np.dtype | str | None = None) -> np.ndarray:
         """Bytes [a, a + w) of every message: a (n, w) byte view, or with ``dtype`` (itemsize w) its values."""
@@ -526,30 +510,16 @@ class TopicDecoder:
         self.paths: set[str] = set()
         self.read = 0
         self._layouts: dict[int, _Layout] = {}  # message width -> fast-path layout, reused batch after batch
-        #: Payload bytes this decoder reads from the start of each message on the fast path (its layout's first
-        #: span): a reader may gather them with the record headers (:attr:`.base.Rows.head`); 0: none wanted.
-        self.prefix = 0
 
-    def _slot(self, name: str, n: int, dtype: type) -> np.ndarray:
-        """Where the next ``n`` values of column ``name`` go."""
+    def _put(self, name: str, values: np.ndarray, dtype: type) -> None:
         col = self.out.get(name)
-        end = self.read + n
+        end = self.read + len(values)
         if col is None or end > len(col):
             grown = np.empty(max(end, self.info.count, 2 * len(col) if col is not None else 0), dtype=dtype)
             if col is not None:
                 grown[:self.read] = col[:self.read]
             self.out[name] = col = grown
-        return col[self.read:end]
-
-    def _put(self, name: str, values: np.ndarray, dtype: type) -> None:
-        """Store a batch's values, converted to ``dtype`` in the same pass (a float32 field's signalling NaN
-        becomes a quiet NaN without a warning, as the cast of :func:`_as_float`)."""
-        slot = self._slot(name, len(values), dtype)
-        if values.dtype == np.float32:
-            with np.errstate(invalid="ignore"):
-                slot[...] = values
-        else:
-            slot[...] = values
+        col[self.read:end] = values
 
     def feed(self, buf: np.ndarray, rows: Rows) -> None:
         """Decode one batch (raises what rosbags raises on a payload the definition does not describe)."""
@@ -563,9 +533,6 @@ class TopicDecoder:
             columns, stamps = fast_columns(self.registry, info.msgtype, buf, rows, self.plans, ros1=self.ros1,
                                            has_header=info.has_header, cache=self._layouts)
             self.paths.add("fast")
-            lay = self._layouts.get(int(rows.lengths[0]))
-            near = lay is not None and lay.spans and lay.spans[0][0] <= SPAN_GAP
-            self.prefix = lay.spans[0][1] if near else 0
         except Bail as why:
             if "fast" in self.paths or not self.paths:
                 log.debug("topic %s: per-message decoding of %d messages (%s)", info.topic, n, why)
@@ -574,15 +541,9 @@ class TopicDecoder:
             columns, stamps = slow_columns(self.registry, info.msgtype, payloads, self.plans, ros1=self.ros1,
                                            has_header=info.has_header)
             self.paths.add("per-message")
-            self.prefix = 0
         for name, values in columns.items():
             self._put(name, values, np.float64)
-        if isinstance(stamps, tuple):  # sec * 1e9 + nanosec, computed in place in the column
-            sec, nanosec = stamps
-            slot = self._slot("\0header_ns", n, np.int64)
-            np.multiply(sec, 1_000_000_000, out=slot, dtype=np.int64)
-            np.add(slot, nanosec, out=slot, dtype=np.int64)
-        elif stamps is not None:
+        if stamps is not None:
             self._put("\0header_ns", stamps, np.int64)
         self._put("\0log_ns", rows.log_ns, np.int64)
         self.read += n

@@ -193,18 +193,12 @@ def _record(op: int, raw: bytes, out: Walk) -> None:
         out.stats_counts = counts
 
 
-def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str], limit: int | None = None,
-                  prefix: dict[str, int] | None = None) -> Iterator[Batch]:
+def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str],
+                  limit: int = BATCH_BYTES) -> Iterator[Batch]:
     """Batches of decompressed chunks holding the wanted channels (channel -> topic), in file order.
-
-    ``prefix`` (topic -> bytes, read at each batch: the decoders fill it as they learn their layouts): that many
-    bytes of each payload are gathered with its record header, into :attr:`Rows.head`. ``limit``: bytes a batch
-    holds, :data:`BATCH_BYTES` when None.
 
     Uncompressed chunks that follow each other are read with one positioned read and used in place.
     """
-    limit = BATCH_BYTES if limit is None else limit
-    prefix = {} if prefix is None else prefix
     group: list[ChunkRef] = []
     size = 0
     scratch = [np.empty(0, dtype=np.uint8)]  # reused batch after batch (fresh pages cost more than the copy)
@@ -216,16 +210,15 @@ def chunk_batches(path: Path, indexed: IndexedFile, wanted: dict[int, str], limi
             group.append(chunk)
             size += chunk.usize
             if size >= limit:
-                yield _batch(fd, group, wanted, scratch, prefix)
+                yield _batch(fd, group, wanted, scratch)
                 group, size = [], 0
         if group:
-            yield _batch(fd, group, wanted, scratch, prefix)
+            yield _batch(fd, group, wanted, scratch)
     finally:
         os.close(fd)
 
 
-def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list[np.ndarray],
-           prefix: dict[str, int]) -> Batch:
+def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list[np.ndarray]) -> Batch:
     if all(c.compression == "" for c in group):
         lo, hi = group[0].body, group[-1].body + group[-1].length
         buf = scratch_buffer(scratch, hi - lo, phase=lo)
@@ -257,7 +250,7 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
         offs = np.concatenate([o for o, _, _ in parts]).astype(np.int64)
         offs += np.repeat(np.array([at for _, at, _ in parts], dtype=np.int64), counts)
         end = np.repeat(np.array([at + chunk.usize for _, at, chunk in parts], dtype=np.int64), counts)
-        outside = offs + _HEAD > end
+        outside = offs + 31 > end
         if outside.any():
             _, _, bad = parts[int(np.searchsorted(np.cumsum(counts), int(np.argmax(outside)), side="right"))]
             raise Damaged("message index points outside its chunk", bad.at)
@@ -269,7 +262,7 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
         # or a topic has several channels) keeps each row with its chunk and its chunk's end.
         if len(offs) > 1 and not (offs[1:] >= offs[:-1]).all():
             offs = np.sort(offs, kind="stable")
-        rows[topic] = _locate(buf, offs, end, channels[topic], where[0][0].at, prefix.get(topic, 0))
+        rows[topic] = Rows(*_locate(buf, offs, end, channels[topic], where[0][0].at))
     return Batch(buf, rows)
 
 
@@ -288,17 +281,9 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
     return data
 
 
-_HEAD = 31  # a message record's opcode, length, channel, sequence, log time and publish time
-
-
-def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[int], at: int,
-            prefix: int = 0) -> Rows:
-    """The payloads of the message records at ``offs`` (ascending), checked against their chunks; with
-    ``prefix``, each record's first ``prefix`` payload bytes come gathered with its header (:attr:`Rows.head`)."""
-    width = 23  # up to the log time
-    if prefix > 0 and len(offs) and int(offs[-1]) + _HEAD + prefix <= len(data):
-        width = _HEAD + prefix
-    head = take_rows(data, offs, width)
+def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[int], at: int) -> tuple[np.ndarray, ...]:
+    """Payload starts, lengths and log times of the message records at ``offs``, checked against their chunks."""
+    head = take_rows(data, offs, 23)  # opcode, length, channel, sequence, log time
     if (field_view(head, 0, "u1") != 0x05).any():
         raise Damaged("message index points at a record that is not a message", at)
     length = field_view(head, 1, "<u8").astype(np.int64)
@@ -314,4 +299,4 @@ def _locate(data: np.ndarray, offs: np.ndarray, end: np.ndarray, channels: set[i
     stamps = field_view(head, 15, "<u8")
     if len(stamps) and int(stamps.max()) >= 1 << 63:
         raise Damaged("message log time beyond int64 nanoseconds", at)
-    return Rows(offs + _HEAD, length - 22, stamps.astype(np.int64), head if width > 23 else None, _HEAD)
+    return offs + 31, length - 22, stamps.astype(np.int64)

@@ -347,7 +347,7 @@ class McapReader(RawReader):
             from pipeline.io.mcap_index import chunk_batches
 
             try:
-                yield from chunk_batches(self.path, self._index, by_channel, prefix=self.prefix)
+                yield from chunk_batches(self.path, self._index, by_channel)
             except Damaged as dmg:
                 log.warning("%s is damaged (%s); reading it by the salvage path", self.path, dmg)
                 self._tolerant = True

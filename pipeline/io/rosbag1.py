@@ -366,7 +366,7 @@ class Rosbag1Reader(RawReader):
             from pipeline.io.rosbag1_index import chunk_batches
 
             try:
-                yield from chunk_batches(self.path, self._index, by_conn, prefix=self.prefix)
+                yield from chunk_batches(self.path, self._index, by_conn)
             except Damaged as dmg:
                 log.warning("%s: %s; reading it record by record", self.path, dmg)
                 self._no_index = True

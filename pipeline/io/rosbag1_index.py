@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 import os
 import struct
-from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -172,18 +171,10 @@ def _layout(data: np.ndarray, off: int) -> tuple[int, int, int, int]:
     return hlen, at[b"op"], at[b"conn"], at[b"time"]
 
 
-def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: int | None = None,
-                  prefix: dict[str, int] | None = None) -> Iterator[Batch]:
+def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: int = BATCH_BYTES) -> Iterator[Batch]:
     """Batches of ~``limit`` bytes of (decompressed) chunks holding wanted messages, in file order. An
     uncompressed chunk is read straight into the batch's buffer (reused batch after batch); the messages of a batch
-    are located at once, per connection and header layout (:func:`_located`), not chunk by chunk.
-
-    ``prefix`` (topic -> bytes, read at each batch: the decoders fill it as they learn their layouts): that many
-    bytes of each payload are gathered with its record header, into :attr:`Rows.head`, where the topic's records
-    share one header layout in the batch. ``limit``: :data:`BATCH_BYTES` when None.
-    """
-    prefix = {} if prefix is None else prefix
-    limit = BATCH_BYTES if limit is None else limit
+    are located at once, per connection and header layout (:func:`_located`), not chunk by chunk."""
     scratch = [np.empty(0, dtype=np.uint8)]
     size = 0
     groups: dict[tuple[int, tuple[int, int, int, int]], list[tuple[np.ndarray, int, int]]] = {}
@@ -217,10 +208,10 @@ def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: in
                 groups.setdefault((cid, layout), []).append((offs + size, size + chunk.size, chunk.at))
             size += chunk.size
             if size >= limit:
-                yield _located(scratch[0][:size], groups, wanted, prefix)
+                yield _located(scratch[0][:size], groups, wanted)
                 size, groups = 0, {}
         if groups:
-            yield _located(scratch[0][:size], groups, wanted, prefix)
+            yield _located(scratch[0][:size], groups, wanted)
     finally:
         os.close(fd)
 
@@ -237,11 +228,10 @@ def _room(scratch: list[np.ndarray], size: int, more: int, limit: int) -> np.nda
 
 
 def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]], list[tuple[np.ndarray, int, int]]],
-             wanted: dict[int, str], prefix: dict[str, int]) -> Batch:
+             wanted: dict[int, str]) -> Batch:
     """The batch's wanted messages from the index offsets of each (connection, header layout): every record's
     header is checked against the layout (same length, ``op=2``, its connection) and must end in its chunk."""
-    pieces: dict[str, list[Rows]] = {}
-    alone = Counter(wanted[cid] for cid, _ in groups)  # topics whose records share one layout in this batch
+    pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     for (cid, (hlen, op_at, conn_at, time_at)), parts in groups.items():
         offs = np.concatenate([p[0] for p in parts]) if len(parts) > 1 else parts[0][0]
         ends = np.repeat([p[1] for p in parts], [len(p[0]) for p in parts])
@@ -253,13 +243,8 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
         bad = offs + 8 + hlen > ends
         if bad.any():
             raise damaged(bad, "message records of one connection differ in header layout")
-        # Each record's header length, header and data length with one gather, read as strided fields (and the
-        # payload's first bytes with them, when the decoder asked for them and every record has that many after it).
-        width = 8 + hlen
-        more = prefix.get(wanted[cid], 0) if alone[wanted[cid]] == 1 else 0
-        if more > 0 and int(offs.max()) + width + more <= len(buf):
-            width += more
-        rec = take_rows(buf, offs, width)
+        # Each record's header length, header and data length with one gather, read as strided fields.
+        rec = take_rows(buf, offs, 8 + hlen)
         bad = field_view(rec, 0, "<u4") != hlen
         if bad.any():
             raise damaged(bad, "message records of one connection differ in header layout")
@@ -272,16 +257,10 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
             raise damaged(bad, "message record overruns its chunk")
         stamps = (field_view(rec, 4 + time_at, "<u4").astype(np.int64) * 1_000_000_000
                   + field_view(rec, 4 + time_at + 4, "<u4"))
-        head = Rows(offs + 8 + hlen, dlen, stamps, rec if width > 8 + hlen else None, 8 + hlen)
-        pieces.setdefault(wanted[cid], []).append(head)
+        pieces.setdefault(wanted[cid], []).append((offs + 8 + hlen, dlen, stamps))
     rows = {}
     for topic, got in pieces.items():
-        starts = got[0].starts
-        if len(got) == 1 and (len(starts) < 2 or (starts[1:] >= starts[:-1]).all()):  # chunks' indexes in order
-            rows[topic] = got[0]
-            continue
-        starts, lengths, stamps = (np.concatenate([getattr(r, name) for r in got])
-                                   for name in ("starts", "lengths", "log_ns"))
+        starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
         order = np.argsort(starts, kind="stable")  # file order across the topic's connections
         rows[topic] = Rows(starts[order], lengths[order], stamps[order])
     return Batch(buf, rows)

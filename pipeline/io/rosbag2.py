@@ -413,7 +413,7 @@ class Rosbag2Reader(RawReader):
                 from pipeline.io.mcap_index import chunk_batches
 
                 try:
-                    yield from chunk_batches(path, index, wanted, prefix=self.prefix)
+                    yield from chunk_batches(path, index, wanted)
                 except Damaged as dmg:
                     log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
                     self._no_index = True
