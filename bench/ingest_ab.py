@@ -14,6 +14,16 @@ importing exactly the modules a tiny ``auvid ingest`` of each tree leaves in ``s
 ``--imports-log``, default the one-hour uncompressed MCAP), pinned to core 0, min of 7, the bare interpreter's start
 reported beside it. A tree that keeps config snapshots (:mod:`pipeline.config.snapshot`) keeps them in a cache
 directory of this run's, written before anything is timed: what every ingest after the first pays.
+
+``--counts`` adds what does not drift with the machine: one whole ``auvid ingest`` of each tree and format under
+valgrind's cachegrind (``apt install valgrind``), its user-space instructions and simulated L1 data and last-level
+cache misses: the same tree twice differs by 1-2 % (threads, temporary names), against the ±20 % by which this shared
+machine's speed drifts within minutes (docs/benchmarks.md), so a change of a few per cent can be seen there first.
+What cachegrind does not see (kernel time: page faults, reads; the L2 misses of a buffer larger than L2) the
+timings above must then show on their own.
+
+    nice python bench/ingest_ab.py --trees before=/tmp/before after=/tmp/after --logs /tmp/ib60 --repeat 7 \
+        --counts --formats ros2-mcap ros1
 """
 
 from __future__ import annotations
@@ -75,6 +85,24 @@ def imports_cpu(tree: str, log: Path, vehicle: Path, n: int = 7) -> tuple[float,
     return cpu(["-c", code]), cpu(["-c", "pass"]), len(modules)
 
 
+COUNTS = {"I": "I   refs:", "D1": "D1  misses:", "LL": "LL misses:"}
+
+
+def cachegrind(cmd: list[str], env: dict[str, str]) -> dict[str, int]:
+    """Instructions and simulated cache misses of one run of ``cmd`` under cachegrind (user space, every thread)."""
+    if shutil.which("valgrind") is None:
+        raise SystemExit("--counts needs valgrind (Debian: apt install valgrind)")
+    got = subprocess.run(["valgrind", "--tool=cachegrind", "--cache-sim=yes", "--cachegrind-out-file=/dev/null",
+                          *cmd], env=env, capture_output=True, text=True, cwd=tempfile.gettempdir())
+    if got.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} under cachegrind failed:\n{got.stderr[-3000:]}")
+    out = {}
+    for key, label in COUNTS.items():
+        line = next(ln for ln in got.stderr.splitlines() if label in ln)
+        out[key] = int(line.split(label, 1)[1].split()[0].replace(",", ""))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--trees", nargs=2, required=True, metavar="NAME=PATH")
@@ -83,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--imports-log", type=Path, default=None)
     parser.add_argument("--no-checksum", action="store_true", help="both trees ingest with --no-checksum (no sha256)")
+    parser.add_argument("--counts", action="store_true",
+                        help="also one ingest of each tree and format under cachegrind: instructions, cache misses")
     args = parser.parse_args(argv)
     trees = dict(t.split("=", 1) for t in args.trees)
     CACHE["AUVID_CACHE_DIR"] = tempfile.mkdtemp(prefix="auvid-ab-cache-")
@@ -121,6 +151,28 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {fmt} | {low(x, 'cpu_s'):.2f} | {low(y, 'cpu_s'):.2f} | {low(y, 'cpu_s') / low(x, 'cpu_s'):.2f} "
               f"| {low(x, 'wall_s'):.2f} | {low(y, 'wall_s'):.2f} "
               f"| {max(r['rss_mib'] for r in x):.0f} / {max(r['rss_mib'] for r in y):.0f} |")
+    if args.counts:
+        print(f"\n| format | {a} instructions M | {b} instructions M | {b} ÷ {a} | {a} D1 misses M "
+              f"| {b} D1 misses M | {b} ÷ {a} | LL misses M {a} / {b} |")
+        print("|---|---|---|---|---|---|---|---|")
+        auvid = bench.auvid_command()
+        if Path(auvid[0]).suffix != ".py" and Path(auvid[0]).name == "auvid":
+            auvid = [sys.executable, *auvid]  # the console script, run by this interpreter (valgrind follows it)
+        for fmt, log in logs.items():
+            got = {}
+            for name, tree in trees.items():
+                tmp = tempfile.mkdtemp(prefix="auvid-ab-")
+                try:
+                    flag = ["--no-checksum"] if args.no_checksum else []
+                    env = {**os.environ, "PYTHONPATH": tree, "PYTHONHASHSEED": "0", **CACHE}
+                    got[name] = cachegrind([*auvid, "ingest", "-q", *flag, "--root", tmp, "--vehicle", str(vehicle),
+                                            str(log)], env)
+                finally:
+                    shutil.rmtree(tmp)
+            x, y = got[a], got[b]
+            print(f"| {fmt} | {x['I'] / 1e6:.1f} | {y['I'] / 1e6:.1f} | {y['I'] / x['I']:.4f} | {x['D1'] / 1e6:.2f} "
+                  f"| {y['D1'] / 1e6:.2f} | {y['D1'] / x['D1']:.4f} | {x['LL'] / 1e6:.2f} / {y['LL'] / 1e6:.2f} |",
+                  flush=True)
     imports_log = args.imports_log or args.logs / LOGS["ros2-mcap"]
     print()
     for name, tree in trees.items():
