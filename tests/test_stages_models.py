@@ -224,6 +224,9 @@ def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehic
         return real(model, X, y, *a, **kw)
 
     monkeypatch.setattr(coupled, "search", recording)
+    # The run_root fixture tuned the same rows in this process (or, on a machine with more cores, in its workers):
+    # without its memo of searches this run searches again, where the recorder sees it.
+    monkeypatch.setattr(coupled, "_SEARCHES", {})
     tune_stage.run(tmp_path, vehicle, params)
     cp = params.coupled
     tt = store.load(tmp_path, split="train_test")
