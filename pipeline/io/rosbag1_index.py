@@ -261,6 +261,10 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
     rows = {}
     for topic, got in pieces.items():
         starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
-        order = np.argsort(starts, kind="stable")  # file order across the topic's connections
-        rows[topic] = Rows(starts[order], lengths[order], stamps[order])
+        # File order across the topic's connections and header layouts; a topic of one connection whose chunks'
+        # indexes list its records in file order (what a recorder writes) already has it, and is not sorted.
+        if len(starts) > 1 and not (starts[1:] >= starts[:-1]).all():
+            order = np.argsort(starts, kind="stable")
+            starts, lengths, stamps = starts[order], lengths[order], stamps[order]
+        rows[topic] = Rows(starts, lengths, stamps)
     return Batch(buf, rows)
