@@ -428,6 +428,6 @@ def _build_table(path: Path, name: str, stream: StreamSource,
         values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
         arrays[plan.column] = _arrow(values if order is None else values[order], pa.float64(), np.float64)
     # Every column is REQUIRED (not null): a stream has no nulls (a missing value is NaN), and a Parquet column
-    # that may hold nulls stores a definition level per value, a quarter of the write's CPU (docs/benchmarks.md).
+    # that may hold nulls stores a definition level per value: 15-30 % of the write's CPU (docs/benchmarks.md).
     schema = pa.schema([pa.field(name, arr.type, nullable=False) for name, arr in arrays.items()])
     return pa.Table.from_arrays(list(arrays.values()), schema=schema), t_ns, base
