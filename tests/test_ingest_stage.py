@@ -363,7 +363,7 @@ def test_real_logs_clocks_offsets_units_exact(tmp_path: Path, kind: str) -> None
 @pytest.mark.parametrize("kind", ["mcap", "ros1"])
 def test_stream_files_hold_required_columns_with_the_logs_values(tmp_path: Path, kind: str) -> None:
     """A stream has no nulls (a missing value is NaN), so its Parquet columns are REQUIRED: no definition level
-    is stored per value (a quarter of the write's CPU), and every reader sees the columns as not null."""
+    is stored per value (15-30 % of the write's CPU), and every reader sees the columns as not null."""
     from tests import io_helpers as h
 
     exp = h.expected(h.trial(n=12))

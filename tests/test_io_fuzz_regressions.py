@@ -377,8 +377,9 @@ def test_signalling_nan_in_a_float32_field_is_quiet() -> None:
 
 @pytest.mark.parametrize("n", [1, 40])  # one message (per-message layout walk), many (uniform fast path)
 def test_signalling_nan_in_a_float32_field_reads_as_nan_without_a_warning(tmp_path: Path, n: int) -> None:
-    """The fast path converts a float32 field to float64 as it stores the batch: a signalling NaN (damaged bytes)
-    must come out a NaN beside its neighbours' values, with no RuntimeWarning."""
+    """Through a whole read (the per-message layout walk for one message, the uniform fast path for many), a
+    float32 field holding a signalling NaN (damaged bytes) comes out a NaN beside its neighbours' values, with no
+    RuntimeWarning from the cast to float64."""
     import warnings
 
     from io_helpers import DVL, ros2_store
