@@ -219,6 +219,19 @@ def test_check_stamps_is_quiet_on_good_stamps() -> None:
     assert result.duplicates == 1 and result.warnings == []
 
 
+def test_distinct_stamps_are_counted_in_and_out_of_order() -> None:
+    # 7 stamps, 5 distinct values: a repeat next to its twin (30, 30), and a value that comes back after a step
+    # back (20 again after 40), which only sorting shows to be a repeat.
+    t = np.array([10, 20, 30, 30, 40, 20, 50], dtype=np.int64)
+    result = check_stamps(t, clock="log")
+    assert (result.count, result.distinct, result.duplicates, result.steps_back) == (7, 5, 1, 1)
+    in_order = np.sort(t)  # 10 20 20 30 30 40 50: two repeats of the one before, none back
+    result = check_stamps(in_order, clock="log")
+    assert (result.distinct, result.duplicates, result.steps_back) == (5, 2, 0)
+    assert check_stamps(np.array([7], dtype=np.int64), clock="log").distinct == 1
+    assert check_stamps(np.empty(0, dtype=np.int64), clock="log").distinct == 0
+
+
 def test_uniform_times_do_not_drift() -> None:
     t = uniform_times(7, np.arange(3_000_001), 3.0)
     assert t[0] == 7 and t[3] == 7 + 1_000_000_000 and t[-1] == 7 + 1_000_000 * 1_000_000_000
