@@ -1,15 +1,22 @@
-"""The sixth and seventh rounds' knobs, each measured in one process with its settings interleaved (CPU s, min of N):
+"""The sixth to eighth rounds' knobs, each measured in one process with its settings interleaved (CPU s, min of N):
 
     taskset -c 0 python bench/ingest_knobs.py parquet /tmp/ib60/ros2_mcap           # the streams' Parquet settings
     taskset -c 0 python bench/ingest_knobs.py batch /tmp/ib60/ros2_mcap /tmp/ib60/trial.bag   # indexed batch size
     taskset -c 0 python bench/ingest_knobs.py window /tmp/ib240/ros2_mcap/ros2_mcap.mcap      # index-walk window
+    taskset -c 0 python bench/ingest_knobs.py map /tmp/ib240/ros2_mcap/ros2_mcap.mcap         # preadv or mmap
+    taskset -c 0 python bench/ingest_knobs.py hash /tmp/ib60/ros2_mcap/ros2_mcap.mcap         # the sha256's reads
 
 ``parquet``: the tables ``ingest_log`` builds from the log, written with plain encodings and with
 :func:`pipeline.tableio.column_encodings` (zstd level 1 both), the encoded ones also with every column OPTIONAL (as
 streams were written before the seventh round) beside REQUIRED (as ``ingest_log`` builds them now), every file read
 back and compared, min and median of N and in how many of the N rounds REQUIRED was the faster; ``batch``:
 ``ingest_log`` (``checksum: none``) with the MCAP and ROS 1 indexed readers' batch limit at 2, 4, 8 and 16 MB;
-``window``: the MCAP index walk with a positioned read per record and windows of 4 KiB to 256 KiB.
+``window``: the MCAP index walk with a positioned read per record and windows of 4 KiB to 256 KiB; ``map``: an
+uncompressed MCAP's chunks read in the indexed reader's 4 MB batches and every message record's header gathered
+(what ``chunk_batches`` does before decoding), the batches read with ``preadv`` into the page-aligned buffer (as the
+reader does) or taken from a memory map of the file (pages given back behind, with and without
+``MADV_SEQUENTIAL``); ``hash``: :func:`pipeline.tableio.file_sha256` (a fresh ``bytes`` per 1 MiB read) beside the
+same hash fed from one page-aligned buffer (``readinto``), and both reads without the hash.
 """
 
 from __future__ import annotations
@@ -124,9 +131,94 @@ def window(log: Path, repeat: int) -> None:
     print("| CPU s | " + " | ".join(f"{best[str(s)]:.4f}" for s in sizes) + " |")
 
 
+def read_map(log: Path, repeat: int) -> None:
+    import mmap
+
+    import numpy as np
+
+    from pipeline.io.base import BATCH_BYTES, scratch_buffer, take_rows
+    from pipeline.io.mcap_index import index_walk
+
+    indexed = index_walk(log)
+    assert indexed is not None and all(c.compression == "" for c in indexed.chunks), "an indexed, uncompressed MCAP"
+    groups, group, size = [], [], 0
+    for chunk in indexed.chunks:
+        group.append(chunk)
+        size += chunk.usize
+        if size >= BATCH_BYTES:
+            groups, group, size = [*groups, group], [], 0
+    groups += [group] if group else []
+    # Each batch's message records, as file offsets (every channel: the bench's vehicle wants every topic).
+    records = [np.sort(np.concatenate([offs.astype(np.int64) + c.body for c in g for offs in c.index.values()]))
+               for g in groups]
+
+    def by_preadv() -> int:
+        fd, scratch, seen = os.open(log, os.O_RDONLY), [np.empty(0, dtype=np.uint8)], 0
+        try:
+            for g, offs in zip(groups, records, strict=True):
+                lo, hi = g[0].body, g[-1].body + g[-1].length
+                buf = scratch_buffer(scratch, hi - lo, phase=lo)
+                os.preadv(fd, [buf], lo)
+                seen += int(take_rows(buf, offs - lo, 23)[:, 0].sum())
+        finally:
+            os.close(fd)
+        return seen
+
+    def by_mmap(sequential: bool) -> int:
+        seen, done = 0, 0
+        with open(log, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            if sequential:
+                mm.madvise(mmap.MADV_SEQUENTIAL)
+            whole = np.frombuffer(mm, dtype=np.uint8)
+            for g, offs in zip(groups, records, strict=True):
+                lo, hi = g[0].body, g[-1].body + g[-1].length
+                seen += int(take_rows(whole[lo:hi], offs - lo, 23)[:, 0].sum())
+                upto = lo - lo % mmap.PAGESIZE
+                if upto > done:
+                    mm.madvise(mmap.MADV_DONTNEED, done, upto - done)
+                    done = upto
+            del whole  # the map closes only once no array views it
+        return seen
+
+    expected = 5 * sum(len(offs) for offs in records)  # every record's opcode is 0x05
+    settings = {"preadv": by_preadv, "mmap": lambda: by_mmap(False), "mmap, sequential": lambda: by_mmap(True)}
+    assert all(fn() == expected for fn in settings.values())
+    best = best_of(settings, repeat)
+    print(f"{log} ({os.path.getsize(log) / 1e6:.0f} MB, {len(groups)} batches): read and gather the record headers")
+    print("| " + " | ".join(best) + " |\n" + "|---" * len(best) + "|")
+    print("| " + " | ".join(f"{t:.3f}" for t in best.values()) + " |")
+
+
+def read_hash(log: Path, repeat: int) -> None:
+    import hashlib
+
+    from pipeline.io.base import aligned_empty
+    from pipeline.tableio import file_sha256
+
+    def aligned(hashed: bool) -> str:
+        digest, view = hashlib.sha256(), memoryview(aligned_empty(1 << 20))
+        with open(log, "rb", buffering=0) as fh:
+            while n := fh.readinto(view):
+                if hashed:
+                    digest.update(view[:n])
+        return digest.hexdigest()
+
+    def fresh_reads() -> None:
+        with open(log, "rb") as fh:
+            while fh.read(1 << 20):
+                pass
+
+    assert aligned(True) == file_sha256(log)
+    best = best_of({"file_sha256": lambda: file_sha256(log), "aligned readinto + sha256": lambda: aligned(True),
+                    "fresh reads alone": fresh_reads, "aligned reads alone": lambda: aligned(False)}, repeat)
+    print(f"{log} ({os.path.getsize(log) / 1e6:.0f} MB): CPU s")
+    print("| " + " | ".join(best) + " |\n" + "|---" * len(best) + "|")
+    print("| " + " | ".join(f"{t:.3f}" for t in best.values()) + " |")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("knob", choices=["parquet", "batch", "window"])
+    parser.add_argument("knob", choices=["parquet", "batch", "window", "map", "hash"])
     parser.add_argument("logs", type=Path, nargs="+")
     parser.add_argument("--repeat", type=int, default=9)
     args = parser.parse_args(argv)
@@ -134,8 +226,12 @@ def main(argv: list[str] | None = None) -> int:
         parquet(args.logs[0], args.repeat)
     elif args.knob == "batch":
         batch(args.logs, args.repeat)
-    else:
+    elif args.knob == "window":
         window(args.logs[0], args.repeat)
+    elif args.knob == "map":
+        read_map(args.logs[0], args.repeat)
+    else:
+        read_hash(args.logs[0], args.repeat)
     return 0
 
 
