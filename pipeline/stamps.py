@@ -102,20 +102,24 @@ def check_stamps(stamps_ns: np.ndarray, *, clock: str, log_ns: np.ndarray | None
     t = np.asarray(stamps_ns, dtype=np.int64)
     n = int(t.size)
     checked = label or {"header": "header stamps", "log": "log times", "column": "time column"}.get(clock, clock)
-    diffs = np.diff(t) if n > 1 else np.empty(0, dtype=np.int64)
+    # One scratch array holds the intervals, then header - log; each median partitions it in place. Fresh pages
+    # are much of a long stream's check: a four-hour IMU stream's 1.7 M stamps are 14 MB a temporary, and the
+    # intervals, their positive part and header - log were three (docs/benchmarks.md, eighth round).
+    work = np.empty(n, dtype=np.int64)
+    diffs = np.subtract(t[1:], t[:-1], out=work[:max(n - 1, 0)])
     zeros = int((t == 0).sum())
     dup_mask = diffs == 0
     duplicates = int(dup_mask.sum())
     steps = np.flatnonzero(diffs < 0)
-    positive = diffs[diffs > 0]
-    # The medians partition their own temporaries in place: a copy of a four-hour IMU stream's 1.7 M stamps per
-    # median was ~8 ms of fresh pages each (0.09 s of a four-hour ingest).
+    positive = diffs if duplicates == 0 and steps.size == 0 else diffs[diffs > 0]
     step_ns = float(np.median(positive, overwrite_input=True)) if positive.size else None
+    del diffs, positive  # partitioned: from here on ``work`` is scratch
     span_ns = int(t.max()) - int(t.min()) if n else 0
     mean_ns = span_ns / (n - 1) if n > 1 and span_ns > 0 else None
     offset_ns: int | None = None
     if clock == "header" and log_ns is not None and n and len(log_ns) == n:
-        offset_ns = int(np.median(t - np.asarray(log_ns, dtype=np.int64), overwrite_input=True))
+        ahead = np.subtract(t, np.asarray(log_ns, dtype=np.int64), out=work)
+        offset_ns = int(np.median(ahead, overwrite_input=True))
     rate_hz = NS_PER_S / mean_ns if mean_ns else None
     if rate_hz is None and log_ns is not None and len(log_ns) > 1:
         log_span = int(np.max(log_ns)) - int(np.min(log_ns))

@@ -17,7 +17,7 @@ import pytest
 import stages.ingest as stage
 from pipeline import layout
 from pipeline.config import Params
-from pipeline.ingest import ingest_log
+from pipeline.ingest import _steps, ingest_log, time_stats
 from pipeline.stamps import check_stamps, uniform_times
 from tests import io_helpers as h
 from tests.test_ingest_stage import LOG_STREAMS, T0_NS, make_vehicle
@@ -230,6 +230,38 @@ def test_distinct_stamps_are_counted_in_and_out_of_order() -> None:
     assert (result.distinct, result.duplicates, result.steps_back) == (5, 2, 0)
     assert check_stamps(np.array([7], dtype=np.int64), clock="log").distinct == 1
     assert check_stamps(np.empty(0, dtype=np.int64), clock="log").distinct == 0
+
+
+def test_median_step_and_header_minus_log_are_exact() -> None:
+    ms = 1_000_000
+    t = np.array([0, 10, 30, 60, 100], dtype=np.int64) * ms  # intervals 10 20 30 40: median 25 ms
+    log = t - np.array([3, 1, 2, 5, 4], dtype=np.int64) * ms  # header - log: median 3 ms
+    result = check_stamps(t, clock="header", log_ns=log)
+    assert (result.median_step_s, result.header_minus_log_s) == (0.025, 0.003)
+    assert t.tolist() == [0, 10 * ms, 30 * ms, 60 * ms, 100 * ms]  # the caller's stamps are left as they were
+    # a repeat and a step back: the median is of the positive intervals only (10 20 30 90 -> 25 ms)
+    t = np.array([0, 10, 30, 30, 0, 90, 120], dtype=np.int64) * ms
+    result = check_stamps(t, clock="header", log_ns=t - 2 * ms)
+    assert (result.median_step_s, result.header_minus_log_s, result.steps_back) == (0.025, 0.002, 1)
+
+
+def test_time_stats_count_steps_back_and_the_largest_gap_across_blocks() -> None:
+    ms = 1_000_000
+    t = np.array([0, 10, 20, 5, 30, 100, 110, 90, 200], dtype=np.int64) * ms
+    # intervals 10 10 -15 25 70 10 -20 110: two steps back, the largest interval 110 ms; in time order the stamps are
+    # 0 5 10 20 30 90 100 110 200, whose largest gap is 90 ms (what the report calls the largest gap)
+    for block in (1, 2, 3, 4, 5, 8, 64):
+        assert _steps(t, block) == (2, 110 * ms)
+        assert _steps(np.sort(t), block) == (0, 90 * ms)
+    stats = time_stats(t)
+    assert (stats["count"], stats["steps_back"], stats["largest_gap_s"]) == (9, 2, 0.09)
+    assert (stats["first_ns"], stats["last_ns"], stats["span_s"]) == (0, 200 * ms, 0.2)
+    # 10 ms steps with one 120 ms drop-out late in a long stream (past the first blocks of 65,536 intervals)
+    long = np.r_[np.arange(100_000), 100_011 + np.arange(50_000)].astype(np.int64) * 10 * ms
+    stats = time_stats(long)
+    assert (stats["steps_back"], stats["largest_gap_s"]) == (0, 0.12)
+    assert stats["mean_rate_hz"] == pytest.approx(149_999 / 1500.10)  # intervals / span in s
+    assert time_stats(long[:1])["largest_gap_s"] is None and time_stats(long[:0])["count"] == 0
 
 
 def test_uniform_times_do_not_drift() -> None:
