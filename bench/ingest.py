@@ -459,7 +459,7 @@ for line in sys.stdin:
         wall = time.perf_counter() - start
         proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
     print(json.dumps({"rc": proc.returncode, "wall_s": wall, "user_s": usage.ru_utime, "sys_s": usage.ru_stime,
-                      "rss_mib": usage.ru_maxrss / 1024.0}), flush=True)
+                      "rss_mib": usage.ru_maxrss / 1024.0, "minflt": usage.ru_minflt}), flush=True)
 """
 _spawner: list[subprocess.Popen[str]] = []
 
@@ -469,7 +469,8 @@ def run_process(cmd: list[str], pin: bool, capture: bool = True, env: dict[str, 
 
     The lean spawner (:data:`SPAWNER`) starts it and reads ``os.wait4``'s rusage: CPU = user + sys of every thread
     of the process (imports included), insensitive to how busy the other cores are; wall = from fork to exit, as
-    the user waits; peak RSS = ``ru_maxrss``. ``taskset`` execs the command, so the rusage is the command's.
+    the user waits; peak RSS = ``ru_maxrss``; ``minflt``: its minor page faults (fresh pages it touched, each
+    zeroed by the kernel). ``taskset`` execs the command, so the rusage is the command's.
     """
     if not _spawner:
         _spawner.append(subprocess.Popen([sys.executable, "-I", "-S", "-c", SPAWNER], stdin=subprocess.PIPE,

@@ -34,6 +34,7 @@ import json
 import os
 import resource
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -139,18 +140,25 @@ def main(argv: list[str] | None = None) -> int:
                     res.setdefault((fmt, name), []).append(got)
     a, b = trees
     print(f"load average {bench._loadavg()}\n")
-    print(f"| format | {a} CPU s | {b} CPU s | {b} ÷ {a}, CPU | {a} wall s | {b} wall s "
-          f"| peak RSS MiB {a} / {b} |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"| format | {a} CPU s | {b} CPU s | {b} ÷ {a}, CPU | CPU s, median {a} / {b} | system CPU s, median "
+          f"{a} / {b} | {b} faster, rounds | {a} wall s | {b} wall s | peak RSS MiB {a} / {b} "
+          f"| minor page faults, median {a} / {b} |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for fmt in logs:
         x, y = res[(fmt, a)], res[(fmt, b)]
 
         def low(runs: list[dict[str, Any]], key: str) -> float:
             return min(r[key] for r in runs)
 
+        def mid(runs: list[dict[str, Any]], key: str) -> float:
+            return statistics.median(r[key] for r in runs)
+
+        won = sum(q["cpu_s"] < p["cpu_s"] for p, q in zip(x, y, strict=True))
         print(f"| {fmt} | {low(x, 'cpu_s'):.2f} | {low(y, 'cpu_s'):.2f} | {low(y, 'cpu_s') / low(x, 'cpu_s'):.2f} "
-              f"| {low(x, 'wall_s'):.2f} | {low(y, 'wall_s'):.2f} "
-              f"| {max(r['rss_mib'] for r in x):.0f} / {max(r['rss_mib'] for r in y):.0f} |")
+              f"| {mid(x, 'cpu_s'):.2f} / {mid(y, 'cpu_s'):.2f} | {mid(x, 'sys_s'):.2f} / {mid(y, 'sys_s'):.2f} "
+              f"| {won} of {len(x)} | {low(x, 'wall_s'):.2f} | {low(y, 'wall_s'):.2f} "
+              f"| {max(r['rss_mib'] for r in x):.0f} / {max(r['rss_mib'] for r in y):.0f} "
+              f"| {mid(x, 'minflt'):,.0f} / {mid(y, 'minflt'):,.0f} |")
     if args.counts:
         print(f"\n| format | {a} instructions M | {b} instructions M | {b} ÷ {a} | {a} D1 misses M "
               f"| {b} D1 misses M | {b} ÷ {a} | LL misses M {a} / {b} |")
