@@ -154,26 +154,26 @@ def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
         steps_back, largest = _steps(t_ns)
         out["steps_back"] = steps_back
         if steps_back:
-            largest = int(np.diff(np.sort(t_ns)).max())
+            largest = np.diff(np.sort(t_ns)).max()
         out["largest_gap_s"] = float(largest) / 1e9
         out["mean_rate_hz"] = (n - 1) / ((hi - lo) / 1e9) if hi > lo else None
     return out
 
 
-def _steps(t_ns: np.ndarray, block: int = 1 << 16) -> tuple[int, int]:
-    """How many of the intervals of ``t_ns`` (n > 1) are negative, and the largest interval.
+def _steps(t_ns: np.ndarray, block: int = 1 << 16) -> tuple[int, Any]:
+    """How many of the intervals of ``t_ns`` (n > 1) are negative, and the largest interval (of t_ns's dtype).
 
     Block by block through one small array: every call of a long stream otherwise faulted in its intervals as a
     fresh array (14 MB for a four-hour IMU stream, twice per stream: its stamps and its log times).
     """
     n = int(t_ns.size)
-    work = np.empty(min(block, n - 1), dtype=np.int64)
+    work = np.empty(min(block, n - 1), dtype=t_ns.dtype)
     back, largest = 0, None
     for lo in range(0, n - 1, block):
         hi = min(lo + block, n - 1)
         step = np.subtract(t_ns[lo + 1:hi + 1], t_ns[lo:hi], out=work[:hi - lo])
         back += int(np.count_nonzero(step < 0))
-        top = int(step.max())
+        top = step.max()
         largest = top if largest is None or top > largest else largest
     assert largest is not None
     return back, largest

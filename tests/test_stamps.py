@@ -262,6 +262,8 @@ def test_time_stats_count_steps_back_and_the_largest_gap_across_blocks() -> None
     assert (stats["steps_back"], stats["largest_gap_s"]) == (0, 0.12)
     assert stats["mean_rate_hz"] == pytest.approx(149_999 / 1500.10)  # intervals / span in s
     assert time_stats(long[:1])["largest_gap_s"] is None and time_stats(long[:0])["count"] == 0
+    as_float = time_stats(t.astype(np.float64))  # stamps of another dtype: the same figures, no casting error
+    assert (as_float["steps_back"], as_float["largest_gap_s"]) == (2, 0.09)
 
 
 def test_uniform_times_do_not_drift() -> None:
