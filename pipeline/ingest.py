@@ -40,7 +40,7 @@ import numpy as np
 
 from pipeline.config.snapshot import config_hash
 from pipeline.errors import ConfigError, IngestError
-from pipeline.io.base import ReadResult, TopicData, TopicInfo
+from pipeline.io.base import ReadResult, TopicData, TopicInfo, ascending
 from pipeline.io.msgdefs import UserTypes, load_user_types
 from pipeline.stamps import check_stamps, fmt_rate, uniform_times
 from pipeline.tableio import file_sha256
@@ -173,8 +173,7 @@ def _steps(t_ns: np.ndarray, block: int = 1 << 16) -> tuple[int, Any]:
         hi = min(lo + block, n - 1)
         step = np.subtract(t_ns[lo + 1:hi + 1], t_ns[lo:hi], out=work[:hi - lo])
         back += int(np.count_nonzero(step < 0))
-        top = step.max()
-        largest = top if largest is None or top > largest else largest
+        largest = step.max() if largest is None else max(largest, step.max())
     assert largest is not None
     return back, largest
 
@@ -435,7 +434,7 @@ def _build_table(path: Path, name: str, stream: StreamSource,
     shift = round(stream.offset_s * 1e9)
     t_ns = base + np.int64(shift) if shift else base  # no copy of the stamps for a stream without an offset
     # Sorted stably by time; logs are nearly always in order already, and then no permuted copies are made.
-    order = None if t_ns.size < 2 or bool((t_ns[1:] >= t_ns[:-1]).all()) else np.argsort(t_ns, kind="stable")
+    order = None if ascending(t_ns) else np.argsort(t_ns, kind="stable")
     arrays: dict[str, pa.Array] = {"t_ns": _arrow(t_ns if order is None else t_ns[order], pa.int64(), np.int64)}
     for plan in column_plans(stream):
         try:

@@ -121,6 +121,12 @@ def take_rows(buf: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
     return items[at].view(np.uint8).reshape(len(at), width)
 
 
+def ascending(values: np.ndarray) -> bool:
+    """Whether ``values`` never step back (equal neighbours allowed): the readers' record offsets and ingest's
+    stamps are nearly always in order already, and then need no sort (one comparison pass, no argsort)."""
+    return len(values) < 2 or bool((values[1:] >= values[:-1]).all())
+
+
 def field_view(rows: np.ndarray, at: int, dtype: np.dtype | str) -> np.ndarray:
     """Bytes ``[at, at + itemsize)`` of every row of a C-contiguous (n, width) byte array, as a strided 1-D view
     of ``dtype`` values: no copy, and several times faster to read than a copy of the byte columns."""

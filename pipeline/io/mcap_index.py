@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, scratch_buffer, take_rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, ascending, field_view, scratch_buffer, take_rows
 from pipeline.io.dedup import crc
 from pipeline.io.mcap_reader import (
     MAGIC,
@@ -260,7 +260,7 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
         # Storage order: each chunk's records by offset. The chunks lie one after another in the buffer and every
         # offset is inside its own, so one sort of the whole (needed only when a chunk's index is out of order
         # or a topic has several channels) keeps each row with its chunk and its chunk's end.
-        if len(offs) > 1 and not (offs[1:] >= offs[:-1]).all():
+        if not ascending(offs):
             offs = np.sort(offs, kind="stable")
         rows[topic] = Rows(*_locate(buf, offs, end, channels[topic], where[0][0].at))
     return Batch(buf, rows)

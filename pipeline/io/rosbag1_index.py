@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.base import BATCH_BYTES, Batch, Rows, field_view, take_rows
+from pipeline.io.base import BATCH_BYTES, Batch, Rows, ascending, field_view, take_rows
 from pipeline.io.mcap_reader import Damaged
 from pipeline.io.rosbag1 import (
     MAGIC,
@@ -263,7 +263,7 @@ def _located(buf: np.ndarray, groups: dict[tuple[int, tuple[int, int, int, int]]
         starts, lengths, stamps = (np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*got, strict=True))
         # File order across the topic's connections and header layouts; a topic of one connection whose chunks'
         # indexes list its records in file order (what a recorder writes) already has it, and is not sorted.
-        if len(starts) > 1 and not (starts[1:] >= starts[:-1]).all():
+        if not ascending(starts):
             order = np.argsort(starts, kind="stable")
             starts, lengths, stamps = starts[order], lengths[order], stamps[order]
         rows[topic] = Rows(starts, lengths, stamps)
