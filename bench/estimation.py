@@ -8,7 +8,8 @@ the estimated accelerations are scored against the simulator's true acceleration
 smoother's 2-sigma band.
 
 Speed: the smoother on a one-hour trial (the same simulator, 3600 s), timed as the differentiate stage's work
-(``kinematics_report``) against reading that trial's Parquet inputs in the same run (ratio), wall and CPU time.
+(``pipeline.estimation.differentiate.differentiate``) against reading that trial's Parquet inputs in the same run
+(ratio), wall and CPU time.
 
     python bench/estimation.py                         # 5 seeds x 480 s, then the one-hour timing
     python bench/estimation.py --seeds 0 1 --methods kalman gaussian --skip-speed
@@ -32,8 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.config import Params  # noqa: E402
-from pipeline.estimation.motion import accel_std_column, std_column  # noqa: E402
 from pipeline.sim import load_example_vehicle, simulate_trial, write_trial  # noqa: E402
+from pipeline.vocabulary import accel_std_column, std_column  # noqa: E402
 
 DOFS = (("u", "mps"), ("v", "mps"), ("r", "radps"))
 
@@ -70,12 +71,12 @@ def prepare(root: Path, seed: int, duration_s: float, params: Params, vehicle=No
 
 def score(root: Path, vehicle, trial, params: Params) -> dict[str, float]:
     from pipeline import layout
-    from pipeline.kinematics import kinematics_report
+    from pipeline.estimation.differentiate import differentiate
     from pipeline.tableio import read_parquet
 
     synced = read_parquet(layout.synced_path(root, "trial"))[0].to_pandas()
     streams = {f.stem: read_parquet(f)[0] for f in sorted(layout.signals_dir(root, "trial").glob("*.parquet"))}
-    kin, report = kinematics_report(synced, vehicle, params.differentiate, streams)
+    kin, report = differentiate(synced, vehicle, params.differentiate, streams)
     truth = trial.truth.set_index("t_ns")
     rows = truth.loc[kin["t_ns"].to_numpy()]
     out = {"usable": report["usable_fraction"]}
@@ -126,7 +127,7 @@ def speed(duration_s: float, repeat: int) -> None:
     import resource
 
     from pipeline import layout
-    from pipeline.kinematics import kinematics_report
+    from pipeline.estimation.differentiate import differentiate
     from pipeline.tableio import read_parquet
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -143,7 +144,7 @@ def speed(duration_s: float, repeat: int) -> None:
             read_t.append(time.perf_counter() - t0)
             c0 = resource.getrusage(resource.RUSAGE_SELF)
             t0 = time.perf_counter()
-            kin, _ = kinematics_report(synced, vehicle, params.differentiate, streams)
+            kin, _ = differentiate(synced, vehicle, params.differentiate, streams)
             smooth_t.append(time.perf_counter() - t0)
             c1 = resource.getrusage(resource.RUSAGE_SELF)
             smooth_cpu.append(c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime)

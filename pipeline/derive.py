@@ -33,8 +33,7 @@ import pandas as pd
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle, thrust_column
 from pipeline.errors import SchemaError
-from pipeline.estimation.motion import DOFS, accel_std_column, std_column
-from pipeline.kinematics import ACCELERATION, SMOOTH
+from pipeline.vocabulary import ACCELERATION, DOFS, SMOOTH, accel_std_column, force_columns, std_column
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +44,7 @@ def derived_columns(vehicle: Vehicle) -> list[str]:
     """The columns :func:`derive` adds, in order."""
     cols = [thrust_column(t.name) for t in vehicle.thrusters]
     for prefix in TERMS:
-        cols += physics.force_columns(prefix)
+        cols += force_columns(prefix)
     return cols
 
 
@@ -80,12 +79,12 @@ def derive(kin: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     out = kin.copy()
     new: dict[str, np.ndarray] = {thrust_column(t.name): T[:, i] for i, t in enumerate(vehicle.thrusters)}
     for prefix, values in zip(TERMS, (tau, m_nudot, c_nu, g, d), strict=True):
-        for j, col in enumerate(physics.force_columns(prefix)):
+        for j, col in enumerate(force_columns(prefix)):
             new[col] = values[:, j]
     sd_cols = [std_column(d) for d in DOFS] + [accel_std_column(d) for d in DOFS]
     if all(c in kin.columns for c in sd_cols):
         sd = damping_sd(M, nu, kin[sd_cols[:6]].to_numpy(dtype=float), kin[sd_cols[6:]].to_numpy(dtype=float))
-        for j, col in enumerate(physics.force_columns("d_std")):
+        for j, col in enumerate(force_columns("d_std")):
             new[col] = sd[:, j]
     clash = [c for c in new if c in out.columns]
     if clash:

@@ -1,8 +1,8 @@
 """Rigid-body physics of the vehicle: thrust, allocation, M, C(nu), g(eta) and the damping target.
 
 Everything is vectorized over samples: velocity-like arrays are ``(n, 6)`` in Fossen's DOF order
-:data:`DOFS` = u v w p q r (body FRD axes, about the body origin CO), forces are ``(n, 6)`` in N / N*m,
-propeller speeds are rpm. The equation of motion is
+:data:`pipeline.vocabulary.DOFS` = u v w p q r (body FRD axes, about the body origin CO), forces are ``(n, 6)`` in
+N / N*m (columns: :func:`pipeline.vocabulary.force_columns`), propeller speeds are rpm. The equation of motion is
 
     M nu_dot + C(nu) nu + d(nu) + g(eta) = tau,        tau = B T,
 
@@ -33,10 +33,6 @@ if TYPE_CHECKING:
     import pandas as pd
 
 log = logging.getLogger(__name__)
-
-DOFS = ("u", "v", "w", "p", "q", "r")
-FORCE_UNITS = ("N", "N", "N", "Nm", "Nm", "Nm")
-
 
 def skew(a: np.ndarray) -> np.ndarray:
     """Skew-symmetric cross-product matrix S(a), with S(a) b = a x b; ``a`` (..., 3) -> (..., 3, 3)."""
@@ -316,8 +312,3 @@ def damping_target(M: np.ndarray, tau: np.ndarray, nudot: np.ndarray, nu: np.nda
     M = np.asarray(M, dtype=float)
     nudot = np.atleast_2d(np.asarray(nudot, dtype=float))
     return np.atleast_2d(tau) - nudot @ M.T - coriolis_force(M, nu) - np.atleast_2d(g)
-
-
-def force_columns(prefix: str) -> list[str]:
-    """Column names of a generalized-force 6-vector: ``tau`` -> tau_u_N ... tau_r_Nm."""
-    return [f"{prefix}_{dof}_{unit}" for dof, unit in zip(DOFS, FORCE_UNITS, strict=True)]

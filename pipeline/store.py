@@ -35,10 +35,9 @@ import pyarrow.parquet as pq
 from pipeline import SCHEMA_VERSION
 from pipeline.config.params import FeaturesParams
 from pipeline.errors import ConfigError, SchemaError
-from pipeline.kinematics import ACCELERATION, ATTITUDE, SMOOTH, VELOCITY
 from pipeline.layout import features_dir
-from pipeline.physics import force_columns
 from pipeline.tableio import write_parquet
+from pipeline.vocabulary import ACCELERATION, ATTITUDE, SMOOTH, VELOCITY, force_columns
 
 log = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.errors import SchemaError, SyncError
-from pipeline.kinematics import kinematics_report
+from pipeline.estimation.differentiate import differentiate
 from pipeline.tableio import read_parquet, write_json, write_parquet
 from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, to_arrow, trials_in
 from stages.common import StageResult, stage_main
@@ -32,8 +32,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
             stream_files = sorted(p for p in layout.signals_dir(root, name).glob("*.parquet")
                                   if not p.name.startswith("."))
             streams = {f.stem: read_parquet(f)[0] for f in stream_files}
-            frame, report = kinematics_report(read_parquet(source)[0].to_pandas(), vehicle, params.differentiate,
-                                              streams)
+            frame, report = differentiate(read_parquet(source)[0].to_pandas(), vehicle, params.differentiate,
+                                          streams)
         except (SyncError, SchemaError) as err:
             result.quarantined.append(quarantine(err, name, shown(source, root)))
             drop_stale(target)

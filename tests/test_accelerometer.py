@@ -85,7 +85,7 @@ def test_accelerometers_sharpen_the_targets_and_their_bias_is_found(imu_trial) -
     from test_stages_features import signal_tables
 
     from pipeline.config import Params
-    from pipeline.kinematics import kinematics_report
+    from pipeline.estimation.differentiate import differentiate
     from pipeline.sim import SensorOptions
     from pipeline.sync import synchronize
 
@@ -95,7 +95,7 @@ def test_accelerometers_sharpen_the_targets_and_their_bias_is_found(imu_trial) -
     synced = synchronize(tables, with_imu, params.sync)
     r2 = {}
     for name, vehicle in (("dvl", plain), ("imu", with_imu)):
-        kin, report = kinematics_report(synced, vehicle, params.differentiate, tables)
+        kin, report = differentiate(synced, vehicle, params.differentiate, tables)
         truth = trial.truth.set_index("t_ns").loc[kin["t_ns"].to_numpy()]
         for acc in ("udot_mps2", "vdot_mps2"):
             a = truth[acc].to_numpy()

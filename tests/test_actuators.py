@@ -125,7 +125,7 @@ def test_a_rudder_angle_is_carried_from_sync_to_the_feature_store() -> None:
 
 
 def test_kalman_validity_requires_the_rudder() -> None:
-    from pipeline.estimation.motion import _other_required_valid
+    from pipeline.estimation.kalman import _other_required_valid
     from pipeline.sync import valid_column
 
     vehicle = parse(Vehicle, rudder_ship())

@@ -12,7 +12,7 @@ from pipeline import physics
 from pipeline.config import load_vehicle
 from pipeline.derive import derive, derived_columns
 from pipeline.errors import SchemaError
-from pipeline.kinematics import ACCELERATION, SMOOTH, VELOCITY
+from pipeline.vocabulary import ACCELERATION, SMOOTH, VELOCITY, force_columns
 
 
 def _kin(n: int = 5, **cols: float | np.ndarray) -> pd.DataFrame:
@@ -34,7 +34,7 @@ def test_thrust_tau_and_damping_target_by_hand() -> None:
     assert out["T_lateral_N"].iloc[0] == pytest.approx(t3, rel=1e-12)
     # left at y=-0.2 pushing forward turns to starboard (+N); right at y=+0.2 to port; lateral at x=0.3 -> +N
     tau = [t1 + t2, t3, 0.0, 0.0, 0.0, 0.2 * t1 - 0.2 * t2 + 0.3 * t3]
-    got = out[physics.force_columns("tau")].iloc[0].to_numpy()
+    got = out[force_columns("tau")].iloc[0].to_numpy()
     assert got == pytest.approx(tau, abs=1e-12)
     # at rest, level, neutral: C(nu) nu = 0, g = 0; M nu_dot = (m + X_udot) u_dot in surge,
     # and m z_g u_dot in pitch (M_RB couples surge and pitch through the CG height)
@@ -53,11 +53,11 @@ def test_terms_add_up_and_coriolis_uses_smoothed_velocity() -> None:
                 n1_rpm=rng.normal(0, 800, n), n2_rpm=rng.normal(0, 800, n), n3_rpm=rng.normal(0, 800, n))
     vehicle = make_vehicle()
     out = derive(_kin(n, **cols), vehicle)
-    total = sum(out[physics.force_columns(p)].to_numpy() for p in ("d", "Mnudot", "Cnu", "g"))
-    assert total == pytest.approx(out[physics.force_columns("tau")].to_numpy(), abs=1e-12)
+    total = sum(out[force_columns(p)].to_numpy() for p in ("d", "Mnudot", "Cnu", "g"))
+    assert total == pytest.approx(out[force_columns("tau")].to_numpy(), abs=1e-12)
     M = physics.mass_matrix(vehicle)
     smooth = np.stack([cols[c] for c in SMOOTH], axis=1)
-    assert out[physics.force_columns("Cnu")].to_numpy() == pytest.approx(physics.coriolis_force(M, smooth),
+    assert out[force_columns("Cnu")].to_numpy() == pytest.approx(physics.coriolis_force(M, smooth),
                                                                          abs=1e-12)
 
 

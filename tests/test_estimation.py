@@ -174,7 +174,7 @@ def test_measurements_between_grid_steps_use_their_own_stamps() -> None:
 
 def test_auto_width_is_near_the_best_width() -> None:
     """The plug-in width's derivative error is within 15 % of the best width's (found against the truth)."""
-    from pipeline.kinematics import gaussian_filters
+    from pipeline.estimation.gaussian import gaussian_filters
 
     rng = np.random.default_rng(10)
     dt = 0.05
@@ -205,7 +205,7 @@ def test_kalman_method_on_a_realistic_trial(realistic) -> None:
 
     from pipeline.config import Params
     from pipeline.derive import derive
-    from pipeline.kinematics import kinematics_report
+    from pipeline.estimation.differentiate import differentiate
     from pipeline.sync import synchronize
 
     vehicle, trial = realistic
@@ -213,7 +213,7 @@ def test_kalman_method_on_a_realistic_trial(realistic) -> None:
     assert params.differentiate.method == "kalman"  # the default
     tables = signal_tables(trial, vehicle)
     synced = synchronize(tables, vehicle, params.sync)
-    kin, report = kinematics_report(synced, vehicle, params.differentiate, tables)
+    kin, report = differentiate(synced, vehicle, params.differentiate, tables)
     # the noise of each sensor, estimated from the data: DVL 0.02 m/s per axis, FOG 2e-4 rad/s
     for axis in ("dvl_x_mps", "dvl_y_mps", "dvl_z_mps"):
         assert report["noise"][axis]["sd"] == pytest.approx(0.02, rel=0.15), axis
@@ -251,7 +251,7 @@ def test_report_shows_noise_usable_fraction_and_the_band(realistic, tmp_path) ->
 
     from pipeline import layout
     from pipeline.config import Params
-    from pipeline.kinematics import kinematics_report
+    from pipeline.estimation.differentiate import differentiate
     from pipeline.report.build import _estimation_section
     from pipeline.sync import synchronize
     from pipeline.tableio import write_json
@@ -259,7 +259,7 @@ def test_report_shows_noise_usable_fraction_and_the_band(realistic, tmp_path) ->
     vehicle, trial = realistic
     params = Params()
     tables = signal_tables(trial, vehicle)
-    kin, report = kinematics_report(synchronize(tables, vehicle, params.sync), vehicle, params.differentiate, tables)
+    kin, report = differentiate(synchronize(tables, vehicle, params.sync), vehicle, params.differentiate, tables)
     layout.kinematics_path(tmp_path, "t1").parent.mkdir(parents=True)
     kin.to_parquet(layout.kinematics_path(tmp_path, "t1"))
     write_json(report, layout.estimation_report_path(tmp_path, "t1"))

@@ -8,16 +8,10 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.config.params import DifferentiateParams
 from pipeline.errors import SchemaError, SyncError
-from pipeline.kinematics import (
-    ACCELERATION,
-    SMOOTH,
-    VELOCITY,
-    attitude_from_quaternion,
-    body_kinematics,
-    differentiate,
-    gaussian_derivative,
-    rpy_matrix,
-)
+from pipeline.estimation.gaussian import gaussian_derivative
+from pipeline.estimation.grid import filter_segments
+from pipeline.kinematics import attitude_from_quaternion, body_kinematics, rpy_matrix
+from pipeline.vocabulary import ACCELERATION, SMOOTH, VELOCITY
 
 DT = PERIOD_NS / 1e9
 
@@ -56,7 +50,7 @@ def test_differentiate_drops_edge_samples_per_segment_and_never_spans_gaps() -> 
     nu = np.zeros((n, 6))
     nu[:, 0] = 0.2 + 0.05 * t**2
     nu[:, 5] = np.where(seg == 1, 5.0, 0.1 * t)  # a jump between segments must not leak
-    out = differentiate(_table(t, seg, nu), DifferentiateParams(method="gaussian", sigma_s=0.25, gaussian_degree=2,
+    out = filter_segments(_table(t, seg, nu), DifferentiateParams(method="gaussian", sigma_s=0.25, gaussian_degree=2,
                                                                   edge_sigmas=3.0))
     kept = np.round(out["t_ns"].to_numpy() / PERIOD_NS).astype(int)
     expected = np.concatenate([np.arange(25, 75), np.arange(115, 185)])
@@ -78,10 +72,10 @@ def test_bias_corrected_gaussian_is_exact_to_degree_four_and_cancels_the_plain_k
     nu = np.zeros((n, 6))
     nu[:, 0] = 0.3 - 0.2 * t + 0.04 * t**2 - 0.01 * t**3 + 0.002 * t**4
     nu[:, 5] = 0.1 * t**3
-    corrected = differentiate(_table(t, np.zeros(n), nu),
-                              DifferentiateParams(method="gaussian", sigma_s=0.35, gaussian_degree=4))
-    plain = differentiate(_table(t, np.zeros(n), nu),
-                          DifferentiateParams(method="gaussian", sigma_s=0.35, gaussian_degree=2))
+    corrected = filter_segments(_table(t, np.zeros(n), nu),
+                                DifferentiateParams(method="gaussian", sigma_s=0.35, gaussian_degree=4))
+    plain = filter_segments(_table(t, np.zeros(n), nu),
+                            DifferentiateParams(method="gaussian", sigma_s=0.35, gaussian_degree=2))
     assert len(corrected) == len(plain) == n - 2 * 21  # 3 sigma = 1.05 s = 21 samples dropped each side
     ts = corrected["t_ns"].to_numpy() / 1e9
     exact_udot = -0.2 + 0.08 * ts - 0.03 * ts**2 + 0.008 * ts**3
@@ -99,7 +93,7 @@ def test_savgol_is_exact_for_a_cubic() -> None:
     nu = np.zeros((n, 6))
     nu[:, 1] = 1.0 + t - 0.3 * t**2 + 0.02 * t**3
     params = DifferentiateParams(method="savgol", savgol_window_s=1.0, savgol_order=3)
-    out = differentiate(_table(t, np.zeros(n), nu), params)
+    out = filter_segments(_table(t, np.zeros(n), nu), params)
     assert len(out) == n - 2 * 10  # window 21 samples: 10 dropped each side
     ts = out["t_ns"].to_numpy() / 1e9
     assert out["vdot_mps2"].to_numpy() == pytest.approx(1 - 0.6 * ts + 0.06 * ts**2, abs=1e-10)
@@ -108,7 +102,8 @@ def test_savgol_is_exact_for_a_cubic() -> None:
 def test_too_short_everywhere_is_a_sync_error() -> None:
     t = np.arange(20) * DT
     with pytest.raises(SyncError, match="no segment longer"):
-        differentiate(_table(t, np.zeros(20), np.zeros((20, 6))), DifferentiateParams(method="gaussian", sigma_s=0.25))
+        filter_segments(_table(t, np.zeros(20), np.zeros((20, 6))),
+                        DifferentiateParams(method="gaussian", sigma_s=0.25))
 
 
 def _synced(n: int, q: np.ndarray, v_dvl: np.ndarray, rates: np.ndarray) -> pd.DataFrame:

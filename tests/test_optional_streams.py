@@ -20,8 +20,8 @@ from pipeline import layout
 from pipeline.config import Params, Vehicle, parse
 from pipeline.config.params import DifferentiateParams, SyncParams
 from pipeline.errors import IngestError, SchemaError
+from pipeline.estimation.differentiate import differentiate
 from pipeline.ingest import ingest_log
-from pipeline.kinematics import kinematics_report
 from pipeline.sync import synchronize
 
 T0_MS = 1_700_000_000_000
@@ -149,8 +149,8 @@ def test_sync_and_differentiate_carry_an_absent_optional_signal_as_invalid() -> 
     noise = {n: 0.01 for n in v.signal_names()}
     for method in ("kalman", "gaussian"):
         p = DifferentiateParams(method=method, noise_sd=noise, sigma_s=0.2)
-        kin, _ = kinematics_report(out, v, p, streams)
-        ref, _ = kinematics_report(full, v, p, constant_streams(10.0))
+        kin, _ = differentiate(out, v, p, streams)
+        ref, _ = differentiate(full, v, p, constant_streams(10.0))
         assert np.isnan(kin["depth_m"]).all() and len(kin) == len(ref) > 0
         rest = [c for c in ref.columns if not c.startswith("depth")]
         np.testing.assert_allclose(kin[rest].to_numpy(float), ref[rest].to_numpy(float), equal_nan=True)

@@ -17,7 +17,7 @@ import pytest
 from pipeline.config import Vehicle, parse
 from pipeline.config.params import DifferentiateParams, SyncParams
 from pipeline.errors import ConfigError
-from pipeline.kinematics import kinematics_report
+from pipeline.estimation.differentiate import differentiate
 from pipeline.sync import required_signals, synchronize
 
 T0_NS = 1_700_000_000_000_000_000
@@ -69,7 +69,7 @@ def streams(seed: int = 0, noise_m: float = 0.0, enu: bool = False) -> dict[str,
 
 def run(vehicle: Vehicle, native: dict[str, pd.DataFrame], **params: Any) -> tuple[pd.DataFrame, dict]:
     synced = synchronize(native, vehicle, SyncParams())
-    return kinematics_report(synced, vehicle, DifferentiateParams(**params), native)
+    return differentiate(synced, vehicle, DifferentiateParams(**params), native)
 
 
 def middle(kin: pd.DataFrame, margin_s: float = 3.0) -> pd.DataFrame:

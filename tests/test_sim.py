@@ -18,6 +18,7 @@ from pipeline.sim import (
 )
 from pipeline.sim.sensors import dvl_rotation
 from pipeline.sim.vehicle import Dynamics, scalar_rhs
+from pipeline.vocabulary import force_columns
 
 QUIET = SensorOptions(noise=False, dropouts=False)
 
@@ -54,7 +55,7 @@ def test_damping_target_on_truth_is_true_damping(trial: SimTrial, vehicle: Vehic
     nudot = t[["udot_mps2", "vdot_mps2", "wdot_mps2", "pdot_radps2", "qdot_radps2", "rdot_radps2"]].to_numpy()
     d = physics.damping_target(M, tau, nudot, nu_of(t), g)
     np.testing.assert_allclose(d, true_damping(nu_of(t)), atol=1e-9)
-    np.testing.assert_allclose(d, t[physics.force_columns("d")].to_numpy(), atol=1e-9)
+    np.testing.assert_allclose(d, t[force_columns("d")].to_numpy(), atol=1e-9)
     assert np.abs(t["d_r_Nm"]).max() > 0.5  # the trial excites yaw
 
 
@@ -384,10 +385,10 @@ def test_truth_table_keeps_applied_forces_and_true_damping_with_inflow_loss(vehi
     t = simulate_trial(vehicle, duration_s=10.0, seed=3, truth=INFLOW, sensors=QUIET, warmup_s=5.0).truth
     nu = nu_of(t)
     assert abs(t["u_mps"].iloc[0]) > 0.01  # warm-up: the trial starts in motion
-    np.testing.assert_allclose(t[physics.force_columns("d")].to_numpy(), INFLOW.damping(nu), atol=1e-9)
+    np.testing.assert_allclose(t[force_columns("d")].to_numpy(), INFLOW.damping(nu), atol=1e-9)
     speeds = t[[thr.speed_signal for thr in vehicle.thrusters]].to_numpy()
     tau_static = physics.generalized_forces(vehicle, speeds)
-    tau = t[physics.force_columns("tau")].to_numpy()
+    tau = t[force_columns("tau")].to_numpy()
     M = physics.mass_matrix(vehicle)
     g = physics.restoring_force(vehicle, t["roll_rad"].to_numpy(), t["pitch_rad"].to_numpy())
     nudot = t[["udot_mps2", "vdot_mps2", "wdot_mps2", "pdot_radps2", "qdot_radps2", "rdot_radps2"]].to_numpy()

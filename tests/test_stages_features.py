@@ -13,17 +13,13 @@ from pipeline import physics, store
 from pipeline.config import Params, Vehicle
 from pipeline.config.params import SyncParams
 from pipeline.derive import derive
-from pipeline.kinematics import (
-    ACCELERATION,
-    SMOOTH,
-    gaussian_filters,
-    gaussian_truncate,
-    kinematics,
-)
+from pipeline.estimation.differentiate import kinematics
+from pipeline.estimation.gaussian import gaussian_filters, gaussian_truncate
 from pipeline.sim import SensorOptions, StreamSpec, example_vehicle_path, load_example_vehicle, simulate_trial
 from pipeline.sync import resample, synchronize
 from pipeline.tableio import read_meta, write_parquet
 from pipeline.units import conversion
+from pipeline.vocabulary import ACCELERATION, DOFS, SMOOTH, force_columns
 from stages import derive as derive_stage
 from stages import differentiate as differentiate_stage
 from stages import features as features_stage
@@ -113,16 +109,16 @@ def test_noise_free_accelerations_and_damping_match_truth(clean, vehicle: Vehicl
     for j in (0, 1, 5):  # u, v, r: the excited DOFs
         assert _rms(got[:, j] - ref[:, j]) < 0.01 * _rms(ref[:, j]), ACCELERATION[j]
     # tau is exact (same thrust curve, speeds sampled on the grid)
-    tau_true = _truth_at(clean, t, physics.force_columns("tau"), smooth=False)
-    assert out[physics.force_columns("tau")].to_numpy() == pytest.approx(tau_true, abs=1e-9)
+    tau_true = _truth_at(clean, t, force_columns("tau"), smooth=False)
+    assert out[force_columns("tau")].to_numpy() == pytest.approx(tau_true, abs=1e-9)
     # d differs from the true damping by M times the smoothing bias of nu_dot (what a Gaussian of sigma
     # removes from the true acceleration), plus the interpolation error above: allow 1.2x that, + 2 % of d.
     M = physics.mass_matrix(vehicle)
     bias = (_truth_at(clean, t, ACCELERATION, smooth=False) - ref) @ M.T
-    d_true = _truth_at(clean, t, physics.force_columns("d"), smooth=False)
-    err = out[physics.force_columns("d")].to_numpy() - d_true
+    d_true = _truth_at(clean, t, force_columns("d"), smooth=False)
+    err = out[force_columns("d")].to_numpy() - d_true
     for j in (0, 1, 5):
-        assert _rms(err[:, j]) < 1.2 * _rms(bias[:, j]) + 0.02 * _rms(d_true[:, j]), physics.DOFS[j]
+        assert _rms(err[:, j]) < 1.2 * _rms(bias[:, j]) + 0.02 * _rms(d_true[:, j]), DOFS[j]
 
 
 def _dvl_derivative_noise_gain(vehicle: Vehicle, dvl_hz: float) -> float:
@@ -159,9 +155,9 @@ def test_noisy_accelerations_and_damping_within_noise(noisy, vehicle: Vehicle) -
     assert _rms(err[:, j]) > 0.5 * sigma_lin  # the prediction is not vacuous
     # damping target: its noise is M times the acceleration noise (tau is noise-free up to rpm noise)
     M = physics.mass_matrix(vehicle)
-    d_true = _truth_at(noisy, t, physics.force_columns("d"), smooth=False)
+    d_true = _truth_at(noisy, t, force_columns("d"), smooth=False)
     bias = (_truth_at(noisy, t, ACCELERATION, smooth=False) - ref) @ M.T
-    d_err = out[physics.force_columns("d")].to_numpy() - d_true
+    d_err = out[force_columns("d")].to_numpy() - d_true
     for j in (0, 1):
         sigma_d = sigma_lin * np.linalg.norm(M[j, :3])
         assert _rms(d_err[:, j]) < 1.5 * sigma_d + 1.2 * _rms(bias[:, j]) + 0.02 * _rms(d_true[:, j])

@@ -18,7 +18,8 @@ import pytest
 from pipeline.config import Vehicle, parse
 from pipeline.config.params import DifferentiateParams, SyncParams
 from pipeline.errors import ConfigError
-from pipeline.kinematics import body_kinematics, kinematics_report, rpy_matrix
+from pipeline.estimation.differentiate import differentiate
+from pipeline.kinematics import body_kinematics, rpy_matrix
 from pipeline.sync import required_signals, synchronize
 
 T0_NS = 1_700_000_000_000_000_000
@@ -143,7 +144,7 @@ def test_earth_frame_rates_through_sync_and_differentiate_recover_u_v_and_their_
     streams, _ = native_streams()
     synced = synchronize(streams, vehicle, SyncParams())
     params = DifferentiateParams(method=method)
-    kin, report = kinematics_report(synced, vehicle, params, streams)
+    kin, report = differentiate(synced, vehicle, params, streams)
     t = (kin["t_ns"].to_numpy() - T0_NS) / 1e9
     truth = turning(t)
     assert t.max() - t.min() > 0.8 * DURATION_S

@@ -1,17 +1,18 @@
-"""State estimation: from noisy multi-rate sensors to body velocities, accelerations and how sure we are.
+"""The differentiate stage: from noisy multi-rate sensors to body velocities, accelerations and how sure we are.
 
-- :mod:`pipeline.estimation.noise`: each signal's noise SD and outlier rate, estimated from the data;
-- :mod:`pipeline.estimation.smoother`: a Kalman/RTS smoother (white-jerk model per DOF, measurements at their
-  own stamps, process noise by maximum likelihood, outlier gating) solved as one banded system;
-- :mod:`pipeline.estimation.motion`: the differentiate stage's ``kalman`` method over a vehicle's sensors;
-- :mod:`pipeline.estimation.widths`: ``sigma_s: auto`` for the Gaussian and Savitzky-Golay filters.
+The stage's pure function is :func:`pipeline.estimation.differentiate.differentiate`; it runs one of three methods
+behind one signature, (synced, vehicle, params, streams) -> (kinematics table, report):
 
-Frames and mounting stay in :mod:`pipeline.kinematics`.
+- :mod:`~pipeline.estimation.kalman`: ``kalman``, a Kalman/RTS smoother over every velocity and rate sensor at its
+  own stamps (:mod:`~pipeline.estimation.smoother`: white-jerk model per DOF, process noise by maximum likelihood,
+  outlier gating, solved as one banded system), with positions (:mod:`~pipeline.estimation.position`) and IMU
+  accelerometers (:mod:`~pipeline.estimation.accelerometer`);
+- :mod:`~pipeline.estimation.grid`: ``gaussian`` and ``savgol``, filters of the synced grid
+  (:mod:`~pipeline.estimation.gaussian`, :mod:`~pipeline.estimation.savgol`), segment edges, grid step and ``auto``
+  widths (:mod:`~pipeline.estimation.widths`);
+- shared by all: :mod:`~pipeline.estimation.measurements` (sensor samples at their own stamps, their noise) and
+  :mod:`~pipeline.estimation.noise` (each signal's noise SD and outlier rate, estimated from the data).
+
+Frames and mounting (attitude, rotations, body velocities on the grid) are :mod:`pipeline.kinematics`; column
+names are :mod:`pipeline.vocabulary`.
 """
-
-from pipeline.estimation.motion import estimate_motion, sensor_noise
-from pipeline.estimation.noise import NoiseEstimate, estimate_noise
-from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
-
-__all__ = ["Measurements", "NoiseEstimate", "Smoothed", "estimate_motion", "estimate_noise", "sensor_noise",
-           "smooth", "smoothed_variances"]

@@ -36,6 +36,7 @@ import pyarrow as pa
 from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import AccelerometerSource, Vehicle
 from pipeline.errors import SyncError
+from pipeline.estimation.measurements import interp_finite, native_stream, signal_noise
 from pipeline.estimation.noise import NoiseEstimate, estimate_noise
 from pipeline.estimation.smoother import Measurements, Smoothed, smooth
 
@@ -92,11 +93,9 @@ def accelerometer_measurements(synced: pd.DataFrame, body: pd.DataFrame,
                                noise: dict[str, NoiseEstimate]) -> tuple[dict[str, Measurements], dict[str, Any]]:
     """Measurements of u_dot, v_dot (w_dot) per velocity DOF the first pass ``first`` smoothed (its variances
     filled), bias removed; and the report (bias per DOF, samples). Noise per signal goes into ``noise``."""
-    from pipeline.estimation.motion import _interp_finite, _native, _noise
-
     acc = vehicle.sensors.accelerometer
     assert acc is not None
-    native = _native(streams, acc.signals[0])
+    native = native_stream(streams, acc.signals[0])
     if native is not None and all(s in native[1] for s in acc.signals):
         t, cols = native
         f = np.stack([cols[s] for s in acc.signals], axis=1)
@@ -110,12 +109,12 @@ def accelerometer_measurements(synced: pd.DataFrame, body: pd.DataFrame,
     ok = np.all(np.isfinite(f), axis=1)
     t, f = t[ok], f[ok]
     for j, s in enumerate(acc.signals):
-        noise[s] = _noise(s, t, f[:, j], params)
+        noise[s] = signal_noise(s, t, f[:, j], params)
     sd = np.array([noise[s].sd for s in acc.signals])
     grid = body["t_ns"].to_numpy(dtype=np.int64)
 
     def at_stamps(values: np.ndarray) -> np.ndarray:
-        return _interp_finite(t, grid, values)
+        return interp_finite(t, grid, values)
 
     def first_pass(dofs: str, what: str) -> np.ndarray:
         return np.stack([at_stamps(getattr(first[d], what)) if d in first else np.zeros(t.size) for d in dofs],

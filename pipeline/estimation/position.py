@@ -32,8 +32,10 @@ import pyarrow as pa
 from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import LinearVelocity, position_rate_column
 from pipeline.errors import SyncError
+from pipeline.estimation.measurements import native_stream, signal_noise
 from pipeline.estimation.noise import NoiseEstimate
 from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
+from pipeline.kinematics import sensor_to_body
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +47,8 @@ def smooth_positions(synced: pd.DataFrame, source: LinearVelocity, params: Diffe
                      ) -> list[Smoothed]:
     """Per position signal (earth axis), the smoother's position, velocity and acceleration on the synced grid,
     from the samples at their own stamps (without native streams, the synced grid's valid samples)."""
-    from pipeline.estimation.motion import _native, _noise
-
     grid = synced["t_ns"].to_numpy(dtype=np.int64)
-    native = _native(streams, source.velocity[0])
+    native = native_stream(streams, source.velocity[0])
     if native is not None and all(s in native[1] for s in source.velocity):
         t, cols = native
     else:
@@ -59,7 +59,7 @@ def smooth_positions(synced: pd.DataFrame, source: LinearVelocity, params: Diffe
         ok &= np.nan_to_num(cols[source.valid], nan=0.0) != 0
     results = []
     for s in source.velocity:
-        noise[s] = _noise(s, t[ok], cols[s][ok], params)
+        noise[s] = signal_noise(s, t[ok], cols[s][ok], params)
         try:
             results.append(smooth(grid, Measurements(t[ok], cols[s][ok], noise[s].sd ** 2), gate=params.gate_sigmas))
         except ValueError as err:
@@ -79,8 +79,6 @@ def body_motion_from_positions(results: list[Smoothed], source: LinearVelocity, 
                                ) -> dict[str, Smoothed]:
     """Body velocities and accelerations of the reference point (u, v[, w]) with their SDs, as smoother results
     on the grid (see the module docstring); ``omega``, ``omega_dot``: (n, 3) smoothed rates and their derivatives."""
-    from pipeline.kinematics import sensor_to_body
-
     n = yaw.size
     pad = [np.zeros(n)] * (3 - len(results))
     v_e = np.stack([r.xdot for r in results] + pad, axis=1)

@@ -21,9 +21,9 @@ Outliers are rejected by gating the smoother's residuals: a measurement whose re
 standard deviations is dropped and the problem solved again (twice at most).
 
 Why not a library: pykalman and statsmodels' state space models run a recursion per measurement, with time
-varying matrices for irregular stamps; for a one-hour trial (360,000 FOG samples) and ~30 likelihood
-evaluations that is minutes, against well under a second here, and neither gives the exact likelihood of
-measurements between grid steps without adding every stamp as a step.
+varying matrices for irregular stamps, far slower over a long trial's few dozen likelihood evaluations (figures:
+``docs/notes-estimation.md``), and neither gives the exact likelihood of measurements between grid steps without
+adding every stamp as a step.
 
 States are scaled, z = (x, h x', h^2 x''), so the matrices are well conditioned whatever the grid step.
 """
@@ -366,8 +366,8 @@ def _inv3_soa(S: np.ndarray) -> np.ndarray:
 
 
 def _inv3(S: np.ndarray) -> np.ndarray:
-    """Inverses of a stack of 3x3 matrices by the adjugate: ~30 vectorized operations, several times faster than
-    LAPACK's per-matrix calls for the small, well-conditioned (scaled) information matrices here."""
+    """Inverses of a stack of 3x3 matrices by the adjugate: a few dozen vectorized operations instead of LAPACK's
+    per-matrix calls, for the small, well-conditioned (scaled) information matrices here."""
     a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
     d, e, f = S[..., 1, 0], S[..., 1, 1], S[..., 1, 2]
     g, h, i = S[..., 2, 0], S[..., 2, 1], S[..., 2, 2]

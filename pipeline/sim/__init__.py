@@ -28,6 +28,7 @@ from pipeline.config.vehicle import Vehicle
 from pipeline.sim.sensors import SensorOptions, Stream, StreamSpec, dvl_measurement, dvl_rotation, make_streams
 from pipeline.sim.truth import DAGON_INFLOW_LOSS, CoupledTerm, SimTruth, load_truth, true_damping
 from pipeline.sim.vehicle import Commander, Controls, Dynamics, integrate
+from pipeline.vocabulary import DOFS, force_columns
 
 __all__ = [
     "Controls", "CoupledTerm", "DAGON_INFLOW_LOSS", "SensorOptions", "SimTrial", "SimTruth", "Stream", "StreamSpec",
@@ -79,9 +80,9 @@ def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], 
     tau = thrust @ dyn.B.T
     cols: dict[str, np.ndarray] = {"t_ns": t_ns.astype(np.int64)}
     vel_units = ("mps",) * 3 + ("radps",) * 3
-    for j, dof in enumerate(physics.DOFS):
+    for j, dof in enumerate(DOFS):
         cols[f"{dof}_{vel_units[j]}"] = nu[:, j]
-    for j, dof in enumerate(physics.DOFS):
+    for j, dof in enumerate(DOFS):
         cols[f"{dof}dot_{vel_units[j]}2"] = nudot[:, j]
     for j, name in enumerate(("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")):
         cols[name] = eta[:, j]
@@ -100,7 +101,7 @@ def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], 
         "d": dyn.truth.damping(nu),
     }
     for prefix, values in terms.items():
-        for j, name in enumerate(physics.force_columns(prefix)):
+        for j, name in enumerate(force_columns(prefix)):
             cols[name] = values[:, j]
     return pd.DataFrame(cols)
 
@@ -158,7 +159,7 @@ def simulate_trial(
     }
     if vehicle.sensors.accelerometer is not None:
         mount["imu_position_m"] = np.asarray(vehicle.sensors.accelerometer.position_m, dtype=float)
-    nu_dot = table[[f"{dof}dot_{unit}2" for dof, unit in zip(physics.DOFS, ("mps",) * 3 + ("radps",) * 3,
+    nu_dot = table[[f"{dof}dot_{unit}2" for dof, unit in zip(DOFS, ("mps",) * 3 + ("radps",) * 3,
                                                                 strict=True)]].to_numpy()
     streams = make_streams({**states, "t_ns": t_ns, "grid_hz": rate_hz, "nu_dot": nu_dot}, mount, sensors,
                            rng_sensor)

@@ -21,10 +21,11 @@ import numpy as np
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle
 from pipeline.sim.truth import SimTruth
+from pipeline.vocabulary import DOFS
 
 log = logging.getLogger(__name__)
 
-DOF_INDEX = {d: i for i, d in enumerate(physics.DOFS)}
+DOF_INDEX = {d: i for i, d in enumerate(DOFS)}
 
 
 @dataclass(frozen=True)

@@ -42,147 +42,31 @@ import pyarrow as pa
 from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
-from pipeline.estimation.noise import NoiseEstimate, estimate_noise
+from pipeline.estimation.accelerometer import accelerometer_measurements
+from pipeline.estimation.measurements import rate_measurements, velocity_measurements
+from pipeline.estimation.noise import NoiseEstimate
+from pipeline.estimation.position import body_motion_from_positions, smooth_positions, with_position_rates
 from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
+from pipeline.kinematics import body_kinematics
+from pipeline.sync import segments, valid_column
+from pipeline.vocabulary import (
+    ACCELERATION,
+    DOFS,
+    SMOOTH,
+    VEL_UNIT,
+    VELOCITY,
+    accel_std_column,
+    meas_column,
+    std_column,
+)
 
 log = logging.getLogger(__name__)
 
-__all__ = ["estimate_motion", "sensor_noise", "std_column", "accel_std_column", "meas_column"]
-
-DOFS = ("u", "v", "w", "p", "q", "r")
-_UNIT = {"u": "mps", "v": "mps", "w": "mps", "p": "radps", "q": "radps", "r": "radps"}
-
-
-def std_column(dof: str) -> str:
-    return f"{dof}_smooth_std_{_UNIT[dof]}"
-
-
-def accel_std_column(dof: str) -> str:
-    return f"{dof}dot_std_{_UNIT[dof]}2"
-
-
-def meas_column(dof: str) -> str:
-    return f"{dof}_meas_{_UNIT[dof]}"
-
-
-def _native(streams: Mapping[str, pd.DataFrame | pa.Table] | None, signal: str
-            ) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
-    """(t_ns sorted, all columns) of the stream carrying ``signal``, or None."""
-    if not streams:
-        return None
-    for name in sorted(streams):
-        table = streams[name]
-        cols = table.column_names if isinstance(table, pa.Table) else list(table.columns)
-        if signal in cols:
-            arrays = {c: (table.column(c).to_numpy() if isinstance(table, pa.Table) else table[c].to_numpy())
-                      for c in cols}
-            t = np.asarray(arrays.pop("t_ns"), dtype=np.int64)
-            order = np.argsort(t, kind="stable")
-            return t[order], {c: np.asarray(v, dtype=float)[order] for c, v in arrays.items()}
-    return None
-
-
-def _noise(signal: str, t_ns: np.ndarray, x: np.ndarray, params: DifferentiateParams) -> NoiseEstimate:
-    if signal in params.noise_sd:
-        return NoiseEstimate(float(params.noise_sd[signal]), float("nan"), 0, "config")
-    est = estimate_noise(t_ns / 1e9, x, gate=params.gate_sigmas)
-    if not np.isfinite(est.sd) or est.sd <= 0:
-        raise SyncError(f"cannot estimate the noise of signal {signal!r} ({est.samples} usable residuals); give "
-                        f"it in params: differentiate.noise_sd.{signal}", field=signal)
-    return est
-
-
-def _velocity_measurements(synced: pd.DataFrame, body: pd.DataFrame, streams, vehicle: Vehicle,
-                           params: DifferentiateParams, noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
-    """The linear-velocity sensor's samples at their own stamps, in body axes at the reference point: one
-    measurement of each DOF it measures (u, v; and w unless planar), with its variance per sample."""
-    from pipeline.kinematics import mounting_matrix, sensor_to_body, velocity_to_body
-
-    source = vehicle.sensors.linear_velocity()
-    if source.differentiated:
-        raise SchemaError(f"{source.key}: positions have no velocity measurements of their own (they are "
-                          "differentiated by pipeline.estimation.position); a width 'auto' needs them",
-                          field=source.key)
-    native = _native(streams, source.velocity[0])
-    if native is not None and all(s in native[1] for s in source.velocity):
-        t, cols = native
-        v = np.stack([cols[s] for s in source.velocity], axis=1)
-        ok = np.all(np.isfinite(v), axis=1)
-        if source.valid is not None and source.valid in cols:
-            ok &= np.nan_to_num(cols[source.valid], nan=0.0) != 0
-        if source.zero_is_invalid:
-            ok &= ~np.all(v == 0.0, axis=1)
-    else:  # no native stream: the synced grid's valid samples
-        t = synced["t_ns"].to_numpy(dtype=np.int64)
-        v = np.stack([synced[s].to_numpy(dtype=float) for s in source.velocity], axis=1)
-        ok = np.all(np.isfinite(v), axis=1)
-    k = len(source.velocity)
-    sd = np.zeros(3)
-    for j, s in enumerate(source.velocity):
-        noise[s] = _noise(s, t[ok], v[ok, j], params)
-        sd[j] = noise[s].sd
-    t, v = t[ok], v[ok]
-    grid = body["t_ns"].to_numpy(dtype=np.int64)
-
-    def at_stamps(column: str) -> np.ndarray:
-        return _interp_finite(t, grid, body[column].to_numpy(dtype=float))
-
-    omega = np.stack([at_stamps(f"{d}_radps") for d in "pqr"], axis=1)
-    if source.frame == "earth":  # the attitude at each sample's own stamp (yaw is unwrapped on the grid)
-        roll, pitch, yaw = at_stamps("roll_rad"), at_stamps("pitch_rad"), at_stamps("yaw_rad")
-    else:
-        roll = pitch = yaw = np.zeros(t.size)
-    v_ref = velocity_to_body(v, source, roll, pitch, yaw, omega)
-    if source.frame == "body":
-        R = mounting_matrix(source)
-        var = (R**2) @ (sd**2)  # constant: one value per DOF, as the DVL always had
-        return {d: Measurements(t, v_ref[:, j], var[j]) for j, d in enumerate(source.dofs)}
-    var_n = (sensor_to_body(source, roll, pitch, yaw) ** 2) @ (sd**2)  # per sample: the rotation changes
-    return {d: Measurements(t, v_ref[:, j], var_n[:, j]) for j, d in enumerate(source.dofs[:k])}
-
-
-def _interp_finite(t_ns: np.ndarray, grid_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
-    ok = np.isfinite(values)
-    if not ok.any():
-        return np.zeros(t_ns.size)
-    return np.interp(t_ns.astype(float), grid_ns[ok].astype(float), values[ok])
-
-
-def _rate_measurements(synced: pd.DataFrame, streams, vehicle: Vehicle, params: DifferentiateParams,
-                       noise: dict[str, NoiseEstimate]) -> dict[str, Measurements]:
-    rates = vehicle.sensors.rates
-    out: dict[str, Measurements] = {}
-    for dof, name, sign in zip("pqr", (rates.p, rates.q, rates.r), rates.signs, strict=True):
-        if name is None:
-            continue
-        native = _native(streams, name)
-        if native is not None:
-            t, x = native[0], native[1][name]
-        else:
-            t, x = synced["t_ns"].to_numpy(dtype=np.int64), synced[name].to_numpy(dtype=float)
-        ok = np.isfinite(x)
-        noise[name] = _noise(name, t[ok], x[ok], params)
-        out[dof] = Measurements(t[ok], sign * x[ok], noise[name].sd ** 2)
-    return out
-
-
-def sensor_noise(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
-                 streams: Mapping[str, pd.DataFrame | pa.Table] | None = None
-                 ) -> tuple[dict[str, tuple[float, float]], dict[str, NoiseEstimate]]:
-    """Per measured DOF, (noise SD in body axes, median native sample interval in s); and the noise per signal.
-    ``body``: :func:`pipeline.kinematics.body_kinematics` of ``synced``."""
-    noise: dict[str, NoiseEstimate] = {}
-    meas = _velocity_measurements(synced, body, streams, vehicle, params, noise)
-    meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
-    per_dof = {dof: (float(np.sqrt(np.median(m.var))), float(np.median(np.diff(m.t_ns))) / 1e9)
-               for dof, m in meas.items() if m.t_ns.size > 1}
-    return per_dof, noise
+__all__ = ["estimate_motion"]
 
 
 def _other_required_valid(synced: pd.DataFrame, vehicle: Vehicle) -> np.ndarray:
     """Grid samples where attitude and every actuator signal are valid (the velocities are the smoother's)."""
-    from pipeline.sync import valid_column
-
     att = vehicle.sensors.attitude
     names = [att.quaternion] if att.quaternion is not None else [s for s in (att.roll, att.pitch, att.yaw) if s]
     names += vehicle.actuator_signals()
@@ -205,14 +89,9 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
                     streams: Mapping[str, pd.DataFrame | pa.Table] | None = None
                     ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The kinematics table (rows in usable segments) and the estimation report; see the module docstring."""
-    from pipeline.kinematics import ACCELERATION, SMOOTH, VELOCITY, body_kinematics
-    from pipeline.sync import segments
-
     source = vehicle.sensors.linear_velocity()
     noise: dict[str, NoiseEstimate] = {}
     if source.differentiated:  # positions: earth velocity and acceleration per axis from the smoother
-        from pipeline.estimation.position import body_motion_from_positions, smooth_positions, with_position_rates
-
         positions = smooth_positions(synced, source, params, streams, noise)
         synced = with_position_rates(synced, source, positions)
     body = body_kinematics(synced, vehicle)
@@ -224,8 +103,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         raise SchemaError("the synced grid must be uniform with at least 3 samples", field="t_ns")
     h_s = float(steps[0]) / 1e9
 
-    meas = {} if source.differentiated else _velocity_measurements(synced, body, streams, vehicle, params, noise)
-    meas.update(_rate_measurements(synced, streams, vehicle, params, noise))
+    meas = {} if source.differentiated else velocity_measurements(synced, body, streams, vehicle, params, noise)
+    meas.update(rate_measurements(synced, streams, vehicle, params, noise))
 
     results: dict[str, Smoothed] = {}
     for dof in DOFS:
@@ -242,8 +121,6 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
             log.warning("sensors.accelerometer is not used with sensors.position (positions are differentiated "
                         "per earth axis)")
         else:  # a second pass: the accelerometers' accelerations beside the velocity measurements
-            from pipeline.estimation.accelerometer import accelerometer_measurements
-
             acc, accelerometer = accelerometer_measurements(synced, body, streams, vehicle, params, results, noise)
             for dof, extra in acc.items():
                 try:
@@ -263,7 +140,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
 
     usable = _other_required_valid(synced, vehicle)
     for dof, res in results.items():
-        limit = params.max_velocity_sd_mps if _UNIT[dof] == "mps" else params.max_rate_sd_radps
+        limit = params.max_velocity_sd_mps if VEL_UNIT[dof] == "mps" else params.max_rate_sd_radps
         usable &= res.x_sd <= limit
     seg = segments(usable, int(np.ceil(params.min_segment_s / h_s - 1e-9)))
     if not np.any(seg >= 0):

@@ -1,0 +1,44 @@
+"""The differentiate stage's pure function: a synced table (+ the trial's native streams) -> the kinematics table
+and the estimation report.
+
+:func:`differentiate` picks the method ``params.method`` names; every method takes the same arguments and returns
+the same pair (the contract: ``docs/contracts.md``):
+
+- ``kalman`` (the default): :func:`pipeline.estimation.kalman.estimate_motion`, a Kalman/RTS smoother over every
+  velocity and rate sensor at its own stamps, with SDs;
+- ``gaussian``, ``savgol``: :func:`pipeline.estimation.grid.filter_motion`, filters of the synced grid
+  (:mod:`pipeline.estimation.gaussian`, :mod:`pipeline.estimation.savgol`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+
+from pipeline.config.params import DifferentiateParams
+from pipeline.config.vehicle import Vehicle
+from pipeline.estimation.grid import filter_motion
+from pipeline.estimation.kalman import estimate_motion
+
+__all__ = ["METHODS", "differentiate", "kinematics"]
+
+#: ``params.method`` -> the function that estimates the motion: (synced, vehicle, params, streams) -> (table, report).
+METHODS: dict[str, Callable[..., tuple[pd.DataFrame, dict[str, Any]]]] = {
+    "kalman": estimate_motion, "gaussian": filter_motion, "savgol": filter_motion}
+
+
+def differentiate(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
+                  streams: Mapping[str, pd.DataFrame | pa.Table] | None = None) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The kinematics table of the contract and the stage's report (noise per signal, the smoother or the filter
+    widths, how much of the trial is usable). ``streams``: the trial's native streams (stem -> table), for the
+    smoother and ``auto`` widths; without them the synced grid's samples stand in."""
+    return METHODS[params.method](synced, vehicle, params, streams)
+
+
+def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
+               streams: Mapping[str, pd.DataFrame | pa.Table] | None = None) -> pd.DataFrame:
+    """The kinematics table alone (:func:`differentiate` without the report)."""
+    return differentiate(synced, vehicle, params, streams)[0]
