@@ -26,24 +26,24 @@ import numpy as np
 
 from pipeline.io.base import BATCH_BYTES, Batch, Rows, ascending, field_view, scratch_buffer, take_rows
 from pipeline.io.dedup import crc
-from pipeline.io.mcap_reader import (
+from pipeline.io.errors import Damaged
+from pipeline.io.mcap_records import (
     MAGIC,
     OP_CHANNEL,
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
+    OP_MESSAGE_INDEX,
     OP_SCHEMA,
     OP_STATISTICS,
     Channel,
-    Damaged,
     Walk,
-    _decompress,
+    decompress,
     implausible_chunk,
 )
 
 log = logging.getLogger(__name__)
 
-OP_MESSAGE_INDEX = 0x07
 _SKIPPABLE = {0x01, 0x08, 0x09, 0x0A, 0x0C, 0x0D, 0x0E, OP_DATA_END}  # header, chunk index, attachments, metadata...
 _ENTRY = np.dtype([("t", "<u8"), ("o", "<u8")])
 
@@ -271,7 +271,7 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
     if len(raw) != chunk.length:
         raise Damaged("chunk cut short", chunk.at)
     try:
-        data = _decompress(chunk.compression, raw, chunk.usize, partial=False)
+        data = decompress(chunk.compression, raw, chunk.usize, partial=False)
     except Damaged as dmg:
         raise Damaged(dmg.reason, chunk.at) from None
     except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types

@@ -1,21 +1,15 @@
-"""ROS 2 bags: a directory of sqlite3 or MCAP storage files, with or without ``metadata.yaml``.
+"""The sqlite3 storage of a ROS 2 bag: topics and counts through sqlite, the ``messages`` rows in bulk.
 
-Storage is read directly (the sqlite ``messages`` table parsed from its b-tree pages by :mod:`.sqlite_btree`, or
-fetched in bulk through sqlite; MCAP records walked by :mod:`pipeline.io.mcap_reader`), so the counts come from the
-storage itself (metadata.yaml's counts checked against the rows read, else ``COUNT(*)`` per topic; MCAP records)
-and a split bag is one recording. Per-file compression (``*.db3.zstd``, ``*.mcap.zstd``) is undone into a
-temporary directory that :meth:`Rosbag2Reader.close` removes; per-message compression is undone per payload.
+Rows come from the table's b-tree pages (:mod:`pipeline.io.sqlite_btree`) while they are as rosbag2 writes them,
+else through sqlite's aggregates or row by row; a damaged file is read from its intact pages
+(:mod:`pipeline.io.sqlite_pages`). The file is always opened read-only and never written beside.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import re
-import tempfile
 import warnings
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
@@ -23,252 +17,31 @@ from urllib.parse import quote
 import numpy as np
 
 from pipeline.errors import IngestError
-from pipeline.io.base import (
-    Batch,
-    Batcher,
-    RawReader,
-    ReadResult,
-    Restart,
-    Rows,
-    SalvageInfo,
-    TopicData,
-    TopicInfo,
-    stream_walk,
-)
+from pipeline.io.base import Batch, Batcher, Rows, SalvageInfo
+from pipeline.io.errors import Malformed, NotPlain, Restart
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
-from pipeline.io.inflate import inflate_capped
-from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
-from pipeline.io.mcap_reader import Damaged, salvage_info, walk
 
 if TYPE_CHECKING:
     import sqlite3
 
-    from pipeline.io.mcap_index import IndexedFile
     from pipeline.io.sqlite_pages import MessageRows
 
 log = logging.getLogger(__name__)
 
-SQLITE_MAGIC = b"SQLite format 3\x00"
-ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
-_STORAGE = re.compile(r"\.(db3|mcap)(\.zstd)?$")
 
+class Sqlite3Storage:
+    """The sqlite3 half of :class:`pipeline.io.rosbag2.reader.Rosbag2Reader` (a mixin: the reader holds the state
+    and undoes per-message compression, ``_decompress``)."""
 
-def _natural(path: Path) -> list[Any]:
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
-
-
-def storage_files(directory: Path) -> list[Path]:
-    """Storage files of a bag directory without metadata: ``*.db3``/``*.mcap`` (maybe ``.zstd``), natural order."""
-    return sorted((p for p in directory.iterdir() if p.is_file() and _STORAGE.search(p.name)), key=_natural)
-
-
-def _magic(path: Path) -> bytes:
-    with open(path, "rb") as fh:
-        return fh.read(16)
-
-
-class Rosbag2Reader(RawReader):
-    """A ROS 2 bag directory (``format`` is ``ros2-sqlite3`` or ``ros2-mcap``)."""
-
-    def __init__(self, path: str | Path, files: list[Path] | None = None) -> None:
-        super().__init__(path)
-        self.metadata: dict[str, Any] = {}
-        meta = self.path / "metadata.yaml"
-        if files is not None:
-            pass
-        elif meta.is_file():
-            self.metadata = _load_metadata(meta)
-            files = [self._locate(p) for p in self.metadata.get("relative_file_paths") or []]
-        else:
-            files = storage_files(self.path)
-        self.compression_mode = str(self.metadata.get("compression_mode") or "").upper()
-        self.compression_format = str(self.metadata.get("compression_format") or "")
-        if not files:
-            raise IngestError(
-                "no storage files: expected metadata.yaml or *.db3 / *.mcap (optionally .zstd) files", file=self.path)
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
-        self._cut_streams: list[str] = []  # per-file zstd streams cut short (reported with the read)
-        self._origin: dict[str, Path] = {}  # inflated temporary file -> the .zstd file it came from
-        self.files = [self._plain(p) for p in files]
-        kinds = {("mcap" if _magic(p).startswith(MCAP_MAGIC) else "sqlite3") for p in self.files}
-        if len(kinds) != 1:
-            raise IngestError(f"storage files of mixed formats: {sorted(kinds)}", file=self.path)
-        self.storage = kinds.pop()
-        self.format = f"ros2-{self.storage}"
-        self._ids: list[dict[int, str]] = []     # per file: topic id / channel id -> topic
-        self._provisional: set[str] = set()       # topics whose count is metadata.yaml's, not yet checked by a read
-        self._indexes: list[IndexedFile | None] = []  # per MCAP file: its chunk indexes, when intact and indexed
-        self._no_index = False
-        self._row_fetch = False  # rows as tuples through the sqlite3 module (tests compare the fetches)
-        self._page_fetch = True  # rows parsed from the messages table's pages (sqlite_btree), else sqlite's aggregates
-        self._short: dict[str, tuple[int, int]] = {}  # topic -> (metadata.yaml's count, the storage's): rows lost
-        self._pages: dict[Path, _PageSalvage] = {}  # damaged storage files read from their intact pages
-
-    @classmethod
-    def from_files(cls, files: list[Path]) -> Rosbag2Reader:
-        """A single storage file (``.db3``, ``.db3.zstd``) read as a bag of one file."""
-        return cls(files[0], files=list(files))
-
-    def _locate(self, rel: str) -> Path:
-        path = self.path / rel
-        if not path.resolve().is_relative_to(self.path.resolve()):  # '../../etc/passwd', an absolute path
-            raise IngestError(f"metadata.yaml lists storage file {rel!r} outside the bag directory; a bag's files "
-                              "lie in it", file=self.path)
-        for cand in (path, path.with_name(path.name + ".zstd"), path.with_name(path.name.removesuffix(".zstd"))):
-            if cand.is_file():
-                return cand
-        raise IngestError(f"storage file {rel!r} listed in metadata.yaml is missing", file=self.path)
-
-    def _plain(self, path: Path) -> Path:
-        """Undo per-file compression (zstd) into a temporary directory."""
-        if _magic(path)[:4] != ZSTD_MAGIC:
-            return path
-
-        if self._tmp is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="auvid-ros2-")
-        out = Path(self._tmp.name) / path.name.removesuffix(".zstd")
-        cut = inflate_capped(path, out)  # capped: a small damaged file must not fill the disk
-        self._origin[str(out)] = path
-        if cut is not None:
-            log.warning("%s", cut)
-            self._cut_streams.append(cut)
-        return out
-
-    def close(self) -> None:
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
-
-    def _decompress(self, payload: bytes, path: Path | None = None) -> bytes:
-        if self.compression_mode == "MESSAGE" and self.compression_format == "zstd":
-            import zstandard
-
-            try:  # streaming: allocates what the payload inflates to, not what its header claims
-                return zstandard.ZstdDecompressor().decompressobj().decompress(payload)
-            except zstandard.ZstdError as err:
-                raise IngestError(f"a zstd-compressed message does not decompress: {err}",
-                                  file=path or self.path) from err
-        return payload
-
-    # -- scanning -------------------------------------------------------------------------------------------
-    def catalog(self) -> dict[str, TopicInfo]:
-        """Topics; for sqlite storage with a metadata.yaml that lists every topic's count, those counts (checked
-        against the rows :meth:`read` fetches) instead of a scan of every row, and first / last unknown until read.
-        """
-        if self._infos is None:
-            with self._named_originals():
-                self._scan(quick=True)
-        assert self._infos is not None
-        return dict(self._infos)
-
-    def topics(self) -> dict[str, TopicInfo]:
-        if self._infos is None or self._provisional:
-            with self._named_originals():
-                self._scan()
-        assert self._infos is not None
-        return dict(self._infos)
-
-    @contextlib.contextmanager
-    def _named_originals(self) -> Iterator[None]:
-        """An IngestError about a file inflated to temporary disk names the ``.zstd`` file it came from."""
-        try:
-            yield
-        except IngestError as err:
-            src = self._origin.get(err.file or "")
-            if src is None:
-                raise
-            cut = "".join(f"; {c}" for c in self._cut_streams if c.startswith(f"{src.name}:"))
-            raise IngestError(f"{err.reason} (in the storage inflated from it{cut})", file=src, topic=err.topic,
-                              field=err.field) from err
-
-    def _listed_counts(self) -> dict[str, int] | None:
-        counts = {}
-        for entry in self.metadata.get("topics_with_message_count") or []:
-            name, want = entry["topic_metadata"].get("name"), entry.get("message_count")
-            if not isinstance(name, str) or not isinstance(want, int) or want < 0:
-                return None
-            counts[name] = counts.get(name, 0) + want
-        return counts or None
-
-    def _scan(self, quick: bool = False) -> None:
-        listed = self._listed_counts() if quick and self.storage == "sqlite3" else None
-        self._types = TypeRegistry(ros1=False, user=self.user_types)
-        totals: dict[str, list[Any]] = {}   # topic -> [msgtype, count, first, last, encoding]
-
-        def add(topic: str, msgtype: str, enc: str, count: int, first: int | None, last: int | None) -> None:
-            cur = totals.setdefault(topic, [msgtype, 0, None, None, enc])
-            cur[1] += count
-            if first is not None:
-                cur[2] = first if cur[2] is None else min(cur[2], first)
-            if last is not None:
-                cur[3] = last if cur[3] is None else max(cur[3], last)
-
-        self._ids, self._indexes = [], []
-        for path in self.files:
-            ids: dict[int, str] = {}
-            if self.storage == "sqlite3":
-                self._scan_sqlite(path, ids, add, stats=listed is None)
-            else:
-                self._scan_mcap(path, ids, add)
-            self._ids.append(ids)
-        if listed is not None and not set(totals) <= set(listed):
-            self._scan()  # metadata.yaml does not list every topic of the storage: count the rows
-            return
-        self._provisional = set(totals) if listed is not None else set()
-        self._infos = {}
-        for topic, (msgtype, count, first, last, enc) in totals.items():
-            if listed is not None:
-                count = listed[topic]
-            self._infos[topic] = TopicInfo(topic, msgtype, count, first, last, self._types.has_header(msgtype))
-            self._encoding[topic] = "cdr" if enc.lower() == "cdr" else enc
-        if listed is None:
-            self._check_metadata()
-
-    def _recount(self, topic: str, read: int, listed: int) -> int:
-        if topic in self._provisional:
-            self.topics()  # the exact scan; it compares every topic with metadata.yaml
-        # after the exact scan (maybe done for another topic of this read) the catalog holds the storage's counts
-        assert self._infos is not None
-        return self._infos[topic].count if topic in self._infos else 0
-
-    def _disagrees(self, topic: str, listed: int, have: int) -> None:
-        log.warning("%s: metadata.yaml says topic %s has %s messages; the storage holds %s", self.path, topic,
-                    listed, have)
-        if have < listed:
-            self._short[topic] = (listed, have)
-
-    def read(self, requests: dict[str, list[str]]) -> ReadResult:
-        """As :meth:`RawReader.read`; rows that metadata.yaml counts but the storage lacks (damaged sqlite pages
-        drop them without an error) are a loss, reported like a salvage."""
-        with self._named_originals():
-            result = super().read(requests)
-        short = {t: c for t, c in self._short.items() if t in result.topics}
-        if short and result.salvage is None:
-            lost = "; ".join(f"{t}: {have} of {listed}" for t, (listed, have) in sorted(short.items()))
-            result.salvage = SalvageInfo(
-                kept=sum(d.read for d in result.topics.values()), stopped_at_byte=None,
-                reason=f"the storage holds fewer messages than metadata.yaml lists ({lost})")
-        if self._cut_streams:  # a cut .zstd inflates without an error: say so, whatever the storage shows
-            cut = "; ".join(self._cut_streams)
-            result.salvage = SalvageInfo(sum(d.read for d in result.topics.values()), None, cut) \
-                if result.salvage is None else replace(result.salvage, reason=f"{cut}; {result.salvage.reason}")
-        return result
-
-    def _was_read(self, topic: str, data: TopicData) -> None:
-        if topic in self._provisional and self._infos is not None and data.read == self._infos[topic].count:
-            info = self._infos[topic]
-            first = int(data.log_ns.min()) if data.read else None
-            last = int(data.log_ns.max()) if data.read else None
-            self._infos[topic] = TopicInfo(topic, info.msgtype, info.count, first, last, info.has_header)
-            self._provisional.discard(topic)
-
-    def _check_metadata(self) -> None:
-        assert self._infos is not None
-        for entry in self.metadata.get("topics_with_message_count") or []:
-            name, want = entry["topic_metadata"].get("name"), entry.get("message_count")
-            have = self._infos[name].count if name in self._infos else 0
-            if isinstance(want, int) and want != have:
-                self._disagrees(name, want, have)
+    files: list[Path]
+    salvage: SalvageInfo | None
+    compression_mode: str
+    _types: TypeRegistry | None
+    _infos: dict[str, Any] | None
+    _ids: list[dict[int, str]]
+    _pages: dict[Path, PageSalvage]
+    _row_fetch: bool
+    _page_fetch: bool
 
     def _connect(self, path: Path, *, tolerant: bool = False) -> sqlite3.Connection:
         import sqlite3  # here: a bag of MCAP storage (or an MCAP file, which detection looks at) needs no sqlite
@@ -347,7 +120,7 @@ class Rosbag2Reader(RawReader):
             ids[tid] = name
         return topics
 
-    def _salvage_sqlite(self, path: Path, ids: dict[int, str], err: sqlite3.DatabaseError) -> _PageSalvage:
+    def _salvage_sqlite(self, path: Path, ids: dict[int, str], err: sqlite3.DatabaseError) -> PageSalvage:
         """Read the message rows of a damaged storage file from its intact pages (:mod:`.sqlite_pages`)."""
         from pipeline.io.sqlite_pages import SqlitePages, message_rows
 
@@ -356,7 +129,7 @@ class Rosbag2Reader(RawReader):
         with SqlitePages(path) as pages:
             rows = message_rows(pages, set(ids))
         damaged = f"; {rows.bad_cells} damaged cell(s) skipped" if rows.bad_cells else ""
-        found = _PageSalvage(rows, f"{path.name}: {err}; kept the {len(rows.rowid)} message row(s) on intact "
+        found = PageSalvage(rows, f"{path.name}: {err}; kept the {len(rows.rowid)} message row(s) on intact "
                                    f"pages{damaged}")
         self._pages[path] = found
         log.warning("%s", found.reason)
@@ -366,73 +139,9 @@ class Rosbag2Reader(RawReader):
             reason="; ".join(p.reason for p in self._pages.values()))
         return found
 
-    def _walk_mcap(self, path: Path, on_message: Any = None, wanted: set[int] | None = None) -> Any:
-        try:
-            w = walk(path, on_message, wanted, tolerant=self.salvage is not None)
-        except Damaged as dmg:
-            if on_message is not None:
-                raise IngestError(f"storage file changed while reading: {dmg}", file=path) from dmg
-            log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
-            w = walk(path, None, None, tolerant=True)
-            w.damage = dmg
-        if w.damage is not None or w.seen.count:
-            info = salvage_info(path, w)
-            info.reason = f"{path.name}: {info.reason}"
-            self.salvage = info
-        return w
-
-    def _scan_mcap(self, path: Path, ids: dict[int, str], add: Any) -> None:
-        from pipeline.io.mcap_index import index_walk
-
-        index = None if self._no_index or self.salvage is not None else index_walk(path)
-        self._indexes.append(index)
-        w = index.walk if index is not None else self._walk_mcap(path)
-        for cid, ch in sorted(w.channels.items()):
-            name, enc, text = w.schemas.get(ch.schema_id, ("", "", ""))
-            msgtype = normalize_msgtype(name)
-            if name:
-                self._types.add(msgtype, enc, text)  # type: ignore[union-attr]
-            ids[cid] = ch.topic
-            count = w.counts.get(cid, 0)
-            if w.stats_counts is not None and self.salvage is None:
-                count = w.stats_counts.get(cid, count)
-            add(ch.topic, msgtype, ch.encoding, count, w.first.get(cid), w.last.get(cid))
-
-    # -- reading --------------------------------------------------------------------------------------------
-    def _batches(self, topics: list[str]) -> Iterator[Batch]:
-        wanted_topics = set(topics)
-        for path, ids in zip(self.files, self._ids, strict=True):
-            wanted = {i: t for i, t in ids.items() if t in wanted_topics}
-            if not wanted:
-                continue
-            if self.storage == "sqlite3":
-                yield from self._sqlite_batches(path, wanted)
-                continue
-            index = self._indexes[self.files.index(path)]
-            if index is not None and self.compression_mode != "MESSAGE":
-                from pipeline.io.mcap_index import chunk_batches
-
-                try:
-                    yield from chunk_batches(path, index, wanted)
-                except Damaged as dmg:
-                    log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
-                    self._no_index = True
-                    self._infos = None
-                    self._encoding = {}
-                    raise Restart from dmg
-                continue
-            def walk_wanted(emit: Any, path: Path = path, wanted: dict[int, str] = wanted) -> None:
-                def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
-                    if payload is not None:
-                        emit(wanted[cid], log_ns, self._decompress(payload, path))
-
-                self._walk_mcap(path, on_message, set(wanted))
-
-            yield from stream_walk(walk_wanted)
-
     def _page_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
         """The rows of a damaged storage file, from its intact pages, in rowid order."""
-        from pipeline.io.sqlite_pages import Malformed, SqlitePages, message_payloads
+        from pipeline.io.sqlite_pages import SqlitePages, message_payloads
 
         batcher = Batcher()
         with SqlitePages(path) as pages:
@@ -487,31 +196,6 @@ class Rosbag2Reader(RawReader):
             con.close()
 
 
-def _load_metadata(meta: Path) -> dict[str, Any]:
-    """``rosbag2_bagfile_information`` of a metadata.yaml, with the shapes the reader relies on checked."""
-    import yaml  # here, not at the top: an MCAP file's ingest, whose configs come from a snapshot, needs no YAML
-
-    def bad(why: str) -> IngestError:
-        return IngestError(f"metadata.yaml is not a rosbag2 metadata file: {why}", file=meta)
-
-    try:
-        # libyaml's parser where PyYAML has it (~8x less CPU than the pure-Python one)
-        doc = yaml.load(meta.read_text(encoding="utf-8"), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
-    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as err:
-        raise bad(str(err)) from err
-    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
-    if not isinstance(info, dict):
-        raise bad("no mapping 'rosbag2_bagfile_information' at the top")
-    paths = info.get("relative_file_paths") or []
-    if not isinstance(paths, list) or not all(isinstance(p, str) for p in paths):
-        raise bad(f"relative_file_paths must be a list of strings, found {paths!r:.200}")
-    entries = info.get("topics_with_message_count") or []
-    if not isinstance(entries, list) or not all(
-            isinstance(e, dict) and isinstance(e.get("topic_metadata"), dict) for e in entries):
-        raise bad("topics_with_message_count must be a list of mappings with a 'topic_metadata' mapping")
-    return info
-
-
 def _read_only_uri(path: Path) -> str:
     """The sqlite URI that opens ``path`` read-only and never writes beside it (no journal, no -wal file).
 
@@ -537,7 +221,7 @@ def _paged_rows(con: sqlite3.Connection, path: Path, wanted: dict[int, str],
     page or row that parser does not take, the rows after the last one handed on through
     :func:`_concatenated_rows`. Only the rosbag2 table (id INTEGER PRIMARY KEY, topic_id, timestamp, data, a rowid
     table) in a file with no write-ahead log beside it is read from its pages."""
-    from pipeline.io.sqlite_btree import NotPlain, row_batches
+    from pipeline.io.sqlite_btree import row_batches
 
     root = _messages_root(con, path)
     if root is None:
@@ -648,7 +332,7 @@ FIRST_BATCH_ROWS = 4096  # then as many rows as hold ~BATCH_BYTES of payload, at
 BATCH_BYTES = 16 << 20
 
 
-class _PageSalvage:
+class PageSalvage:
     """The message rows of one damaged storage file, found on its pages."""
 
     def __init__(self, rows: MessageRows, reason: str) -> None:
