@@ -369,8 +369,8 @@ def _arrow(values: np.ndarray, arrow_type: pa.DataType, dtype: type[np.generic])
     """A numeric column without nulls as an Arrow array over the same bytes (zero copy, as ``pa.array`` makes it).
 
     Not ``pa.array``: on an ndarray it asks pandas whether the values are a Series or a Categorical, and that
-    import (0.3-0.6 s of CPU) was the largest single cost of a whole ``auvid ingest`` process, which never uses
-    pandas. NaN stays a value, not a null, as with ``pa.array(..., from_pandas=False)``.
+    import was the largest single cost of a whole ``auvid ingest`` process, which never uses pandas. NaN stays a
+    value, not a null, as with ``pa.array(..., from_pandas=False)``.
     """
     import pyarrow as pa
 
@@ -411,6 +411,6 @@ def _build_table(path: Path, name: str, stream: StreamSource,
         values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
         arrays[plan.column] = _arrow(values if order is None else values[order], pa.float64(), np.float64)
     # Every column is REQUIRED (not null): a stream has no nulls (a missing value is NaN), and a Parquet column
-    # that may hold nulls stores a definition level per value: 15-30 % of the write's CPU (docs/benchmarks.md).
+    # that may hold nulls stores a definition level per value, a sizeable share of the write's CPU.
     schema = pa.schema([pa.field(name, arr.type, nullable=False) for name, arr in arrays.items()])
     return pa.Table.from_arrays(list(arrays.values()), schema=schema), t_ns, base

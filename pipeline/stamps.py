@@ -105,9 +105,8 @@ def check_stamps(stamps_ns: np.ndarray, *, clock: str, log_ns: np.ndarray | None
     t = np.asarray(stamps_ns, dtype=np.int64)
     n = int(t.size)
     checked = label or {"header": "header stamps", "log": "log times", "column": "time column"}.get(clock, clock)
-    # One scratch array holds the intervals, then header - log; each median partitions it in place. Fresh pages
-    # are much of a long stream's check: a four-hour IMU stream's 1.7 M stamps are 14 MB a temporary, and the
-    # intervals, their positive part and header - log were three (docs/benchmarks.md, eighth round).
+    # One scratch array holds the intervals, then header - log; each median partitions it in place: fresh pages
+    # of stamp-sized temporaries are much of a long stream's check (docs/notes-io.md, "Stamp checks").
     work = np.empty(n, dtype=np.int64)
     diffs = np.subtract(t[1:], t[:-1], out=work[:max(n - 1, 0)])
     zeros = int((t == 0).sum())
@@ -225,7 +224,7 @@ def _steps(t_ns: np.ndarray, block: int = 1 << 16) -> tuple[int, Any]:
     """How many of the intervals of ``t_ns`` (n > 1) are negative, and the largest interval (of t_ns's dtype).
 
     Block by block through one small array: every call of a long stream otherwise faulted in its intervals as a
-    fresh array (14 MB for a four-hour IMU stream, twice per stream: its stamps and its log times).
+    fresh array, twice per stream (its stamps and its log times).
     """
     n = int(t_ns.size)
     work = np.empty(min(block, n - 1), dtype=t_ns.dtype)

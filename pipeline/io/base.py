@@ -141,7 +141,7 @@ def release_behind(buf: bytes | mmap.mmap, done: int, pos: int) -> int:
     """Drop the pages of the read-only file mapping ``buf`` from ``done`` up to ``pos`` (rounded down to a page)
     from this process's resident memory; returns the new ``done``. The kernel keeps them in its page cache, and a
     later read of them (a duplicate check looking back) maps them again: without this, a walk over an unindexed
-    file held the whole file in the process's RSS (a four-hour bag, ~840 MB). Not a mapping: nothing to do."""
+    file held the whole file in the process's RSS. Not a mapping: nothing to do."""
     if not isinstance(buf, mmap.mmap):
         return done
     upto = pos - pos % mmap.PAGESIZE
@@ -257,7 +257,7 @@ PAGE = 4096
 def aligned_empty(size: int, phase: int = 0):
     """An uninitialised uint8 array of ``size`` bytes that starts ``phase`` bytes after a page boundary.
 
-    The kernel copies a read from the page cache ~3.5x slower (0.09 s of CPU instead of 0.025 for 200 MB, here)
+    The kernel copies a read from the page cache several times slower (docs/notes-io.md, "Read alignment")
     when the destination lies 8 to 40 bytes after the source in their pages ("4K aliasing" of the copy's loads
     and stores), and a large numpy array starts 16 bytes into a page: every page-aligned read into one (a sqlite
     page) hit it. A reader places each read at its file offset's phase in the page instead."""

@@ -9,7 +9,7 @@ the caller walks the file record by record instead (:func:`pipeline.io.mcap_read
 
 :func:`chunk_batches` then decompresses each chunk once, checks its size and CRC, locates the message records
 of the wanted channels from the chunk's message indexes (checking each record's opcode, channel and length with
-vectorized reads), and hands over batches of ~16 MB of decompressed chunks with the payload positions of each
+vectorized reads), and hands over batches of ~``BATCH_BYTES`` of decompressed chunks with the payload positions of each
 topic in storage (file) order. A damaged chunk raises :class:`Damaged`.
 """
 
@@ -82,8 +82,7 @@ def index_walk(path: Path) -> IndexedFile | None:
 class _Window:
     """Positioned reads of a file through one window of ``size`` bytes: the small records between two chunks
     (a chunk's header, short message indexes, the next header) come with one system call, not two per record.
-    64 KiB: a larger window copies more than the indexes it serves (the four-hour trial's walk: 0.098 s with a
-    read per record, 0.080 s with 64 KiB, 0.103 s with 256 KiB)."""
+    64 KiB: a larger window copies more than the indexes it serves (docs/notes-io.md, "Index window")."""
 
     def __init__(self, fd: int, size: int = 64 << 10) -> None:
         self.fd, self.size = fd, size

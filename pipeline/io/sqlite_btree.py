@@ -1,7 +1,7 @@
 """The rows of an intact rosbag2 ``messages`` table read from its b-tree pages, many at a time, with numpy.
 
-sqlite hands rows over one at a time, and even its aggregates (one ``group_concat`` row per batch) cost ~0.6 s of
-CPU for a one-hour bag of 912k messages, more than rosbags' raw iteration. The table's pages hold the same bytes
+sqlite hands rows over one at a time, and even its aggregates (one ``group_concat`` row per batch) cost more CPU
+than rosbags' raw iteration (docs/notes-io.md, "sqlite3 fetches"). The table's pages hold the same bytes
 in a simple format (https://sqlite.org/fileformat2.html): here the b-tree is walked from the table's root page
 (found in ``sqlite_master`` by sqlite itself) level by level to list the leaf pages in key (``id``) order; then
 ~16 MB of leaves at a time are read with one positioned read into a reused buffer, and every cell of them is
@@ -92,7 +92,7 @@ def leaf_pages(fd: int, layout: Layout, root: int) -> np.ndarray:
     level = np.array([root], dtype=np.int64)
     seen = 0
     for _ in range(MAX_DEPTH):
-        ordered = np.sort(level)  # (not np.unique: in numpy 2 its first call imports numpy.ma, ~10 ms of an ingest)
+        ordered = np.sort(level)  # (not np.unique: in numpy 2 its first call imports numpy.ma)
         if ordered[0] < 1 or ordered[-1] > layout.pages or (ordered[1:] == ordered[:-1]).any():
             raise NotPlain("a child page outside the file, or met twice")
         seen += len(level)

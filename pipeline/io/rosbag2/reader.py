@@ -277,7 +277,7 @@ def _load_metadata(meta: Path) -> dict[str, Any]:
         return IngestError(f"metadata.yaml is not a rosbag2 metadata file: {why}", file=meta)
 
     try:
-        # libyaml's parser where PyYAML has it (~8x less CPU than the pure-Python one)
+        # libyaml's parser where PyYAML has it (far less CPU than the pure-Python one)
         doc = yaml.load(meta.read_text(encoding="utf-8"), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
     except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as err:
         raise bad(str(err)) from err

@@ -158,7 +158,7 @@ class Sqlite3Storage:
 
     def _sqlite_batches(self, path: Path, wanted: dict[int, str]) -> Iterator[Batch]:
         """Rows in bulk, ~16 MB at a time, in ``id`` order. The messages table's leaf pages are read and parsed
-        many rows at once (:mod:`.sqlite_btree`: ~0.1 s of CPU for 912k rows), as long as they hold what that
+        many rows at once (:mod:`.sqlite_btree`, the cheapest of the three), as long as they hold what that
         parser takes; from the first thing it does not (or a schema other than rosbag2's), sqlite fetches the rest
         of the rows: one row of aggregates a batch (:func:`_concatenated_rows`; sqlite joins the payloads and
         lists the ids, stamps and lengths in C). Per-message compression needs each payload on its own: those
@@ -262,12 +262,12 @@ def _concatenated_rows(con: sqlite3.Connection, wanted: dict[int, str],
     """Batches of (topic ids, timestamps, payload buffer, starts, lengths), each fetched as one row of aggregates
     over the next rows in ``id`` order: ``group_concat`` of the ids, stamps and payload lengths (decimal text, read
     by numpy) and of the payloads themselves (one blob). Per message, sqlite does the work in C and Python none:
-    ~0.6 s of CPU for 912k messages against 1.1 s for the rows fetched as tuples, and no driver to import (ADBC's
-    import took pyarrow.dataset and pandas along). A row whose types are not integer, integer, blob raises
+    about half the CPU of the rows fetched as tuples, and no driver to import (ADBC's import took pyarrow.dataset
+    and pandas along; docs/notes-io.md, "sqlite3 fetches"). A row whose types are not integer, integer, blob raises
     :class:`_DamagedRow`. ``after``: only the rows whose id is greater.
     """
     # A stamp or topic id that is not an integer ('soon', 1.5) is text that numpy refuses; a payload that is not a
-    # blob would join unseen, so its type is counted (the one check paid per row: ~15 % of the fetch).
+    # blob would join unseen, so its type is counted (the one check paid per row).
     aggregates = ("count(*), max(id), total(typeof(data) != 'blob'), group_concat(topic_id), "
                   "group_concat(timestamp), group_concat(length(data)), CAST(group_concat(data, '') AS BLOB)")
     limit = FIRST_BATCH_ROWS
