@@ -291,7 +291,7 @@ def _warm_imports() -> None:
 
     for name in ("pyarrow.parquet", "pipeline.io", "pipeline.io.cdr", "pipeline.io.fields",
                  "pipeline.io.mcap_reader", "pipeline.io.mcap_index", "pipeline.io.rosbag1",
-                 "pipeline.io.rosbag1_index", "pipeline.io.rosbag2", "pipeline.io.text"):
+                 "pipeline.io.rosbag1_index", "pipeline.io.rosbag2.reader", "pipeline.io.text"):
         importlib.import_module(name)
     from pipeline.io.fields import _latest
 

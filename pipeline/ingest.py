@@ -42,11 +42,11 @@ from pipeline.config.snapshot import config_hash
 from pipeline.errors import ConfigError, IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo, ascending
 from pipeline.io.msgdefs import UserTypes, load_user_types
-from pipeline.stamps import check_stamps, fmt_rate, uniform_times
+from pipeline.stamps import check_stamps, fmt_rate, time_stats, uniform_times
 from pipeline.tableio import file_sha256
 from pipeline.units import conversion
 
-if TYPE_CHECKING:  # pyarrow is imported where tables are built: `auvid inspect` uses this module's time_stats
+if TYPE_CHECKING:  # pyarrow is imported where tables are built, not with this module
     import pyarrow as pa
 
     from pipeline.config import Vehicle  # a model, or the snapshot's view of one (pipeline.config.snapshot)
@@ -139,43 +139,6 @@ def _resolve_csv_file(name: str, pattern: str, available: list[str], path: Path,
                           file=path, topic=pattern)
     raise IngestError(f"stream {name!r}: pattern {pattern!r} matches several files {matches}; make it unique",
                       file=path, topic=pattern)
-
-
-def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
-    """Span, mean rate and largest gap of a stamp array (in the order given, so also counts steps back)."""
-    n = int(t_ns.size)
-    out: dict[str, Any] = {"count": n, "first_ns": None, "last_ns": None, "span_s": 0.0,
-                           "mean_rate_hz": None, "largest_gap_s": None, "steps_back": 0}
-    if n == 0:
-        return out
-    lo, hi = int(t_ns.min()), int(t_ns.max())
-    out.update(first_ns=lo, last_ns=hi, span_s=(hi - lo) / 1e9)
-    if n > 1:
-        steps_back, largest = _steps(t_ns)
-        out["steps_back"] = steps_back
-        if steps_back:
-            largest = np.diff(np.sort(t_ns)).max()
-        out["largest_gap_s"] = float(largest) / 1e9
-        out["mean_rate_hz"] = (n - 1) / ((hi - lo) / 1e9) if hi > lo else None
-    return out
-
-
-def _steps(t_ns: np.ndarray, block: int = 1 << 16) -> tuple[int, Any]:
-    """How many of the intervals of ``t_ns`` (n > 1) are negative, and the largest interval (of t_ns's dtype).
-
-    Block by block through one small array: every call of a long stream otherwise faulted in its intervals as a
-    fresh array (14 MB for a four-hour IMU stream, twice per stream: its stamps and its log times).
-    """
-    n = int(t_ns.size)
-    work = np.empty(min(block, n - 1), dtype=t_ns.dtype)
-    back, largest = 0, None
-    for lo in range(0, n - 1, block):
-        hi = min(lo + block, n - 1)
-        step = np.subtract(t_ns[lo + 1:hi + 1], t_ns[lo:hi], out=work[:hi - lo])
-        back += int(np.count_nonzero(step < 0))
-        largest = step.max() if largest is None else max(largest, step.max())
-    assert largest is not None
-    return back, largest
 
 
 def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, salvage: bool = True,
@@ -406,8 +369,8 @@ def _arrow(values: np.ndarray, arrow_type: pa.DataType, dtype: type[np.generic])
     """A numeric column without nulls as an Arrow array over the same bytes (zero copy, as ``pa.array`` makes it).
 
     Not ``pa.array``: on an ndarray it asks pandas whether the values are a Series or a Categorical, and that
-    import (0.3-0.6 s of CPU) was the largest single cost of a whole ``auvid ingest`` process, which never uses
-    pandas. NaN stays a value, not a null, as with ``pa.array(..., from_pandas=False)``.
+    import was the largest single cost of a whole ``auvid ingest`` process, which never uses pandas. NaN stays a
+    value, not a null, as with ``pa.array(..., from_pandas=False)``.
     """
     import pyarrow as pa
 
@@ -448,6 +411,6 @@ def _build_table(path: Path, name: str, stream: StreamSource,
         values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
         arrays[plan.column] = _arrow(values if order is None else values[order], pa.float64(), np.float64)
     # Every column is REQUIRED (not null): a stream has no nulls (a missing value is NaN), and a Parquet column
-    # that may hold nulls stores a definition level per value: 15-30 % of the write's CPU (docs/benchmarks.md).
+    # that may hold nulls stores a definition level per value, a sizeable share of the write's CPU.
     schema = pa.schema([pa.field(name, arr.type, nullable=False) for name, arr in arrays.items()])
     return pa.Table.from_arrays(list(arrays.values()), schema=schema), t_ns, base

@@ -16,14 +16,13 @@ module picks joblib's backend once, at the top of a run:
 A local process pool costs its start-up (forking, or for loky new interpreters importing numpy, pandas, scipy,
 the pipeline) and the pickling of every task; on small inputs that is more than the work.
 ``pmap(..., work_bytes=...)`` therefore runs serially when the work is below :data:`POOL_MIN_BYTES` (measured by
-``bench/parallel.py``, see docs/benchmarks.md, "Per-trial fan-out"). A Dask scheduler the user asked for is always
-used.
+``bench/parallel.py``). A Dask scheduler the user asked for is always used.
 
 Library code does not care which: it calls ``joblib.Parallel(n_jobs=n_jobs())`` (or scikit-learn's
 ``n_jobs=n_jobs()``) inside whatever backend is active. ``parallel_backend(scheduler)`` is the context
 manager the CLI enters; ``backend()`` is the same with the scheduler taken from the environment.
 
-joblib itself (~0.08 s of CPU to import) is imported where a pool starts or a Dask backend is entered: a run
+joblib itself (a noticeable import) is imported where a pool starts or a Dask backend is entered: a run
 that fans nothing out (``auvid ingest`` of one log) never pays for it (``tests/test_import_budget.py``).
 """
 
@@ -49,15 +48,9 @@ LOCAL = "local"
 
 #: Input bytes (summed over the items of one fan-out: the logs for ingest, the trials' inputs for sync,
 #: differentiate and derive) below which a local process pool does not pay and ``pmap`` runs serially.
-#: Measured with ``nice python bench/parallel.py --sweep`` and ``--trials 2 --minutes 0.5 --repeat 3`` on the
-#: 2 shared cores of the development machine (2026-11-24, docs/benchmarks.md "Per-trial fan-out"): a pool costs
-#: about 2.5-3 s of wall (2.9 CPU-s) the first time a stage's code runs in its workers (2 trials of 30 s: serial
-#: 3.9 s, pool 10.9 s for the whole ``auvid run --to derive``), so it pays once a stage has more than ~5 s of
-#: serial work; the heaviest stage per byte, differentiate (0.09 s/MB), gets there at ~60 MB, the others
-#: (ingest 0.012, sync 0.019, derive 0.046 s/MB) later. The issue's six small logs (a few MB) stay serial.
-#: Those were loky workers; forked ones cost far less: on idle cores (``--sweep --repeat 2``, 544ffc2) the pool
-#: pays for differentiate from ~1.5 MB and for a whole run from ~4 MB of logs, but under load (~3-5) it was still
-#: no faster at 18 and 53 MB. The value stays, the conservative side for a machine shared with other work.
+#: A pool pays only once a stage has several seconds of serial work (its start-up and the first run of a stage's
+#: code in its workers cost seconds); the value is the conservative side, for a machine shared with other work.
+#: Measured with ``bench/parallel.py --sweep``: docs/notes-io.md, "Pool threshold".
 POOL_MIN_BYTES = 64_000_000
 
 T = TypeVar("T")
@@ -346,11 +339,10 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
     """``(index, fn(items[index]))`` in completion order, from ``jobs`` worker processes forked from this one.
 
     A forked worker starts with everything this process has imported (the stage modules, numpy, pandas, pyarrow)
-    and costs a few ms, where a spawned loky worker starts an interpreter and imports them again (~1 CPU-s each on
-    the development machine). Inside a local backend the workers are kept for the next fan-out (the next stage):
-    a fresh process also pays for faulting in its heap again (~0.15 CPU-s per worker and stage on the 8 one-hour
-    trials). Any exception (a worker's, or Ctrl-C here) cancels what has not started and ends the workers before
-    it propagates.
+    and costs a few ms, where a spawned loky worker starts an interpreter and imports them again. Inside a local
+    backend the workers are kept for the next fan-out (the next stage): a fresh process also pays for faulting
+    in its heap again (docs/notes-io.md, "Forked workers"). Any exception (a worker's, or Ctrl-C here) cancels
+    what has not started and ends the workers before it propagates.
     """
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed

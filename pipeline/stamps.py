@@ -18,6 +18,9 @@ R estimated from the stamps when they allow it). The checks:
 - ``steps_back``: a stamp earlier than the one before it (ingest sorts by time; the order of the rows may be
   the true one).
 
+:func:`time_stats` gives the span, mean rate, largest gap and steps back of a stamp array (the ingest report's
+per-topic figures, and ``auvid inspect``'s).
+
 Time stays int64 nanoseconds; seconds appear only in the messages.
 """
 
@@ -102,9 +105,8 @@ def check_stamps(stamps_ns: np.ndarray, *, clock: str, log_ns: np.ndarray | None
     t = np.asarray(stamps_ns, dtype=np.int64)
     n = int(t.size)
     checked = label or {"header": "header stamps", "log": "log times", "column": "time column"}.get(clock, clock)
-    # One scratch array holds the intervals, then header - log; each median partitions it in place. Fresh pages
-    # are much of a long stream's check: a four-hour IMU stream's 1.7 M stamps are 14 MB a temporary, and the
-    # intervals, their positive part and header - log were three (docs/benchmarks.md, eighth round).
+    # One scratch array holds the intervals, then header - log; each median partitions it in place: fresh pages
+    # of stamp-sized temporaries are much of a long stream's check (docs/notes-io.md, "Stamp checks").
     work = np.empty(n, dtype=np.int64)
     diffs = np.subtract(t[1:], t[:-1], out=work[:max(n - 1, 0)])
     zeros = int((t == 0).sum())
@@ -197,3 +199,40 @@ def uniform_times(first_ns: int, rows: np.ndarray, rate_hz: float) -> np.ndarray
         return np.empty(0, dtype=np.int64)
     steps = np.rint((k - k[0]).astype(np.float64) * (NS_PER_S / rate_hz)).astype(np.int64)
     return np.int64(first_ns) + steps
+
+
+def time_stats(t_ns: np.ndarray) -> dict[str, Any]:
+    """Span, mean rate and largest gap of a stamp array (in the order given, so also counts steps back)."""
+    n = int(t_ns.size)
+    out: dict[str, Any] = {"count": n, "first_ns": None, "last_ns": None, "span_s": 0.0,
+                           "mean_rate_hz": None, "largest_gap_s": None, "steps_back": 0}
+    if n == 0:
+        return out
+    lo, hi = int(t_ns.min()), int(t_ns.max())
+    out.update(first_ns=lo, last_ns=hi, span_s=(hi - lo) / 1e9)
+    if n > 1:
+        steps_back, largest = _steps(t_ns)
+        out["steps_back"] = steps_back
+        if steps_back:
+            largest = np.diff(np.sort(t_ns)).max()
+        out["largest_gap_s"] = float(largest) / 1e9
+        out["mean_rate_hz"] = (n - 1) / ((hi - lo) / 1e9) if hi > lo else None
+    return out
+
+
+def _steps(t_ns: np.ndarray, block: int = 1 << 16) -> tuple[int, Any]:
+    """How many of the intervals of ``t_ns`` (n > 1) are negative, and the largest interval (of t_ns's dtype).
+
+    Block by block through one small array: every call of a long stream otherwise faulted in its intervals as a
+    fresh array, twice per stream (its stamps and its log times).
+    """
+    n = int(t_ns.size)
+    work = np.empty(min(block, n - 1), dtype=t_ns.dtype)
+    back, largest = 0, None
+    for lo in range(0, n - 1, block):
+        hi = min(lo + block, n - 1)
+        step = np.subtract(t_ns[lo + 1:hi + 1], t_ns[lo:hi], out=work[:hi - lo])
+        back += int(np.count_nonzero(step < 0))
+        largest = step.max() if largest is None else max(largest, step.max())
+    assert largest is not None
+    return back, largest

@@ -67,10 +67,10 @@ def write_parquet(table: pa.Table, target: str | Path, provenance: dict[str, Any
     """Write ``table`` atomically with schema version, package version and ``provenance`` in its metadata.
 
     Byte-identical output for identical input: fixed compression and encodings, no timestamps, sorted JSON
-    metadata. zstd level 1: half the compression time of level 3 for ~9 % more bytes on sensor columns, which
+    metadata. zstd level 1: much less compression time than level 3 for a few per cent more bytes, which
     matters for ingest, the stage that grows with the logs. Each column is encoded as :func:`column_encodings`
-    says (floats byte-stream-split, integers delta-packed): on a one-hour trial's streams 40 % fewer bytes than
-    plain encoding and less CPU, since zstd then works on bytes it can compress (docs/benchmarks.md, sixth round).
+    says (floats byte-stream-split, integers delta-packed): fewer bytes than plain encoding and less CPU, since
+    zstd then works on bytes it can compress (figures: docs/notes-io.md, "Parquet encodings").
     """
     import pyarrow.parquet as pq
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.io import mcap_index, open_log
-from pipeline.io.mcap_reader import Damaged
+from pipeline.io import mcap_index, mcap_records, open_log
+from pipeline.io.errors import Damaged
 from tests.io_helpers import DVL, Msg, build, ros2_store
 
 TOPIC = "/dvl"
@@ -55,7 +55,7 @@ def _message_indexes(raw: bytes) -> list[tuple[int, int]]:
     out, pos = [], 8
     while pos + 9 <= len(raw) - 8:
         op, length = struct.unpack_from("<BQ", raw, pos)
-        if op == mcap_index.OP_MESSAGE_INDEX:
+        if op == mcap_records.OP_MESSAGE_INDEX:
             (n,) = struct.unpack_from("<I", raw, pos + 9 + 2)
             out.append((pos + 9 + 6, n // 16))
         pos += 9 + length

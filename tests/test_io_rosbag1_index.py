@@ -11,7 +11,7 @@ import pytest
 from io_helpers import REQUESTS, expected, trial, write_rosbag1
 
 from pipeline.io import open_log, rosbag1_index
-from pipeline.io.mcap_reader import Damaged
+from pipeline.io.errors import Damaged
 from pipeline.io.rosbag1 import Rosbag1Reader, walk
 from pipeline.io.rosbag1_index import chunk_batches, index_walk
 

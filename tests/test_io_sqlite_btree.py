@@ -17,8 +17,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.io import rosbag2, sqlite_btree
-from pipeline.io.sqlite_btree import NotPlain, row_batches
+from pipeline.io import sqlite_btree
+from pipeline.io.errors import NotPlain
+from pipeline.io.rosbag2 import storage_sqlite3
+from pipeline.io.sqlite_btree import row_batches
 
 SCHEMA = ("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, timestamp INTEGER NOT NULL, "
           "data BLOB NOT NULL)")
@@ -149,7 +151,7 @@ def test_the_reader_goes_on_through_sqlite_after_the_last_row_handed_on(
     con = sqlite3.connect(path)
     got = []
     with caplog.at_level("INFO"):
-        for tid, stamp, buf, starts, lengths in rosbag2._paged_rows(con, path, wanted, limit=8 * 1024):
+        for tid, stamp, buf, starts, lengths in storage_sqlite3._paged_rows(con, path, wanted, limit=8 * 1024):
             got += [(int(t), int(s), buf[a:a + n].tobytes()) for t, s, a, n in zip(tid, stamp, starts, lengths,
                                                                                      strict=True)]
     con.close()
@@ -170,8 +172,8 @@ def test_another_schema_is_left_to_sqlite(tmp_path: Path, schema: str) -> None:
     con.executemany("INSERT INTO messages (id, topic_id, timestamp, data) VALUES (?, ?, ?, ?)",
                     [(i, 1, 10 * i, bytes([i])) for i in range(1, 30)])
     con.commit()
-    assert rosbag2._messages_root(con, path) is None
-    got = [(int(t), int(s)) for tid, stamps, *_ in rosbag2._paged_rows(con, path, {1: "/a"})
+    assert storage_sqlite3._messages_root(con, path) is None
+    got = [(int(t), int(s)) for tid, stamps, *_ in storage_sqlite3._paged_rows(con, path, {1: "/a"})
            for t, s in zip(tid, stamps, strict=True)]
     con.close()
     assert got == [(1, 10 * i) for i in range(1, 30)]
@@ -190,12 +192,12 @@ def test_a_write_ahead_log_beside_the_file_leaves_the_pages_to_sqlite(tmp_path: 
     assert Path(f"{path}-wal").stat().st_size > 0
     reader = sqlite3.connect(path)
     try:
-        assert rosbag2._messages_root(reader, path) is None
+        assert storage_sqlite3._messages_root(reader, path) is None
     finally:
         reader.close()
         writer.close()
     reader = sqlite3.connect(path)  # closing the last connection checkpointed the log into the file
     try:
-        assert not Path(f"{path}-wal").exists() and rosbag2._messages_root(reader, path) == root_of(path)
+        assert not Path(f"{path}-wal").exists() and storage_sqlite3._messages_root(reader, path) == root_of(path)
     finally:
         reader.close()

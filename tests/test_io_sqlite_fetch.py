@@ -17,7 +17,7 @@ from io_helpers import REQUESTS, expected, trial, write_rosbag2
 
 from pipeline.errors import IngestError
 from pipeline.io import open_log
-from pipeline.io.rosbag2 import Rosbag2Reader
+from pipeline.io.rosbag2.reader import Rosbag2Reader
 
 
 @pytest.fixture(scope="module")
@@ -62,19 +62,19 @@ def test_page_aggregated_and_row_fetches_give_identical_columns(tmp_path: Path, 
 def test_aggregated_batches_of_any_size_give_the_same_columns(tmp_path: Path, msgs: list, first: int, most: int,
                                                               monkeypatch: pytest.MonkeyPatch) -> None:
     """Batches follow each other by id (``id > last``); each is sized from the one before (a few rows here)."""
-    import pipeline.io.rosbag2 as rosbag2
+    import pipeline.io.rosbag2.storage_sqlite3 as storage_sqlite3
 
     path = write_rosbag2(tmp_path / "bag", msgs)
     plain = _read(path, rows=True, fast=True)
-    monkeypatch.setattr(rosbag2, "FIRST_BATCH_ROWS", first)
-    monkeypatch.setattr(rosbag2, "BATCH_ROWS", most)
-    monkeypatch.setattr(rosbag2, "BATCH_BYTES", 2000)
+    monkeypatch.setattr(storage_sqlite3, "FIRST_BATCH_ROWS", first)
+    monkeypatch.setattr(storage_sqlite3, "BATCH_ROWS", most)
+    monkeypatch.setattr(storage_sqlite3, "BATCH_BYTES", 2000)
     _assert_same(_read(path, rows=False, fast=True), plain)
 
 
 def test_empty_payloads_and_other_topics(msgs: list) -> None:
     """A zero-length payload adds nothing to the joined blob but keeps its row; rows of unwanted topics stay out."""
-    from pipeline.io.rosbag2 import _concatenated_rows, _fetched_rows
+    from pipeline.io.rosbag2.storage_sqlite3 import _concatenated_rows, _fetched_rows
 
     con = sqlite3.connect(":memory:")
     con.execute("CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, "

@@ -17,8 +17,8 @@ import pytest
 import stages.ingest as stage
 from pipeline import layout
 from pipeline.config import Params
-from pipeline.ingest import _steps, ingest_log, time_stats
-from pipeline.stamps import check_stamps, uniform_times
+from pipeline.ingest import ingest_log
+from pipeline.stamps import _steps, check_stamps, time_stats, uniform_times
 from tests import io_helpers as h
 from tests.test_ingest_stage import LOG_STREAMS, T0_NS, make_vehicle
 

@@ -6,11 +6,13 @@ import logging
 from pathlib import Path
 
 from pipeline.errors import IngestError
-from pipeline.io.base import LogReader, RawReader
-from pipeline.io.mcap_reader import MAGIC as MCAP_MAGIC
+from pipeline.io.base import LogReader
+from pipeline.io.mcap_records import MAGIC as MCAP_MAGIC
 from pipeline.io.msgdefs import UserTypes
-from pipeline.io.rosbag1 import MAGIC as ROS1_MAGIC
-from pipeline.io.rosbag2 import SQLITE_MAGIC, ZSTD_MAGIC, storage_files
+from pipeline.io.reader import RawReader
+from pipeline.io.rosbag1_records import MAGIC as ROS1_MAGIC
+from pipeline.io.rosbag2.reader import ZSTD_MAGIC, storage_files
+from pipeline.io.sqlite_format import MAGIC as SQLITE_MAGIC
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +68,7 @@ def open_log(path: str | Path, definitions: UserTypes | None = None) -> LogReade
 
         reader = Rosbag1Reader(path)
     else:
-        from pipeline.io.rosbag2 import Rosbag2Reader
+        from pipeline.io.rosbag2.reader import Rosbag2Reader
 
         reader = Rosbag2Reader.from_files([path]) if kind == "ros2-file" else Rosbag2Reader(path)
     if definitions is not None:

@@ -55,7 +55,7 @@ class _Definitions(dict):  # type: ignore[type-arg]
     """Type name -> rosbags field definitions: the file's and the user's (the dict's own entries) first, then
     the standard ROS 2 types, looked up only for a name that is not among them.
 
-    The standard types come from rosbags' LATEST store, whose modules take ~0.1 s of CPU to import: a log that
+    The standard types come from rosbags' LATEST store, whose modules are slow to import: a log that
     embeds its definitions (MCAP, a ROS 2 bag from Iron on) never needs them, and a ROS 1 bag needs only ``time``
     and ``duration``, which are parsed here instead.
     """

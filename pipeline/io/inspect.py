@@ -28,9 +28,8 @@ import numpy as np
 
 from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
-from pipeline.ingest import time_stats
 from pipeline.io.msgdefs import UserTypes
-from pipeline.stamps import check_stamps
+from pipeline.stamps import check_stamps, time_stats
 
 log = logging.getLogger(__name__)
 

@@ -9,7 +9,7 @@ the caller walks the file record by record instead (:func:`pipeline.io.mcap_read
 
 :func:`chunk_batches` then decompresses each chunk once, checks its size and CRC, locates the message records
 of the wanted channels from the chunk's message indexes (checking each record's opcode, channel and length with
-vectorized reads), and hands over batches of ~16 MB of decompressed chunks with the payload positions of each
+vectorized reads), and hands over batches of ~``BATCH_BYTES`` of decompressed chunks with the payload positions of each
 topic in storage (file) order. A damaged chunk raises :class:`Damaged`.
 """
 
@@ -26,24 +26,24 @@ import numpy as np
 
 from pipeline.io.base import BATCH_BYTES, Batch, Rows, ascending, field_view, scratch_buffer, take_rows
 from pipeline.io.dedup import crc
-from pipeline.io.mcap_reader import (
+from pipeline.io.errors import Damaged
+from pipeline.io.mcap_records import (
     MAGIC,
     OP_CHANNEL,
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
+    OP_MESSAGE_INDEX,
     OP_SCHEMA,
     OP_STATISTICS,
     Channel,
-    Damaged,
     Walk,
-    _decompress,
+    decompress,
     implausible_chunk,
 )
 
 log = logging.getLogger(__name__)
 
-OP_MESSAGE_INDEX = 0x07
 _SKIPPABLE = {0x01, 0x08, 0x09, 0x0A, 0x0C, 0x0D, 0x0E, OP_DATA_END}  # header, chunk index, attachments, metadata...
 _ENTRY = np.dtype([("t", "<u8"), ("o", "<u8")])
 
@@ -82,8 +82,7 @@ def index_walk(path: Path) -> IndexedFile | None:
 class _Window:
     """Positioned reads of a file through one window of ``size`` bytes: the small records between two chunks
     (a chunk's header, short message indexes, the next header) come with one system call, not two per record.
-    64 KiB: a larger window copies more than the indexes it serves (the four-hour trial's walk: 0.098 s with a
-    read per record, 0.080 s with 64 KiB, 0.103 s with 256 KiB)."""
+    64 KiB: a larger window copies more than the indexes it serves (docs/notes-io.md, "Index window")."""
 
     def __init__(self, fd: int, size: int = 64 << 10) -> None:
         self.fd, self.size = fd, size
@@ -271,7 +270,7 @@ def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:
     if len(raw) != chunk.length:
         raise Damaged("chunk cut short", chunk.at)
     try:
-        data = _decompress(chunk.compression, raw, chunk.usize, partial=False)
+        data = decompress(chunk.compression, raw, chunk.usize, partial=False)
     except Damaged as dmg:
         raise Damaged(dmg.reason, chunk.at) from None
     except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types

@@ -16,111 +16,43 @@ import logging
 import mmap
 import struct
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import (
-    RELEASE_BYTES,
-    Batch,
-    RawReader,
-    Restart,
-    SalvageInfo,
-    TopicInfo,
-    release_behind,
-    stream_walk,
-)
-from pipeline.io.dedup import Seen, crc
+from pipeline.io.base import RELEASE_BYTES, Batch, SalvageInfo, TopicInfo, release_behind, stream_walk
+from pipeline.io.dedup import crc
+from pipeline.io.errors import Damaged, Restart
 from pipeline.io.fields import TypeRegistry, normalize_msgtype
+from pipeline.io.mcap_records import (
+    MAGIC,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_FOOTER,
+    OP_MESSAGE,
+    OP_SCHEMA,
+    OP_STATISTICS,
+    Channel,
+    Walk,
+    decompress,
+    implausible_chunk,
+)
+from pipeline.io.reader import RawReader
 
 if TYPE_CHECKING:
     from pipeline.io.mcap_index import IndexedFile
 
 log = logging.getLogger(__name__)
 
-MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-OP_STATISTICS, OP_DATA_END = 0x0B, 0x0F
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 _REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQQ")
-
-
-class Damaged(Exception):
-    """The file is damaged at byte ``at``."""
-
-    def __init__(self, reason: str, at: int) -> None:
-        super().__init__(f"{reason} at byte {at}")
-        self.reason = reason
-        self.at = at
-
-
-@dataclass
-class Channel:
-    id: int
-    topic: str
-    encoding: str
-    schema_id: int
-
-
-@dataclass
-class Walk:
-    """What a walk over one MCAP file found."""
-
-    schemas: dict[int, tuple[str, str, str]] = field(default_factory=dict)  # id -> (name, encoding, text)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    counts: dict[int, int] = field(default_factory=dict)
-    first: dict[int, int] = field(default_factory=dict)
-    last: dict[int, int] = field(default_factory=dict)
-    stats_counts: dict[int, int] | None = None
-    damage: Damaged | None = None
-    kept: int = 0
-    seen: Seen = field(default_factory=Seen)  # chunks and messages met twice, dropped
-
-
 _INT64_LIMIT = 1 << 63
-# The most a chunk can inflate: LZ4 frames at most ~255x, zstd ~32768x (a 3-byte RLE block header per 128 KiB).
-_MAX_RATIO = {"": 1, "lz4": 256, "zstd": 1 << 15}
-
-
-def implausible_chunk(compression: str, rlen: int, usize: int) -> str | None:
-    """Why a chunk's claimed uncompressed size cannot be true for its compressed length, or None.
-
-    Checked before anything is allocated: a damaged size field (2**40, 2**64 - 1) must not become a buffer.
-    """
-    ratio = _MAX_RATIO.get(compression)
-    if ratio is None:
-        return None  # an unknown compression is reported where it is decompressed
-    if compression == "" and usize != rlen:
-        return f"uncompressed chunk claims {usize} bytes but holds {rlen}"
-    if usize > ratio * rlen + 1024:
-        return (f"chunk claims {usize} bytes uncompressed from {rlen} compressed ({compression} inflates at most "
-                f"{ratio}x)")
-    return None
 
 
 def _string(buf: bytes | mmap.mmap, pos: int) -> tuple[str, int]:
     (n,) = _U32.unpack_from(buf, pos)
     return bytes(buf[pos + 4:pos + 4 + n]).decode("utf-8", "replace"), pos + 4 + n
-
-
-def _decompress(compression: str, data: bytes, size: int, *, partial: bool) -> bytes:
-    if compression == "":
-        return data
-    if compression == "zstd":
-        import zstandard
-
-        if partial:
-            return zstandard.ZstdDecompressor().decompressobj().decompress(data)
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=max(size, 1))
-    if compression == "lz4":
-        import lz4.frame
-
-        if partial:
-            return lz4.frame.LZ4FrameDecompressor().decompress(data)
-        return lz4.frame.decompress(data)
-    raise Damaged(f"unknown chunk compression {compression!r}", 0)
 
 
 def walk(
@@ -239,7 +171,7 @@ def _chunk(
         log.warning("chunk at byte %d repeats an earlier chunk byte for byte; dropped", origin)
         return
     try:
-        data = _decompress(compression, raw, usize, partial=False)
+        data = decompress(compression, raw, usize, partial=False)
     except Damaged as dmg:
         raise Damaged(dmg.reason, origin) from None
     except Exception as err:  # noqa: BLE001 - zstd/lz4 raise their own error types
@@ -264,7 +196,7 @@ def _partial_chunk(
     """Keep the complete messages of a chunk that the file's end cut through."""
     try:
         usize, _crc, compression, rstart, rlen = _chunk_head(buf, body)
-        data = _decompress(compression, bytes(buf[rstart:min(end, rstart + rlen)]), usize, partial=True)
+        data = decompress(compression, bytes(buf[rstart:min(end, rstart + rlen)]), usize, partial=True)
     except Exception:  # noqa: BLE001 - nothing recoverable in this chunk
         return
     try:

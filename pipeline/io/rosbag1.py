@@ -11,101 +11,43 @@ located from the index-data records with numpy); the record walk here serves uni
 
 from __future__ import annotations
 
-import bz2
 import logging
 import mmap
 import struct
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
-from pipeline.io.base import (
-    RELEASE_BYTES,
-    Batch,
-    RawReader,
-    Restart,
-    SalvageInfo,
-    TopicInfo,
-    release_behind,
-    stream_walk,
+from pipeline.io.base import RELEASE_BYTES, Batch, SalvageInfo, TopicInfo, release_behind, stream_walk
+from pipeline.io.dedup import crc
+from pipeline.io.errors import Damaged, Restart
+from pipeline.io.fields import TypeRegistry
+from pipeline.io.reader import RawReader
+from pipeline.io.rosbag1_records import (
+    MAGIC,
+    OP_BAG_HEADER,
+    OP_CHUNK,
+    OP_CHUNK_INFO,
+    OP_CONNECTION,
+    OP_INDEX,
+    OP_MSG,
+    U32,
+    BagWalk,
+    add_connection,
+    decompress,
+    read_header,
 )
-from pipeline.io.dedup import Seen, crc
-from pipeline.io.fields import TypeRegistry, normalize_msgtype
-from pipeline.io.mcap_reader import Damaged
 
 if TYPE_CHECKING:
     from pipeline.io.rosbag1_index import IndexedBag
 
 log = logging.getLogger(__name__)
 
-MAGIC = b"#ROSBAG V2.0\n"
-OP_MSG, OP_BAG_HEADER, OP_INDEX, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
-_U32 = struct.Struct("<I")
-
-
-@dataclass
-class Connection:
-    id: int
-    topic: str
-    msgtype: str
-    definition: str
-
-
-@dataclass
-class BagWalk:
-    connections: dict[int, Connection] = field(default_factory=dict)
-    counts: dict[int, int] = field(default_factory=dict)
-    first: dict[int, int] = field(default_factory=dict)
-    last: dict[int, int] = field(default_factory=dict)
-    index_pos: int = 0
-    has_bag_header: bool = False
-    damage: Damaged | None = None
-    kept: int = 0
-    seen: Seen = field(default_factory=Seen)  # chunks and messages met twice, dropped
-
-
-def _header(buf: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
-    fields: dict[str, bytes] = {}
-    while pos < end:
-        (n,) = _U32.unpack_from(buf, pos)
-        if pos + 4 + n > end:
-            raise struct.error("header field overruns its header")
-        raw = bytes(buf[pos + 4:pos + 4 + n])
-        key, sep, value = raw.partition(b"=")
-        if not sep:
-            raise struct.error("header field without '='")
-        fields[key.decode("ascii", "replace")] = value
-        pos += 4 + n
-    return fields
-
 
 def _time(value: bytes) -> int:
     sec, nsec = struct.unpack("<II", value)
     return sec * 1_000_000_000 + nsec
-
-
-def _decompress(compression: str, data: bytes, *, partial: bool) -> bytes:
-    if compression == "none":
-        return data
-    if compression == "bz2":
-        return bz2.BZ2Decompressor().decompress(data) if partial else bz2.decompress(data)
-    if compression == "lz4":
-        import lz4.frame
-
-        return lz4.frame.LZ4FrameDecompressor().decompress(data) if partial else lz4.frame.decompress(data)
-    raise Damaged(f"unknown chunk compression {compression!r}", 0)
-
-
-def _connection(out: BagWalk, hdr: dict[str, bytes], buf: bytes | mmap.mmap, dpos: int, dend: int) -> None:
-    cid = _U32.unpack(hdr["conn"])[0]
-    if cid in out.connections:
-        return
-    data = _header(buf, dpos, dend)
-    out.connections[cid] = Connection(
-        cid, hdr["topic"].decode(), normalize_msgtype(data.get("type", b"").decode()),
-        data.get("message_definition", b"").decode("utf-8", "replace"))
 
 
 def walk_records(
@@ -122,16 +64,16 @@ def walk_records(
         at = pos if origin is None else origin
         if pos + 4 > end:
             raise Damaged("record header length cut short", at)
-        (hlen,) = _U32.unpack_from(buf, pos)
+        (hlen,) = U32.unpack_from(buf, pos)
         if pos + 8 + hlen > end:
             if tolerant and origin is None and hlen < end:
                 _partial_chunk(buf, pos, end, out, on_message, wanted)
             raise Damaged("record cut short", at)
         try:
-            hdr = _header(buf, pos + 4, pos + 4 + hlen)
+            hdr = read_header(buf, pos + 4, pos + 4 + hlen)
         except struct.error as err:
             raise Damaged(f"malformed record header ({err})", at) from err
-        (dlen,) = _U32.unpack_from(buf, pos + 4 + hlen)
+        (dlen,) = U32.unpack_from(buf, pos + 4 + hlen)
         dpos = pos + 8 + hlen
         dend = dpos + dlen
         if dend > end:
@@ -140,7 +82,7 @@ def walk_records(
             raise Damaged("record data cut short", at)
         op = hdr.get("op", b"\x00")[0]
         if op == OP_MSG:
-            cid = _U32.unpack(hdr["conn"])[0]
+            cid = U32.unpack(hdr["conn"])[0]
             if cid not in out.connections:
                 raise Damaged(f"message on unknown connection {cid}", at)
             t = _time(hdr["time"])
@@ -154,7 +96,7 @@ def walk_records(
             if on_message is not None and (wanted is None or cid in wanted):
                 on_message(cid, t, bytes(buf[dpos:dend]))
         elif op == OP_CONNECTION:
-            _connection(out, hdr, buf, dpos, dend)
+            add_connection(out, hdr, buf, dpos, dend)
         elif op == OP_CHUNK:
             comp = hdr.get("compression", b"none").decode()
             raw = bytes(buf[dpos:dend])
@@ -163,12 +105,12 @@ def walk_records(
                 pos = dend
                 continue
             try:
-                data = _decompress(comp, raw, partial=False)
+                data = decompress(comp, raw, partial=False)
             except Damaged:
                 raise Damaged(f"unknown chunk compression {comp!r}", at) from None
             except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
                 raise Damaged(f"chunk does not decompress ({err})", at) from err
-            if len(data) != _U32.unpack(hdr["size"])[0]:
+            if len(data) != U32.unpack(hdr["size"])[0]:
                 raise Damaged("chunk size mismatch (corrupt bytes)", at)
             staged: list[tuple[int, int, bytes]] = []
             walk_records(data, 0, len(data), out, _stager(staged), wanted, tolerant=tolerant, origin=at)
@@ -195,11 +137,11 @@ def _partial_chunk(
 ) -> None:
     """Keep the complete messages of a chunk that the file's end cut through."""
     try:
-        (hlen,) = _U32.unpack_from(buf, pos)
-        hdr = _header(buf, pos + 4, pos + 4 + hlen)
+        (hlen,) = U32.unpack_from(buf, pos)
+        hdr = read_header(buf, pos + 4, pos + 4 + hlen)
         if hdr.get("op") != bytes([OP_CHUNK]):
             return
-        data = _decompress(hdr.get("compression", b"none").decode(), bytes(buf[pos + 8 + hlen:end]), partial=True)
+        data = decompress(hdr.get("compression", b"none").decode(), bytes(buf[pos + 8 + hlen:end]), partial=True)
     except Exception:  # noqa: BLE001 - nothing recoverable
         return
     try:
@@ -253,10 +195,10 @@ def _check_index(buf: mmap.mmap, pos: int, end: int) -> None:
     while pos < end:
         if pos + 4 > end:
             raise Damaged("index record cut short", pos)
-        (hlen,) = _U32.unpack_from(buf, pos)
+        (hlen,) = U32.unpack_from(buf, pos)
         if pos + 8 + hlen > end:
             raise Damaged("index record cut short", pos)
-        (dlen,) = _U32.unpack_from(buf, pos + 4 + hlen)
+        (dlen,) = U32.unpack_from(buf, pos + 4 + hlen)
         if pos + 8 + hlen + dlen > end:
             raise Damaged("index record cut short", pos)
         pos += 8 + hlen + dlen
@@ -273,9 +215,9 @@ def index_counts(path: Path) -> dict[int, int] | None:
         chunks: set[bytes] = set()
         pos = probe.index_pos
         while pos + 4 <= len(mm):
-            (hlen,) = _U32.unpack_from(mm, pos)
-            hdr = _header(mm, pos + 4, pos + 4 + hlen)
-            (dlen,) = _U32.unpack_from(mm, pos + 4 + hlen)
+            (hlen,) = U32.unpack_from(mm, pos)
+            hdr = read_header(mm, pos + 4, pos + 4 + hlen)
+            (dlen,) = U32.unpack_from(mm, pos + 4 + hlen)
             dpos = pos + 8 + hlen
             if hdr.get("op") == bytes([OP_CHUNK_INFO]) and hdr.get("chunk_pos") not in chunks:
                 chunks.add(hdr.get("chunk_pos", b""))

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.base import BATCH_BYTES, Batch, Rows, ascending, field_view, take_rows
-from pipeline.io.mcap_reader import Damaged
-from pipeline.io.rosbag1 import (
+from pipeline.io.errors import Damaged
+from pipeline.io.rosbag1_records import (
     MAGIC,
     OP_BAG_HEADER,
     OP_CHUNK,
@@ -29,9 +29,9 @@ from pipeline.io.rosbag1 import (
     OP_CONNECTION,
     OP_INDEX,
     BagWalk,
-    _connection,
-    _decompress,
-    _header,
+    add_connection,
+    decompress,
+    read_header,
 )
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ def _record(fd: int, pos: int, end: int) -> tuple[dict[str, bytes], int, int]:
     if pos + 8 + hlen > end:
         raise struct.error("record cut short")
     raw = os.pread(fd, hlen + 4, pos + 4)
-    hdr = _header(raw, 0, hlen)
+    hdr = read_header(raw, 0, hlen)
     (dlen,) = struct.unpack_from("<I", raw, hlen)
     if pos + 8 + hlen + dlen > end:
         raise struct.error("record data cut short")
@@ -99,14 +99,14 @@ def _index_walk(path: Path) -> IndexedBag | None:
         listed: set[int] = set()
         while pos < len(section):
             (hlen,) = struct.unpack_from("<I", section, pos)
-            hdr = _header(section, pos + 4, pos + 4 + hlen)
+            hdr = read_header(section, pos + 4, pos + 4 + hlen)
             (dlen,) = struct.unpack_from("<I", section, pos + 4 + hlen)
             dpos = pos + 8 + hlen
             if dpos + dlen > len(section):
                 return None
             op = hdr["op"][0]
             if op == OP_CONNECTION:
-                _connection(out, hdr, section, dpos, dpos + dlen)
+                add_connection(out, hdr, section, dpos, dpos + dlen)
             elif op == OP_CHUNK_INFO:
                 cpos = struct.unpack("<Q", hdr["chunk_pos"])[0]
                 if cpos in listed:  # the same chunk listed twice: read it once
@@ -191,7 +191,7 @@ def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: in
             else:
                 raw = os.pread(fd, chunk.length, chunk.data)
                 try:
-                    dec = _decompress(chunk.compression, raw, partial=False)
+                    dec = decompress(chunk.compression, raw, partial=False)
                 except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
                     raise Damaged(f"chunk does not decompress ({err})", chunk.at) from err
                 if len(dec) != chunk.size:

@@ -1,7 +1,7 @@
 """The rows of an intact rosbag2 ``messages`` table read from its b-tree pages, many at a time, with numpy.
 
-sqlite hands rows over one at a time, and even its aggregates (one ``group_concat`` row per batch) cost ~0.6 s of
-CPU for a one-hour bag of 912k messages, more than rosbags' raw iteration. The table's pages hold the same bytes
+sqlite hands rows over one at a time, and even its aggregates (one ``group_concat`` row per batch) cost more CPU
+than rosbags' raw iteration (docs/notes-io.md, "sqlite3 fetches"). The table's pages hold the same bytes
 in a simple format (https://sqlite.org/fileformat2.html): here the b-tree is walked from the table's root page
 (found in ``sqlite_master`` by sqlite itself) level by level to list the leaf pages in key (``id``) order; then
 ~16 MB of leaves at a time are read with one positioned read into a reused buffer, and every cell of them is
@@ -27,20 +27,30 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.base import scratch_buffer
+from pipeline.io.errors import NotPlain
+from pipeline.io.sqlite_format import (
+    HEADER_BYTES,
+    INT_BYTES,
+    INTERIOR_TABLE,
+    LEAF_TABLE,
+    MAGIC,
+    MIN_USABLE,
+    is_int,
+    local_payload,
+    max_local,
+    page_size,
+    usable_size,
+    valid_page_size,
+)
 
-LEAF, INTERIOR = 0x0D, 0x05
 MAX_DEPTH = 32
 #: Bytes gathered from the start of every cell: payload size, rowid, the record's header, topic_id and timestamp
 #: of a rosbag2 row fit in them (at most 3 + 4 + 4 + 3 + 8 + 8).
 PREFIX = 32
 
-#: Serial type -> bytes of an integer value (7, a float, is not an integer; 8 and 9 are the constants 0 and 1).
-_INT_BYTES = np.array([0, 1, 2, 3, 4, 6, 8, 0, 0, 0], dtype=np.int64)
-_IS_INT = np.array([False, True, True, True, True, True, True, False, True, True])
-
-
-class NotPlain(Exception):
-    """Something on the pages that the vectorized read does not take; sqlite should read the rest."""
+#: Serial type -> bytes of an integer value, and whether it is an integer (:data:`.sqlite_format.INT_BYTES`).
+_INT_BYTES = np.array(INT_BYTES, dtype=np.int64)
+_IS_INT = np.array([is_int(t) for t in range(len(INT_BYTES))])
 
 
 @dataclass(frozen=True)
@@ -51,15 +61,14 @@ class Layout:
 
     @classmethod
     def of(cls, fd: int) -> Layout:
-        head = os.pread(fd, 100, 0)
-        if len(head) < 100 or head[:16] != b"SQLite format 3\x00":
+        head = os.pread(fd, HEADER_BYTES, 0)
+        if len(head) < HEADER_BYTES or head[:16] != MAGIC:
             raise NotPlain("no sqlite header")
-        size = int.from_bytes(head[16:18], "big")
-        size = 65536 if size == 1 else size
-        if size < 512 or size & (size - 1):
+        size = page_size(head)
+        if not valid_page_size(size):
             raise NotPlain(f"page size {size}")
-        usable = size - head[20]
-        if usable < 480:
+        usable = usable_size(head, size)
+        if usable < MIN_USABLE:
             raise NotPlain(f"{head[20]} reserved bytes a page")
         return cls(size, usable, os.fstat(fd).st_size // size)
 
@@ -83,7 +92,7 @@ def leaf_pages(fd: int, layout: Layout, root: int) -> np.ndarray:
     level = np.array([root], dtype=np.int64)
     seen = 0
     for _ in range(MAX_DEPTH):
-        ordered = np.sort(level)  # (not np.unique: in numpy 2 its first call imports numpy.ma, ~10 ms of an ingest)
+        ordered = np.sort(level)  # (not np.unique: in numpy 2 its first call imports numpy.ma)
         if ordered[0] < 1 or ordered[-1] > layout.pages or (ordered[1:] == ordered[:-1]).any():
             raise NotPlain("a child page outside the file, or met twice")
         seen += len(level)
@@ -94,10 +103,10 @@ def leaf_pages(fd: int, layout: Layout, root: int) -> np.ndarray:
             page = os.pread(fd, layout.page_size, (pgno - 1) * layout.page_size)
             if len(page) != layout.page_size:
                 raise NotPlain(f"page {pgno} cut short")
-            at = 100 if pgno == 1 else 0
-            if page[at] == LEAF and not children:  # the leaf level (each leaf's type is checked as it is read)
+            at = HEADER_BYTES if pgno == 1 else 0
+            if page[at] == LEAF_TABLE and not children:  # the leaf level (each leaf's type is checked as it is read)
                 return level
-            if page[at] != INTERIOR:
+            if page[at] != INTERIOR_TABLE:
                 raise NotPlain(f"page {pgno} of type {page[at]} among the interior pages of the b-tree")
             children.append(_children(page, at, layout))
         level = np.concatenate(children)
@@ -267,7 +276,7 @@ def _ints(buf: np.ndarray, at: np.ndarray, serial: np.ndarray) -> np.ndarray:
 def _parse(fd: int, layout: Layout, buf: np.ndarray, page_at: np.ndarray) -> RowBatch:
     """Every cell of the leaf pages starting at ``page_at`` in ``buf``."""
     usable = layout.usable
-    if (buf[page_at] != LEAF).any():
+    if (buf[page_at] != LEAF_TABLE).any():
         raise NotPlain("a page of the table's leaf level is not a table leaf")
     ncells = (buf[page_at + 3].astype(np.int64) << 8) | buf[page_at + 4]
     if (8 + 2 * ncells > usable).any():
@@ -294,7 +303,7 @@ def _parse(fd: int, layout: Layout, buf: np.ndarray, page_at: np.ndarray) -> Row
     size = size.astype(np.int64)
     if (rowid[1:] <= rowid[:-1]).any():  # (not np.diff: it overflows between the extremes)
         raise NotPlain("rowids out of order on the leaf pages")
-    over = size > usable - 35
+    over = size > max_local(usable)
     if over.any():
         buf, p, end = _overflowed(fd, layout, buf, p, end, size, over)
     elif (p + size > end).any():
@@ -351,7 +360,7 @@ def _parse_prefixes(buf: np.ndarray, cell: np.ndarray, end: np.ndarray, usable: 
     rowid, n_rowid = got
     at = n_size + n_rowid  # the record, from the cell's start
     head = np.ndarray(shape=(len(flat) - 3,), dtype=">u4", buffer=flat, strides=(1,))[base + at].astype(np.int64)
-    if (head & 0x80808080).any() or (n_size > 3).any() or (size > usable - 35).any():
+    if (head & 0x80808080).any() or (n_size > 3).any() or (size > max_local(usable)).any():
         return None
     got = _word_varints(flat, base + at + 4)
     if got is None:
@@ -397,13 +406,11 @@ def _overflowed(fd: int, layout: Layout, buf: np.ndarray, p: np.ndarray, end: np
     local_ok = ~over
     if (p[local_ok] + size[local_ok] > end[local_ok]).any():
         raise NotPlain("a cell runs past its page")
-    m = (u - 12) * 32 // 255 - 23
     parts, at = [], len(buf)
     p, end = p.copy(), end.copy()
     for i in np.flatnonzero(over).tolist():
         total = int(size[i])
-        k = m + (total - m) % (u - 4)
-        local = k if k <= u - 35 else m
+        local = local_payload(total, u)
         start = int(p[i])
         if start + local + 4 > int(end[i]):
             raise NotPlain("an overflowing cell runs past its page")

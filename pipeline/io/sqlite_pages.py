@@ -25,9 +25,24 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import IngestError
+from pipeline.io.errors import Malformed
+from pipeline.io.sqlite_format import (
+    HEADER_BYTES,
+    INT_BYTES,
+    LEAF_TABLE,
+    MAGIC,
+    MIN_USABLE,
+    claimed_pages,
+    count_valid,
+    is_int,
+    local_payload,
+    max_local,
+    page_size,
+    usable_size,
+    valid_page_size,
+    varint,
+)
 
-MAGIC = b"SQLite format 3\x00"
-LEAF_TABLE = 0x0D
 _U16, _U32 = struct.Struct(">H"), struct.Struct(">I")
 
 
@@ -35,42 +50,22 @@ def cut_short(path: str | Path) -> str | None:
     """Why the sqlite file at ``path`` is shorter than it should be (not whole pages, or fewer pages than its
     header counts), or None. sqlite itself reads a partial last page as zeros and drops its rows unseen."""
     with open(path, "rb") as fh:
-        head = fh.read(100)
+        head = fh.read(HEADER_BYTES)
         size = fh.seek(0, 2)
-    if len(head) < 100 or head[:16] != MAGIC:
+    if len(head) < HEADER_BYTES or head[:16] != MAGIC:
         return None
-    (page_size,) = _U16.unpack_from(head, 16)
-    page_size = 65536 if page_size == 1 else page_size
-    if page_size < 512 or page_size & (page_size - 1):
+    psize = page_size(head)
+    if not valid_page_size(psize):
         return None
-    (claimed,) = _U32.unpack_from(head, 28)
-    valid = head[24:28] == head[92:96]  # the header's page count is kept up to date by this writer
-    if valid and size >= claimed * page_size:
+    claimed = claimed_pages(head)
+    valid = count_valid(head)  # the header's page count is kept up to date by this writer
+    if valid and size >= claimed * psize:
         return None  # every page the header counts is there (bytes beyond them are another kind of damage)
-    if size % page_size:
-        return f"the file ends {size % page_size} bytes into page {size // page_size + 1} (not whole pages)"
+    if size % psize:
+        return f"the file ends {size % psize} bytes into page {size // psize + 1} (not whole pages)"
     if valid:
-        return f"the file holds {size // page_size} pages of the {claimed} its header counts"
+        return f"the file holds {size // psize} pages of the {claimed} its header counts"
     return None
-
-
-class Malformed(Exception):
-    """A cell or record that the file's bytes cannot hold."""
-
-
-def varint(buf: bytes | mmap.mmap, pos: int, end: int) -> tuple[int, int]:
-    """sqlite's big-endian varint at ``pos`` (1 to 9 bytes): (value, position after it)."""
-    value = 0
-    for i in range(9):
-        if pos + i >= end:
-            raise Malformed("varint runs past its page")
-        byte = buf[pos + i]
-        if i == 8:
-            return (value << 8) | byte, pos + 9
-        value = (value << 7) | (byte & 0x7F)
-        if byte < 0x80:
-            return value, pos + i + 1
-    raise AssertionError("unreachable")
 
 
 class SqlitePages:
@@ -87,18 +82,17 @@ class SqlitePages:
         except BaseException:
             self._fh.close()
             raise
-        head = self.buf[:100]
-        (size,) = _U16.unpack_from(head, 16)
-        self.page_size = 65536 if size == 1 else size
-        if head[:16] != MAGIC or self.page_size < 512 or self.page_size & (self.page_size - 1):
+        head = self.buf[:HEADER_BYTES]
+        self.page_size = page_size(head)
+        if head[:16] != MAGIC or not valid_page_size(self.page_size):
             self.close()
             raise IngestError("not an sqlite3 file (magic or page size wrong in its header)", file=self.path)
-        self.usable = self.page_size - head[20]
-        if self.usable < 480:
+        self.usable = usable_size(head, self.page_size)
+        if self.usable < MIN_USABLE:
             self.close()
             raise IngestError(f"sqlite header reserves {head[20]} bytes a page; impossible", file=self.path)
         (self.encoding,) = _U32.unpack_from(head, 56)
-        (self.claimed_pages,) = _U32.unpack_from(head, 28)
+        self.claimed_pages = claimed_pages(head)
         self.pages = -(-self.size // self.page_size)  # the last may be partial
         self.bad_cells = 0
 
@@ -123,14 +117,14 @@ class SqlitePages:
     def table_leaves(self) -> Iterator[int]:
         """Numbers of the pages (1-based) whose type byte says table b-tree leaf."""
         for pgno in range(1, self.pages + 1):
-            at = (pgno - 1) * self.page_size + (100 if pgno == 1 else 0)
+            at = (pgno - 1) * self.page_size + (HEADER_BYTES if pgno == 1 else 0)
             if at < self.size and self.buf[at] == LEAF_TABLE:
                 yield pgno
 
     def leaf_cells(self, pgno: int) -> Iterator[tuple[int, bytes]]:
         """(rowid, record) of each cell of leaf page ``pgno`` that lies wholly in the file, in key order."""
         base = (pgno - 1) * self.page_size
-        head = base + (100 if pgno == 1 else 0)
+        head = base + (HEADER_BYTES if pgno == 1 else 0)
         end = min(base + self.page_size, self.size)
         if head + 8 > end:
             return
@@ -154,16 +148,13 @@ class SqlitePages:
         if rowid >= 1 << 63:
             rowid -= 1 << 64
         u = self.usable
-        x = u - 35
-        if size <= x:
+        if size <= max_local(u):
             if p + size > end:
                 raise Malformed("cell runs past its page (or the file's end)")
             return rowid, bytes(self.buf[p:p + size])
         if size > (self.pages + 1) * u:
             raise Malformed(f"cell claims {size} bytes, more than the file holds")
-        m = (u - 12) * 32 // 255 - 23
-        k = m + (size - m) % (u - 4)
-        local = k if k <= x else m
+        local = local_payload(size, u)
         if p + local + 4 > end:
             raise Malformed("cell runs past its page (or the file's end)")
         parts = [bytes(self.buf[p:p + local])]
@@ -199,7 +190,7 @@ def decode_record(record: bytes) -> tuple[list[int], list[Any]]:
             out.append(None)
             continue
         if 1 <= t <= 6:
-            n = (1, 2, 3, 4, 6, 8)[t - 1]
+            n = INT_BYTES[t]
             if q + n > len(record):
                 raise Malformed("record value overruns the record")
             out.append(int.from_bytes(record[q:q + n], "big", signed=True))
@@ -220,10 +211,6 @@ def decode_record(record: bytes) -> tuple[list[int], list[Any]]:
             raise Malformed(f"reserved serial type {t}")
         q += n
     return types, out
-
-
-def _is_int(t: int) -> bool:
-    return 1 <= t <= 6 or t in (8, 9)
 
 
 @dataclass
@@ -249,7 +236,7 @@ def message_rows(pages: SqlitePages, topic_ids: set[int]) -> MessageRows:
             except Malformed:
                 pages.bad_cells += 1
                 continue
-            if len(types) != 4 or types[0] != 0 or not (_is_int(types[1]) and _is_int(types[2])) \
+            if len(types) != 4 or types[0] != 0 or not (is_int(types[1]) and is_int(types[2])) \
                     or types[3] < 12 or types[3] % 2 or values[1] not in topic_ids:
                 continue
             for col, value in zip(cols, (pgno, rowid, values[1], values[2]), strict=True):
