@@ -65,11 +65,13 @@ class Progress:
 
 
 def progress_factory(args: argparse.Namespace) -> Callable[[str], Progress]:
+    """One :class:`Progress` per stage, drawn only on a terminal and not with ``-q``."""
     enabled = sys.stdout.isatty() and not getattr(args, "quiet", False)
     return lambda stage: Progress(stage, enabled)
 
 
 def salvaged(result: Any) -> list[str]:
+    """The damaged logs a stage read in part (its summary's ``salvaged``)."""
     summary = result.summary if isinstance(getattr(result, "summary", None), dict) else {}
     return [str(t) for t in summary.get("salvaged", [])]
 
@@ -91,10 +93,12 @@ def print_stage(stage: str, result: Any, seconds: float) -> None:
 
 
 def on_stage(args: argparse.Namespace) -> Callable[[str, Any, float], None] | None:
+    """The per-stage line printer, or None with ``-q``."""
     return None if getattr(args, "quiet", False) else print_stage
 
 
 def check_paths(paths: list[Path], what: str) -> None:
+    """A :class:`UsageError` naming every path given that does not exist."""
     missing = [str(p) for p in paths if not Path(p).exists()]
     if missing:
         raise UsageError(f"{what} not found: {', '.join(missing)}")
