@@ -74,7 +74,7 @@ def _find_logs(directory: Path) -> list[Path]:
 
 def _add_modeline(path: Path, kind: str) -> None:
     """Put the schema line first in a config file (replacing one that names another path)."""
-    from pipeline.starter import schema_modeline
+    from pipeline.config.schemas import schema_modeline
 
     lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
     if lines and lines[0].startswith(MODELINE_PREFIX):

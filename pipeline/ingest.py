@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
-from pipeline.config.snapshot import config_hash
+from pipeline.config.hashing import config_hash
 from pipeline.errors import ConfigError, IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo, ascending
 from pipeline.io.msgdefs import UserTypes, load_user_types

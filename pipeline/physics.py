@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.config.vehicle import RigidBody, Thruster, Vehicle
+from pipeline.config.rigid_body import RigidBody, check_spd, rigid_body_mass, skew
+from pipeline.config.vehicle import Thruster, Vehicle
 from pipeline.errors import ConfigError
 from pipeline.units import SOURCE_UNITS
 
@@ -33,49 +34,6 @@ if TYPE_CHECKING:
     import pandas as pd
 
 log = logging.getLogger(__name__)
-
-def skew(a: np.ndarray) -> np.ndarray:
-    """Skew-symmetric cross-product matrix S(a), with S(a) b = a x b; ``a`` (..., 3) -> (..., 3, 3)."""
-    a = np.asarray(a, dtype=float)
-    out = np.zeros(a.shape[:-1] + (3, 3))
-    out[..., 0, 1] = -a[..., 2]
-    out[..., 0, 2] = a[..., 1]
-    out[..., 1, 0] = a[..., 2]
-    out[..., 1, 2] = -a[..., 0]
-    out[..., 2, 0] = -a[..., 1]
-    out[..., 2, 1] = a[..., 0]
-    return out
-
-
-def _spd_check(matrix: np.ndarray, field: str, what: str) -> None:
-    if not np.all(np.isfinite(matrix)):
-        raise ConfigError(f"{what} has non-finite entries", field=field)
-    if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.abs(matrix).max()))):
-        raise ConfigError(f"{what} must be symmetric; max |A - A^T| = {np.abs(matrix - matrix.T).max():.3g}",
-                          field=field)
-    eig = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
-    if eig.min() <= 0:
-        raise ConfigError(f"{what} must be positive definite; smallest eigenvalue {eig.min():.6g}", field=field)
-
-
-def rigid_body_mass(rb: RigidBody) -> np.ndarray:
-    """6x6 rigid-body mass matrix about the body origin (Fossen 2011, eq. 3.44).
-
-    ``M_RB = [[m I, -m S(r_g)], [m S(r_g), I_o]]`` with ``I_o = I_g - m S(r_g)^2`` (parallel axes), where
-    ``rb.inertia_kgm2`` is the inertia about the CG and ``r_g = rb.cg_m``.
-    """
-    inertia = np.asarray(rb.inertia_kgm2, dtype=float)
-    if inertia.shape != (3, 3):
-        raise ConfigError(f"inertia must be 3x3, found shape {inertia.shape}", field="rigid_body.inertia_kgm2")
-    _spd_check(inertia, "rigid_body.inertia_kgm2", "rigid-body inertia")
-    m = rb.mass_kg
-    s = skew(np.asarray(rb.cg_m, dtype=float))
-    out = np.zeros((6, 6))
-    out[:3, :3] = m * np.eye(3)
-    out[:3, 3:] = -m * s
-    out[3:, :3] = m * s
-    out[3:, 3:] = inertia - m * s @ s
-    return out
 
 
 def added_mass_matrix(vehicle: Vehicle) -> np.ndarray:
@@ -95,7 +53,7 @@ def mass_matrix(vehicle: Vehicle) -> np.ndarray:
     """M = M_RB + M_A, validated symmetric positive definite (ConfigError names the offending key)."""
     m_rb = rigid_body_mass(vehicle.rigid_body)
     m = m_rb + added_mass_matrix(vehicle)
-    _spd_check(m, "added_mass", "the mass matrix M = M_RB + M_A")
+    check_spd(m, "added_mass", "the mass matrix M = M_RB + M_A")
     return m
 
 

@@ -8,6 +8,7 @@ import pytest
 from fakestages import FakeDag, make_run_dir
 
 from pipeline import cli
+from pipeline.cli import common as cli_common
 from stages import common
 
 
@@ -113,7 +114,7 @@ def test_stage_failure_exits_3(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
 
 
 def test_progress_is_quiet_off_a_terminal(capsys: pytest.CaptureFixture[str]) -> None:
-    bar = cli.Progress("ingest")  # pytest's stdout is not a TTY
+    bar = cli_common.Progress("ingest")  # pytest's stdout is not a TTY
     bar("trial01")
     bar(3, 10, "fold 3")
     bar.update(2)
@@ -123,7 +124,7 @@ def test_progress_is_quiet_off_a_terminal(capsys: pytest.CaptureFixture[str]) ->
 
 
 def test_progress_draws_when_enabled(capsys: pytest.CaptureFixture[str]) -> None:
-    bar = cli.Progress("search", enabled=True)
+    bar = cli_common.Progress("search", enabled=True)
     bar(1, 4, "fold 1")
     bar(4, 4)
     bar.close()

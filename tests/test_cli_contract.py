@@ -18,6 +18,8 @@ from test_ingest_stage import CSV_STREAMS, make_vehicle, write_csv_trial
 
 import stages.ingest as ingest_stage
 from pipeline import cli, layout
+from pipeline.cli import common as cli_common
+from pipeline.cli import run as cli_run
 from pipeline.config import Params
 from stages import common
 
@@ -35,11 +37,11 @@ def test_missing_log_path_is_a_usage_error_before_any_stage(tmp_path: Path, monk
     root = make_run_dir(tmp_path)
     missing = tmp_path / "nowhere.mcap"
     for command in ("run", "ingest"):
-        assert cli.main([command, *_base(root), str(missing)]) == cli.EXIT_USAGE
+        assert cli.main([command, *_base(root), str(missing)]) == cli_common.EXIT_USAGE
         err = capsys.readouterr().err
         assert "usage error" in err and str(missing) in err
-    assert cli.main(["inspect", str(missing)]) == cli.EXIT_USAGE
-    assert cli.main(["init", str(missing), "-o", str(tmp_path / "v.yaml")]) == cli.EXIT_USAGE
+    assert cli.main(["inspect", str(missing)]) == cli_common.EXIT_USAGE
+    assert cli.main(["init", str(missing), "-o", str(tmp_path / "v.yaml")]) == cli_common.EXIT_USAGE
     assert "not found" in capsys.readouterr().err
     assert dag.calls == []
 
@@ -48,19 +50,19 @@ def test_nothing_to_process_is_a_usage_error(tmp_path: Path, monkeypatch: pytest
                                              capsys: pytest.CaptureFixture[str]) -> None:
     dag = FakeDag().install(monkeypatch)
     root = make_run_dir(tmp_path, trials=())
-    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_USAGE
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_USAGE
     assert "nothing to process: no log given and none under" in capsys.readouterr().err
-    assert cli.main(["sync", *_base(root)]) == cli.EXIT_USAGE  # no ingested trial
+    assert cli.main(["sync", *_base(root)]) == cli_common.EXIT_USAGE  # no ingested trial
     assert "nothing to process" in capsys.readouterr().err
     root2 = make_run_dir(tmp_path / "b")
-    assert cli.main(["run", *_base(root2), "-q", "--to", "ingest"]) == cli.EXIT_OK
-    assert cli.main(["sync", *_base(root2), "--trial", "trial09"]) == cli.EXIT_USAGE
+    assert cli.main(["run", *_base(root2), "-q", "--to", "ingest"]) == cli_common.EXIT_OK
+    assert cli.main(["sync", *_base(root2), "--trial", "trial09"]) == cli_common.EXIT_USAGE
     assert "available: ['trial01', 'trial02']" in capsys.readouterr().err
     assert dag.calls == [("ingest", None)]
 
 
 def test_retrain_without_inbox_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main(["retrain", "--root", str(tmp_path), "--inbox", str(tmp_path / "inbox")]) == cli.EXIT_USAGE
+    assert cli.main(["retrain", "--root", str(tmp_path), "--inbox", str(tmp_path / "inbox")]) == cli_common.EXIT_USAGE
     assert "inbox" in capsys.readouterr().err
 
 
@@ -75,7 +77,7 @@ def _csv_root(tmp_path: Path, trials: tuple[str, ...] = ("trial01", "trial02")) 
 
 def _use_vehicle(monkeypatch: pytest.MonkeyPatch, streams: dict[str, Any]) -> None:
     monkeypatch.setenv("AUVID_JOBS", "1")
-    monkeypatch.setattr(cli, "_load", lambda args, stages: (make_vehicle(streams), Params()))
+    monkeypatch.setattr(cli_run, "_load", lambda args, stages: (make_vehicle(streams), Params()))
 
 
 def test_misspelt_field_in_every_log_is_a_config_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -84,7 +86,7 @@ def test_misspelt_field_in_every_log_is_a_config_error(tmp_path: Path, monkeypat
     bad = json.loads(json.dumps(CSV_STREAMS))
     bad["fog"]["signals"]["n1_rpm"]["field"] = "n_1"  # misspelt column
     _use_vehicle(monkeypatch, bad)
-    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_USAGE
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_USAGE
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "config error" in err and "'n_1'" in err and "every log (2)" in err
     assert not (root / layout.SIGNALS / "quarantine.json").exists()  # not one quarantine entry per log
@@ -98,7 +100,7 @@ def test_one_bad_log_among_good_ones_is_quarantined(tmp_path: Path, monkeypatch:
     (root / layout.RAW / "trial03").mkdir()
     (root / layout.RAW / "trial03" / "fog.csv").write_text("t,rate\n1,2\n")  # the log lacks n1, not the config
     _use_vehicle(monkeypatch, CSV_STREAMS)
-    assert cli.main(["ingest", *_base(root)]) == cli.EXIT_QUARANTINED
+    assert cli.main(["ingest", *_base(root)]) == cli_common.EXIT_QUARANTINED
     captured = capsys.readouterr()
     assert captured.err.count("no column 'n1'") == 1  # the reason once (not also as a log warning)
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING and "no column" in r.getMessage()]
@@ -133,12 +135,13 @@ def test_quiet_prints_one_summary_line(tmp_path: Path, monkeypatch: pytest.Monke
                                        capsys: pytest.CaptureFixture[str]) -> None:
     FakeDag(quarantine={"trial02"}).install(monkeypatch)
     root = make_run_dir(tmp_path)
-    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_QUARANTINED
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_QUARANTINED
     captured = capsys.readouterr()
     lines = (captured.out + captured.err).splitlines()
     assert len(lines) == 1, lines
     assert lines[0].startswith("auvid run: done with quarantined inputs") and "10 stage(s)" in lines[0]
-    assert cli.main(["run", *_base(root)]) == cli.EXIT_QUARANTINED  # without -q: per-stage lines, then the summary
+    # without -q: per-stage lines, then the summary
+    assert cli.main(["run", *_base(root)]) == cli_common.EXIT_QUARANTINED
     assert len(capsys.readouterr().out.splitlines()) == 2 * len(common.STAGE_ORDER) + 1
 
 
@@ -154,7 +157,7 @@ def test_salvaged_log_is_named_in_the_summary(tmp_path: Path, monkeypatch: pytes
 
     dag.modules["ingest"].run = salvaging
     root = make_run_dir(tmp_path)
-    assert cli.main(["run", *_base(root), "-q", "--to", "ingest"]) == cli.EXIT_OK
+    assert cli.main(["run", *_base(root), "-q", "--to", "ingest"]) == cli_common.EXIT_OK
     assert "ingest: 1 salvaged (trial02)" in capsys.readouterr().out
 
 
@@ -162,7 +165,7 @@ def test_run_stops_after_ingest_when_every_log_is_quarantined(tmp_path: Path, mo
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     dag = FakeDag(quarantine={"trial01", "trial02"}).install(monkeypatch)
     root = make_run_dir(tmp_path)
-    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_QUARANTINED
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_QUARANTINED
     assert [n for n, _ in dag.calls] == ["ingest"]
     assert "stopped after ingest: no trial left to process" in capsys.readouterr().out
 
@@ -177,7 +180,7 @@ def test_ctrl_c_exits_130_without_traceback(tmp_path: Path, monkeypatch: pytest.
 
     dag.modules["sync"].run = interrupted
     root = make_run_dir(tmp_path)
-    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_INTERRUPTED == 130
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_INTERRUPTED == 130
     err = capsys.readouterr().err
     assert err == "auvid: interrupted\n"
 
@@ -195,7 +198,7 @@ def test_a_full_disk_exits_3_naming_the_file_without_traceback(tmp_path: Path, m
 
     dag.modules["sync"].run = disk_full
     root = make_run_dir(tmp_path)
-    assert cli.main(["run", *_base(root), "-q"]) == cli.EXIT_FAILED == 3
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_FAILED == 3
     err = capsys.readouterr().err
     assert err == f"auvid: run failed: No space left on device ({target})\n"
 
@@ -225,7 +228,7 @@ def test_closed_pipe_exits_quietly(tmp_path: Path, as_json: bool) -> None:
     proc.stdout.close()
     err = proc.stderr.read().decode()
     code = proc.wait(timeout=60)
-    assert code in (0, cli.EXIT_PIPE), err
+    assert code in (0, cli_common.EXIT_PIPE), err
     assert "Traceback" not in err and "BrokenPipeError" not in err and "Exception ignored" not in err, err
 
 
@@ -245,8 +248,10 @@ def test_closed_pipe_through_a_shell_pipeline(tmp_path: Path) -> None:
 
 # -- the exit codes are the same everywhere they are written ---------------------------------------------------
 def test_documented_exit_codes_agree() -> None:
-    assert (cli.EXIT_OK, cli.EXIT_QUARANTINED, cli.EXIT_USAGE, cli.EXIT_FAILED) == (0, 1, 2, 3)
-    assert (common.EXIT_INTERRUPTED, common.EXIT_PIPE) == (cli.EXIT_INTERRUPTED, cli.EXIT_PIPE) == (130, 141)
+    assert (cli_common.EXIT_OK, cli_common.EXIT_QUARANTINED, cli_common.EXIT_USAGE,
+            cli_common.EXIT_FAILED) == (0, 1, 2, 3)
+    assert (common.EXIT_INTERRUPTED, common.EXIT_PIPE) == (cli_common.EXIT_INTERRUPTED,
+                                                           cli_common.EXIT_PIPE) == (130, 141)
     phrases = ["0 done", "1 done", "2 usage or config error", "3 a stage failed", "130 interrupted",
                "141 output pipe closed"]
     texts = {"help": cli.EPILOG, "module": cli.__doc__ or "", "stages.common": common.__doc__ or "",

@@ -232,7 +232,7 @@ def test_malformed_vehicle_is_refused_naming_file_and_key(tmp_path: Path, edit: 
 def test_the_rigid_body_alone_refuses_a_bad_inertia(inertia: list[list[float]], says: str) -> None:
     """The rigid body's own check (the vehicle's mass-matrix check would catch these too, through physics)."""
     from pipeline.config import parse
-    from pipeline.config.vehicle import RigidBody
+    from pipeline.config.rigid_body import RigidBody
 
     with pytest.raises(ConfigError) as info:
         parse(RigidBody, {**BASE["rigid_body"], "inertia_kgm2": inertia}, "rigid_body.yaml")

@@ -8,7 +8,7 @@ import yaml
 
 from pipeline import demo
 from pipeline.config import load_params, load_vehicle
-from pipeline.starter import schema_modeline, schema_path
+from pipeline.config.schemas import schema_modeline, schema_path
 
 
 def test_demo_configs_name_their_schema(tmp_path: Path) -> None:

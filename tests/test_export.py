@@ -18,6 +18,7 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from sklearn.linear_model import LinearRegression
 
 from pipeline import cli, export
+from pipeline.cli import common as cli_common
 from pipeline.config import Params
 from pipeline.models.card import load_model, save_model
 from stages import decoupled as decoupled_stage
@@ -223,12 +224,12 @@ def test_an_uncarded_model_is_never_loaded(run_root: Path, tmp_path: Path) -> No
 
 
 def test_cli(run_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main(["export", str(run_root), "--trial", "test", "--out", str(tmp_path), "-q"]) == cli.EXIT_OK
+    assert cli.main(["export", str(run_root), "--trial", "test", "--out", str(tmp_path), "-q"]) == cli_common.EXIT_OK
     out = capsys.readouterr().out
     assert out.count("\n") == 1 and out.startswith("auvid export: done (exit 0): 1 trial(s)")
     assert [p.name for p in tmp_path.iterdir()] == ["test.mcap"]
-    assert cli.main(["export", str(run_root), "--trial", "nope"]) == cli.EXIT_USAGE
+    assert cli.main(["export", str(run_root), "--trial", "nope"]) == cli_common.EXIT_USAGE
     assert "no synced table for trial(s) ['nope']; available: ['a', 'test']" in capsys.readouterr().err
-    assert cli.main(["export", str(tmp_path)]) == cli.EXIT_USAGE
+    assert cli.main(["export", str(tmp_path)]) == cli_common.EXIT_USAGE
     assert "nothing to export" in capsys.readouterr().err
-    assert cli.main(["export", str(tmp_path / "missing")]) == cli.EXIT_USAGE
+    assert cli.main(["export", str(tmp_path / "missing")]) == cli_common.EXIT_USAGE

@@ -20,6 +20,7 @@ import yaml
 from helpers_guide import command_args, guide_fences
 
 from pipeline import cli, store
+from pipeline.cli import common as cli_common
 from pipeline.config import todo_markers
 from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
 
@@ -63,7 +64,8 @@ def run_console(block: str, capsys: pytest.CaptureFixture[str]) -> None:
         rc = cli.main(args)
         captured = capsys.readouterr()
         printed = (captured.out + captured.err).splitlines()
-        expected_rc = cli.EXIT_USAGE if shown and shown[0].startswith("auvid: config error") else cli.EXIT_OK
+        expected_rc = (cli_common.EXIT_USAGE if shown and shown[0].startswith("auvid: config error")
+                       else cli_common.EXIT_OK)
         assert rc == expected_rc, (args, rc, captured.err[-2000:])
         if not any("..." in s for s in shown):
             assert printed == shown, args
@@ -93,7 +95,7 @@ def test_the_auv_walkthrough_runs_as_written(tmp_path: Path, monkeypatch: pytest
                     cli.build_parser().parse_args(args)  # the model stages: minutes; parsed only
                     parsed_only.append(args)
                     continue
-                assert cli.main(args) == cli.EXIT_OK, (args, capsys.readouterr().err[-2000:])
+                assert cli.main(args) == cli_common.EXIT_OK, (args, capsys.readouterr().err[-2000:])
                 ran.append(args)
         elif lang == "console":
             run_console(body, capsys)

@@ -74,7 +74,7 @@ def test_import_pipeline_io_loads_no_modelling_or_config_stack(tmp_path: Path) -
 
 
 def test_loading_a_vehicle_config_loads_no_tables_or_modelling_stack(tmp_path: Path) -> None:
-    """The config's own checks (the mass matrix through pipeline.physics) need numpy, not pandas or pyarrow."""
+    """The config's own checks (the mass matrix, pipeline.config.rigid_body) need numpy, not pandas or pyarrow."""
     vehicle = tmp_path / "vehicle.yaml"
     vehicle.write_text(yaml.safe_dump(VEHICLE), encoding="utf-8")
     code = f"from pipeline.config import load_vehicle\nload_vehicle({str(vehicle)!r})"

@@ -15,6 +15,8 @@ import yaml
 import pipeline.ingest as ingest_mod
 import stages.ingest as stage
 from pipeline import cli, layout
+from pipeline.cli import common as cli_common
+from pipeline.cli import run as cli_run
 from pipeline.config import Params, load_params
 from pipeline.errors import ConfigError
 from pipeline.ingest import ingest_log
@@ -146,7 +148,7 @@ def test_cli_no_checksum_overrides_params(tmp_path: Path, flag: list[str]) -> No
     vfile = tmp_path / "vehicle.yaml"
     vfile.write_text(yaml.safe_dump(make_vehicle(LOG_STREAMS).model_dump(mode="json"), allow_unicode=True))
     code = cli.main(["ingest", "-q", "--root", str(root), "--vehicle", str(vfile), *flag, str(log)])
-    assert code == cli.EXIT_OK
+    assert code == cli_common.EXIT_OK
     _, report = written(root, "trial5")
     if flag:
         assert report["checksum"] == "none" and report["source_sha256"] is None
@@ -159,8 +161,8 @@ def test_run_takes_the_flag_too() -> None:
     assert parser.parse_args(["run", "--no-checksum"]).checksum == "none"
     assert parser.parse_args(["ingest"]).checksum is None
     params = Params()
-    assert cli._with_overrides(params, parser.parse_args(["ingest"])) is params
-    assert cli._with_overrides(params, parser.parse_args(["run", "--no-checksum"])).ingest.checksum == "none"
+    assert cli_run._with_overrides(params, parser.parse_args(["ingest"])) is params
+    assert cli_run._with_overrides(params, parser.parse_args(["run", "--no-checksum"])).ingest.checksum == "none"
 
 
 def test_report_says_why_a_log_has_no_checksum() -> None:

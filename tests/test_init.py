@@ -11,10 +11,10 @@ import pytest
 import yaml
 
 from pipeline import cli
+from pipeline.cli.init import starter_config
 from pipeline.config import Params, load_vehicle, todo_markers
 from pipeline.errors import ConfigError
 from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
-from pipeline.starter import starter_config
 from pipeline.store import PART_FILE, partition_dir
 from pipeline.tableio import read_parquet
 from stages.common import run_stages

@@ -13,6 +13,7 @@ import pytest
 from fakestages import VEHICLE_YAML, FakeDag
 
 from pipeline import cli, registry
+from pipeline.cli import common as cli_common
 from pipeline.retrain import RetrainOptions, retrain
 
 REPO = Path(__file__).resolve().parents[1]
@@ -45,7 +46,7 @@ def _models(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, s
 
 def test_list_is_a_table_with_the_current_version_marked(home: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = _models(capsys, "list", "--root", str(home))
-    assert code == cli.EXIT_OK
+    assert code == cli_common.EXIT_OK
     lines = out.splitlines()
     assert lines[0].split() == ["version", "status", "created_at", "holdout_r2", "parent", "reason"]
     assert len(lines) == 5
@@ -82,7 +83,7 @@ def test_show_gives_lineage_metrics_and_reason(home: Path, capsys: pytest.Captur
 def test_unknown_version_is_a_usage_error(home: Path, capsys: pytest.CaptureFixture[str], args: list[str]) -> None:
     before = registry.registry_path(home).read_bytes()
     code, out, err = _models(capsys, *args, "--root", str(home))
-    assert code == cli.EXIT_USAGE and out == ""
+    assert code == cli_common.EXIT_USAGE and out == ""
     assert f"unknown model version {args[1]!r}; registered: ['v0001', 'v0002', 'v0003', 'v0004']" in err
     assert registry.registry_path(home).read_bytes() == before
 
@@ -90,7 +91,7 @@ def test_unknown_version_is_a_usage_error(home: Path, capsys: pytest.CaptureFixt
 def test_no_registry_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for args in (["list"], ["show", "v0001"], ["promote", "v0001"], ["rollback"]):
         code, _, err = _models(capsys, *args, "--root", str(tmp_path))
-        assert code == cli.EXIT_USAGE and "no model registry at" in err
+        assert code == cli_common.EXIT_USAGE and "no model registry at" in err
     assert not (tmp_path / "registry.json").exists()
 
 
@@ -119,7 +120,7 @@ def test_promote_then_rollback(home: Path, capsys: pytest.CaptureFixture[str]) -
 
     assert _models(capsys, "rollback", "--root", str(home))[0] == 0  # v0003 -> v0001
     code, _, err = _models(capsys, "rollback", "--root", str(home))
-    assert code == cli.EXIT_USAGE and "v0001 has no parent" in err
+    assert code == cli_common.EXIT_USAGE and "v0001 has no parent" in err
     assert registry.load(home)["current"] == "v0001"
 
 
@@ -141,7 +142,7 @@ def test_promote_waits_for_no_one_while_a_retrain_holds_the_lock(home: Path,
         fcntl.flock(held.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         for args in (["promote", "v0002"], ["rollback"]):
             code, out, err = _models(capsys, *args, "--root", str(home))
-            assert code == cli.EXIT_FAILED and out == ""
+            assert code == cli_common.EXIT_FAILED and out == ""
             assert "holds" in err and "nothing changed" in err
     assert registry.registry_path(home).read_bytes() == before
     assert (home / "current").resolve() == (home / "models/v0003").resolve()
@@ -151,7 +152,7 @@ def test_promote_refuses_a_version_without_its_model_directory(home: Path,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
     (home / "models/v0002").rename(home / "v0002.moved")
     code, _, err = _models(capsys, "promote", "v0002", "--root", str(home))
-    assert code == cli.EXIT_USAGE and "has no model directory" in err
+    assert code == cli_common.EXIT_USAGE and "has no model directory" in err
     assert registry.load(home)["current"] == "v0003"
 
 

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import yaml
 
+from pipeline.cli.init import starter_config
+from pipeline.config.schemas import schema_modeline, schema_path
 from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
-from pipeline.starter import schema_modeline, schema_path, starter_config
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from pipeline.config import write_schemas
+from pipeline.config.schemas import write_schemas
 
 if __name__ == "__main__":
     for path in write_schemas(sys.argv[1] if len(sys.argv) > 1 else "schemas"):

@@ -8,6 +8,9 @@ from pydantic import BaseModel, ConfigDict, model_validator
 
 from pipeline.config.checks import KeyedError
 
+#: A point or vector in body axes: [x, y, z].
+Vec3 = tuple[float, float, float]
+
 
 def _admits_bool(annotation: Any) -> bool:
     """Whether a field of this type may hold a boolean itself or checks its own (a nested model)."""

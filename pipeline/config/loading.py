@@ -1,9 +1,8 @@
 """The config loaders behind :mod:`pipeline.config` (which exports these names lazily): YAML -> validated models,
-the params-against-vehicle checks, the JSON Schemas."""
+the params-against-vehicle checks."""
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any, TypeVar
@@ -12,14 +11,12 @@ from pydantic import BaseModel, ValidationError
 
 from pipeline.config.checks import KeyedError
 from pipeline.config.params import EXPLICIT_MODELS, Params
-from pipeline.config.snapshot import config_hash
 from pipeline.config.vehicle import THRUST_COLUMN, Vehicle, thrust_column
 from pipeline.config.yamlload import load_yaml
 from pipeline.errors import ConfigError
+from pipeline.vocabulary import VELOCITY
 
-__all__ = ["EXPLICIT_MODELS", "THRUST_COLUMN", "Params", "Vehicle", "check_params_against_vehicle", "config_hash",
-           "load_params", "load_vehicle", "parse", "thrust_column", "todo_markers",
-           "write_schemas"]
+__all__ = ["check_params_against_vehicle", "load_params", "load_vehicle", "parse", "todo_markers"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -83,9 +80,6 @@ def load_params(path: str | Path | None) -> Params:
     return parse(Params, load_yaml(path), path)
 
 
-_VELOCITY_COLUMNS = ("u_mps", "v_mps", "w_mps", "p_radps", "q_radps", "r_radps")  # pipeline.kinematics.VELOCITY
-
-
 def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: str | Path | None = None) -> None:
     """Params that name signals must name signals of the vehicle: ``differentiate.noise_sd`` keys are signals of
     its streams (any trial's overrides included), ``differentiate.sigma_s_per_signal`` keys body-velocity columns.
@@ -94,7 +88,7 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
     for trial in vehicle.trials:
         known |= set(vehicle.for_trial(trial).signal_names())
     checks = (("noise_sd", params.differentiate.noise_sd, known),
-              ("sigma_s_per_signal", params.differentiate.sigma_s_per_signal, set(_VELOCITY_COLUMNS)))
+              ("sigma_s_per_signal", params.differentiate.sigma_s_per_signal, set(VELOCITY)))
     for key, given, valid in checks:
         unknown = sorted(set(given) - valid)
         if unknown:
@@ -117,15 +111,3 @@ def _warn_thrust_inputs(vehicle: Vehicle, params: Params, params_path: str | Pat
                     "thrusters' columns are %s: the tune stage will refuse the coupled models' inputs until "
                     "coupled.inputs lists them", f"{params_path}: " if params_path else "", unknown, vehicle.name,
                     columns)
-
-
-def write_schemas(directory: str | Path) -> list[Path]:
-    """Write the JSON Schemas of the vehicle config and the params into ``directory``."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, model in (("vehicle", Vehicle), ("params", Params)):
-        target = directory / f"{name}.schema.json"
-        target.write_text(json.dumps(model.model_json_schema(), indent=2, sort_keys=True) + "\n")
-        written.append(target)
-    return written

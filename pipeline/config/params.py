@@ -12,8 +12,8 @@ from pydantic import Field, field_validator, model_validator
 
 from pipeline.config import checks
 from pipeline.config.base import Frozen
+from pipeline.vocabulary import DOFS
 
-DOFS = ("u", "v", "w", "p", "q", "r")
 #: The model names params may give, checked at load without importing the modelling stack (``auvid ingest`` loads
 #: params too); tests/test_config_refuses.py keeps them equal to pipeline.coupled's and pipeline.models.decoupled's.
 COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox",
@@ -55,7 +55,7 @@ class IngestParams(Frozen):
     checksum: Literal["sha256", "none"] = Field(
         "sha256", description="The raw log's checksum in the outputs' provenance: sha256 of its bytes, or none (no "
         "hash computed: provenance says `checksum: none` with `source_sha256: null`; saves reading the log once "
-        "more, ~0.15 s of CPU per 200 MB). `auvid ingest --no-checksum` sets none for one call.")
+        "more). `auvid ingest --no-checksum` sets none for one call.")
 
 
 class SyncParams(Frozen):
@@ -136,9 +136,8 @@ class CoupledParams(Frozen):
     models: list[str] = Field(
         default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
                                  "graybox"],
-        description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual): on "
-        "the realistic benchmark with thrust inputs the best on u_dot and the WDSE-SVR the best on v_dot and r_dot "
-        "(docs/models.md); graybox_gh is the same on Gertler-Hagen.")
+        description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual; "
+        "docs/models.md); graybox_gh is the same on Gertler-Hagen.")
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
@@ -158,9 +157,8 @@ class CoupledParams(Frozen):
         "final model on the whole train_test block (the tune stage). split: the papers' protocol, on the tuning "
         "split (the first tuning_fraction of each trial) once, then fixed; on realistic trials that block is too "
         "short to rank hyperparameters the way the whole training set needs them (docs/models.md).")
-    tuning_folds: int = Field(5, ge=2, description="Blocked CV folds inside each search's data (search score). "
-                              "5: each candidate is scored on 5 test blocks (3 gave WDSE's 8 hyperparameters a "
-                              "noisier choice; docs/models.md).")
+    tuning_folds: int = Field(5, ge=2, description="Blocked CV folds inside each search's data (search score): "
+                              "each candidate is scored on this many test blocks (docs/models.md).")
     max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
@@ -207,8 +205,7 @@ class DecoupledParams(Frozen):
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     gp_max_samples: int = Field(
-        500, ge=50, description="GP training points, chosen evenly in velocity (O(n^3); bench/gp.py: ~0.5 s at 500, "
-        "~2 s at 1000, ~18 s at 2000 per fit on 2 cores, with no gain in accuracy from 500 to 1000).")
+        500, ge=50, description="GP training points, chosen evenly in velocity (a fit costs O(n^3); bench/gp.py).")
     gp_warp: Literal["signed_square", "none"] = Field(
         "signed_square", description="GP inputs: (nu, nu|nu|) with a length scale each (default), or nu alone (the "
         "paper's RBF, whose band misses the truth around nu = 0; docs/models.md).")

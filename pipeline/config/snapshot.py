@@ -1,14 +1,13 @@
 """Validated configs kept between runs: ``auvid ingest`` reads a vehicle config and params.yaml it has validated
 before without importing pydantic.
 
-Validating takes pydantic: importing it and building the config models costs ~0.2 s of CPU, 15-25 % of a one-hour
-log's whole ingest and a third of a ten-minute one's (docs/benchmarks.md). So after validating a pair of files,
-:func:`load_for_ingest` writes a *snapshot* of the result: each model's fields as the model holds them, the YAML
-as read (to build the real model where a trial's overrides need it) and the warnings the checks gave. A later
-run given the same files reads the snapshot back as :class:`ConfigView` objects, which have the model's fields as
-attributes, ``model_dump(mode="json")`` (so :func:`config_hash`, and with it every output's provenance, is the
-same) and ``model_copy(update=...)``; the vehicle's view has its methods that ingest uses. The warnings are logged
-again.
+Validating takes pydantic: importing it and building the config models is a large share of a short log's whole
+ingest (docs/benchmarks.md). So after validating a pair of files, :func:`load_for_ingest` writes a *snapshot* of
+the result: each model's fields as the model holds them, the YAML as read (to build the real model where a
+trial's overrides need it) and the warnings the checks gave. A later run given the same files reads the snapshot
+back as :class:`ConfigView` objects, which have the model's fields as attributes, ``model_dump(mode="json")`` (so
+:func:`~pipeline.config.hashing.config_hash`, and with it every output's provenance, is the same) and
+``model_copy(update=...)``; the vehicle's view has its methods that ingest uses. The warnings are logged again.
 
 A snapshot is found by the sha256 of the two files' paths and bytes, the Python version and where this
 interpreter's auvid, PyYAML and pydantic live (another checkout or environment sharing the cache keeps its own),
@@ -39,11 +38,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.config.checks import applies_to
-from pipeline.tableio import atomic_path, canonical_json, file_sha256
+from pipeline.config.vehicle_methods import VehicleMethods
+from pipeline.tableio import atomic_path, file_sha256
 
 if TYPE_CHECKING:
-    from pipeline.config.loading import Params, Vehicle
+    from pipeline.config.params import Params
+    from pipeline.config.vehicle import Vehicle
 
 log = logging.getLogger(__name__)
 
@@ -54,11 +54,6 @@ FORMAT = 1
 KEEP = 64
 #: Third-party code whose version decides what a config validates to (each package's file that names its version).
 _DEPENDENCIES = (("yaml", "__init__.py"), ("pydantic", "version.py"))
-
-
-def config_hash(model: Any) -> str:
-    """sha256 of the canonical JSON of a config model (or of a :class:`ConfigView` of one)."""
-    return hashlib.sha256(canonical_json(model.model_dump(mode="json")).encode()).hexdigest()
 
 
 def cache_dir() -> Path | None:
@@ -115,9 +110,10 @@ class ConfigView:
         return clone
 
 
-class VehicleView(ConfigView):
+class VehicleView(VehicleMethods, ConfigView):
     """A snapshot's vehicle: the fields, and the methods of :class:`~pipeline.config.vehicle.Vehicle` that ingest
-    uses. A trial that an override applies to gets the real model (pydantic is imported then)."""
+    uses (:class:`~pipeline.config.vehicle_methods.VehicleMethods`). A trial that an override applies to gets the
+    real model (pydantic is imported then)."""
 
     def __init__(self, model: str, fields: dict[str, Any], dump: dict[str, Any], *, base_dir: Path,
                  overrides: dict[str, Any], raw: Any, source: str) -> None:
@@ -125,22 +121,11 @@ class VehicleView(ConfigView):
         for name, value in (("_base_dir", base_dir), ("_overrides", overrides), ("_raw", raw), ("_source", source)):
             object.__setattr__(self, name, value)
 
-    def resolve(self, relative: str | Path) -> Path:
-        return self._base_dir / relative
-
-    def signal_names(self) -> list[str]:
-        return [name for stream in self.streams.values() for name in stream.signals]
-
     def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """The model's overrides as the snapshot stored them."""
         return copy.deepcopy(self._overrides)
 
-    def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
-        return {pattern: given for pattern, given in self.override_keys().items()
-                if applies_to(pattern, trial)}
-
-    def for_trial(self, trial: str) -> VehicleView | Vehicle:
-        if not any(self.trial_overrides(trial).values()):
-            return self
+    def _apply_overrides(self, trial: str) -> Vehicle:
         return self.model().for_trial(trial)
 
     def model_copy(self, *, update: dict[str, Any] | None = None) -> Vehicle:  # type: ignore[override]
@@ -149,7 +134,8 @@ class VehicleView(ConfigView):
 
     def model(self) -> Vehicle:
         """The real model, validated again from the YAML the snapshot keeps (pydantic is imported here)."""
-        from pipeline.config.loading import Vehicle, parse
+        from pipeline.config.loading import parse
+        from pipeline.config.vehicle import Vehicle
 
         vehicle = parse(Vehicle, self._raw, self._source)
         vehicle._base_dir = self._base_dir

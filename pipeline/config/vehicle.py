@@ -16,37 +16,11 @@ import numpy as np
 from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
 from pipeline.config import checks
-from pipeline.config.base import Frozen
+from pipeline.config.base import Frozen, Vec3
+from pipeline.config.rigid_body import RigidBody, rigid_body_mass
 from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource, TrialOverride
+from pipeline.config.vehicle_methods import VehicleMethods
 from pipeline.errors import ConfigError
-
-Vec3 = tuple[float, float, float]
-DOF_NAMES = ("u", "v", "w", "p", "q", "r")
-
-
-class RigidBody(Frozen):
-    mass_kg: float = Field(gt=0)
-    inertia_kgm2: list[list[float]] = Field(description="3x3 inertia about the CG, body axes: symmetric, positive "
-                                            "definite.")
-    cg_m: Vec3 = (0.0, 0.0, 0.0)
-    cb_m: Vec3 = (0.0, 0.0, 0.0)
-    buoyancy_N: float | None = Field(None, ge=0, description="Buoyancy; None: equal to the weight (neutral).")
-    gravity_mps2: float = Field(9.81, gt=0)
-
-    @field_validator("inertia_kgm2")
-    @classmethod
-    def _inertia_spd(cls, rows: list[list[float]]) -> list[list[float]]:
-        inertia = checks.square(rows, 3, "the inertia")
-        checks.check_symmetric(inertia, "the inertia")
-        checks.check_positive_definite(inertia, "the inertia")
-        return rows
-
-    @model_validator(mode="after")
-    def _weight_finite(self) -> RigidBody:
-        if not math.isfinite(self.mass_kg * self.gravity_mps2):
-            raise checks.KeyedError("mass_kg", f"the weight mass_kg * gravity_mps2 = {self.mass_kg:g} * "
-                                    f"{self.gravity_mps2:g} is not a finite number of newtons")
-        return self
 
 
 class ThrustCurve(Frozen):
@@ -324,7 +298,7 @@ class Sensors(Frozen):
                               (0.0, 0.0, 0.0), v.earth_axes, axes=v.axes)
 
 
-class Vehicle(Frozen):
+class Vehicle(VehicleMethods, Frozen):
     name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$")
     rigid_body: RigidBody
     added_mass: list[list[float]] = Field(description=(
@@ -341,28 +315,17 @@ class Vehicle(Frozen):
 
     _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
 
-    def resolve(self, relative: str | Path) -> Path:
-        """A path from the config (a thrust table), relative to the vehicle file's directory."""
-        return self._base_dir / relative
-
     def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
         """Every trial override as given: ``{pattern: {stream: {key: value}}}``, in config order."""
         return {pattern: {name: o.model_dump(mode="json", exclude_unset=True) for name, o in t.streams.items()}
                 for pattern, t in self.trials.items()}
 
-    def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
-        """The overrides that apply to ``trial``: ``{pattern: {stream: {key: value}}}``, in config order."""
-        return {pattern: given for pattern, given in self.override_keys().items()
-                if checks.applies_to(pattern, trial)}
-
-    def for_trial(self, trial: str) -> Vehicle:
-        """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none
-        applies. Each override was validated on its own at load; two matching keys that only together make an invalid
-        stream raise a ConfigError here, naming the trial, the keys and the stream."""
+    def _apply_overrides(self, trial: str) -> Vehicle:
+        """This vehicle with ``trial``'s overrides applied. Each override was validated on its own at load; two
+        matching keys that only together make an invalid stream raise a ConfigError here, naming the trial, the
+        keys and the stream."""
         matching = [(pattern, t) for pattern, t in self.trials.items()
                     if checks.applies_to(pattern, trial)]
-        if not any(t.streams for _, t in matching):
-            return self
         streams = dict(self.streams)
         for _, t in matching:
             for name, override in t.streams.items():
@@ -374,9 +337,6 @@ class Vehicle(Frozen):
                     raise ConfigError(f"trial {trial!r}: the overrides {keys} of stream {name!r} together give an "
                                       f"invalid stream: {why}", field=f"trials.{keys[-1]}.streams.{name}") from None
         return self.model_copy(update={"streams": streams})
-
-    def signal_names(self) -> list[str]:
-        return [name for stream in self.streams.values() for name in stream.signals]
 
     def actuator_signals(self) -> list[str]:
         """Every actuator and control input signal, in config order: each thruster's input (speed, PWM or thrust),
@@ -408,8 +368,6 @@ class Vehicle(Frozen):
     def _mass_matrix_usable(self) -> Vehicle:
         """M = M_RB + M_A finite and conditioned. It is positive definite already (M_RB is, with a positive mass
         and inertia; M_A is semi-definite), as :func:`pipeline.physics.mass_matrix` needs."""
-        from pipeline.physics import rigid_body_mass  # physics imports this module
-
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is what the next line reports
             mass = rigid_body_mass(self.rigid_body) + np.asarray(self.added_mass, dtype=float)
         if not np.all(np.isfinite(mass)):

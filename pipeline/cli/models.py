@@ -1,36 +1,12 @@
-"""The ``auvid models`` and ``auvid export`` commands: part of the CLI (they print and choose exit codes), kept
-apart from :mod:`pipeline.cli` to keep that module short. Exit codes as in :mod:`pipeline.cli`."""
+"""``auvid models``: the retraining registry: list versions, show one, promote, roll back (:mod:`pipeline.registry`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
 
-from pipeline.cli import EXIT_FAILED, EXIT_OK, UsageError, _check_paths, _progress_factory
-
-
-def cmd_export(args: argparse.Namespace) -> int:
-    from pipeline.export import export_trials, trials_available
-
-    _check_paths([args.root], "run directory")
-    have = trials_available(args.root)
-    if not have:
-        raise UsageError(f"nothing to export: no synced trial under {args.root / 'data' / 'synced'} (run `auvid "
-                         "run` or `auvid sync` first)")
-    unknown = [t for t in args.trial or [] if t not in have]
-    if unknown:
-        raise UsageError(f"no synced table for trial(s) {unknown}; available: {have}")
-    start = time.perf_counter()
-    results = export_trials(args.root, args.trial, args.out, progress_factory=_progress_factory(args))
-    for r in results if not args.quiet else []:
-        print(f"[export] {r.path}: {sum(r.messages.values())} message(s) on {len(r.messages)} channel(s)")
-        for reason in r.skipped:
-            print(f"  not exported: {reason}", file=sys.stderr)
-    print(f"auvid export: done (exit 0): {len(results)} trial(s) in {time.perf_counter() - start:.1f} s -> "
-          f"{results[0].path.parent}", flush=True)
-    return EXIT_OK
+from pipeline.cli.common import EXIT_FAILED, EXIT_OK, UsageError
 
 
 def cmd_models(args: argparse.Namespace) -> int:

@@ -1,7 +1,7 @@
 """``auvid init``: a starter vehicle config (YAML text) from what :func:`pipeline.io.inspect.inspect_log` sees.
 
 Its first line, ``# yaml-language-server: $schema=<path>``, names the vehicle JSON Schema shipped in the package
-(:func:`schema_path`), so editors validate and complete the file while the TODOs are filled in.
+(:func:`pipeline.config.schemas.schema_path`), so editors validate and complete the file while the TODOs are filled in.
 
 Recognised topics (by message type, then by topic name where the type says too little):
 
@@ -28,13 +28,17 @@ mounting, the attitude convention) is written as ``"TODO: <what to give>"``;
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pipeline.cli.common import EXIT_OK, check_paths, user_definitions
+from pipeline.config.schemas import schema_modeline
 from pipeline.errors import ConfigError
 from pipeline.io.inspect import inspect_log, topic_fields
 from pipeline.io.msgdefs import UserTypes
@@ -228,20 +232,6 @@ def _todo(what: str) -> str:
     return _v(f"{TODO}: {what}")
 
 
-def schema_path(kind: str = "vehicle") -> Path:
-    """The JSON Schema of a config (``vehicle`` or ``params``) that ships with the package (``pipeline/schemas/``;
-    in a checkout a link to the repository's ``schemas/``, which ``python -m pipeline.config`` regenerates)."""
-    from importlib.resources import files
-
-    return Path(str(files("pipeline") / "schemas" / f"{kind}.schema.json")).resolve()
-
-
-def schema_modeline(kind: str = "vehicle") -> str:
-    """The first line of a generated config: editors with the YAML language server (VS Code's YAML extension,
-    neovim's yamlls, ...) then validate and complete the file against its JSON Schema as it is typed."""
-    return f"# yaml-language-server: $schema={schema_path(kind).as_posix()}"
-
-
 def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = None,
                    definitions: UserTypes | None = None, definition_dirs: list[Path] | None = None,
                    base_dir: Path | None = None) -> Starter:
@@ -362,3 +352,22 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
     if "depth" in roles:
         out.append(f"  depth: {roles['depth']}")
     return out
+
+
+def cmd_init(args: argparse.Namespace) -> int:
+    check_paths(args.logs, "log(s)")
+    definitions, _ = user_definitions(args)
+    out = args.out
+    if str(out) != "-" and out.exists() and not args.force:
+        raise ConfigError(f"{out} exists; choose another --out or give --force")
+    base = Path.cwd() if str(out) == "-" else out.resolve().parent
+    starter = starter_config(args.logs, name=args.name, definitions=definitions,
+                             definition_dirs=[Path(d).resolve() for d in args.definitions], base_dir=base)
+    if str(out) == "-":
+        print(starter.text, end="")
+    else:
+        out.write_text(starter.text, encoding="utf-8")
+        print(f"wrote {out}: {len(starter.streams)} stream(s), {starter.todo_count} TODO(s) to fill in")
+    for note in starter.notes:
+        print(f"  {note}", file=sys.stderr)
+    return EXIT_OK

@@ -9,24 +9,14 @@ any stage runs; 3 a stage failed (nothing half-written: every output is written 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from pipeline import __version__
+from pipeline.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_USAGE, UsageError
 from pipeline.errors import ConfigError, PipelineError
-
-EXIT_OK, EXIT_QUARANTINED, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
-EXIT_INTERRUPTED, EXIT_PIPE = 130, 141  # 128 + SIGINT, 128 + SIGPIPE, as a shell reports them
-
-
-class UsageError(Exception):
-    """A command line that cannot be run: a path that does not exist, nothing to process (exit 2)."""
 
 STAGE_HELP = {
     "ingest": "read trial logs (MCAP, ROS 1/2 bags, CSV) into per-stream Parquet at native rate",
@@ -61,58 +51,6 @@ DVC: `dvc repro` runs the same stages from dvc.yaml (pip install -e '.[dvc]'). S
 """
 
 
-# ----------------------------------------------------------------------------------------------- progress
-
-class Progress:
-    """A stage progress callback drawn as a tqdm bar; silent when stdout is not a terminal.
-
-    Called as ``progress(done, total=None, desc=None)`` (absolute position), ``progress("label")`` (one more
-    unit done) or ``progress.update(n)``.
-    """
-
-    def __init__(self, label: str, enabled: bool | None = None) -> None:
-        self.label = label
-        self.enabled = sys.stdout.isatty() if enabled is None else enabled
-        self._bar: Any = None
-        self.done = 0
-        self.total: int | None = None
-
-    def _ensure(self) -> Any:
-        if self._bar is None and self.enabled:
-            from tqdm import tqdm
-
-            self._bar = tqdm(total=self.total, desc=self.label, unit="", leave=False, file=sys.stdout)
-        return self._bar
-
-    def __call__(self, done: int | float | str, total: int | float | None = None, desc: str | None = None) -> None:
-        if isinstance(done, str):
-            done, desc = self.done + 1, done
-        self.done = int(done)
-        if total is not None:
-            self.total = int(total)
-        bar = self._ensure()
-        if bar is not None:
-            if total is not None and bar.total != self.total:
-                bar.total = self.total
-            if desc:
-                bar.set_postfix_str(str(desc)[-40:], refresh=False)
-            bar.n = self.done
-            bar.refresh()
-
-    def update(self, n: int = 1) -> None:
-        self(self.done + n, self.total)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-
-def _progress_factory(args: argparse.Namespace) -> Callable[[str], Progress]:
-    enabled = sys.stdout.isatty() and not getattr(args, "quiet", False)
-    return lambda stage: Progress(stage, enabled)
-
-
 # ---------------------------------------------------------------------------------------------- arguments
 
 def _abs_path(text: str) -> Path:
@@ -134,14 +72,6 @@ def _add_ingest_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-checksum", dest="checksum", action="store_const", const="none", default=None,
                    help="do not compute each raw log's sha256 for the outputs' provenance (params ingest.checksum: "
                         "none for this call; provenance then says checksum none); saves reading the log once more")
-
-
-def _with_overrides(params: Any, args: argparse.Namespace) -> Any:
-    """Params with the command line's overrides (``--no-checksum``: ``ingest.checksum: none``)."""
-    checksum = getattr(args, "checksum", None)
-    if checksum is None or checksum == params.ingest.checksum:
-        return params
-    return params.model_copy(update={"ingest": params.ingest.model_copy(update={"checksum": checksum})})
 
 
 def _add_definitions(p: argparse.ArgumentParser) -> None:
@@ -295,249 +225,39 @@ def _stage_names() -> list[str]:
     return list(STAGE_HELP)
 
 
-# ----------------------------------------------------------------------------------------------- commands
-
-def _vehicle_path(args: argparse.Namespace) -> Path:
-    if args.vehicle is not None:
-        return args.vehicle
-    here = Path("vehicle.yaml")
-    return here if here.exists() or not (args.root / "vehicle.yaml").exists() else args.root / "vehicle.yaml"
-
-
-def _load(args: argparse.Namespace, stages: list[str]) -> tuple[Any, Any]:
-    from stages.common import load_configs
-
-    return load_configs(args.root, _vehicle_path(args), args.params, snapshot=stages == ["ingest"])
-
-
-def _salvaged(result: Any) -> list[str]:
-    summary = result.summary if isinstance(getattr(result, "summary", None), dict) else {}
-    return [str(t) for t in summary.get("salvaged", [])]
-
-
-def _print_stage(stage: str, result: Any, seconds: float) -> None:
-    """The per-stage lines (not with -q): one when a stage starts, one when it ends, then each quarantine
-    reason once on stderr."""
-    if result is None:
-        print(f"[{stage}] ...", flush=True)
-        return
-    line = f"[{stage}] {len(result.outputs)} output(s) in {seconds:.1f} s"
-    if result.quarantined:
-        line += f", {len(result.quarantined)} quarantined"
-    if _salvaged(result):
-        line += f", {len(_salvaged(result))} salvaged (damaged, partly read: see the ingest report)"
-    print(line, flush=True)
-    for entry in result.quarantined:
-        print(f"  quarantined {entry.get('file') or entry.get('model')}: {entry.get('reason')}", file=sys.stderr)
-
-
-def _on_stage(args: argparse.Namespace) -> Callable[[str, Any, float], None] | None:
-    return None if getattr(args, "quiet", False) else _print_stage
-
-
-def _exit_code(results: list[Any]) -> int:
-    return EXIT_QUARANTINED if any(r.quarantined for r in results) else EXIT_OK
-
-
-def _summary(command: str, stages: list[str], results: list[Any], seconds: float, report: Path | None = None) -> str:
-    """The one line every stage-running command ends with (the only line with -q)."""
-    code = _exit_code(results)
-    parts = [f"{len(results)} stage(s) in {seconds:.1f} s"]
-    if len(results) < len(stages):
-        parts.append(f"stopped after {results[-1].stage if results else 'nothing'}: no trial left to process")
-    for r in results:
-        if r.quarantined:
-            names = [str(e.get("trial") or e.get("model") or e.get("file")) for e in r.quarantined]
-            parts.append(f"{r.stage}: {len(names)} quarantined ({', '.join(names)})")
-        if _salvaged(r):
-            parts.append(f"{r.stage}: {len(_salvaged(r))} salvaged ({', '.join(_salvaged(r))})")
-    if report is not None:
-        parts.append(f"report: {report}")
-    status = "done" if code == EXIT_OK else "done with quarantined inputs or failed models"
-    return f"auvid {command}: {status} (exit {code}): " + "; ".join(parts)
-
-
-def _check_paths(paths: list[Path], what: str) -> None:
-    missing = [str(p) for p in paths if not Path(p).exists()]
-    if missing:
-        raise UsageError(f"{what} not found: {', '.join(missing)}")
-
-
-def _check_inputs(args: argparse.Namespace, stages: list[str]) -> None:
-    """Usage errors found before any stage runs: missing logs, nothing to process, an unknown --trial."""
-    from stages.common import PER_TRIAL, trials_for
-
-    root = Path(args.root)
-    logs = list(getattr(args, "logs", None) or [])
-    _check_paths(logs, "log(s)")
-    if stages[0] == "ingest" and not logs:
-        from stages.ingest import discover_logs
-
-        if not discover_logs(root):
-            raise UsageError(f"nothing to process: no log given and none under {root / 'data' / 'raw'}")
-    elif stages[0] in PER_TRIAL:
-        have = trials_for(stages[0], root)
-        trial = getattr(args, "trial", None)
-        if not have:
-            raise UsageError(f"nothing to process: stage {stages[0]} has no input trial under {root} "
-                             "(run the stages before it first)")
-        if trial is not None and trial not in have:
-            raise UsageError(f"stage {stages[0]} has no input for trial {trial!r}; available: {have}")
-
-
-def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
-    from stages.common import run_stages
-
-    _check_inputs(args, stages)
-    vehicle, params = _load(args, stages)
-    params = _with_overrides(params, args)
-    logs = list(getattr(args, "logs", None) or []) or None
-    start = time.perf_counter()
-    if getattr(args, "trial", None):
-        from stages.common import call_stage
-
-        result = call_stage(stages[0], args.root, vehicle, params, trial=args.trial)
-        results = [result]
-        if not args.quiet:
-            _print_stage(stages[0], result, time.perf_counter() - start)
-    else:
-        results = run_stages(args.root, vehicle, params, stages, logs=logs,
-                             progress_factory=_progress_factory(args), on_stage=_on_stage(args))
-    report = Path(args.root) / "reports" / "report.html"
-    shown = report.resolve() if "report" in stages and report.exists() else None
-    print(_summary(args.command, stages, results, time.perf_counter() - start, shown), flush=True)
-    return _exit_code(results)
-
-
-def cmd_run(args: argparse.Namespace) -> int:
-    from stages.common import STAGE_ORDER
-
-    order = list(STAGE_ORDER)
-    first = order.index(args.first) if args.first else 0
-    last = order.index(args.last) if args.last else len(order) - 1
-    if first > last:
-        raise ConfigError(f"--from {args.first} comes after --to {args.last} in the DAG")
-    return cmd_stages(args, order[first:last + 1])
-
-
-def cmd_demo(args: argparse.Namespace) -> int:
-    from pipeline import demo
-    from stages.common import STAGE_ORDER, load_configs, require_stages, run_stages
-
-    require_stages(STAGE_ORDER)  # before minutes of simulation
-    out = args.out.resolve()
-    start = time.perf_counter()
-    say = (lambda *_a, **_k: None) if args.quiet else print
-    say(f"auvid demo: simulating the example vehicle into {out}", flush=True)
-    setup = demo.prepare(out, duration_s=args.duration_s)
-    say(f"  {len(setup.logs)} trial log(s): {', '.join(p.name for p in setup.logs)}")
-    say(f"  vehicle config: {setup.vehicle_path}\n  params: {setup.params_path}", flush=True)
-    vehicle, params = load_configs(out, setup.vehicle_path, setup.params_path)
-    results = run_stages(out, vehicle, params, STAGE_ORDER, logs=setup.logs,
-                         progress_factory=_progress_factory(args), on_stage=_on_stage(args))
-    report = out / "reports" / "report.html"
-    say(f"demo finished in {time.perf_counter() - start:.0f} s")
-    print(_summary("demo", list(STAGE_ORDER), results, time.perf_counter() - start, report), flush=True)
-    say(f"report: {report}")
-    return _exit_code(results)
-
-
-def _definitions(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
-    """The user's message definitions (--msgs, then the vehicle config's) and the config's CSV options."""
-    from pipeline.io.msgdefs import load_user_types
-
-    dirs = [Path(d) for d in getattr(args, "definitions", [])]
-    csv_options: dict[str, Any] = {}
-    vehicle_path = getattr(args, "vehicle", None)
-    if vehicle_path is not None:
-        from pipeline.config import load_vehicle
-        from pipeline.ingest import user_types
-
-        vehicle = load_vehicle(vehicle_path)
-        own = user_types(vehicle)
-        dirs += list(own.dirs) if own is not None else []
-        csv_options = {s.file: s.csv for s in vehicle.streams.values() if s.file is not None and s.csv is not None}
-    for d in dirs:
-        if not d.is_dir():
-            raise ConfigError(f"message definition directory {str(d)!r} does not exist")
-    return (load_user_types(dirs) if dirs else None), csv_options
-
-
-def cmd_inspect(args: argparse.Namespace) -> int:
-    try:
-        from pipeline.io.inspect import format_fields, format_inspect, inspect_log, topic_fields
-    except ImportError as err:
-        raise PipelineError(f"`auvid inspect` is not available in this build: {err}") from None
-    _check_paths([args.log], "log")
-    definitions, csv_options = _definitions(args)
-    if args.fields is not None:
-        fields = topic_fields(args.log, args.fields, definitions=definitions, csv_options=csv_options)
-        print(json.dumps(fields, indent=2) if args.json else format_fields(fields))
-        return EXIT_OK
-    info = inspect_log(args.log, definitions=definitions, csv_options=csv_options)
-    if args.json:
-        print(json.dumps(info, indent=2, sort_keys=True, default=str))
-    else:
-        print(format_inspect(info))
-    return EXIT_OK
-
-
-def cmd_init(args: argparse.Namespace) -> int:
-    from pipeline.starter import starter_config
-
-    _check_paths(args.logs, "log(s)")
-    definitions, _ = _definitions(args)
-    out = args.out
-    if str(out) != "-" and out.exists() and not args.force:
-        raise ConfigError(f"{out} exists; choose another --out or give --force")
-    base = Path.cwd() if str(out) == "-" else out.resolve().parent
-    starter = starter_config(args.logs, name=args.name, definitions=definitions,
-                             definition_dirs=[Path(d).resolve() for d in args.definitions], base_dir=base)
-    if str(out) == "-":
-        print(starter.text, end="")
-    else:
-        out.write_text(starter.text, encoding="utf-8")
-        print(f"wrote {out}: {len(starter.streams)} stream(s), {starter.todo_count} TODO(s) to fill in")
-    for note in starter.notes:
-        print(f"  {note}", file=sys.stderr)
-    return EXIT_OK
-
-
-def cmd_retrain(args: argparse.Namespace) -> int:
-    from pipeline.retrain import RetrainOptions, retrain
-
-    root = args.root.resolve()
-    if not args.inbox.is_dir():
-        raise UsageError(f"inbox {args.inbox} is not a directory")
-    options = RetrainOptions(root=root, inbox=args.inbox.resolve(),
-                             vehicle_path=(args.vehicle or root / "vehicle.yaml").resolve(),
-                             params_path=args.params.resolve() if args.params else None,
-                             progress_factory=_progress_factory(args), on_stage=_on_stage(args))
-    outcome = retrain(options)
-    print(f"retrain: {outcome.message}")
-    return EXIT_QUARANTINED if outcome.quarantined else EXIT_OK
-
-
 def _dispatch(args: argparse.Namespace) -> int:
-    # Commands that fan out no joblib work run without a backend: no joblib import (~0.08 s of CPU), and no Dask
-    # client connected because AUVID_SCHEDULER happens to be set.
+    """Run the command: each command group's module is imported only when it runs. Commands that fan out no joblib
+    work run without a backend: no joblib import, and no Dask client connected because AUVID_SCHEDULER happens to
+    be set."""
     if args.command == "inspect":
+        from pipeline.cli.inspect import cmd_inspect
+
         return cmd_inspect(args)
     if args.command == "init":
-        return cmd_init(args)
-    if args.command in ("models", "export"):
-        from pipeline import cli_tools
+        from pipeline.cli.init import cmd_init
 
-        return cli_tools.cmd_models(args) if args.command == "models" else cli_tools.cmd_export(args)
+        return cmd_init(args)
+    if args.command == "models":
+        from pipeline.cli.models import cmd_models
+
+        return cmd_models(args)
+    if args.command == "export":
+        from pipeline.cli.export import cmd_export
+
+        return cmd_export(args)
     from pipeline.parallel import backend
 
     with backend(getattr(args, "scheduler", None)):
+        if args.command == "retrain":
+            from pipeline.cli.retrain import cmd_retrain
+
+            return cmd_retrain(args)
+        from pipeline.cli.run import cmd_demo, cmd_run, cmd_stages
+
         if args.command == "demo":
             return cmd_demo(args)
         if args.command == "run":
             return cmd_run(args)
-        if args.command == "retrain":
-            return cmd_retrain(args)
         return cmd_stages(args, [args.command])
 
 

@@ -1,0 +1,31 @@
+"""``auvid export``: one MCAP per trial for Foxglove and PlotJuggler (:mod:`pipeline.export`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from pipeline.cli.common import EXIT_OK, UsageError, check_paths, progress_factory
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from pipeline.export import export_trials, trials_available
+
+    check_paths([args.root], "run directory")
+    have = trials_available(args.root)
+    if not have:
+        raise UsageError(f"nothing to export: no synced trial under {args.root / 'data' / 'synced'} (run `auvid "
+                         "run` or `auvid sync` first)")
+    unknown = [t for t in args.trial or [] if t not in have]
+    if unknown:
+        raise UsageError(f"no synced table for trial(s) {unknown}; available: {have}")
+    start = time.perf_counter()
+    results = export_trials(args.root, args.trial, args.out, progress_factory=progress_factory(args))
+    for r in results if not args.quiet else []:
+        print(f"[export] {r.path}: {sum(r.messages.values())} message(s) on {len(r.messages)} channel(s)")
+        for reason in r.skipped:
+            print(f"  not exported: {reason}", file=sys.stderr)
+    print(f"auvid export: done (exit 0): {len(results)} trial(s) in {time.perf_counter() - start:.1f} s -> "
+          f"{results[0].path.parent}", flush=True)
+    return EXIT_OK

@@ -1,0 +1,143 @@
+"""``auvid run``, ``auvid demo`` and one subcommand per stage: the DAG's stages in order, with progress, per-stage
+lines and one summary line."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from pipeline.cli.common import (
+    EXIT_OK,
+    EXIT_QUARANTINED,
+    UsageError,
+    check_paths,
+    on_stage,
+    print_stage,
+    progress_factory,
+    salvaged,
+)
+from pipeline.errors import ConfigError
+
+
+def _with_overrides(params: Any, args: argparse.Namespace) -> Any:
+    """Params with the command line's overrides (``--no-checksum``: ``ingest.checksum: none``)."""
+    checksum = getattr(args, "checksum", None)
+    if checksum is None or checksum == params.ingest.checksum:
+        return params
+    return params.model_copy(update={"ingest": params.ingest.model_copy(update={"checksum": checksum})})
+
+
+def _vehicle_path(args: argparse.Namespace) -> Path:
+    if args.vehicle is not None:
+        return args.vehicle
+    here = Path("vehicle.yaml")
+    return here if here.exists() or not (args.root / "vehicle.yaml").exists() else args.root / "vehicle.yaml"
+
+
+def _load(args: argparse.Namespace, stages: list[str]) -> tuple[Any, Any]:
+    from stages.common import load_configs
+
+    return load_configs(args.root, _vehicle_path(args), args.params, snapshot=stages == ["ingest"])
+
+
+def _exit_code(results: list[Any]) -> int:
+    return EXIT_QUARANTINED if any(r.quarantined for r in results) else EXIT_OK
+
+
+def _summary(command: str, stages: list[str], results: list[Any], seconds: float, report: Path | None = None) -> str:
+    """The one line every stage-running command ends with (the only line with -q)."""
+    code = _exit_code(results)
+    parts = [f"{len(results)} stage(s) in {seconds:.1f} s"]
+    if len(results) < len(stages):
+        parts.append(f"stopped after {results[-1].stage if results else 'nothing'}: no trial left to process")
+    for r in results:
+        if r.quarantined:
+            names = [str(e.get("trial") or e.get("model") or e.get("file")) for e in r.quarantined]
+            parts.append(f"{r.stage}: {len(names)} quarantined ({', '.join(names)})")
+        if salvaged(r):
+            parts.append(f"{r.stage}: {len(salvaged(r))} salvaged ({', '.join(salvaged(r))})")
+    if report is not None:
+        parts.append(f"report: {report}")
+    status = "done" if code == EXIT_OK else "done with quarantined inputs or failed models"
+    return f"auvid {command}: {status} (exit {code}): " + "; ".join(parts)
+
+
+def _check_inputs(args: argparse.Namespace, stages: list[str]) -> None:
+    """Usage errors found before any stage runs: missing logs, nothing to process, an unknown --trial."""
+    from stages.common import PER_TRIAL, trials_for
+
+    root = Path(args.root)
+    logs = list(getattr(args, "logs", None) or [])
+    check_paths(logs, "log(s)")
+    if stages[0] == "ingest" and not logs:
+        from stages.ingest import discover_logs
+
+        if not discover_logs(root):
+            raise UsageError(f"nothing to process: no log given and none under {root / 'data' / 'raw'}")
+    elif stages[0] in PER_TRIAL:
+        have = trials_for(stages[0], root)
+        trial = getattr(args, "trial", None)
+        if not have:
+            raise UsageError(f"nothing to process: stage {stages[0]} has no input trial under {root} "
+                             "(run the stages before it first)")
+        if trial is not None and trial not in have:
+            raise UsageError(f"stage {stages[0]} has no input for trial {trial!r}; available: {have}")
+
+
+def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
+    from stages.common import run_stages
+
+    _check_inputs(args, stages)
+    vehicle, params = _load(args, stages)
+    params = _with_overrides(params, args)
+    logs = list(getattr(args, "logs", None) or []) or None
+    start = time.perf_counter()
+    if getattr(args, "trial", None):
+        from stages.common import call_stage
+
+        result = call_stage(stages[0], args.root, vehicle, params, trial=args.trial)
+        results = [result]
+        if not args.quiet:
+            print_stage(stages[0], result, time.perf_counter() - start)
+    else:
+        results = run_stages(args.root, vehicle, params, stages, logs=logs,
+                             progress_factory=progress_factory(args), on_stage=on_stage(args))
+    report = Path(args.root) / "reports" / "report.html"
+    shown = report.resolve() if "report" in stages and report.exists() else None
+    print(_summary(args.command, stages, results, time.perf_counter() - start, shown), flush=True)
+    return _exit_code(results)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from stages.common import STAGE_ORDER
+
+    order = list(STAGE_ORDER)
+    first = order.index(args.first) if args.first else 0
+    last = order.index(args.last) if args.last else len(order) - 1
+    if first > last:
+        raise ConfigError(f"--from {args.first} comes after --to {args.last} in the DAG")
+    return cmd_stages(args, order[first:last + 1])
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from pipeline import demo
+    from stages.common import STAGE_ORDER, load_configs, require_stages, run_stages
+
+    require_stages(STAGE_ORDER)  # before minutes of simulation
+    out = args.out.resolve()
+    start = time.perf_counter()
+    say = (lambda *_a, **_k: None) if args.quiet else print
+    say(f"auvid demo: simulating the example vehicle into {out}", flush=True)
+    setup = demo.prepare(out, duration_s=args.duration_s)
+    say(f"  {len(setup.logs)} trial log(s): {', '.join(p.name for p in setup.logs)}")
+    say(f"  vehicle config: {setup.vehicle_path}\n  params: {setup.params_path}", flush=True)
+    vehicle, params = load_configs(out, setup.vehicle_path, setup.params_path)
+    results = run_stages(out, vehicle, params, STAGE_ORDER, logs=setup.logs,
+                         progress_factory=progress_factory(args), on_stage=on_stage(args))
+    report = out / "reports" / "report.html"
+    say(f"demo finished in {time.perf_counter() - start:.0f} s")
+    print(_summary("demo", list(STAGE_ORDER), results, time.perf_counter() - start, report), flush=True)
+    say(f"report: {report}")
+    return _exit_code(results)

@@ -1,0 +1,47 @@
+"""The methods a vehicle config answers, written once for the model (:class:`~pipeline.config.vehicle.Vehicle`)
+and for a snapshot's view of it (:class:`~pipeline.config.snapshot.VehicleView`). No pydantic here: the view is
+read without it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pipeline.config.checks import applies_to
+
+
+class VehicleMethods:
+    """Paths, signal names and per-trial overrides of a vehicle config.
+
+    A class using it has ``streams`` and ``_base_dir``, and says where its overrides come from
+    (:meth:`override_keys`) and how a trial's overrides are applied (:meth:`_apply_overrides`).
+    """
+
+    if TYPE_CHECKING:  # declared for type checkers only: pydantic must not take them for fields
+        _base_dir: Path
+        streams: dict[str, Any]
+
+    def resolve(self, relative: str | Path) -> Path:
+        """A path from the config (a thrust table), relative to the vehicle file's directory."""
+        return self._base_dir / relative
+
+    def signal_names(self) -> list[str]:
+        return [name for stream in self.streams.values() for name in stream.signals]
+
+    def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """Every trial override as given: ``{pattern: {stream: {key: value}}}``, in config order."""
+        raise NotImplementedError
+
+    def trial_overrides(self, trial: str) -> dict[str, dict[str, Any]]:
+        """The overrides that apply to ``trial``: ``{pattern: {stream: {key: value}}}``, in config order."""
+        return {pattern: given for pattern, given in self.override_keys().items() if applies_to(pattern, trial)}
+
+    def for_trial(self, trial: str) -> Any:
+        """This vehicle with the streams as ``trial`` has them (its ``trials`` overrides applied); itself if none
+        applies."""
+        if not any(self.trial_overrides(trial).values()):
+            return self
+        return self._apply_overrides(trial)
+
+    def _apply_overrides(self, trial: str) -> Any:
+        raise NotImplementedError
