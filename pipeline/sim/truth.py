@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import ConfigError
-from pipeline.physics import DOFS
+from pipeline.vocabulary import DOFS
 
 #: DAGON's thrust loss to inflow (fraction per m/s at 2500 rpm: 15 % at 0.5 m/s; J0 ~ 0.8 for a 0.1 m propeller).
 #: Off in the packaged ``dagon_truth.yaml``; ``dataclasses.replace(load_truth(), inflow_loss=DAGON_INFLOW_LOSS)``.
