@@ -20,7 +20,7 @@ import numpy as np
 
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle
-from pipeline.rk4 import list_axpy, rk4_step
+from pipeline.rk4 import LISTS, rk4_step
 from pipeline.sim.truth import SimTruth
 from pipeline.vocabulary import DOFS
 
@@ -313,7 +313,7 @@ def integrate(dyn: Dynamics, commander: Commander | None, duration_s: float, rat
         cmd_all[step] = cmd
         if step == steps:
             break
-        y = rk4_step(f, y, cmd, dt, list_axpy)
+        y = rk4_step(f, y, cmd, dt, LISTS)
         if not all(math.isfinite(val) for val in y):
             raise FloatingPointError(f"simulation diverged at t = {step * dt:.3f} s")
     return {"t_s": np.arange(steps + 1) * dt, "eta": out[:, :6], "nu": out[:, 6:12], "n": out[:, 12:],
