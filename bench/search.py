@@ -42,7 +42,7 @@ from pipeline.models.search import (
     fast_search,
     paper_grid,
 )
-from pipeline.sim import DAGON_INFLOW_LOSS, load_example_vehicle, load_truth, simulate_trial
+from pipeline.sim import DAGON_INFLOW_LOSS, generate_trial, load_example_vehicle, load_truth
 from pipeline.sim.synthetic import synthetic_frame
 
 INPUTS = ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"]
@@ -56,7 +56,7 @@ def problem(source: str, output: str, n: int, seed: int) -> tuple[np.ndarray, np
         frame = synthetic_frame(n, seed=seed, noise=0.1, split="tuning")
         return frame[INPUTS].to_numpy(float), frame[output].to_numpy(float)
     truth = dataclasses.replace(load_truth(), inflow_loss=DAGON_INFLOW_LOSS)
-    table = simulate_trial(load_example_vehicle(), duration_s=0.5 * n + 1.0, seed=seed, truth=truth).truth
+    table = generate_trial(load_example_vehicle(), duration_s=0.5 * n + 1.0, seed=seed, truth=truth).truth
     rows = table.iloc[np.arange(n) * 100]  # 200 Hz -> 2 Hz
     rng = np.random.default_rng(1000 + seed)
     X = rows[INPUTS].to_numpy(float, copy=True)

@@ -1,8 +1,8 @@
 """The project's own vehicle and sensor simulator: ground truth for the tests and the embedded example.
 
 ```python
-from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
-trial = simulate_trial(load_example_vehicle(), duration_s=120.0, seed=1)
+from pipeline.sim import generate_trial, load_example_vehicle, write_trial
+trial = generate_trial(load_example_vehicle(), duration_s=120.0, seed=1)
 trial.truth            # DataFrame at the integration rate (t_ns, u_mps ... d_r_Nm), docs/contracts.md names
 trial.streams["dvl"]   # the DVL messages: log_ns, header_ns, fields by field path
 write_trial(trial, "mcap", "trial01.mcap")
@@ -19,8 +19,8 @@ from pipeline.sim.trial import (
     EPOCH_NS,
     SimTrial,
     example_vehicle_path,
+    generate_trial,
     load_example_vehicle,
-    simulate_trial,
     truth_table,
 )
 from pipeline.sim.truth import DAGON_INFLOW_LOSS, CoupledTerm, SimTruth, load_truth, true_damping
@@ -28,7 +28,7 @@ from pipeline.sim.vehicle import Controls
 
 __all__ = [
     "Controls", "CoupledTerm", "DAGON_INFLOW_LOSS", "SensorOptions", "SimTrial", "SimTruth", "Stream", "StreamSpec",
-    "dvl_measurement", "example", "example_vehicle_path", "load_example_vehicle", "load_truth", "simulate_trial",
+    "dvl_measurement", "example", "example_vehicle_path", "load_example_vehicle", "load_truth", "generate_trial",
     "true_damping", "truth_table", "write_trial", "FORMATS", "EPOCH_NS",
 ]
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pyarrow as pa
 import yaml
 
-from pipeline.sim.trial import example_vehicle_path, load_example_vehicle, simulate_trial
+from pipeline.sim.trial import example_vehicle_path, generate_trial, load_example_vehicle
 from pipeline.sim.writers import EXTENSIONS, csv_vehicle, write_trial
 from pipeline.tableio import write_parquet
 
@@ -33,7 +33,7 @@ def example(out_dir: str | Path, fmt: str = "mcap", duration_s: float = 180.0, s
     trials, truths = [], []
     for i in range(n_trials):
         trial_id = f"trial{i + 1:02d}"
-        trial = simulate_trial(vehicle, duration_s=duration_s, seed=seed * 1000 + i, start_offset_s=3600.0 * i)
+        trial = generate_trial(vehicle, duration_s=duration_s, seed=seed * 1000 + i, start_offset_s=3600.0 * i)
         trials.append(write_trial(trial, fmt, out / f"{trial_id}{EXTENSIONS[fmt]}", overwrite=True))
         truths.append(write_parquet(pa.Table.from_pandas(trial.truth, preserve_index=False),
                                     out / "truth" / f"{trial_id}.parquet",

@@ -89,7 +89,7 @@ def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], 
     return pd.DataFrame(cols)
 
 
-def simulate_trial(
+def generate_trial(
     vehicle: Vehicle | None = None,
     duration_s: float = 60.0,
     seed: int = 0,
