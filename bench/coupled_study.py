@@ -50,7 +50,7 @@ sys.path.insert(0, str(ROOT))
 from pipeline import store  # noqa: E402
 from pipeline.config import Params  # noqa: E402
 from pipeline.models.card import load_model  # noqa: E402
-from pipeline.sim import DAGON_INFLOW_LOSS, load_example_vehicle, load_truth, simulate_trial, write_trial  # noqa: E402
+from pipeline.sim import DAGON_INFLOW_LOSS, generate_trial, load_example_vehicle, load_truth, write_trial  # noqa: E402
 from pipeline.sim.vehicle import Dynamics  # noqa: E402
 
 OUTPUTS = ("udot_mps2", "vdot_mps2", "rdot_radps2")
@@ -116,7 +116,7 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
         (root / "data/raw").mkdir(parents=True)
         trials = {}
         for k, name in enumerate(("s1", "s2", "s3")):
-            trial = simulate_trial(vehicle, duration_s, seed=100 * seed + k + 1, truth=truth, warmup_s=30.0,
+            trial = generate_trial(vehicle, duration_s, seed=100 * seed + k + 1, truth=truth, warmup_s=30.0,
                                    start_offset_s=1000.0 * k)
             write_trial(trial, "mcap", root / f"data/raw/{name}.mcap")
             trials[name] = trial

@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.config import Params  # noqa: E402
-from pipeline.sim import load_example_vehicle, simulate_trial, write_trial  # noqa: E402
+from pipeline.sim import generate_trial, load_example_vehicle, write_trial  # noqa: E402
 from pipeline.vocabulary import accel_std_column, std_column  # noqa: E402
 
 DOFS = (("u", "mps"), ("v", "mps"), ("r", "radps"))
@@ -59,7 +59,7 @@ def prepare(root: Path, seed: int, duration_s: float, params: Params, vehicle=No
     from stages import ingest, sync
 
     vehicle = vehicle if vehicle is not None else load_example_vehicle()
-    trial = simulate_trial(vehicle, duration_s, seed=seed, warmup_s=20.0)
+    trial = generate_trial(vehicle, duration_s, seed=seed, warmup_s=20.0)
     (root / "data/raw").mkdir(parents=True, exist_ok=True)
     write_trial(trial, "mcap", root / "data/raw/trial.mcap")
     for stage in (ingest, sync):

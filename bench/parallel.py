@@ -20,7 +20,7 @@ The modes:
   is not available);
 * ``dask`` (``--modes ... dask``): ``--scheduler local``, a Dask LocalCluster with one worker per usable core.
 
-The trials are copies of one simulated DAGON log (``pipeline.sim.writers.example``; the per-trial work does not
+The trials are copies of one simulated DAGON log (``pipeline.sim.example``; the per-trial work does not
 depend on what the vehicle did, only on how long it logged), named ``trial01`` ... so that each is its own trial.
 ``--logs DIR`` keeps the generated log for the next call (a one-hour log takes minutes to simulate). Each mode
 runs ``--repeat`` times, interleaved; the table shows medians. ``--sweep`` runs serial and pool over several
@@ -70,7 +70,7 @@ def compile_sources() -> None:
 
 def make_log(cache: Path, seconds: float) -> tuple[Path, Path]:
     """One simulated trial log of ``seconds`` and its vehicle config, generated once into ``cache``."""
-    from pipeline.sim.writers import example
+    from pipeline.sim import example
 
     target = cache / f"sim{int(seconds)}s"
     log, vehicle = target / "trial01.mcap", target / "vehicle.yaml"

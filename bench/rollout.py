@@ -1,23 +1,19 @@
 """Free runs of a 480-s trial: every coupled and decoupled model, wall and CPU time, and the ratio to one SVR
 predict over the same rows (the rows a rollout evaluates: steps x 4 RK4 stages x batch members).
 
-The models are fitted here on a synthetic plant with known damping (``pipeline.simulate.SyntheticPlant``, 20 Hz):
+The models are fitted here on a synthetic plant with known damping (``pipeline.sim.synthetic.SyntheticPlant``, 20 Hz):
 RBF-, 2-weights- and WDSE-SVR on ``[u v r n1 n2 n3]`` (libsvm through ``pipeline.models.svr``), the decoupled
 LS, KRR, SVR and GP on each DOF's damping (GP with its 32-member posterior band). Each model's free run, horizon
 errors (1, 5, 10 s) and, for the decoupled ones, DVL-outage bridging (10, 30, 60 s) are timed as the simulate
 stage runs them.
 
 The coupled models run as the simulate stage runs them: per model, its free runs over every segment and all
-horizon windows in one batch (``simulate_model``); all decoupled models, the GP's band members included, in one
-batch (``simulate_models``, one call per RK4 stage); bridging of all of them and all outage lengths in one batch.
+horizon windows in one batch (``run_model``); all decoupled models, the GP's band members included, in one
+batch (``run_models``, one call per RK4 stage); bridging of all of them and all outage lengths in one batch.
 
 Usage: nice python bench/rollout.py [trial_s=480] [train_s=300]
 
-Measured (docs/benchmarks.md, "Free-run rollouts"), 480-s trial, 2 shared cores, ~800-2900 support vectors per
-output: 96.6 s wall / 127.9 s CPU before batching (each segment, horizon and outage length its own rollout; the
-kernel sums as a (B, n_sv, 6) difference array), 12.7 s wall / 19.9 s CPU after (12.9 / 12.9 with
-OPENBLAS_NUM_THREADS=1); ratio to one SVR predict over the same rows 3.9 / 5.2 before, 0.5 / 0.8 after. The
-reference predict's row count (free run + horizons ~ 2 rows per sample and stage) is kept as before.
+Results: docs/benchmarks.md, "Free-run rollouts" (figures of the re-layout's move: docs/notes-rollout.md).
 """
 
 from __future__ import annotations
@@ -29,21 +25,19 @@ import numpy as np
 
 from pipeline.models.decoupled import make_estimator
 from pipeline.models.svr import RBFSVR, WDSESVR, PerOutputRegressor, TwoWeightsSVR
-from pipeline.simulate import (
-    TAU_COLUMNS,
-    VELOCITY_COLUMNS,
+from pipeline.physics import coriolis_force
+from pipeline.rollout import (
     CoupledDynamics,
     DecoupledDynamics,
-    SyntheticPlant,
     band_tables,
     bridge_outages,
-    coriolis_from_mass,
     damping_tables,
-    simulate_model,
-    simulate_models,
-    synthetic_trial,
+    run_model,
+    run_models,
     table_range,
 )
+from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
+from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS
 
 DOFS = ["u", "v", "r"]
 RPM = ["n1_rpm", "n2_rpm", "n3_rpm"]
@@ -95,17 +89,17 @@ def main() -> None:
     t0 = clock()
     for name, est in coupled.items():  # each coupled model: free runs + horizon windows in one batch
         a = clock()
-        run, _ = simulate_model(name, CoupledDynamics(est), t_ns, nu, rpm, DOFS, horizons, segment=seg)
+        run, _ = run_model(name, CoupledDynamics(est), t_ns, nu, rpm, DOFS, horizons, segment=seg)
         b = clock()
         rows.append((f"coupled {name}", b[0] - a[0], b[1] - a[1], f"{run.metrics['u']['r2']:.3f}"))
     a = clock()  # all decoupled models, the GP's band members too, in one batch (one call per RK4 stage)
     fs, batch = {}, {}
     for name, models in decoupled.items():
-        fs[name] = DecoupledDynamics(M, DOFS, damping_tables(models, ranges), coriolis_from_mass)
-        band = (DecoupledDynamics(M, DOFS, band_tables(models, ranges, 32), coriolis_from_mass)
+        fs[name] = DecoupledDynamics(M, DOFS, damping_tables(models, ranges), coriolis_force)
+        band = (DecoupledDynamics(M, DOFS, band_tables(models, ranges, 32), coriolis_force)
                 if name == "gp" else None)
         batch[name] = (fs[name], band)
-    done = simulate_models(batch, t_ns, nu, tau, DOFS, horizons, segment=seg, band_members=32)
+    done = run_models(batch, t_ns, nu, tau, DOFS, horizons, segment=seg, band_members=32)
     b = clock()
     rows.append(("decoupled " + ", ".join(decoupled) + " (+ GP band 32), one batch", b[0] - a[0], b[1] - a[1],
                  " / ".join(f"{done[n][0].metrics['u']['r2']:.3f}" for n in decoupled)))

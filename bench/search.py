@@ -9,7 +9,7 @@ table reports WDSE. Every score is the same blocked 3-fold CV mean R² on the sa
 
 Problems (inputs ``[u v r n1 n2 n3]``, ``n`` rows 0.5 s apart, one per source x seed x output):
 
-* ``synthetic``: :func:`pipeline.coupled.synthetic_frame` (coupled damping beyond the explicit models, thrust lost
+* ``synthetic``: :func:`pipeline.sim.synthetic.synthetic_frame` (coupled damping beyond the explicit models, thrust lost
   to inflow), measurement noise 10 % of each signal's SD;
 * ``sim``: a trial of the project's simulator (``pipeline.sim``, DAGON, propeller inflow loss on), truth at 200 Hz
   taken every 0.5 s, velocities and accelerations with 5 % noise (rpm as logged, exact).
@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 from joblib import Parallel, delayed
 
-from pipeline.coupled import synthetic_frame
 from pipeline.evaluate import blocked_folds
 from pipeline.models.search import (
     C_GRID,
@@ -43,7 +42,8 @@ from pipeline.models.search import (
     fast_search,
     paper_grid,
 )
-from pipeline.sim import DAGON_INFLOW_LOSS, load_example_vehicle, load_truth, simulate_trial
+from pipeline.sim import DAGON_INFLOW_LOSS, generate_trial, load_example_vehicle, load_truth
+from pipeline.sim.synthetic import synthetic_frame
 
 INPUTS = ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"]
 N_FOLDS = 3
@@ -56,7 +56,7 @@ def problem(source: str, output: str, n: int, seed: int) -> tuple[np.ndarray, np
         frame = synthetic_frame(n, seed=seed, noise=0.1, split="tuning")
         return frame[INPUTS].to_numpy(float), frame[output].to_numpy(float)
     truth = dataclasses.replace(load_truth(), inflow_loss=DAGON_INFLOW_LOSS)
-    table = simulate_trial(load_example_vehicle(), duration_s=0.5 * n + 1.0, seed=seed, truth=truth).truth
+    table = generate_trial(load_example_vehicle(), duration_s=0.5 * n + 1.0, seed=seed, truth=truth).truth
     rows = table.iloc[np.arange(n) * 100]  # 200 Hz -> 2 Hz
     rng = np.random.default_rng(1000 + seed)
     X = rows[INPUTS].to_numpy(float, copy=True)

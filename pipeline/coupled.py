@@ -5,9 +5,6 @@ read and write. Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs `
 ``[u v r T1 T2 T3]``, the thrusters' static thrust, where the paper has their speeds ``n1 n2 n3``; one SVR per
 output with its own hyperparameters) and ``gertler_hagen``, ``mcfarland_whitcomb`` (inputs ``[u v r tau_u tau_v
 tau_r]``, all outputs at once, TLS). Outputs ``[udot vdot rdot]``.
-
-:func:`synthetic_frame` generates feature-store-like data from a known coupled model with damping terms beyond
-the Gertler–Hagen / McFarland–Whitcomb structures (for tests and benchmarks).
 """
 
 from __future__ import annotations
@@ -39,12 +36,12 @@ from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhi
 from pipeline.models.graybox import GrayBox
 from pipeline.models.search import SVR_MODELS, SearchResult, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
-from pipeline.simulate import grid_step_s
+from pipeline.rollout import grid_step_s
 from pipeline.units import axis_label
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "NestedTuned", "noise_std_from", "synthetic_frame",
+__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "NestedTuned", "noise_std_from",
            "tune",
            "build_model", "model_inputs",
            "evaluate_models"]
@@ -58,91 +55,6 @@ MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_
 NOISE_STD_COLUMNS = ("u_smooth_std_mps", "v_smooth_std_mps", "r_smooth_std_radps", "udot_std_mps2",
                      "vdot_std_mps2", "rdot_std_radps2")
 _EXPLICIT_CLASSES = {"gertler_hagen": GertlerHagen, "mcfarland_whitcomb": McFarlandWhitcomb}
-
-
-# -- synthetic data ---------------------------------------------------------------------------------------
-
-_M = np.array([[110.0, 0.0, 0.0], [0.0, 160.0, 8.0], [0.0, 8.0, 25.0]])
-_K_THRUST = 2.0e-5  # N / rpm^2
-_K_ADVANCE = 0.01  # N / (rpm m/s): thrust lost to inflow, NOT in the static tau the feature store carries
-_B = np.array([[1.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-0.3, 0.3, 0.5]])
-
-
-def _coriolis(nu: np.ndarray) -> np.ndarray:
-    u, v, r = nu.T
-    a_x = _M[0, 0] * u + _M[0, 1] * v + _M[0, 2] * r
-    a_y = _M[1, 0] * u + _M[1, 1] * v + _M[1, 2] * r
-    return np.column_stack([-r * a_y, r * a_x, u * a_y - v * a_x])
-
-
-def _damping(nu: np.ndarray) -> np.ndarray:
-    u, v, r = nu.T
-    return np.column_stack([
-        8 * u + 30 * u * np.abs(u) + 40 * u * r**2 + 15 * v * r,
-        15 * v + 80 * v * np.abs(v) + 30 * u * r + 60 * v * u**2,
-        3 * r + 10 * r * np.abs(r) + 6 * u * v + 4 * np.tanh(8 * v) * np.abs(u) + 5 * r * u**2])
-
-
-def _accel(nu: np.ndarray, n_rpm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    thrust_static = _K_THRUST * n_rpm * np.abs(n_rpm)
-    inflow = np.column_stack([nu[:, 0], nu[:, 0], nu[:, 1] + 0.5 * nu[:, 2]])
-    thrust = thrust_static - _K_ADVANCE * np.abs(n_rpm) * inflow
-    tau_eff = thrust @ _B.T
-    rhs = tau_eff - _coriolis(nu) - _damping(nu)
-    return np.linalg.solve(_M, rhs.T).T, thrust_static @ _B.T
-
-
-def synthetic_frame(n_samples: int = 1500, *, rate_hz: float = 2.0, seed: int = 0, trial: str = "syn01",
-                    split: str | None = None, tuning_fraction: float = 0.2, noise: float = 0.02,
-                    vehicle: str = "synthetic") -> pd.DataFrame:
-    """A feature-store-like table of one simulated trial (RK4, step + sine thruster commands, noisy signals).
-
-    ``split=None``: first ``tuning_fraction`` of the rows are ``tuning``, the rest ``train_test``; otherwise every
-    row gets ``split``. ``noise`` is the measurement noise SD as a fraction of each signal's SD.
-    """
-    rng = np.random.default_rng(seed)
-    dt = 1.0 / rate_hz
-    t = np.arange(n_samples) * dt
-    amp = np.array([1400.0, 1400.0, 1200.0])
-    n_rpm = np.zeros((n_samples, 3))
-    for i in range(3):  # random steps held 2-10 s, through a first-order thruster lag (1 s), plus a sine
-        level, hold, state = 0.0, 0.0, 0.0
-        phase, freq = rng.uniform(0, 2 * np.pi), rng.uniform(0.02, 0.1)
-        for k in range(n_samples):
-            if hold <= 0:
-                level, hold = rng.uniform(-1.0, 1.0), rng.uniform(2.0, 10.0)
-            hold -= dt
-            state += (level - state) * min(dt / 1.0, 1.0)
-            n_rpm[k, i] = amp[i] * np.clip(0.8 * state + 0.2 * np.sin(2 * np.pi * freq * t[k] + phase), -1, 1)
-    nu = np.zeros((n_samples, 3))
-    x = np.zeros((1, 3))
-    for k in range(n_samples):
-        nu[k] = x[0]
-        nk = n_rpm[k:k + 1]
-        k1, _ = _accel(x, nk)
-        k2, _ = _accel(x + 0.5 * dt * k1, nk)
-        k3, _ = _accel(x + 0.5 * dt * k2, nk)
-        k4, _ = _accel(x + dt * k3, nk)
-        x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    nudot, tau = _accel(nu, n_rpm)
-    thrust_static = _K_THRUST * n_rpm * np.abs(n_rpm)  # the derive stage's T_<thruster>_N
-    noisy = [a + noise * a.std(axis=0) * rng.normal(size=a.shape) for a in (nu, nudot)]
-    frame = pd.DataFrame({
-        "vehicle": vehicle, "trial": trial,
-        "t_ns": (np.round(t * 1e9)).astype(np.int64) + 1_700_000_000 * 10**9,
-        "segment": np.zeros(n_samples, dtype=np.int32),
-        "u_mps": noisy[0][:, 0], "v_mps": noisy[0][:, 1], "r_radps": noisy[0][:, 2],
-        "n1_rpm": n_rpm[:, 0], "n2_rpm": n_rpm[:, 1], "n3_rpm": n_rpm[:, 2],
-        **{f"T_th{i + 1}_N": thrust_static[:, i] for i in range(3)},
-        "tau_u_N": tau[:, 0], "tau_v_N": tau[:, 1], "tau_r_Nm": tau[:, 2],
-        "udot_mps2": noisy[1][:, 0], "vdot_mps2": noisy[1][:, 1], "rdot_radps2": noisy[1][:, 2],
-    })
-    if split is None:
-        n_tune = int(round(tuning_fraction * n_samples))
-        frame["split"] = np.where(np.arange(n_samples) < n_tune, "tuning", "train_test")
-    else:
-        frame["split"] = split
-    return frame
 
 
 # -- models -----------------------------------------------------------------------------------------------

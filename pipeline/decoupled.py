@@ -34,8 +34,8 @@ from threadpoolctl import threadpool_limits
 from pipeline.errors import ConfigError, ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
-from pipeline.simulate import DAMPING_COLUMNS, VELOCITY_COLUMNS
 from pipeline.units import axis_label
+from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS
 
 log = logging.getLogger(__name__)
 

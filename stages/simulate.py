@@ -1,6 +1,7 @@
 """Simulate stage: fitted models + the test split -> data/simulation/ (free runs, horizons, DVL-outage bridging).
 
-For every test trial: each decoupled model set (``data/models/decoupled/<dof>_<model>.joblib`` for all of
+For every test trial (:func:`pipeline.rollout.rollout_trial`; tables and figures: :mod:`pipeline.report.rollout`):
+each decoupled model set (``data/models/decoupled/<dof>_<model>.joblib`` for all of
 ``decoupled.dofs``) becomes ``M nudot = tau - C(nu) nu - d(nu)`` with M and C from ``pipeline.physics`` and tau
 from the measured thruster speeds (``physics.generalized_forces``; minus ``physics.restoring_force`` when roll and
 pitch are in the store); each coupled model of ``stages.train`` (``data/models/coupled/<name>.joblib`` + card
@@ -19,28 +20,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 
-from pipeline import layout, physics, store
+from pipeline import layout, store
 from pipeline.config import Params, Vehicle
 from pipeline.errors import ModelError
-from pipeline.simulate import (
-    DOFS,
-    TAU_COLUMNS,
-    VELOCITY_COLUMNS,
-    CoupledDynamics,
-    DecoupledDynamics,
-    band_tables,
-    bridge_outages,
-    bridging_markdown,
-    damping_tables,
-    plot_bridging,
-    plot_free_runs,
-    simulate_models,
-    table_range,
-)
+from pipeline.report.rollout import bridging_markdown, plot_bridging, plot_free_runs
+from pipeline.rollout import TrialRollout, part_progress, rollout_trial
 from pipeline.tableio import atomic_path, write_json, write_parquet
+from pipeline.vocabulary import VELOCITY_COLUMNS, acceleration_column
 from stages.common import StageResult, stage_main
 
 NAME = "simulate"
@@ -77,8 +65,7 @@ def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str
 
     base = Path(root) / layout.MODELS / "coupled"
     states = [VELOCITY_COLUMNS[d] for d in dofs]
-    accels = [c.replace("_mps", "dot_mps2", 1) if c.endswith("_mps") else c.replace("_radps", "dot_radps2", 1)
-              for c in states]
+    accels = [acceleration_column(d) for d in dofs]
     out = {}
     for card_path in sorted(base.glob("*.card.json")) if base.exists() else []:
         name = card_path.name.removesuffix(".card.json")
@@ -97,78 +84,22 @@ def coupled_models(root: Path, dofs: list[str]) -> dict[str, tuple[Any, list[str
     return out
 
 
-def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
-    """A progress callback for one part of the stage: the part's own done/total, ``label`` first in desc."""
-    if progress is None:
-        return None
-    return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
-
-
-def trial_inputs(frame: pd.DataFrame, vehicle: Vehicle, dofs: list[str]) -> np.ndarray:
-    """Generalized forces of the simulated DOFs from the measured thruster speeds, minus restoring forces."""
-    speeds = frame[[t.input_signal for t in vehicle.thrusters]].to_numpy(float)  # speed, PWM or thrust
-    tau = physics.generalized_forces(vehicle, speeds)
-    if {"roll_rad", "pitch_rad"} <= set(frame.columns):
-        tau = tau - physics.restoring_force(vehicle, frame["roll_rad"].to_numpy(float),
-                                            frame["pitch_rad"].to_numpy(float))
-    return tau[:, [DOFS.index(d) for d in dofs]]
-
-
-def simulate_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupled: dict[str, dict[str, Any]],
-                   coupled: dict[str, tuple[Any, list[str]]], out_dir: Path,
-                   progress: Callable[..., Any] | None = None) -> tuple[dict[str, Any], list[Path]]:
-    p, dofs = params.simulate, list(params.decoupled.dofs)
-    t_ns = frame["t_ns"].to_numpy(np.int64)
-    seg = frame["segment"].to_numpy(int) if "segment" in frame else None
-    nu = frame[[VELOCITY_COLUMNS[d] for d in dofs]].to_numpy(float)
-    tau = trial_inputs(frame, vehicle, dofs)
-    M = physics.mass_matrix(vehicle)
-    ranges = {d: table_range(nu[:, j]) for j, d in enumerate(dofs)}
-    dynamics: dict[str, tuple[Any, np.ndarray]] = {}
-    bands: dict[str, Any] = {}
-    for name, models in decoupled.items():
-        dynamics[name] = (DecoupledDynamics(M, dofs, damping_tables(models, ranges), physics.coriolis_force), tau)
-        if p.band_samples > 0 and all(hasattr(m, "sample_functions") for m in models.values()):
-            bands[name] = DecoupledDynamics(M, dofs, band_tables(models, ranges, p.band_samples, p.seed),
-                                            physics.coriolis_force)
-    for name, (est, extra) in coupled.items():
-        cols = [c for c in extra if c not in frame.columns and c not in TAU_COLUMNS.values()]
-        if cols:
-            log.warning("%s needs columns %s absent from the test trial; skipped", name, cols)
-            continue
-        dynamics[name] = (CoupledDynamics(est), frame[extra].to_numpy(float))
-    runs, horizons = [], {}
-    # free runs, band members and horizon windows in one batch: all decoupled models together (they read tau and
-    # merge into one call per RK4 stage), each coupled model alone (its own inputs)
-    batches = [{n: (f, bands.get(n)) for n, (f, inputs) in dynamics.items() if inputs is tau}]
-    batches += [{n: (f, None)} for n, (f, inputs) in dynamics.items() if inputs is not tau]
-    results: dict[str, Any] = {}
-    batches = list(filter(None, batches))
-    for k, batch in enumerate(batches, start=1):
-        inputs = dynamics[next(iter(batch))][1]
-        label = f"{', '.join(batch)} ({k}/{len(batches)})"
-        results.update(simulate_models(batch, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
-                                       divergence_factor=p.divergence_factor, method=p.method,
-                                       band_members=p.band_samples, progress=_part(progress, label)))
-    for name in dynamics:  # the models' order as before
-        run, horizons[name] = results[name]
-        runs.append(run)
+def write_trial_outputs(result: TrialRollout, trial: str, out_dir: Path) -> list[Path]:
+    """The files of one trial's rollouts: ``free_run.json|parquet|png``, ``horizons.json`` and, when the trial was
+    bridged, ``bridging.json|md|png``."""
+    runs = result.runs
     outputs = [write_json([r.summary() for r in runs], out_dir / "free_run.json"),
-               write_json(horizons, out_dir / "horizons.json"),
-               write_free_runs(t_ns, [VELOCITY_COLUMNS[d] for d in dofs], runs, out_dir / "free_run.parquet")]
+               write_json(result.horizons, out_dir / "horizons.json"),
+               write_free_runs(result.t_ns, result.columns, runs, out_dir / "free_run.parquet")]
     if runs:
-        outputs.append(plot_free_runs(runs, out_dir / "free_run.png", title=str(frame["trial"].iloc[0])))
-    summary: dict[str, Any] = {"free_run": [r.summary() for r in runs], "horizons": horizons}
-    if {"u", "v"} <= set(dofs) and "yaw_rad" in frame:
-        decoupled_f = {n: f for n, (f, inputs) in dynamics.items() if inputs is tau}
-        rows = bridge_outages(decoupled_f, t_ns, nu, tau, frame["yaw_rad"].to_numpy(float), dofs,
-                              p.outage_windows_s, segment=seg, divergence_factor=p.divergence_factor, method=p.method)
+        outputs.append(plot_free_runs(runs, out_dir / "free_run.png", title=trial))
+    if result.bridging is not None:
+        rows = result.bridging
         outputs.append(write_json(rows, out_dir / "bridging.json"))
         with atomic_path(out_dir / "bridging.md") as tmp:
             tmp.write_text(bridging_markdown(rows))
         outputs += [out_dir / "bridging.md", plot_bridging(rows, out_dir / "bridging.png")]
-        summary["bridging"] = rows
-    return summary, outputs
+    return outputs
 
 
 def write_free_runs(t_ns: np.ndarray, columns: list[str], runs: list[Any], target: Path) -> Path:
@@ -203,11 +134,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     metrics = {}
     groups = list(test.groupby("trial", sort=True))
     for k, (trial, frame) in enumerate(groups, start=1):
-        summary, paths = simulate_trial(frame.reset_index(drop=True), vehicle, params, decoupled, coupled,
-                                        root / layout.SIMULATION / str(trial),
-                                        _part(progress, f"trial {trial} ({k}/{len(groups)}):"))
-        metrics[str(trial)] = summary
-        outputs += paths
+        frame = frame.reset_index(drop=True)
+        result = rollout_trial(frame, vehicle, params, decoupled, coupled,
+                               part_progress(progress, f"trial {trial} ({k}/{len(groups)}):"))
+        metrics[str(trial)] = result.summary()
+        outputs += write_trial_outputs(result, str(frame["trial"].iloc[0]), root / layout.SIMULATION / str(trial))
     outputs.append(write_json(metrics, root / layout.SIMULATION / "metrics.json"))
     status = {f"{t}/{r['model']}": r["status"] for t, s in metrics.items() for r in s["free_run"]}
     return StageResult(stage=NAME, outputs=outputs, summary={"status": status})

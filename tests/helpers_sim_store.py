@@ -6,7 +6,7 @@ import functools
 from pathlib import Path
 
 from pipeline.config import Params, Vehicle
-from pipeline.sim import Controls, SensorOptions, SimTrial, SimTruth, load_example_vehicle, simulate_trial, write_trial
+from pipeline.sim import Controls, SensorOptions, SimTrial, SimTruth, generate_trial, load_example_vehicle, write_trial
 from stages import derive, differentiate, features, ingest, sync
 
 #: name -> (excitation, seed, duration s, DVL dropouts)
@@ -20,7 +20,7 @@ def build_store(root: Path, specs: dict[str, TrialSpec], params: Params, amplitu
     (root / "data/raw").mkdir(parents=True, exist_ok=True)
     trials = {}
     for name, (excite, seed, duration_s, dropouts) in specs.items():
-        trial = simulate_trial(vehicle, duration_s, seed=seed, controls=Controls(excite=excite,
+        trial = generate_trial(vehicle, duration_s, seed=seed, controls=Controls(excite=excite,
                                                                                   amplitude_rpm=amplitude_rpm),
                                sensors=SensorOptions(dropouts=dropouts, **(sensors or {})))
         write_trial(trial, "mcap", root / f"data/raw/{name}.mcap")
@@ -35,7 +35,7 @@ def build_store(root: Path, specs: dict[str, TrialSpec], params: Params, amplitu
 def cached_trial(seed: int, duration_s: float, *, truth: SimTruth | None = None, warmup_s: float = 0.0,
                  start_offset_s: float = 0.0, controls: Controls | None = None) -> SimTrial:
     """One simulated DAGON trial, computed once per test session (arguments are hashable: frozen dataclasses)."""
-    return simulate_trial(load_example_vehicle(), duration_s, seed=seed, truth=truth, warmup_s=warmup_s,
+    return generate_trial(load_example_vehicle(), duration_s, seed=seed, truth=truth, warmup_s=warmup_s,
                           start_offset_s=start_offset_s, controls=controls)
 
 

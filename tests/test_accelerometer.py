@@ -71,14 +71,14 @@ def test_noise_free_turning_tilted_vehicle_gives_the_true_acceleration() -> None
 def imu_trial():
     """A 150-s DAGON trial with realistic sensors; the vehicle config with the AHRS's accelerometers configured."""
     from pipeline.config.vehicle import Vehicle
-    from pipeline.sim import example_vehicle_path, load_example_vehicle, simulate_trial
+    from pipeline.sim import example_vehicle_path, generate_trial, load_example_vehicle
 
     raw = yaml.safe_load(example_vehicle_path().read_text())
     raw["streams"]["ahrs"]["signals"].update(
         {f"a{a}_imu_mps2": {"field": f"linear_acceleration.{a}", "unit": "m/s^2"} for a in "xyz"})
     raw["sensors"]["accelerometer"] = {"signals": [f"a{a}_imu_mps2" for a in "xyz"], "position_m": [0.2, 0.1, -0.1]}
     with_imu = Vehicle.model_validate(raw)
-    return load_example_vehicle(), with_imu, simulate_trial(with_imu, 150.0, seed=5, warmup_s=20.0)
+    return load_example_vehicle(), with_imu, generate_trial(with_imu, 150.0, seed=5, warmup_s=20.0)
 
 
 def test_accelerometers_sharpen_the_targets_and_their_bias_is_found(imu_trial) -> None:

@@ -6,20 +6,11 @@ import numpy as np
 import pytest
 
 from pipeline.models.decoupled import make_estimator
-from pipeline.simulate import (
-    TAU_COLUMNS,
-    VELOCITY_COLUMNS,
-    DecoupledDynamics,
-    SyntheticPlant,
-    bridge_outages,
-    bridging_markdown,
-    coriolis_from_mass,
-    damping_tables,
-    dead_reckon,
-    plot_bridging,
-    synthetic_trial,
-    table_range,
-)
+from pipeline.physics import coriolis_force
+from pipeline.report.rollout import bridging_markdown, plot_bridging
+from pipeline.rollout import DecoupledDynamics, bridge_outages, damping_tables, dead_reckon, table_range
+from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
+from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS
 
 DOFS = ["u", "v", "r"]
 PLANT = SyntheticPlant()
@@ -51,7 +42,7 @@ def test_learned_model_beats_hold_last_velocity_on_30s_outages(tmp_path) -> None
             fitted[d] = est.fit(train[[VELOCITY_COLUMNS[d]]].to_numpy()[rows],
                                 train[f"d_{d}_{'Nm' if d == 'r' else 'N'}"].to_numpy()[rows])
         models[name] = DecoupledDynamics(PLANT.mass_matrix(), DOFS, damping_tables(fitted, ranges),
-                                         coriolis_from_mass)
+                                         coriolis_force)
     models["truth"] = PLANT.as_dynamics()
     rows = bridge_outages(models, t_ns, nu, tau, test["yaw_rad"].to_numpy(), DOFS, [10.0, 30.0])
     err = {(r["window_s"], r["model"]): r["mean_error_m"] for r in rows}

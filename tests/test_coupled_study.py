@@ -5,10 +5,11 @@ import pandas as pd
 import pytest
 
 from pipeline.config.params import CoupledParams
-from pipeline.coupled import run_study, synthetic_frame, table2, table3
+from pipeline.coupled import run_study, table2, table3
 from pipeline.errors import ModelError
 from pipeline.models.card import load_model, save_model
 from pipeline.models.search import fast_search, grid_search, paper_grid
+from pipeline.sim.synthetic import synthetic_frame
 
 
 @pytest.fixture(scope="module")

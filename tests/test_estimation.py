@@ -194,10 +194,10 @@ def test_auto_width_is_near_the_best_width() -> None:
 @pytest.fixture(scope="module")
 def realistic():
     """A 240-s DAGON trial with the simulator's default, realistic sensors (3.6 Hz DVL, 0.02 m/s noise, ...)."""
-    from pipeline.sim import load_example_vehicle, simulate_trial
+    from pipeline.sim import generate_trial, load_example_vehicle
 
     vehicle = load_example_vehicle()
-    return vehicle, simulate_trial(vehicle, 240.0, seed=3, warmup_s=20.0)
+    return vehicle, generate_trial(vehicle, 240.0, seed=3, warmup_s=20.0)
 
 
 def test_kalman_method_on_a_realistic_trial(realistic) -> None:

@@ -8,9 +8,10 @@ from sklearn.base import clone
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from pipeline.config.params import CoupledParams
-from pipeline.coupled import build_model, model_inputs, synthetic_frame, tune
+from pipeline.coupled import build_model, model_inputs, tune
 from pipeline.evaluate import regression_scores
 from pipeline.models.graybox import GrayBox
+from pipeline.sim.synthetic import synthetic_frame
 
 _NEEDS = "GrayBox's default base needs X[:, :6] = [u v r tau_u tau_v tau_r] and y = [udot vdot rdot]"
 _FITTING = ("check_dict_unchanged", "check_dont_overwrite_parameters", "check_dtype_object", "check_estimators_dtypes",

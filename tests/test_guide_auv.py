@@ -22,7 +22,7 @@ from helpers_guide import command_args, guide_fences
 from pipeline import cli, store
 from pipeline.cli import common as cli_common
 from pipeline.config import todo_markers
-from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
+from pipeline.sim import generate_trial, load_example_vehicle, write_trial
 
 TITLE = "Walkthrough: an AUV"
 FILLED = "# dagon.yaml, the TODOs filled in"
@@ -80,7 +80,7 @@ def test_the_auv_walkthrough_runs_as_written(tmp_path: Path, monkeypatch: pytest
     monkeypatch.chdir(tmp_path)
     example = load_example_vehicle()
     for name, seed in DIVES.items():
-        write_trial(simulate_trial(example, duration_s=DURATION_S, seed=seed, warmup_s=2.0), "mcap",
+        write_trial(generate_trial(example, duration_s=DURATION_S, seed=seed, warmup_s=2.0), "mcap",
                     tmp_path / "logs" / f"{name}.mcap")
     fences = guide_fences(TITLE)
     assert [lang for lang, _ in fences].count("yaml") == 2, fences

@@ -14,7 +14,7 @@ from pipeline import cli
 from pipeline.cli.init import starter_config
 from pipeline.config import Params, load_vehicle, todo_markers
 from pipeline.errors import ConfigError
-from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
+from pipeline.sim import generate_trial, load_example_vehicle, write_trial
 from pipeline.store import PART_FILE, partition_dir
 from pipeline.tableio import read_parquet
 from stages.common import run_stages
@@ -24,7 +24,7 @@ STAGES = ["ingest", "sync", "differentiate", "derive", "features"]
 
 @pytest.fixture(scope="module")
 def example_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    trial = simulate_trial(load_example_vehicle(), duration_s=25.0, seed=3, warmup_s=2.0)
+    trial = generate_trial(load_example_vehicle(), duration_s=25.0, seed=3, warmup_s=2.0)
     return write_trial(trial, "mcap", tmp_path_factory.mktemp("logs") / "trial01.mcap")
 
 
@@ -91,7 +91,7 @@ def test_loading_the_starter_lists_what_is_left(tmp_path: Path, example_log: Pat
 
 
 def test_header_stamps_of_zero_choose_log_clock(tmp_path: Path) -> None:
-    trial = simulate_trial(load_example_vehicle(), duration_s=3.0, seed=0)
+    trial = generate_trial(load_example_vehicle(), duration_s=3.0, seed=0)
     fog = trial.streams["fog"]
     fog.header_ns[:] = 0
     log = write_trial(trial, "mcap", tmp_path / "zero.mcap")

@@ -12,14 +12,14 @@ import pytest
 from pipeline import cli
 from pipeline.io.inspect import format_inspect, inspect_log, topic_fields
 from pipeline.io.msgdefs import load_user_types
-from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
+from pipeline.sim import generate_trial, load_example_vehicle, write_trial
 from tests.test_io_msgdefs import write_bag, write_msg_tree
 
 T0_S = 1_700_000_000
 
 
 def test_text_directory_lists_columns_span_rate_and_gap(tmp_path: Path) -> None:
-    trial = simulate_trial(load_example_vehicle(), duration_s=4.0, seed=0)
+    trial = generate_trial(load_example_vehicle(), duration_s=4.0, seed=0)
     log = write_trial(trial, "csv", tmp_path / "trial")
     info = inspect_log(log)
     dvl = info["topics"]["dvl.csv"]
@@ -80,7 +80,7 @@ def test_vehicle_csv_options_win_over_the_sniffed_ones(tmp_path: Path, capsys: p
 
 
 def test_zero_header_stamps_warn_and_suggest_log_clock(tmp_path: Path) -> None:
-    trial = simulate_trial(load_example_vehicle(), duration_s=3.0, seed=0)
+    trial = generate_trial(load_example_vehicle(), duration_s=3.0, seed=0)
     trial.streams["fog"].header_ns[:] = 0
     info = inspect_log(write_trial(trial, "mcap", tmp_path / "t.mcap"))
     fog, dvl = info["topics"]["/fog/rate"], info["topics"]["/dvl/data"]
@@ -93,7 +93,7 @@ def test_zero_header_stamps_warn_and_suggest_log_clock(tmp_path: Path) -> None:
 
 
 def test_ros1_bag_reports_its_serialization(tmp_path: Path) -> None:
-    trial = simulate_trial(load_example_vehicle(), duration_s=2.0, seed=0)
+    trial = generate_trial(load_example_vehicle(), duration_s=2.0, seed=0)
     info = inspect_log(write_trial(trial, "ros1", tmp_path / "t.bag"))
     assert info["storage"] == "ros1 bag" and info["serialization"] == ["ros1"]
     assert all(t["suggested_clock"] == "header" for t in info["topics"].values())

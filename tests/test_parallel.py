@@ -244,11 +244,11 @@ def test_quiet_run_on_a_local_cluster_prints_one_line(tmp_path) -> None:
     import sys
     from pathlib import Path
 
-    from pipeline.sim import example_vehicle_path, load_example_vehicle, simulate_trial, write_trial
+    from pipeline.sim import example_vehicle_path, generate_trial, load_example_vehicle, write_trial
 
     raw = tmp_path / "data/raw"
     raw.mkdir(parents=True)
-    write_trial(simulate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", raw / "t1.mcap")
+    write_trial(generate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", raw / "t1.mcap")
     auvid = Path(sys.executable).with_name("auvid")
     done = subprocess.run([str(auvid), "run", "--root", str(tmp_path), "--vehicle", str(example_vehicle_path()),
                            "-q", "--scheduler", "local:1", "--to", "ingest"], capture_output=True, text=True,

@@ -15,12 +15,12 @@ STAGES = ("ingest", "sync", "differentiate", "derive")
 
 @pytest.fixture(scope="module")
 def raw_logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
+    from pipeline.sim import generate_trial, load_example_vehicle, write_trial
 
     raw = tmp_path_factory.mktemp("logs")
     vehicle = load_example_vehicle()
     for seed in (1, 2, 3):
-        write_trial(simulate_trial(vehicle, 40.0, seed=seed), "mcap", raw / f"trial0{seed}.mcap")
+        write_trial(generate_trial(vehicle, 40.0, seed=seed), "mcap", raw / f"trial0{seed}.mcap")
     return raw
 
 

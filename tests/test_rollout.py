@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.simulate import rollout
+from pipeline.rollout import rollout
 
 A_SYS = np.array([[-0.5, 2.0], [-2.0, -0.5]])  # a damped rotation: x(t) = x_ss + exp(A t) (x0 - x_ss)
 C_SYS = np.array([0.3, -0.2])  # a constant input (zero-order hold is exact for it)
@@ -47,16 +47,9 @@ def test_coupled_svr_free_run_through_numpy_kernel_sums_equals_sklearn_predict()
     """The fast path of CoupledDynamics (no scikit-learn call per RK4 stage) gives the predict path's free run and
     horizon errors to float rounding, gaps and all."""
     from pipeline.models.svr import RBFSVR, WDSESVR, PerOutputRegressor
-    from pipeline.simulate import (
-        TAU_COLUMNS,
-        VELOCITY_COLUMNS,
-        CoupledDynamics,
-        SyntheticPlant,
-        free_run,
-        horizon_errors,
-        svr_kernel_predictor,
-        synthetic_trial,
-    )
+    from pipeline.rollout import CoupledDynamics, fast_predictor, free_run, horizon_errors
+    from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
+    from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS
 
     plant = SyntheticPlant()
     train = synthetic_trial(plant, duration_s=60.0, rate_hz=10.0, seed=1)
@@ -69,7 +62,7 @@ def test_coupled_svr_free_run_through_numpy_kernel_sums_equals_sklearn_predict()
                 PerOutputRegressor([WDSESVR(gammas=[0.3, 0.2, 0.3, 0.1, 0.0, 0.1], epsilon=0.01 * a.std())
                                     for a in acc.T])):
         est.fit(X, acc)
-        fast = svr_kernel_predictor(est)
+        fast = fast_predictor(est)
         assert fast is not None
         assert np.abs(fast(X[:50]) - est.predict(X[:50])).max() < 1e-12
         t_ns, seg, nu, n = (test["t_ns"].to_numpy(), test["segment"].to_numpy(), test[vel].to_numpy(),
@@ -81,12 +74,12 @@ def test_coupled_svr_free_run_through_numpy_kernel_sums_equals_sklearn_predict()
         h = [horizon_errors(CoupledDynamics(est, fast=f), t_ns, nu, n, ["u", "v", "r"], [1.0, 5.0], segment=seg)
              for f in (True, False)]
         assert h[0]["5"]["mae_end"] == pytest.approx(h[1]["5"]["mae_end"], rel=1e-9)
-    assert svr_kernel_predictor(object()) is None
+    assert fast_predictor(object()) is None
 
 
 def _one_at_a_time(f, nu0, inputs, starts, lengths, dt_s, **kw):
     """The reference the batch replaces: each member rolled out alone with its own dynamics (take(f, [b]))."""
-    from pipeline.simulate import rollout, take
+    from pipeline.rollout import rollout, take
 
     out, div = [], []
     clamp = kw.pop("clamp", None)
@@ -100,19 +93,21 @@ def _one_at_a_time(f, nu0, inputs, starts, lengths, dt_s, **kw):
 
 def _band_like(n_members: int, scale: float = 1.0):
     """Decoupled dynamics with one damping table per batch member (as the GP's posterior functions)."""
-    from pipeline.simulate import DecoupledDynamics, SyntheticPlant, Table1D, coriolis_from_mass
+    from pipeline.physics import coriolis_force
+    from pipeline.rollout import DecoupledDynamics, Table1D
+    from pipeline.sim.synthetic import SyntheticPlant
 
     plant = SyntheticPlant()
     grid = np.linspace(-3.0, 3.0, 301)
     factors = scale * np.linspace(0.6, 1.4, n_members)
     tables = {d: Table1D(-3.0, 3.0, factors[:, None] * plant.damping(d, grid)[None]) for d in ("u", "v", "r")}
-    return DecoupledDynamics(plant.mass_matrix(), ["u", "v", "r"], tables, coriolis_from_mass)
+    return DecoupledDynamics(plant.mass_matrix(), ["u", "v", "r"], tables, coriolis_force)
 
 
 def test_ragged_batch_equals_one_member_at_a_time() -> None:
     """Members of different lengths (ending at different steps), two dynamics in one stack, per-member tables,
     a clamped DOF and a diverging member: the batch gives each member's lone rollout to float rounding."""
-    from pipeline.simulate import DecoupledDynamics, MemberStack, rollout_ragged, stack
+    from pipeline.rollout import DecoupledDynamics, MemberStack, rollout_ragged, stack
 
     rng = np.random.default_rng(3)
     n_rows, dt_s = 120, 0.05
@@ -145,21 +140,11 @@ def test_ragged_batch_equals_one_member_at_a_time() -> None:
 
 
 def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> None:
-    """simulate_model (all runs, band members and horizon windows in one batch) against rolling each run, each
+    """run_model (all runs, band members and horizon windows in one batch) against rolling each run, each
     band member and each horizon's windows separately, on a trial with three runs of different lengths."""
-    from pipeline.simulate import (
-        TAU_COLUMNS,
-        VELOCITY_COLUMNS,
-        SyntheticPlant,
-        divergence_bound,
-        grid_step_s,
-        rollout,
-        segment_runs,
-        simulate_model,
-        simulate_models,
-        synthetic_trial,
-        windows,
-    )
+    from pipeline.rollout import divergence_bound, grid_step_s, rollout, run_model, run_models, segment_runs, windows
+    from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
+    from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS
 
     plant = SyntheticPlant()
     trial = synthetic_trial(plant, duration_s=40.0, rate_hz=10.0, seed=4, gap_s=(9.0, 10.0))
@@ -169,7 +154,7 @@ def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> Non
     tau = trial[[TAU_COLUMNS[d] for d in ("u", "v", "r")]].to_numpy()
     f, band = _band_like(1, scale=0.7).take(np.array([0])), _band_like(4)
     f.damping = {d: type(t)(t.lo, t.hi, t.values[0]) for d, t in f.damping.items()}  # one shared table
-    run, hz = simulate_model("m", f, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0], segment=seg, band_f=band,
+    run, hz = run_model("m", f, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0], segment=seg, band_f=band,
                              band_members=4)
     dt_s, bound = grid_step_s(t_ns), divergence_bound(nu, 10.0)
     runs = segment_runs(t_ns, seg, dt_s)
@@ -190,9 +175,9 @@ def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> Non
         assert hz[f"{h:g}"]["mae_window"]["r"] == pytest.approx(float(err[:, :, 2].mean()), rel=1e-10)
     other = _band_like(3, scale=1.2).take(np.array([2, 2]))  # per-member tables for the two runs' members
     other.damping = {d: type(t)(t.lo, t.hi, t.values[0]) for d, t in other.damping.items()}
-    both = simulate_models({"m": (f, band), "other": (other, None)}, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0],
+    both = run_models({"m": (f, band), "other": (other, None)}, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0],
                            segment=seg, band_members=4)
-    alone = simulate_model("other", other, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0], segment=seg)
+    alone = run_model("other", other, t_ns, nu, tau, ["u", "v", "r"], [1.0, 3.0], segment=seg)
     for got, want in ((both["m"], (run, hz)), (both["other"], alone)):
         np.testing.assert_allclose(got[0].predicted, want[0].predicted, rtol=1e-10, atol=1e-14)
         assert got[1]["3"]["mae_end"]["v"] == pytest.approx(want[1]["3"]["mae_end"]["v"], rel=1e-10)
@@ -200,15 +185,10 @@ def test_free_run_band_and_horizons_batched_equal_per_segment_reference() -> Non
 
 
 def test_bridging_of_all_models_and_outage_lengths_in_one_batch_equals_separate_calls() -> None:
-    from pipeline.simulate import (
-        TAU_COLUMNS,
-        VELOCITY_COLUMNS,
-        DecoupledDynamics,
-        SyntheticPlant,
-        bridge_outages,
-        coriolis_from_mass,
-        synthetic_trial,
-    )
+    from pipeline.physics import coriolis_force
+    from pipeline.rollout import DecoupledDynamics, bridge_outages
+    from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
+    from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS
 
     plant = SyntheticPlant()
     trial = synthetic_trial(plant, duration_s=60.0, rate_hz=10.0, seed=5, gap_s=(20.0, 23.0))
@@ -216,7 +196,7 @@ def test_bridging_of_all_models_and_outage_lengths_in_one_batch_equals_separate_
     t_ns, seg, yaw = trial["t_ns"].to_numpy(), trial["segment"].to_numpy(), trial["yaw_rad"].to_numpy()
     nu, tau = (trial[[c[d] for d in dofs]].to_numpy() for c in (VELOCITY_COLUMNS, TAU_COLUMNS))
     weak = DecoupledDynamics(plant.mass_matrix(), dofs, {d: (lambda x, d=d: 0.6 * plant.damping(d, x)) for d in dofs},
-                             coriolis_from_mass)
+                             coriolis_force)
     models = {"truth": plant.as_dynamics(), "weak": weak}
     rows = bridge_outages(models, t_ns, nu, tau, yaw, dofs, [5.0, 12.0, 50.0], segment=seg)
     assert [r["window_s"] for r in rows] == [5.0] * 3 + [12.0] * 3  # 50 s fits in no run

@@ -12,7 +12,7 @@ import yaml
 
 from pipeline.cli.init import starter_config
 from pipeline.config.schemas import schema_modeline, schema_path
-from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
+from pipeline.sim import generate_trial, load_example_vehicle, write_trial
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,7 +28,7 @@ def test_schema_files_are_the_repository_s() -> None:
 
 def test_auvid_init_writes_the_modeline_first(tmp_path: Path) -> None:
     log = tmp_path / "run01.mcap"
-    write_trial(simulate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", log)
+    write_trial(generate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", log)
     text = starter_config([log]).text
     first = text.splitlines()[0]
     assert first == schema_modeline("vehicle")

@@ -12,8 +12,8 @@ from pipeline.sim import (
     SensorOptions,
     SimTrial,
     SimTruth,
+    generate_trial,
     load_example_vehicle,
-    simulate_trial,
     true_damping,
 )
 from pipeline.sim.sensors import dvl_rotation
@@ -30,7 +30,7 @@ def vehicle() -> Vehicle:
 
 @pytest.fixture(scope="module")
 def trial(vehicle: Vehicle) -> SimTrial:
-    return simulate_trial(vehicle, duration_s=20.0, seed=7, sensors=QUIET)
+    return generate_trial(vehicle, duration_s=20.0, seed=7, sensors=QUIET)
 
 
 def nu_of(table: pd.DataFrame) -> np.ndarray:
@@ -68,7 +68,7 @@ def test_accelerations_match_velocity_derivative(trial: SimTrial) -> None:
 
 
 def test_scalar_and_vector_rhs_agree(vehicle: Vehicle) -> None:
-    dyn = Dynamics(vehicle, simulate_trial.__globals__["load_truth"]())
+    dyn = Dynamics(vehicle, generate_trial.__globals__["load_truth"]())
     rng = np.random.default_rng(0)
     y = np.concatenate([rng.normal(size=6) * 0.3, rng.normal(size=6) * 0.5, rng.normal(size=5) * 2000])
     cmd = rng.normal(size=5) * 2000
@@ -83,7 +83,7 @@ def test_energy_conserved_without_forces(vehicle: Vehicle) -> None:
     rb = vehicle.rigid_body.model_copy(update={"cg_m": (0.0, 0.0, 0.0), "buoyancy_N": None})
     free = vehicle.model_copy(update={"rigid_body": rb})
     nu0 = np.array([0.5, -0.2, 0.1, 0.3, -0.2, 0.4])
-    trial = simulate_trial(free, duration_s=5.0, seed=0, truth=SimTruth(),
+    trial = generate_trial(free, duration_s=5.0, seed=0, truth=SimTruth(),
                            controls=Controls(commands="none", depth_control=False), nu0=nu0, sensors=QUIET)
     M = physics.mass_matrix(free)
     nu = nu_of(trial.truth)
@@ -105,9 +105,9 @@ def test_coupled_and_cubic_damping_present() -> None:
 
 
 def test_determinism_same_seed(vehicle: Vehicle) -> None:
-    a = simulate_trial(vehicle, duration_s=3.0, seed=3)
-    b = simulate_trial(vehicle, duration_s=3.0, seed=3)
-    c = simulate_trial(vehicle, duration_s=3.0, seed=4)
+    a = generate_trial(vehicle, duration_s=3.0, seed=3)
+    b = generate_trial(vehicle, duration_s=3.0, seed=3)
+    c = generate_trial(vehicle, duration_s=3.0, seed=4)
     pd.testing.assert_frame_equal(a.truth, b.truth)
     for name in a.streams:
         np.testing.assert_array_equal(a.streams[name].log_ns, b.streams[name].log_ns)
@@ -142,7 +142,7 @@ def test_dvl_lever_arm_measurement(trial: SimTrial, vehicle: Vehicle) -> None:
 
 def test_dvl_dropout_bursts(vehicle: Vehicle) -> None:
     opts = SensorOptions(dropout_bursts_per_min=6.0, dropout_duration_s=(2.0, 3.0), dvl_lock_loss_fraction=0.0)
-    trial = simulate_trial(vehicle, duration_s=30.0, seed=11, sensors=opts)
+    trial = generate_trial(vehicle, duration_s=30.0, seed=11, sensors=opts)
     dvl = trial.streams["dvl"]
     lock = dvl.fields["bottom_lock"]
     assert 0 < lock.sum() < lock.size
@@ -167,7 +167,7 @@ def test_dvl_lock_loss_chain_has_the_configured_fraction_and_burst_length() -> N
 def test_default_dvl_is_realistic(vehicle: Vehicle) -> None:
     """The default DVL: 0.02 m/s white noise, 0.5 % outliers, 0.3 % scale, 1 deg yaw misalignment, ~20 % lost."""
     opts = SensorOptions(dvl_averaging_s=0.0)
-    trial = simulate_trial(vehicle, duration_s=600.0, seed=5, sensors=opts)
+    trial = generate_trial(vehicle, duration_s=600.0, seed=5, sensors=opts)
     dvl = trial.streams["dvl"]
     lock = dvl.fields["bottom_lock"]
     assert 0.15 < 1 - lock.mean() < 0.25
@@ -199,7 +199,7 @@ def test_ahrs_quaternion_conventions(trial: SimTrial, vehicle: Vehicle) -> None:
     np.testing.assert_allclose(np.unwrap(ypr[:, 0]) - t["yaw_rad"].to_numpy(),
                                np.round((np.unwrap(ypr[:, 0]) - t["yaw_rad"].to_numpy()) / (2 * np.pi)) * 2 * np.pi,
                                atol=1e-9)
-    ros = simulate_trial(vehicle, duration_s=2.0, seed=7, sensors=SensorOptions(noise=False,
+    ros = generate_trial(vehicle, duration_s=2.0, seed=7, sensors=SensorOptions(noise=False,
                                                                                ahrs_convention="flu_enu"))
     qe = np.stack([ros.streams["ahrs"].fields[f"orientation.{a}"] for a in "xyzw"], axis=1)
     t = ros.truth.iloc[ros.streams["ahrs"].index]
@@ -218,7 +218,7 @@ FORMAT_PATHS = {"mcap": "t.mcap", "ros1": "t.bag", "ros2-sqlite3": "t_db3", "ros
 
 @pytest.fixture(scope="module")
 def short_trial(vehicle: Vehicle) -> SimTrial:
-    return simulate_trial(vehicle, duration_s=4.0, seed=5)
+    return generate_trial(vehicle, duration_s=4.0, seed=5)
 
 
 def expected_counts(duration_s: float, dvl_pings: int) -> dict[str, int]:
@@ -277,8 +277,8 @@ def test_mcap_readable_by_mcap_ros2_decoder(short_trial: SimTrial, tmp_path) -> 
 def test_written_bytes_deterministic(fmt: str, vehicle: Vehicle, tmp_path) -> None:
     from pipeline.sim import write_trial
 
-    a = write_trial(simulate_trial(vehicle, duration_s=1.0, seed=2), fmt, tmp_path / "a" / FORMAT_PATHS[fmt])
-    b = write_trial(simulate_trial(vehicle, duration_s=1.0, seed=2), fmt, tmp_path / "b" / FORMAT_PATHS[fmt])
+    a = write_trial(generate_trial(vehicle, duration_s=1.0, seed=2), fmt, tmp_path / "a" / FORMAT_PATHS[fmt])
+    b = write_trial(generate_trial(vehicle, duration_s=1.0, seed=2), fmt, tmp_path / "b" / FORMAT_PATHS[fmt])
     files_a = sorted(p.relative_to(a) for p in a.rglob("*")) if a.is_dir() else [None]
     files_b = sorted(p.relative_to(b) for p in b.rglob("*")) if b.is_dir() else [None]
     assert files_a == files_b
@@ -339,7 +339,7 @@ def test_simulate_with_thrust_table(vehicle: Vehicle, tmp_path) -> None:
                          "table_thrust_unit": "kgf"}
     (tmp_path / "v.yaml").write_text(yaml.safe_dump(data))
     tabled = load_vehicle(tmp_path / "v.yaml")
-    trial = simulate_trial(tabled, duration_s=3.0, seed=1, sensors=QUIET)
+    trial = generate_trial(tabled, duration_s=3.0, seed=1, sensors=QUIET)
     t = trial.truth
     speeds = t[[thr.speed_signal for thr in tabled.thrusters]].to_numpy()
     np.testing.assert_allclose(t[[f"T_{thr.name}_N" for thr in tabled.thrusters]].to_numpy(),
@@ -382,7 +382,7 @@ def test_inflow_loss_is_the_advance_ratio_law(vehicle: Vehicle) -> None:
 def test_truth_table_keeps_applied_forces_and_true_damping_with_inflow_loss(vehicle: Vehicle) -> None:
     """With the loss on, T_*/tau_* are the forces applied and d_* the true damping; the static-curve damping
     target (what derive computes) differs from d by exactly the unmodelled thrust loss B (T0 - T)."""
-    t = simulate_trial(vehicle, duration_s=10.0, seed=3, truth=INFLOW, sensors=QUIET, warmup_s=5.0).truth
+    t = generate_trial(vehicle, duration_s=10.0, seed=3, truth=INFLOW, sensors=QUIET, warmup_s=5.0).truth
     nu = nu_of(t)
     assert abs(t["u_mps"].iloc[0]) > 0.01  # warm-up: the trial starts in motion
     np.testing.assert_allclose(t[force_columns("d")].to_numpy(), INFLOW.damping(nu), atol=1e-9)

@@ -8,22 +8,19 @@ import pytest
 
 from pipeline import physics
 from pipeline.models.decoupled import DampingGP, LinearQuadraticDamping
-from pipeline.simulate import (
-    TAU_COLUMNS,
-    VELOCITY_COLUMNS,
+from pipeline.report.rollout import plot_free_runs
+from pipeline.rollout import (
     CoupledDynamics,
     DecoupledDynamics,
-    SyntheticPlant,
     Table1D,
     band_tables,
-    coriolis_from_mass,
     damping_tables,
     free_run,
     horizon_errors,
-    plot_free_runs,
-    synthetic_trial,
     table_range,
 )
+from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
+from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS
 
 DOFS = ["u", "v", "r"]
 PLANT = SyntheticPlant()
@@ -57,7 +54,6 @@ def test_coriolis_probe_matches_physics() -> None:
     nu6[:, [0, 1, 5]] = nu
     expected = -physics.coriolis_force(M, nu6)[:, [0, 1, 5]] @ np.linalg.inv(M[np.ix_([0, 1, 5], [0, 1, 5])]).T
     np.testing.assert_allclose(f(nu, np.zeros((5, 3))), expected, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(coriolis_from_mass(M, nu6), physics.coriolis_force(M, nu6), rtol=1e-12)
 
 
 def test_table_matches_the_model_far_below_the_noise() -> None:
@@ -86,7 +82,7 @@ def test_unstable_model_divergence_is_detected_and_plotted(trial: pd.DataFrame, 
     t_ns, nu, tau, seg = arrays(trial)
     unstable = LinearQuadraticDamping().fit(np.c_[[-1.0, 1.0]], [10.0, -10.0])  # negative damping
     f = DecoupledDynamics(PLANT.mass_matrix(), DOFS, damping_tables({d: unstable for d in DOFS},
-                                                                    {d: (-3, 3) for d in DOFS}), coriolis_from_mass)
+                                                                    {d: (-3, 3) for d in DOFS}), physics.coriolis_force)
     run = free_run("unstable", f, t_ns, nu, tau, DOFS, segment=seg, divergence_factor=5.0)
     assert run.status == "diverged" and 0 < run.diverged_at_s < 60
     assert not np.isinf(run.predicted).any()
@@ -101,7 +97,7 @@ def test_unstable_model_divergence_is_detected_and_plotted(trial: pd.DataFrame, 
 def test_horizon_errors_grow_for_an_imperfect_model(trial: pd.DataFrame) -> None:
     t_ns, nu, tau, seg = arrays(trial)
     tables = {d: (lambda x, d=d: 0.6 * PLANT.damping(d, x)) for d in DOFS}  # 40 % too little damping
-    f = DecoupledDynamics(PLANT.mass_matrix(), DOFS, tables, coriolis_from_mass)
+    f = DecoupledDynamics(PLANT.mass_matrix(), DOFS, tables, physics.coriolis_force)
     out = horizon_errors(f, t_ns, nu, tau, DOFS, [1.0, 5.0, 10.0], segment=seg)
     assert out["10"]["n_windows"] == 10 and out["1"]["n_windows"] > 100  # 60 s + 55 s runs around the gap
     for d in ("u", "v"):  # grows with the horizon, then saturates (yaw's time constant is below 1 s)
@@ -115,8 +111,8 @@ def test_gp_band_covers_the_measured_velocity(trial: pd.DataFrame) -> None:
     gps = fitted(trial, DampingGP(max_samples=150))
     ranges = {d: table_range(nu[:, j]) for j, d in enumerate(DOFS)}
     M = PLANT.mass_matrix()
-    f = DecoupledDynamics(M, DOFS, damping_tables(gps, ranges), coriolis_from_mass)
-    band = DecoupledDynamics(M, DOFS, band_tables(gps, ranges, 8, seed=0), coriolis_from_mass)
+    f = DecoupledDynamics(M, DOFS, damping_tables(gps, ranges), physics.coriolis_force)
+    band = DecoupledDynamics(M, DOFS, band_tables(gps, ranges, 8, seed=0), physics.coriolis_force)
     run = free_run("gp", f, t_ns, nu, tau, DOFS, segment=seg, band_f=band, band_members=8)
     cover = run.summary()["band_coverage"]
     assert run.status == "ok" and all(run.metrics[d]["r2"] > 0.95 for d in DOFS)

@@ -15,7 +15,7 @@ from pipeline.config.params import SyncParams
 from pipeline.derive import derive
 from pipeline.estimation.differentiate import kinematics
 from pipeline.estimation.gaussian import gaussian_filters, gaussian_truncate
-from pipeline.sim import SensorOptions, StreamSpec, example_vehicle_path, load_example_vehicle, simulate_trial
+from pipeline.sim import SensorOptions, StreamSpec, example_vehicle_path, generate_trial, load_example_vehicle
 from pipeline.sync import resample, synchronize
 from pipeline.tableio import read_meta, write_parquet
 from pipeline.units import conversion
@@ -67,13 +67,13 @@ PLAIN_DVL = dict(dvl=StreamSpec(4.0, 0.020, -0.05, 0.005), dvl_ping_interval_s=N
 
 @pytest.fixture(scope="module")
 def clean(vehicle: Vehicle):
-    return simulate_trial(vehicle, DURATION_S, seed=1, sensors=SensorOptions(noise=False, dropouts=False))
+    return generate_trial(vehicle, DURATION_S, seed=1, sensors=SensorOptions(noise=False, dropouts=False))
 
 
 @pytest.fixture(scope="module")
 def noisy(vehicle: Vehicle):
     # DAGON's sensors (noise, rates, stamps) with more frequent DVL dropouts, so that 30 s have some
-    return simulate_trial(vehicle, DURATION_S, seed=2, sensors=SensorOptions(dropout_bursts_per_min=4.0,
+    return generate_trial(vehicle, DURATION_S, seed=2, sensors=SensorOptions(dropout_bursts_per_min=4.0,
                                                                              dropout_duration_s=(1.0, 3.0),
                                                                              **PLAIN_DVL))
 

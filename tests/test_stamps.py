@@ -277,11 +277,11 @@ def test_simulator_bag_with_zero_thruster_stamps_from_warning_to_fix(tmp_path: P
     from dataclasses import replace
 
     from pipeline.errors import SyncError
-    from pipeline.sim import load_example_vehicle, simulate_trial, write_trial
+    from pipeline.sim import generate_trial, load_example_vehicle, write_trial
     from pipeline.sync import synchronize
 
     vehicle = load_example_vehicle()
-    trial = simulate_trial(vehicle, duration_s=8.0, seed=1)
+    trial = generate_trial(vehicle, duration_s=8.0, seed=1)
     thr = trial.streams["thrusters"]
     trial.streams["thrusters"] = replace(thr, header_ns=np.zeros_like(thr.header_ns))
     path = write_trial(trial, "mcap", tmp_path / "simbag.mcap")

@@ -15,11 +15,10 @@ import pytest
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
-from pipeline.coupled import synthetic_frame
 from pipeline.errors import ModelError
 from pipeline.models import explicit
 from pipeline.sim import load_example_vehicle
-from pipeline.simulate import SyntheticPlant, synthetic_trial
+from pipeline.sim.synthetic import SyntheticPlant, synthetic_frame, synthetic_trial
 from stages import decoupled as decoupled_stage
 from stages import train as train_stage
 from stages.common import EXIT_QUARANTINED

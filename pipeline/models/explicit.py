@@ -58,6 +58,7 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from pipeline.errors import ModelError
+from pipeline.rk4 import rk4_step
 
 log = logging.getLogger(__name__)
 
@@ -417,12 +418,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         x = nu0.copy()
         with np.errstate(all="ignore"):
             for i in range(taus.shape[1]):
-                t = taus[:, i]
-                k1 = f(x, t)
-                k2 = f(x + 0.5 * dt * k1, t)
-                k3 = f(x + 0.5 * dt * k2, t)
-                k4 = f(x + dt * k3, t)
-                x = np.clip(x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4), -bound, bound)
+                x = np.clip(rk4_step(f, x, taus[:, i], dt), -bound, bound)
                 x = np.where(np.isfinite(x), x, bound)
                 out[:, i] = x
         return out

@@ -20,6 +20,7 @@ import numpy as np
 
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle
+from pipeline.rk4 import LISTS, rk4_step
 from pipeline.sim.truth import SimTruth
 from pipeline.vocabulary import DOFS
 
@@ -104,7 +105,7 @@ class Dynamics:
         """g(eta) (Fossen 4.6): (m, 6) for arrays, a list of 6 floats for one state."""
         w, b = self.W, self.Bf
         (xg, yg, zg), (xb, yb, zb) = self._cg, self._cb
-        if isinstance(roll, float):  # one state (the controller): plain floats are 10x cheaper than arrays
+        if isinstance(roll, float):  # one state (the controller): plain floats cost far less than small arrays
             sf, cf, st, ct = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
             return [(w - b) * st, -(w - b) * ct * sf, -(w - b) * ct * cf,
                     -(yg * w - yb * b) * ct * cf + (zg * w - zb * b) * ct * sf,
@@ -201,8 +202,8 @@ class Commander:
 
 
 def scalar_rhs(dyn: Dynamics):
-    """A pure-Python right-hand side for one state (list in, list out): the vectorized numpy version costs
-    ~1 ms per call in array overhead for a 17-element state; this one ~30 us. Same equations as
+    """A pure-Python right-hand side for one state (list in, list out): for a 17-element state the vectorized
+    numpy version's cost is array overhead (figures: docs/notes-rollout.md). Same equations as
     :meth:`Dynamics.nu_dot` / :meth:`Dynamics.eta_dot` (the tests compare them)."""
     ms = 0.5 * (dyn.M + dyn.M.T)
 
@@ -289,7 +290,8 @@ def scalar_rhs(dyn: Dynamics):
 
 def integrate(dyn: Dynamics, commander: Commander | None, duration_s: float, rate_hz: float,
               eta0: np.ndarray, nu0: np.ndarray, n0: np.ndarray) -> dict[str, np.ndarray]:
-    """Fixed-step RK4; returns states at every step: t_s (N,), eta (N, 6), nu (N, 6), n (N, n_thr), n_cmd."""
+    """Fixed-step RK4 (:mod:`pipeline.rk4` on lists); returns states at every step: t_s (N,), eta (N, 6), nu (N, 6),
+    n (N, n_thr), n_cmd."""
     dt = 1.0 / rate_hz
     steps = int(round(duration_s * rate_hz))
     n_thr = n0.size
@@ -299,8 +301,6 @@ def integrate(dyn: Dynamics, commander: Commander | None, duration_s: float, rat
     f = scalar_rhs(dyn)
     instant = [i for i, lag in enumerate(dyn.lag_s.tolist()) if lag <= 0]
     zeros = [0.0] * n_thr
-    dim = len(y)
-    h2, h6 = 0.5 * dt, dt / 6.0
     for step in range(steps + 1):
         if commander is not None:
             arr = np.array(y)
@@ -313,11 +313,7 @@ def integrate(dyn: Dynamics, commander: Commander | None, duration_s: float, rat
         cmd_all[step] = cmd
         if step == steps:
             break
-        k1 = f(y, cmd)
-        k2 = f([y[i] + h2 * k1[i] for i in range(dim)], cmd)
-        k3 = f([y[i] + h2 * k2[i] for i in range(dim)], cmd)
-        k4 = f([y[i] + dt * k3[i] for i in range(dim)], cmd)
-        y = [y[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(dim)]
+        y = rk4_step(f, y, cmd, dt, LISTS)
         if not all(math.isfinite(val) for val in y):
             raise FloatingPointError(f"simulation diverged at t = {step * dt:.3f} s")
     return {"t_s": np.arange(steps + 1) * dt, "eta": out[:, :6], "nu": out[:, 6:12], "n": out[:, 12:],
