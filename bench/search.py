@@ -3,14 +3,14 @@
 The paper's grid (5 candidates x 8 hyperparameters = 390,625 candidates x 3 blocked folds = 1,171,875 SVR fits) is
 too large to run, so the reference is a random search with 100 times the fast search's budget in SVR fits,
 log-uniform over the grid's span (gamma 1e-3..10 on standardized inputs, C 0.1..1000 x SD(y), epsilon
-1e-3..0.3 x SD(y)), seeded. The fast search runs as ``pipeline.coupled.tune`` runs it: RBF, then 2-weights
-warm-started from RBF's optimum, then WDSE warm-started from 2-weights' (``max_evals`` 30 each, the default); the
-table reports WDSE. Every score is the same blocked 3-fold CV mean R² on the same rows.
+1e-3..0.3 x SD(y)), seeded. The fast search runs as ``pipeline.studies.coupled.tune`` runs it: RBF, then
+2-weights warm-started from RBF's optimum, then WDSE warm-started from 2-weights' (``max_evals`` 30 each, the
+default); the table reports WDSE. Every score is the same blocked 3-fold CV mean R² on the same rows.
 
 Problems (inputs ``[u v r n1 n2 n3]``, ``n`` rows 0.5 s apart, one per source x seed x output):
 
-* ``synthetic``: :func:`pipeline.coupled.synthetic_frame` (coupled damping beyond the explicit models, thrust lost
-  to inflow), measurement noise 10 % of each signal's SD;
+* ``synthetic``: :func:`pipeline.studies.coupled.synthetic_frame` (coupled damping beyond the explicit models,
+  thrust lost to inflow), measurement noise 10 % of each signal's SD;
 * ``sim``: a trial of the project's simulator (``pipeline.sim``, DAGON, propeller inflow loss on), truth at 200 Hz
   taken every 0.5 s, velocities and accelerations with 5 % noise (rpm as logged, exact).
 
@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 from joblib import Parallel, delayed
 
-from pipeline.coupled import synthetic_frame
 from pipeline.evaluate import blocked_folds
 from pipeline.models.search import (
     C_GRID,
@@ -44,6 +43,7 @@ from pipeline.models.search import (
     paper_grid,
 )
 from pipeline.sim import DAGON_INFLOW_LOSS, load_example_vehicle, load_truth, simulate_trial
+from pipeline.studies.coupled import synthetic_frame
 
 INPUTS = ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"]
 N_FOLDS = 3

@@ -10,8 +10,8 @@ import time
 
 import numpy as np
 
-from pipeline.coupled import synthetic_frame
 from pipeline.models.svr import RBFSVR, WDSESVR
+from pipeline.studies.coupled import synthetic_frame
 
 INPUTS = ["u_mps", "v_mps", "r_radps", "n1_rpm", "n2_rpm", "n3_rpm"]
 

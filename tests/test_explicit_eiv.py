@@ -199,8 +199,8 @@ def test_tls_equation_with_non_positive_inertia_falls_back_to_ols(caplog) -> Non
     equation is refitted by OLS, with a warning naming the model and the equation; the others keep TLS."""
     import logging
 
-    from pipeline.coupled import synthetic_frame
     from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen
+    from pipeline.studies.coupled import synthetic_frame
 
     frame = synthetic_frame(800, seed=3, noise=0.5)  # noisy enough for plain TLS to turn the Y inertia over
     X = frame[list(EXPLICIT_INPUTS)].to_numpy(float)

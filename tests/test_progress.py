@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from pipeline.config.params import CoupledParams
-from pipeline.coupled import evaluate_models, synthetic_frame, tune
 from pipeline.evaluate import cross_validate_blocked, split_blocks
 from pipeline.models.decoupled import LinearQuadraticDamping
 from pipeline.models.search import fast_search, grid_search
 from pipeline.simulate import rollout_ragged
+from pipeline.studies.coupled import evaluate_models, synthetic_frame, tune
 from stages import common
 
 

@@ -15,11 +15,11 @@ import pytest
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
-from pipeline.coupled import synthetic_frame
 from pipeline.errors import ModelError
 from pipeline.models import explicit
 from pipeline.sim import load_example_vehicle
 from pipeline.simulate import SyntheticPlant, synthetic_trial
+from pipeline.studies.coupled import synthetic_frame
 from stages import decoupled as decoupled_stage
 from stages import train as train_stage
 from stages.common import EXIT_QUARANTINED
@@ -103,7 +103,7 @@ def test_train_fails_when_every_model_fails(tmp_path: Path, vehicle: Vehicle, mo
 
 def test_decoupled_keeps_the_models_that_finished(tmp_path: Path, vehicle: Vehicle,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
-    from pipeline import decoupled as decoupled_study
+    from pipeline.studies import decoupled as decoupled_study
 
     params = Params(features={"test_trials": ["b"]},
                     decoupled={"models": ["ls", "svr"], "dofs": ["u", "v"], "max_samples": 150, "folds": 3,
