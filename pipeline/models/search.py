@@ -361,7 +361,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
             if score > best:
                 x, best = cand, score
     if local == "model":
-        with threadpool_limits(1, user_api="blas"):  # (one on a loaded 2-core machine: 150x150 Cholesky 225 ms)
+        with threadpool_limits(1, user_api="blas"):  # the same: a GP on the few candidates so far
             x, best = _model_search(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
     x, best = _pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
