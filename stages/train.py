@@ -18,11 +18,12 @@ from urllib.parse import quote
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
+from pipeline.config.params import EXPLICIT_MODELS
 from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
 from pipeline.report.coupled import fold_boxplot, table3
-from pipeline.studies.coupled import EXPLICIT_MODELS, metrics, train_columns, train_stage
+from pipeline.studies.coupled import metrics, train_columns, train_stage
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
 from stages.tune import hyperparameters_path
