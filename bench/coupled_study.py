@@ -19,8 +19,8 @@ each seed and the mean over seeds.
     python bench/coupled_study.py --no-cv                       # the same test scores, ~4x faster
 
 ``--no-cv`` runs the stages up to ``tune`` and then fits each model's final estimator on the train_test block
-exactly as the train stage does (``pipeline.coupled.build_model`` with the tuned hyperparameters), skipping the
-train stage's cross-validation folds, which decide nothing the test trial sees: the scores are the same numbers.
+exactly as the train stage does (``pipeline.studies.coupled.build_model`` with the tuned hyperparameters), skipping
+the train stage's cross-validation folds, which decide nothing the test trial sees: the scores are the same numbers.
 
 ``--oracle OUTPUT ...`` (a diagnostic, not a method): every WDSE-SVR candidate the tune stage's search scored for
 that output (its ``search_trace.json``) is fitted on the train_test block as the final model is and scored against
@@ -64,7 +64,8 @@ def r2(pred: np.ndarray, true: np.ndarray) -> float:
 def final_models(root: Path, params: Params) -> dict:
     """The train stage's final estimators (fitted on the whole train_test block, the tune stage's hyperparameters,
     the smoother's SDs as the explicit models' weights), without its CV folds: model -> (estimator, inputs)."""
-    from pipeline.coupled import NOISE_STD_COLUMNS, build_model, model_inputs
+    from pipeline.studies.coupled import build_model, model_inputs
+    from pipeline.vocabulary import NOISE_STD_COLUMNS
 
     cp = params.coupled
     hyper = json.loads((root / "data/models/coupled/hyperparameters.json").read_text())["hyperparameters"]
@@ -81,8 +82,8 @@ def final_models(root: Path, params: Params) -> dict:
 def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: np.ndarray) -> dict:
     """Per output: the best R² against the truth over every WDSE-SVR candidate of the tune stage's search, each
     fitted on the train_test block as the final model is (its C scaled from the rows the search fitted)."""
-    from pipeline.coupled import model_inputs
     from pipeline.models.search import make_svr
+    from pipeline.studies.coupled import model_inputs
 
     cp = params.coupled
     trace = json.loads((root / "data/evaluation/coupled/search_trace.json").read_text())["wdse_svr"]

@@ -58,8 +58,8 @@ def seed_set(root: Path, k: int, differentiate: dict) -> dict[str, object]:
 
 
 def score(data: object, dof: str) -> dict[str, float]:
-    from pipeline.decoupled import dof_data
     from pipeline.models.decoupled import DampingGP, LinearQuadraticDamping
+    from pipeline.studies.decoupled import dof_data
 
     X, y = dof_data(data, dof, 400)
     x = X[:, 0]

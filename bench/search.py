@@ -3,9 +3,9 @@
 The paper's grid (5 candidates x 8 hyperparameters = 390,625 candidates x 3 blocked folds = 1,171,875 SVR fits) is
 too large to run, so the reference is a random search with 100 times the fast search's budget in SVR fits,
 log-uniform over the grid's span (gamma 1e-3..10 on standardized inputs, C 0.1..1000 x SD(y), epsilon
-1e-3..0.3 x SD(y)), seeded. The fast search runs as ``pipeline.coupled.tune`` runs it: RBF, then 2-weights
-warm-started from RBF's optimum, then WDSE warm-started from 2-weights' (``max_evals`` 30 each, the default); the
-table reports WDSE. Every score is the same blocked 3-fold CV mean R² on the same rows.
+1e-3..0.3 x SD(y)), seeded. The fast search runs as ``pipeline.studies.coupled.tune`` runs it: RBF, then
+2-weights warm-started from RBF's optimum, then WDSE warm-started from 2-weights' (``max_evals`` 30 each, the
+default); the table reports WDSE. Every score is the same blocked 3-fold CV mean R² on the same rows.
 
 Problems (inputs ``[u v r n1 n2 n3]``, ``n`` rows 0.5 s apart, one per source x seed x output):
 

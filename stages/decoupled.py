@@ -15,31 +15,16 @@ quarantine list (exit code 1), and the others go on.
 from __future__ import annotations
 
 import logging
-import platform
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import joblib
-import numpy as np
-import sklearn
-
-from pipeline import __version__, layout, store
-from pipeline.config import Params, Vehicle, config_hash
-from pipeline.decoupled import (
-    ModelResult,
-    StudyResult,
-    damping_curves,
-    dof_columns,
-    plot_damping,
-    plot_learning_curves,
-    plot_timings,
-    run_study,
-    table_markdown,
-)
+from pipeline import layout, store
+from pipeline.config import Params, Vehicle
 from pipeline.errors import ModelError
 from pipeline.models.card import card_path, save_model
-from pipeline.models.decoupled import describe
+from pipeline.report.decoupled import plot_damping, plot_learning_curves, plot_timings, table_markdown
+from pipeline.studies.decoupled import ModelResult, StudyResult, decoupled_stage, run_lineage, stage_columns
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
 
@@ -55,38 +40,18 @@ def evaluation_dir(root: Path) -> Path:
     return Path(root) / layout.EVALUATION / "decoupled"
 
 
-def versions() -> dict[str, str]:
-    return {"auvid": __version__, "scikit-learn": sklearn.__version__, "numpy": np.__version__,
-            "joblib": joblib.__version__, "python": platform.python_version()}
-
-
-def write_models(study: StudyResult, root: Path, lineage: dict[str, Any]) -> list[Path]:
-    """One joblib file and one card per (DOF, model); the card names the file's inputs and output."""
-    out = []
-    for r in study.results:
-        x_col, y_col = dof_columns(r.dof)
-        card = {"kind": "decoupled_damping", "dof": r.dof, "model": r.model, "inputs": [x_col], "output": y_col,
-                "hyperparameters": r.best_params, "learned": describe(r.model, r.estimator),
-                "search_mae": r.search_mae, "scores": r.cv, "lineage": lineage, "versions": versions()}
-        # the card records the pickle's sha256: the simulate stage loads the model only through it
-        out += list(save_model(r.estimator, models_dir(root) / f"{r.dof}_{r.model}.joblib", card))
-    return out
-
-
 def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
     """Learn d_i(nu_i) per DOF with LS, MLP, KRR, SVR and GP; score, time and save them. ``progress``: one unit
     per (DOF, model) finished or failed (stages.common)."""
     root = Path(root)
     p = params.decoupled
-    columns = ["t_ns", "segment", "split"] + [c for d in p.dofs for c in dof_columns(d)]
+    columns = stage_columns(p)
     tuning = store.load(root, vehicle=vehicle.name, split="tuning", columns=columns)
     train_test = store.load(root, vehicle=vehicle.name, split="train_test", columns=columns)
     if train_test.empty or tuning.empty:
         raise ModelError(f"the feature store has {len(tuning)} tuning and {len(train_test)} train_test rows for "
                          f"vehicle {vehicle.name!r}; both are needed", file=layout.features_dir(root))
-    lineage = {"vehicle": vehicle.name, "vehicle_hash": config_hash(vehicle), "params_hash": config_hash(p),
-               "params": p.model_dump(), "trials": sorted(set(tuning["trial"]) | set(train_test["trial"])),
-               "rows": {"tuning": len(tuning), "train_test": len(train_test)}}
+    lineage = run_lineage(vehicle, p, tuning, train_test)
     ev = evaluation_dir(root)
     outputs: list[Path] = []
     done = StudyResult([])
@@ -95,11 +60,14 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     if progress is not None:
         progress(0, n_units, "searching, cross-validating")
 
-    def finished(result: ModelResult | None, failure: dict[str, str] | None) -> None:
-        """Write this (DOF, model) at once (or drop a stale file of it), then the tables of what is done."""
+    def finished(result: ModelResult | None, failure: dict[str, str] | None, card: dict[str, Any] | None) -> None:
+        """Write this (DOF, model) and its card at once (or drop a stale file of it), then the tables of what is
+        done."""
         if result is not None:
             done.results.append(result)
-            outputs.extend(write_models(StudyResult([result]), root, lineage))
+            target = models_dir(root) / f"{result.dof}_{result.model}.joblib"
+            # the card records the pickle's sha256: the simulate stage loads the model only through it
+            outputs.extend(save_model(result.estimator, target, card))
         elif failure is not None:
             done.failed.append(failure)
             stem = models_dir(root) / f"{failure['dof']}_{failure['model']}"
@@ -113,16 +81,9 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
             name = f"{result.dof}/{result.model}" if result is not None else f"{failure['dof']}/{failure['model']}"
             progress(len(done.results) + len(done.failed), n_units, name)
 
-    study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
-                      gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
-                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished)
-    if not study.results:
-        raise ModelError("every decoupled model failed: " + "; ".join(
-            f"{f['dof']}/{f['model']}: {f['reason']}" for f in study.failed))
+    study, curves = decoupled_stage(tuning, train_test, p, lineage=lineage, on_result=finished)
     outputs += write_tables(study, lineage, ev)
-    ranges = {d: (float(train_test[dof_columns(d)[0]].min()), float(train_test[dof_columns(d)[0]].max()))
-              for d in p.dofs}
-    outputs.append(write_json(damping_curves(study, ranges), ev / "curves.json"))
+    outputs.append(write_json(curves, ev / "curves.json"))
     outputs.append(plot_learning_curves(study, ev / "learning_curves.png"))
     outputs.append(plot_timings(study.timings(), ev / "timings.png"))
     outputs.append(plot_damping(study, train_test, ev / "damping.png"))

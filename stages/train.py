@@ -17,11 +17,13 @@ from typing import Any
 from urllib.parse import quote
 
 from pipeline import store
-from pipeline.config import Params, Vehicle, config_hash
-from pipeline.coupled import EXPLICIT_MODELS, NOISE_STD_COLUMNS, evaluate_models, fold_boxplot, model_inputs, table3
+from pipeline.config import Params, Vehicle
+from pipeline.config.params import EXPLICIT_MODELS
 from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
+from pipeline.report.coupled import fold_boxplot, table3
+from pipeline.studies.coupled import metrics, train_columns, train_stage
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
 from stages.tune import hyperparameters_path
@@ -43,9 +45,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
         raise ModelError(f"hyperparameters were tuned with coupled.tuning={tuned.get('tuning', 'split')!r}, params "
                          f"now say {cp.tuning!r}; run stages.tune again", file=hp)
     hyper = tuned.get("hyperparameters", {})
-    cols = ["t_ns", *sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.outputs))]
-    available = set(store.dataset(root).schema.names)
-    cols += [c for c in NOISE_STD_COLUMNS if c in available]  # the explicit models' errors-in-variables weights
+    cols = train_columns(cp, set(store.dataset(root).schema.names))
     tt = store.load(root, vehicle=vehicle.name, split="train_test", columns=cols)
     te = store.load(root, vehicle=vehicle.name, split="test", columns=cols)
     tuning_keys = store.load(root, vehicle=vehicle.name, split="tuning", columns=["t_ns"])
@@ -56,7 +56,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     results: dict[str, Any] = {}
     failed: dict[str, dict[str, str]] = {}
 
-    def finished(model: str, res: dict[str, Any] | None) -> None:
+    def finished(model: str, res: dict[str, Any] | None, card: dict[str, Any] | None) -> None:
         """Write this model's joblib + card (or drop a stale one if it failed) and the tables so far."""
         target = out_models / f"{model}.joblib"
         if res is None:
@@ -66,45 +66,19 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
                     stale.unlink()
         else:
             results[model] = res
-            card = {"model": model, "study": "coupled 3-DOF (paper 000)", "vehicle": vehicle.name,
-                    "inputs": model_inputs(model, cp), "outputs": cp.outputs,
-                    "hyperparameters": hyper.get(model, {"solver": "tls"}), "seed": cp.seed,
-                    "params_hash": config_hash(cp), "data_lineage": data_lineage,
-                    "trained_on": {"split": "train_test", "rows": len(tt), "trials": sorted(tt["trial"].unique())},
-                    "scores": {"cv": res["summary"], "final_check": res["final"],
-                               "final_check_trials": sorted(te["trial"].unique())}}
-            if hasattr(res["estimator"], "coefficients"):
-                card["coefficients"] = res["estimator"].coefficients()
-            if getattr(res["estimator"], "refine", False):  # coupled.explicit_refine
-                cost = res["estimator"].refine_cost_
-                card["refinement"] = {"refined": bool(res["estimator"].refined_),
-                                      "free_run_cost": None if cost is None else {"wtls": cost[0], "refined": cost[1]},
-                                      "horizon_s": cp.refine_horizon_s}
             outputs.extend(save_model(res["estimator"], target, card))
         write_tables(results, failed, cp.outputs, out_eval)
 
-    evaluate_models(tt, te, hyper, cp, tuning_keys=tuning_keys[["trial", "t_ns"]], n_jobs=cp.n_jobs,
-                    failures=failed, on_model=finished, progress=progress)
-    if not results:
-        raise ModelError("every coupled model failed: " + "; ".join(f"{m}: {e['reason']}" for m, e in failed.items()))
+    train_stage(tt, te, tuning_keys, hyper, cp, vehicle=vehicle.name, data_lineage=data_lineage, failures=failed,
+                on_model=finished, progress=progress)
     outputs += write_tables(results, failed, cp.outputs, out_eval)
     fold_boxplot(results, cp.outputs, out_eval / "fold_test_r2.png")
     outputs.append(out_eval / "fold_test_r2.png")
-    metrics = _metrics(results, failed)
     quarantined = [{**entry, "file": str(out_models / f"{model}.joblib"),
                     "reason": f"model {model!r} failed ({entry['error']}): {entry['reason']}"}
                    for model, entry in failed.items()]
     return StageResult(NAME, outputs=outputs, quarantined=quarantined,
-                       summary={"metrics": metrics, "failed": sorted(failed)})
-
-
-def _metrics(results: dict[str, Any], failed: dict[str, dict[str, str]]) -> dict[str, Any]:
-    metrics: dict[str, Any] = {
-        m: {out: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
-                  "final_r2": (r["final"] or {}).get(out, {}).get("r2")} for out, s in r["summary"].items()}
-        for m, r in results.items()}
-    metrics.update({m: {"failed": f"{e['error']}: {e['reason']}"} for m, e in failed.items()})
-    return metrics
+                       summary={"metrics": metrics(results, failed), "failed": sorted(failed)})
 
 
 def write_tables(results: dict[str, Any], failed: dict[str, dict[str, str]], outputs: list[str],
@@ -118,7 +92,7 @@ def write_tables(results: dict[str, Any], failed: dict[str, dict[str, str]], out
     timings = {m: {"fit_time_s": [f["fit_time_s"] for f in r["folds"]]} for m, r in results.items()}
     return [out_eval / "table3.md", write_json(doc, out_eval / "table3.json"),
             write_json(folds, out_eval / "fold_scores.json"), write_json(timings, out_eval / "timings.json"),
-            write_json(_metrics(results, failed), out_eval / "metrics.json")]
+            write_json(metrics(results, failed), out_eval / "metrics.json")]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,8 +10,9 @@ from typing import Any
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
-from pipeline.coupled import NOISE_STD_COLUMNS, model_inputs, table2, tune
 from pipeline.layout import EVALUATION, MODELS
+from pipeline.report.coupled import table2
+from pipeline.studies.coupled import tune_columns, tune_stage, tuning_block
 from pipeline.tableio import atomic_path, write_json
 from stages.common import StageResult, stage_main
 
@@ -28,17 +29,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     are fitted on (``coupled.tuning: nested``, the default), or on the tuning split (``split``, the papers').
     ``progress``: each search's candidates (stages.common)."""
     cp = params.coupled
-    block = "train_test" if cp.tuning == "nested" else "tuning"
-    cols = sorted({c for m in cp.models for c in model_inputs(m, cp)} | set(cp.inputs) | set(cp.outputs))
-    # a gray box's base is weighted by the smoother's SDs here as in train, so its residual is the one tuned on
-    available = set(store.dataset(root).schema.names)
-    cols += [c for c in NOISE_STD_COLUMNS if c in available]
-    frame = store.load(root, vehicle=vehicle.name, split=block, columns=[*cols, "split"])
-    hyper, trace = tune(frame, cp, n_jobs=cp.n_jobs, split=block, progress=progress)
+    columns = tune_columns(cp, set(store.dataset(root).schema.names))
+    frame = store.load(root, vehicle=vehicle.name, split=tuning_block(cp), columns=columns)
+    doc, trace = tune_stage(frame, cp, vehicle=vehicle.name, progress=progress)
+    hyper = doc["hyperparameters"]
     out_eval = Path(root) / EVALUATION / "coupled"
-    doc = {"vehicle": vehicle.name, "search": cp.search, "seed": cp.seed, "inputs": cp.inputs,
-           "outputs": cp.outputs, "tuning": cp.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
-           "hyperparameters": hyper}
     outputs = [write_json(doc, hyperparameters_path(root)), write_json(trace, out_eval / "search_trace.json"),
                write_json(hyper, out_eval / "table2.json")]
     with atomic_path(out_eval / "table2.md") as tmp:

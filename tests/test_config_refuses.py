@@ -413,9 +413,9 @@ def test_malformed_params_are_refused_naming_file_and_key(tmp_path: Path, doc: d
 def test_the_model_names_params_accept_are_the_pipelines() -> None:
     """params.py keeps its own lists (loading params must not import the modelling stack); they must not drift."""
     from pipeline.config.params import COUPLED_MODELS, DECOUPLED_MODELS
-    from pipeline.coupled import EXPLICIT_MODELS, GRAYBOX_MODELS
     from pipeline.models.decoupled import MODEL_NAMES
     from pipeline.models.search import SVR_MODELS
+    from pipeline.studies.coupled import EXPLICIT_MODELS, GRAYBOX_MODELS
 
     assert set(COUPLED_MODELS) == {*SVR_MODELS, *EXPLICIT_MODELS, *GRAYBOX_MODELS}
     assert set(DECOUPLED_MODELS) == set(MODEL_NAMES)

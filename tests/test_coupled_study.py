@@ -5,11 +5,12 @@ import pandas as pd
 import pytest
 
 from pipeline.config.params import CoupledParams
-from pipeline.coupled import run_study, table2, table3
 from pipeline.errors import ModelError
 from pipeline.models.card import load_model, save_model
 from pipeline.models.search import fast_search, grid_search, paper_grid
+from pipeline.report.coupled import table2, table3
 from pipeline.sim.synthetic import synthetic_frame
+from pipeline.studies.coupled import run_study
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +62,7 @@ def test_fast_search_reproducible_and_grid_is_the_paper_grid():
 
 
 def test_tune_refuses_non_tuning_rows():
-    from pipeline.coupled import tune
+    from pipeline.studies.coupled import tune
     frame = synthetic_frame(100, seed=0)
     with pytest.raises(ModelError, match="split"):
         tune(frame, CoupledParams())
@@ -70,7 +71,7 @@ def test_tune_refuses_non_tuning_rows():
 def test_tune_names_the_missing_inputs_and_the_thrust_columns_the_table_has():
     """The default inputs are the thrusters' thrust columns of DAGON (T_th1_N ...): a vehicle whose thrusters have
     other names is told which columns to list in coupled.inputs, before any search runs."""
-    from pipeline.coupled import tune
+    from pipeline.studies.coupled import tune
     frame = synthetic_frame(100, seed=0, split="tuning").rename(columns={"T_th1_N": "T_port_N"})
     with pytest.raises(ModelError, match=r"lacks columns \['T_th1_N'\].*coupled.inputs.*\['T_port_N', 'T_th2_N'"):
         tune(frame, CoupledParams())
@@ -82,7 +83,7 @@ def test_thrust_inputs_the_default_let_the_wdse_learn_what_thruster_speeds_hide(
     must learn: on an unseen trial of the synthetic truth (inflow loss and damping beyond both explicit families)
     the WDSE-SVR, tuned the same way, is clearly better with thrust (measured: 0.973 / 0.937 / 0.943 against
     0.849 / 0.908 / 0.726 with speeds)."""
-    from pipeline.coupled import build_model, model_inputs, tune
+    from pipeline.studies.coupled import build_model, model_inputs, tune
     frame = synthetic_frame(1500, rate_hz=4.0, seed=2, noise=0.02)
     test = synthetic_frame(800, rate_hz=4.0, seed=3, noise=0.02, split="test", trial="syn02")
     tuning, train = frame[frame["split"] == "tuning"], frame[frame["split"] == "train_test"]
@@ -127,7 +128,7 @@ def test_smooth_tolerance_picks_the_widest_kernel_among_near_ties():
 def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch):
     """coupled.tuning = nested: every CV fold's hyperparameters come from a search over exactly that fold's
     training rows (never a row of its test block), and the final model's from the whole train_test block."""
-    from pipeline import coupled
+    from pipeline.studies import coupled
 
     frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
@@ -155,7 +156,8 @@ def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch)
 def test_a_lone_rich_kernel_is_warm_started_from_the_simpler_kernels(study):
     """coupled.models: [wdse_svr] alone gets the same hyperparameters as in the full list: its fast search starts
     from 2-weights' optimum, itself from RBF's, although neither is asked for (and neither is returned)."""
-    from pipeline.coupled import split_blocks, tune
+    from pipeline.evaluate import split_blocks
+    from pipeline.studies.coupled import tune
     full_params, out = study
     frame = pd.concat([synthetic_frame(1500, seed=0, tuning_fraction=0.4),
                        synthetic_frame(500, seed=1, trial="syn02", split="test")], ignore_index=True)
@@ -179,7 +181,7 @@ def test_the_gray_box_residual_search_is_warm_started_by_its_own_chain(study):
 def test_the_final_models_C_follows_the_rows_they_are_fitted_on(study):
     """The study's models were searched on folds of C_rows rows and fitted on the whole train_test block: each SVR
     (and the gray box's residual SVR) fits with C (C_rows / n)^c_rate; c_rate 0 keeps the searched C."""
-    from pipeline.coupled import build_model, model_inputs
+    from pipeline.studies.coupled import build_model, model_inputs
 
     params, out = study
     frame = synthetic_frame(900, seed=3)
@@ -198,8 +200,8 @@ def test_the_final_models_C_follows_the_rows_they_are_fitted_on(study):
 def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
     """coupled.tuning = nested with the three kernels: in each fold the WDSE's fast-search chain (RBF, then
     2-weights, then WDSE) repeats the searches the RBF and 2-weights models of that fold ran on the same rows. Each
-    runs once; the scores are those of running every search (the memo cleared before each)."""
-    from pipeline import coupled
+    runs once; the scores are those of running every search (a cache that keeps none)."""
+    from pipeline.studies import coupled
 
     frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
@@ -213,17 +215,11 @@ def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
         return real_search(model, X, y, method, **kw)
 
     monkeypatch.setattr(coupled, "search", counted)
-    monkeypatch.setattr(coupled, "_SEARCHES", {})
     memo = coupled.run_study(frame, params)
     # the tune stage's call (one chain), then per fold the three kernels' chains: 3 + 2 x 3, not 3 + 2 x (1 + 2 + 3)
     assert sorted(ran) == sorted(["rbf_svr", "two_weights_svr", "wdse_svr"] * (1 + params.folds))
 
-    def fresh(*args, **kw):
-        coupled._SEARCHES.clear()
-        return real_search(*args, **kw)
-
-    monkeypatch.setattr(coupled, "search", fresh)
-    every = coupled.run_study(frame, params)
+    every = coupled.run_study(frame, params, cache=coupled.SearchCache(kept=0))  # a cache that keeps nothing
     for model in params.models:
         assert memo["hyper"][model] == every["hyper"][model], model
         assert memo["results"][model]["summary"] == every["results"][model]["summary"], model

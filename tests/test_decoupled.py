@@ -9,7 +9,6 @@ import pandas as pd
 import pytest
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from pipeline.decoupled import dof_data, run_study, table_markdown
 from pipeline.models.decoupled import (
     PAPER_GRIDS,
     DampingGP,
@@ -18,6 +17,8 @@ from pipeline.models.decoupled import (
     make_estimator,
     param_grid,
 )
+from pipeline.report.decoupled import table_markdown
+from pipeline.studies.decoupled import dof_data, run_study
 
 NOISE_N = 2.0
 SMALL = {"mlp": {"nodes": [5], "alpha": [1e-3]}, "krr": {"alpha": [1e-2, 1e-1], "gamma": [1.0, 10.0]},

@@ -12,8 +12,8 @@ from helpers_sim_store import build_store
 
 from pipeline import store
 from pipeline.config import Params
-from pipeline.decoupled import dof_columns
 from pipeline.sim import StreamSpec, true_damping
+from pipeline.studies.decoupled import dof_columns
 from stages import decoupled as decoupled_stage
 from stages import simulate as simulate_stage
 

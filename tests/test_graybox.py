@@ -8,10 +8,10 @@ from sklearn.base import clone
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from pipeline.config.params import CoupledParams
-from pipeline.coupled import build_model, model_inputs, tune
 from pipeline.evaluate import regression_scores
 from pipeline.models.graybox import GrayBox
 from pipeline.sim.synthetic import synthetic_frame
+from pipeline.studies.coupled import build_model, model_inputs, tune
 
 _NEEDS = "GrayBox's default base needs X[:, :6] = [u v r tau_u tau_v tau_r] and y = [udot vdot rdot]"
 _FITTING = ("check_dict_unchanged", "check_dont_overwrite_parameters", "check_dtype_object", "check_estimators_dtypes",
@@ -83,8 +83,9 @@ def test_graybox_columns_and_clone():
 def test_nested_cv_folds_weight_the_gray_box_base_as_the_final_model(monkeypatch):
     """Each nested CV fold tunes a gray box whose base carries the same errors-in-variables weights (the smoother's
     SDs of the train_test block) as the final model's base; the fold's X has no SD columns to take them from."""
-    import pipeline.coupled as coupled
-    from pipeline.coupled import NOISE_STD_COLUMNS, evaluate_models, noise_std_from
+    import pipeline.studies.coupled as coupled
+    from pipeline.studies.coupled import evaluate_models, noise_std_from
+    from pipeline.vocabulary import NOISE_STD_COLUMNS
 
     frame = synthetic_frame(240, rate_hz=2.0, seed=4, noise=0.02, split="train_test")
     for k, col in enumerate(NOISE_STD_COLUMNS):

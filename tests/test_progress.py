@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from pipeline.config.params import CoupledParams
-from pipeline.coupled import evaluate_models, tune
 from pipeline.evaluate import cross_validate_blocked, split_blocks
 from pipeline.models.decoupled import LinearQuadraticDamping
 from pipeline.models.search import fast_search, grid_search
 from pipeline.rollout import rollout_ragged
 from pipeline.sim.synthetic import synthetic_frame
+from pipeline.studies.coupled import evaluate_models, tune
 from stages import common
 
 

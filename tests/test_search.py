@@ -112,3 +112,15 @@ def test_one_se_keeps_the_smoothest_kernel_within_a_standard_error_of_the_best()
     widest = min(near, key=lambda t: np.sum(np.log(t["params"]["gammas"])))
     assert ruled.best_params == widest["params"] != best["params"]
     assert np.sum(np.log(ruled.best_params["gammas"])) < np.sum(np.log(best["params"]["gammas"]))
+
+
+@pytest.mark.parametrize(("method", "key"), [("paper_grid", "max_evals"), ("paper_grid", "warm_start"),
+                                             ("fast", "grid"), ("fast", "n_fold")])
+def test_search_refuses_a_keyword_its_method_does_not_use(method, key):
+    """search() passes its keywords to the method's function; one that function does not take is an error naming
+    it, not a setting silently dropped."""
+    from pipeline.models.search import search
+
+    X, y = _two_of_six()
+    with pytest.raises(TypeError, match=key):
+        search("rbf_svr", X, y, method, n_folds=3, **{key: 1})

@@ -20,9 +20,9 @@ from helpers_guide import guide_block
 
 from pipeline import layout, physics, store
 from pipeline.config import load_params, load_vehicle
-from pipeline.coupled import model_inputs
 from pipeline.layout import MODELS
 from pipeline.models.card import load_model
+from pipeline.studies.coupled import model_inputs
 from pipeline.tableio import read_parquet
 from stages import derive as derive_stage
 from stages import differentiate as differentiate_stage

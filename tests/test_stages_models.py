@@ -17,10 +17,10 @@ import pytest
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
-from pipeline.coupled import evaluate_models
 from pipeline.errors import ModelError
 from pipeline.models.card import load_model
 from pipeline.sim import load_example_vehicle
+from pipeline.studies.coupled import evaluate_models
 from stages import train as train_stage
 from stages import tune as tune_stage
 
@@ -210,8 +210,9 @@ def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehic
     residuals, so the hyperparameters were searched on a target the model never learns)."""
     import shutil
 
-    import pipeline.coupled as coupled
-    from pipeline.coupled import NOISE_STD_COLUMNS, build_model, model_inputs, noise_std_from
+    import pipeline.studies.coupled as coupled
+    from pipeline.studies.coupled import build_model, model_inputs, noise_std_from
+    from pipeline.vocabulary import NOISE_STD_COLUMNS
 
     root, _ = run_root
     shutil.copytree(root / "data/features", tmp_path / "data/features")
@@ -224,9 +225,6 @@ def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehic
         return real(model, X, y, *a, **kw)
 
     monkeypatch.setattr(coupled, "search", recording)
-    # The run_root fixture tuned the same rows in this process (or, on a machine with more cores, in its workers):
-    # without its memo of searches this run searches again, where the recorder sees it.
-    monkeypatch.setattr(coupled, "_SEARCHES", {})
     tune_stage.run(tmp_path, vehicle, params)
     cp = params.coupled
     tt = store.load(tmp_path, split="train_test")

@@ -102,7 +102,7 @@ def test_train_fails_when_every_model_fails(tmp_path: Path, vehicle: Vehicle, mo
 
 def test_decoupled_keeps_the_models_that_finished(tmp_path: Path, vehicle: Vehicle,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
-    from pipeline import decoupled as decoupled_study
+    from pipeline.studies import decoupled as decoupled_study
 
     params = Params(features={"test_trials": ["b"]},
                     decoupled={"models": ["ls", "svr"], "dofs": ["u", "v"], "max_samples": 150, "folds": 3,

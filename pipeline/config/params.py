@@ -15,7 +15,8 @@ from pipeline.config.base import Frozen
 from pipeline.vocabulary import DOFS
 
 #: The model names params may give, checked at load without importing the modelling stack (``auvid ingest`` loads
-#: params too); tests/test_config_refuses.py keeps them equal to pipeline.coupled's and pipeline.models.decoupled's.
+#: params too); tests/test_config_refuses.py keeps them equal to pipeline.studies.coupled's and
+#: pipeline.models.decoupled's.
 COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox",
                   "graybox_gh")
 #: the coupled models whose inputs are nu and tau (not ``coupled.inputs``)

@@ -20,6 +20,7 @@ fast search is reported separately (``gp_fit_s``).
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import logging
 import math
@@ -48,7 +49,7 @@ log = logging.getLogger(__name__)
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
-           "fast_search", "search", "SearchResult"]
+           "fast_search", "search", "SearchResult", "SearchSettings"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -77,6 +78,29 @@ class SearchResult:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """The settings of a search, passed whole: its method and the keywords of :func:`search` that method uses
+    (:meth:`keywords`); the fast search's own keys are left out of a ``paper_grid`` search's."""
+
+    method: str = "fast"  # "fast" or "paper_grid"
+    n_folds: int = 3
+    n_jobs: int | None = 1
+    n_velocity: int = 3
+    max_evals: int = 30  # fast search only, as the three below
+    seed: int = 0
+    smooth_tolerance: float = 0.0
+    one_se: bool = False
+
+    def keywords(self) -> dict[str, Any]:
+        """The keywords of :func:`search` for this method."""
+        kw: dict[str, Any] = {"n_folds": self.n_folds, "n_jobs": self.n_jobs, "n_velocity": self.n_velocity}
+        if self.method == "fast":
+            kw.update(max_evals=self.max_evals, seed=self.seed, smooth_tolerance=self.smooth_tolerance,
+                      one_se=self.one_se)
+        return kw
 
 
 def make_svr(model: str, params: dict[str, Any], n_velocity: int = 3, C_rate: float = 0.5) -> Any:
@@ -337,7 +361,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
             if score > best:
                 x, best = cand, score
     if local == "model":
-        with threadpool_limits(1, user_api="blas"):  # (one on a loaded 2-core machine: 150x150 Cholesky 225 ms)
+        with threadpool_limits(1, user_api="blas"):  # the same: a GP on the few candidates so far
             x, best = _model_search(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
     x, best = _pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
@@ -479,18 +503,22 @@ def _smoothest_within(trace: list[dict[str, Any]], best: float, tolerance: float
 
 
 def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
-    """Dispatch to :func:`fast_search` or :func:`grid_search` (``method="paper_grid"``). The best parameters carry
+    """Dispatch to :func:`fast_search` or :func:`grid_search` (``method="paper_grid"``) with the keywords ``kw``
+    of that function; one it does not take is refused (TypeError naming it). The best parameters carry
     ``C_rows``: the mean training rows of the search's folds, the rows its C was chosen on (see
     :func:`pipeline.models.svr.scaled_C`)."""
+    methods = {"fast": fast_search, "paper_grid": grid_search}
+    if method not in methods:
+        raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")
+    takes = [n for n, a in inspect.signature(methods[method]).parameters.items()
+             if a.kind is inspect.Parameter.KEYWORD_ONLY and n != "keep_trace"]
+    unknown = sorted(set(kw) - set(takes))
+    if unknown:
+        raise TypeError(f"search(method={method!r}) does not use {unknown}; it takes {takes}")
     if method == "fast":
         res = fast_search(model, X, y, **kw)
-    elif method == "paper_grid":
-        for key in ("max_evals", "gp_samples", "seed", "warm_start", "max_fits", "smooth_tolerance", "one_se",
-                    "n_explore", "local", "model_share", "initial_step", "min_step"):
-            kw.pop(key, None)
-        res = grid_search(model, X, y, keep_trace=False, **kw)
     else:
-        raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")
+        res = grid_search(model, X, y, keep_trace=False, **kw)
     train_rows = [len(train) for train, _ in blocked_folds(len(X), res.n_folds)]
     res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
     return res

@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 
 COUPLED = f"{layout.EVALUATION}/coupled"
 DECOUPLED = f"{layout.EVALUATION}/decoupled"
-# The labels of paper 000 (pipeline.coupled.MODEL_LABELS, repeated so the report imports no model code).
+# The labels of paper 000 (pipeline.report.coupled.MODEL_LABELS, repeated so the report imports no model code).
 LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
           "gertler_hagen": "Gertler–Hagen", "mcfarland_whitcomb": "McFarland–Whitcomb", "graybox": "gray-box"}
 SVRS = ("rbf_svr", "two_weights_svr", "wdse_svr")

@@ -5,7 +5,9 @@ Protocol (DESIGN.md, "Models and evaluation"): hyperparameters are searched on t
 learns its kernel by marginal likelihood instead, and LS has nothing to tune (their "search score" is the same CV
 on the tuning split). The *train_test* split is then scored by unshuffled k-fold CV (MAE and R^2, train and test,
 mean and SD), learning curves (``learning_curve`` with the same KFold), and fit / predict times per fold (Fig. 3).
-The final model of each (DOF, model) is fitted on the whole train_test split.
+The final model of each (DOF, model) is fitted on the whole train_test split. :func:`decoupled_stage` is the work of
+the stage shell ``stages/decoupled.py``, which reads and writes; the table and figures are in
+:mod:`pipeline.report.decoupled`.
 
 Kernel methods and the MLP are O(n^2)-O(n^3) in the samples; a full trial at 20 Hz holds far more samples than the
 1-D damping curve needs, and neighbouring samples are strongly correlated (smoothed derivatives), so each split
@@ -16,25 +18,29 @@ keeps at most ``gp_max_samples`` points evenly spread in velocity (see ``bench/g
 from __future__ import annotations
 
 import logging
+import platform
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
+import joblib
 import numpy as np
 import pandas as pd
+import sklearn
 from sklearn.base import BaseEstimator, clone
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.model_selection import GridSearchCV, KFold, cross_validate, learning_curve
 from threadpoolctl import threadpool_limits
 
+from pipeline import __version__
+from pipeline.config import Vehicle, config_hash
+from pipeline.config.params import DecoupledParams
 from pipeline.errors import ConfigError, ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
-from pipeline.units import axis_label
 from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS
 
 log = logging.getLogger(__name__)
@@ -262,100 +268,54 @@ def damping_curves(study: StudyResult, ranges: dict[str, tuple[float, float]], n
     return out
 
 
-def table_markdown(study: StudyResult) -> str:
-    """Table I of the paper (search result) next to the CV scores on the train_test split."""
-    lines = ["| DOF | model | best params | search MAE | CV test MAE (sd) | CV test R² (sd) | CV train MAE |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
-    for r in study.results:
-        params = ", ".join(f"{k}: {v:g}" if isinstance(v, float) else f"{k}: {v}" for k, v in r.best_params.items())
-        if r.model == "gp" and r.estimator is not None:
-            scales = "/".join(f"{v:.3g}" for v in r.estimator.length_scale_)
-            params = f"l-s: {scales} (standardized), n-l: {r.estimator.noise_std_:.3g}"
-        c = r.cv
-        lines.append(f"| {r.dof} | {r.model} | {params or 'N/A'} | {r.search_mae:.3f} | "
-                     f"{c['test_mae_mean']:.3f} ({c['test_mae_sd']:.3f}) | {c['test_r2_mean']:.3f} "
-                     f"({c['test_r2_sd']:.3f}) | {c['train_mae_mean']:.3f} |")
-    for f in study.failed:
-        lines.append(f"\nFailed, not in the table: {f['dof']}/{f['model']} ({f['error']}: {f['reason']})")
-    return "\n".join(lines) + "\n"
+# -- the stage -----------------------------------------------------------------------------------------------
+
+def stage_columns(params: DecoupledParams) -> list[str]:
+    """The feature-store columns the decoupled stage reads."""
+    return ["t_ns", "segment", "split"] + [c for d in params.dofs for c in dof_columns(d)]
 
 
-def _save(fig: Any, target: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    from pipeline.tableio import atomic_path
-
-    fig.tight_layout()
-    with atomic_path(target) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
-    plt.close(fig)
-    return Path(target)
+def run_lineage(vehicle: Vehicle, params: DecoupledParams, tuning: pd.DataFrame, train_test: pd.DataFrame
+                ) -> dict[str, Any]:
+    """What a run learned from: the vehicle and params (hashes, params), the trials and the rows of each split."""
+    return {"vehicle": vehicle.name, "vehicle_hash": config_hash(vehicle), "params_hash": config_hash(params),
+            "params": params.model_dump(), "trials": sorted(set(tuning["trial"]) | set(train_test["trial"])),
+            "rows": {"tuning": len(tuning), "train_test": len(train_test)}}
 
 
-def _plt() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+def versions() -> dict[str, str]:
+    return {"auvid": __version__, "scikit-learn": sklearn.__version__, "numpy": np.__version__,
+            "joblib": joblib.__version__, "python": platform.python_version()}
 
 
-def plot_learning_curves(study: StudyResult, target: Path) -> Path:
-    """Fig. 2: training (dashed) and validation (solid) MAE vs training size, one panel per DOF."""
-    plt = _plt()
-    dofs = list(dict.fromkeys(r.dof for r in study.results))
-    fig, axes = plt.subplots(1, len(dofs), figsize=(5 * len(dofs), 4), squeeze=False)
-    for ax, dof in zip(axes[0], dofs, strict=True):
-        for r in (r for r in study.results if r.dof == dof):
-            lc = r.learning_curve
-            line, = ax.plot(lc["train_sizes"], lc["test_mae_mean"], "o-", label=f"{r.model} validation")
-            ax.plot(lc["train_sizes"], lc["train_mae_mean"], "--", color=line.get_color(), label=f"{r.model} training")
-        ax.set_title(f"DOF {dof}")
-        ax.set_xlabel("training samples [rows]")
-        ax.set_ylabel(f"MAE of {axis_label(dof_columns(dof)[1])}")
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7, ncol=2)
-    return _save(fig, target)
+def model_card(result: ModelResult, lineage: dict[str, Any]) -> dict[str, Any]:
+    """The card of one (DOF, model): it names the file's inputs and output."""
+    x_col, y_col = dof_columns(result.dof)
+    return {"kind": "decoupled_damping", "dof": result.dof, "model": result.model, "inputs": [x_col],
+            "output": y_col, "hyperparameters": result.best_params, "learned": describe(result.model, result.estimator),
+            "search_mae": result.search_mae, "scores": result.cv, "lineage": lineage, "versions": versions()}
 
 
-def plot_timings(timings: dict[str, Any], target: Path) -> Path:
-    """Fig. 3: mean fit and predict time per fold, per (DOF, model), log scale."""
-    plt = _plt()
-    keys = list(timings)
-    x = np.arange(len(keys))
-    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(keys)), 4))
-    ax.bar(x - 0.2, [timings[k]["fit_time_s"] for k in keys], 0.4, label="fit")
-    ax.bar(x + 0.2, [timings[k]["predict_time_s"] for k in keys], 0.4, label="predict")
-    ax.set_xticks(x, keys, rotation=60, ha="right", fontsize=8)
-    ax.set_yscale("log")
-    ax.set_ylabel("time per fold [s]")
-    ax.legend()
-    return _save(fig, target)
+def decoupled_stage(tuning: pd.DataFrame, train_test: pd.DataFrame, params: DecoupledParams, *,
+                    lineage: dict[str, Any],
+                    on_result: Callable[[ModelResult | None, dict[str, str] | None, dict[str, Any] | None], None]
+                    | None = None) -> tuple[StudyResult, dict[str, Any]]:
+    """The decoupled stage's work: :func:`run_study` with ``params``, then each final model's damping curve over the
+    train_test velocities (:func:`damping_curves`). ``on_result(result, None, card)`` as each (DOF, model) finishes
+    (its :func:`model_card`), ``on_result(None, failure, None)`` as one fails, so the stage writes it at once.
+    Returns ``(study, curves)``; a ModelError when every model failed."""
 
+    def finished(result: ModelResult | None, failure: dict[str, str] | None) -> None:
+        if on_result is not None:
+            on_result(result, failure, None if result is None else model_card(result, lineage))
 
-def plot_damping(study: StudyResult, data: pd.DataFrame, target: Path,
-                 truth: Callable[[str, np.ndarray], np.ndarray] | None = None) -> Path:
-    """The learned d_i(nu_i) over the data (and the truth where known), GP with its 2-sigma band."""
-    plt = _plt()
-    dofs = list(dict.fromkeys(r.dof for r in study.results))
-    fig, axes = plt.subplots(1, len(dofs), figsize=(5 * len(dofs), 4), squeeze=False)
-    for ax, dof in zip(axes[0], dofs, strict=True):
-        X, y = dof_data(data, dof, 2000)
-        ax.plot(X[:, 0], y, ".", ms=2, color="0.7", label="data")
-        grid = np.linspace(X.min(), X.max(), 200)
-        if truth is not None:
-            ax.plot(grid, truth(dof, grid), "k--", lw=1.5, label="truth")
-        for r in (r for r in study.results if r.dof == dof and r.estimator is not None):
-            if r.model == "gp":
-                mean, std = r.estimator.predict(grid[:, None], return_std=True)
-                line, = ax.plot(grid, mean, label="gp")
-                ax.fill_between(grid, mean - 2 * std, mean + 2 * std, color=line.get_color(), alpha=0.25, lw=0,
-                                label="gp 2σ band")
-            else:
-                ax.plot(grid, r.estimator.predict(grid[:, None]), label=r.model)
-        ax.set_xlabel(axis_label(dof_columns(dof)[0]))
-        ax.set_ylabel(axis_label(dof_columns(dof)[1]))
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7)
-    return _save(fig, target)
+    p = params
+    study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
+                      gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
+                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished)
+    if not study.results:
+        raise ModelError("every decoupled model failed: " + "; ".join(
+            f"{f['dof']}/{f['model']}: {f['reason']}" for f in study.failed))
+    ranges = {d: (float(train_test[dof_columns(d)[0]].min()), float(train_test[dof_columns(d)[0]].max()))
+              for d in p.dofs}
+    return study, damping_curves(study, ranges)

@@ -1,7 +1,10 @@
-"""The coupled 3-DOF motion-model study (paper 000): tune -> blocked CV -> final check -> tables and figures.
+"""The coupled 3-DOF motion-model study (paper 000): tune -> blocked CV -> final check.
 
-Pure functions over DataFrames (feature-store rows); the stage shells ``stages/tune.py`` and ``stages/train.py``
-read and write. Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``coupled.inputs``, by default
+Pure functions over DataFrames (feature-store rows): :func:`tune_stage` and :func:`train_stage` are the work of the
+stage shells ``stages/tune.py`` and ``stages/train.py``, which read and write; the tables and the figure are in
+:mod:`pipeline.report.coupled`.
+
+Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``coupled.inputs``, by default
 ``[u v r T1 T2 T3]``, the thrusters' static thrust, where the paper has their speeds ``n1 n2 n3``; one SVR per
 output with its own hyperparameters) and ``gertler_hagen``, ``mcfarland_whitcomb`` (inputs ``[u v r tau_u tau_v
 tau_r]``, all outputs at once, TLS). Outputs ``[udot vdot rdot]``.
@@ -13,13 +16,14 @@ import copy
 import hashlib
 import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator, RegressorMixin
 
+from pipeline.config import config_hash
 from pipeline.config.params import EXPLICIT_MODELS, CoupledParams
 from pipeline.config.vehicle import THRUST_COLUMN
 from pipeline.errors import ModelError
@@ -34,26 +38,20 @@ from pipeline.evaluate import (
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.graybox import GrayBox
-from pipeline.models.search import SVR_MODELS, SearchResult, make_svr, search
+from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.rollout import grid_step_s
-from pipeline.units import axis_label
+from pipeline.vocabulary import NOISE_STD_COLUMNS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "MODEL_LABELS", "NestedTuned", "noise_std_from",
-           "tune",
-           "build_model", "model_inputs",
-           "evaluate_models"]
+__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "noise_std_from",
+           "tune", "search_settings", "tuning_block", "tune_columns", "tune_stage",
+           "build_model", "model_inputs", "model_card", "metrics",
+           "evaluate_models", "run_study", "train_columns", "train_stage"]
 
 #: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
 GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen"}
-MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
-                "gertler_hagen": "Gertler-Hagen", "mcfarland_whitcomb": "McFarland-Whitcomb",
-                "graybox": "Gray-box (MW + WDSE)", "graybox_gh": "Gray-box (GH + WDSE)"}
-#: feature-store SD columns of the smoothed signals (u v r udot vdot rdot) -> the explicit models' noise_std
-NOISE_STD_COLUMNS = ("u_smooth_std_mps", "v_smooth_std_mps", "r_smooth_std_radps", "udot_std_mps2",
-                     "vdot_std_mps2", "rdot_std_radps2")
 _EXPLICIT_CLASSES = {"gertler_hagen": GertlerHagen, "mcfarland_whitcomb": McFarlandWhitcomb}
 
 
@@ -136,38 +134,64 @@ def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any]
     return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
 
 
-#: The searches this process ran, by their inputs (:func:`_search_once`), the newest :data:`_SEARCHES_KEPT`.
-_SEARCHES: dict[str, SearchResult] = {}
-_SEARCHES_KEPT = 64
+class SearchCache:
+    """The searches of one stage run by their inputs, the newest ``kept``: :meth:`search` runs each once.
+
+    Nested tuning searches each CV fold once per model, and a model's fast search runs the simpler kernels' chain
+    first: in one fold the WDSE's chain repeats the RBF and 2-weights searches that the RBF and 2-weights models of
+    that fold ran, on the same rows with the same settings. A search is deterministic in its inputs, so the repeat
+    gives the result the first gave (a copy of it; its log lines are not given twice). ``progress`` is not an input.
+
+    A stage's function creates one and passes it down. The estimators of the CV folds hold it (:class:`NestedTuned`):
+    ``clone``'s deep copy keeps this same cache, a pickled copy (a joblib worker's) starts empty.
+    """
+
+    def __init__(self, kept: int = 64) -> None:
+        self.kept = kept
+        self._results: dict[str, SearchResult] = {}
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> SearchCache:
+        return self
+
+    def __reduce__(self) -> tuple[type[SearchCache], tuple[int]]:
+        return SearchCache, (self.kept,)
+
+    def search(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
+               warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None) -> SearchResult:
+        """:func:`~pipeline.models.search.search` with ``settings`` (and a simpler kernel's optimum as
+        ``warm_start``: fast search only), or the result of the same search run before."""
+        kw = settings.keywords()
+        if warm_start is not None:
+            kw["warm_start"] = warm_start
+        # the layout too: a strided column (a residual's) sums in another order than a contiguous copy of it, and a
+        # search's choices can turn on the last bit
+        layout = [(np.asarray(v).shape, np.asarray(v).strides, str(np.asarray(v).dtype)) for v in (X, y)]
+        h = hashlib.sha256(json.dumps([model, settings.method, layout, kw], sort_keys=True, default=repr).encode())
+        for values in (X, y):
+            h.update(np.ascontiguousarray(values, dtype=float).tobytes())
+        key = h.hexdigest()
+        result = self._results.get(key)
+        if result is None:
+            result = search(model, X, y, settings.method, progress=progress, **kw)
+            self._results[key] = result
+            while len(self._results) > self.kept:
+                del self._results[next(iter(self._results))]
+        else:
+            log.debug("%s search on %d rows: the same inputs as an earlier search of this run, its result", model,
+                      len(X))
+        return copy.deepcopy(result)
 
 
-def _search_once(model: str, X: np.ndarray, y: np.ndarray, method: str, **kw: Any) -> SearchResult:
-    """:func:`~pipeline.models.search.search`, run once per inputs in this process. Nested tuning searches each CV
-    fold once per model, and a model's fast search runs the simpler kernels' chain first: in one fold the WDSE's
-    chain repeats the RBF and 2-weights searches that the RBF and 2-weights models of that fold ran, on the same
-    rows with the same settings. A search is deterministic in its inputs, so the repeat gives the result the first
-    gave (a copy of it; its log lines are not given twice). ``progress`` is not an input."""
-    given = {k: v for k, v in kw.items() if k != "progress"}
-    # the layout too: a strided column (a residual's) sums in another order than a contiguous copy of it, and a
-    # search's choices can turn on the last bit
-    layout = [(np.asarray(v).shape, np.asarray(v).strides, str(np.asarray(v).dtype)) for v in (X, y)]
-    h = hashlib.sha256(json.dumps([model, method, layout, given], sort_keys=True, default=repr).encode())
-    for values in (X, y):
-        h.update(np.ascontiguousarray(values, dtype=float).tobytes())
-    key = h.hexdigest()
-    if key not in _SEARCHES:
-        _SEARCHES[key] = search(model, X, y, method, **kw)
-        while len(_SEARCHES) > _SEARCHES_KEPT:
-            del _SEARCHES[next(iter(_SEARCHES))]
-    else:
-        log.debug("%s search on %d rows: the same inputs as an earlier search of this process, its result", model,
-                  len(X))
-    return copy.deepcopy(_SEARCHES[key])
+def search_settings(params: CoupledParams, n_jobs: int | None = 1) -> SearchSettings:
+    """The settings of every search of the study: ``params.search``'s method with its keys of ``params``."""
+    return SearchSettings(method=params.search, n_folds=params.tuning_folds, n_jobs=n_jobs,
+                          n_velocity=params.n_velocity_inputs(), max_evals=params.max_evals, seed=params.seed,
+                          smooth_tolerance=params.smooth_tolerance, one_se=params.selection == "one_se")
 
 
 def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
-         progress: Callable[..., Any] | None = None, noise_std: Sequence[float] | None = None
-         ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
+         progress: Callable[..., Any] | None = None, noise_std: Sequence[float] | None = None,
+         cache: SearchCache | None = None) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
     """Search hyperparameters of every SVR model and output on one block: the tuning split (``split="tuning"``,
     the papers' protocol) or, with ``params.tuning == "nested"``, the train_test block (``split="train_test"``).
     Rows of any other split are refused.
@@ -179,7 +203,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     residual (the SVRs' optima are no warm start: the target differs). Returns ``(hyper, trace)``:
     ``hyper[model][output]`` = flat hyperparameters, ``trace[model][output]`` = the :class:`SearchResult` as a
     dict. ``progress(done, total, desc)`` (optional): each search's candidates, ``desc`` naming the search
-    (``wdse_svr/udot_mps2 (3/9)``).
+    (``wdse_svr/udot_mps2 (3/9)``). ``cache`` (optional): the run's :class:`SearchCache` (default: one of this call).
     """
     if len(tuning) == 0:
         raise ModelError(f"{split} block is empty: nothing to tune on")
@@ -191,13 +215,14 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         _check_columns(tuning, EXPLICIT_INPUTS, f"tune ({', '.join(graybox)})")
     data = _subsample(tuning, params.max_samples)
     X = data[params.inputs].to_numpy(float)
-    n_velocity = params.n_velocity_inputs()
+    settings = search_settings(params, n_jobs)
+    cache = cache if cache is not None else SearchCache()
     hyper: dict[str, dict[str, dict[str, Any]]] = {}
     trace: dict[str, Any] = {}
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum. The
     # chain runs even where the simpler kernels are not asked for (their results serve as warm starts only): a
-    # lone WDSE search of 8 hyperparameters from the GP seed lands far from the chain's optimum (seed 0 of
-    # bench/coupled_study.py, 480 s: R2 0.957 / 0.942 / 0.933 alone, 0.976 / 0.945 / 0.959 chained)
+    # lone WDSE search of 8 hyperparameters from the GP seed lands far from the chain's optimum
+    # (docs/notes-studies.md)
     wanted = [m for m in SVR_MODELS if m in params.models]
     order = SVR_MODELS[:SVR_MODELS.index(wanted[-1]) + 1] if wanted and params.search == "fast" else wanted
     n_searches, k_search = (len(order) + len(graybox)) * len(params.outputs), 0
@@ -205,13 +230,10 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         hyper[model], trace[model] = {}, {}
         simpler = next((m for m in reversed(order[:order.index(model)]) if m in hyper), None)
         for out in params.outputs:
-            kw: dict[str, Any] = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
-            if params.search == "fast":
-                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
-                          one_se=params.selection == "one_se", warm_start=hyper[simpler][out] if simpler else None)
+            warm = hyper[simpler][out] if simpler and settings.method == "fast" else None
             k_search += 1
-            kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
-            res = _search_once(model, X, data[out].to_numpy(float), params.search, **kw)
+            res = cache.search(model, X, data[out].to_numpy(float), settings, warm_start=warm,
+                               progress=_part(progress, f"{model}/{out} ({k_search}/{n_searches})"))
             log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
             trace[model][out] = res.to_dict()
@@ -225,15 +247,13 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         resid = data[params.outputs].to_numpy(float) - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
         hyper[model], trace[model] = {}, {}
         for k, out in enumerate(params.outputs):
-            kw = {"n_folds": params.tuning_folds, "n_jobs": n_jobs, "n_velocity": n_velocity}
-            if params.search == "fast":  # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs above
-                kw.update(max_evals=params.max_evals, seed=params.seed, smooth_tolerance=params.smooth_tolerance,
-                          one_se=params.selection == "one_se")
+            warm = None
+            if settings.method == "fast":  # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs above
                 for simpler in SVR_MODELS[:-1]:
-                    kw["warm_start"] = _search_once(simpler, X, resid[:, k], params.search, **kw).best_params
+                    warm = cache.search(simpler, X, resid[:, k], settings, warm_start=warm).best_params
             k_search += 1  # progress: the residual's WDSE search (its warm-start chain reports nothing)
-            kw["progress"] = _part(progress, f"{model}/{out} ({k_search}/{n_searches})")
-            res = _search_once("wdse_svr", X, resid[:, k], params.search, **kw)
+            res = cache.search("wdse_svr", X, resid[:, k], settings, warm_start=warm,
+                               progress=_part(progress, f"{model}/{out} ({k_search}/{n_searches})"))
             log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
             hyper[model][out] = res.best_params
             trace[model][out] = res.to_dict()
@@ -245,19 +265,21 @@ class NestedTuned(RegressorMixin, BaseEstimator):
     on, then fitted there: the estimator of each CV fold under ``params.tuning == "nested"``, so that no fold's
     test block has a say in its hyperparameters. ``X`` holds :func:`model_inputs` columns in order, ``y`` the
     outputs. ``noise_std``: a gray-box base's errors-in-variables weights (:func:`noise_std_from` the rows the
-    fold is cut from: ``X`` has no SD columns). Fitted: ``hyperparameters_`` (output -> params), ``estimator_``."""
+    fold is cut from: ``X`` has no SD columns). ``cache``: the run's :class:`SearchCache`, shared by the folds (None:
+    one per fit). Fitted: ``hyperparameters_`` (output -> params), ``estimator_``."""
 
     def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None,
-                 noise_std: Sequence[float] | None = None) -> None:
+                 noise_std: Sequence[float] | None = None, cache: SearchCache | None = None) -> None:
         self.model = model
         self.params = params
         self.noise_std = noise_std
+        self.cache = cache
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
         params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
         frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
-        hyper, _ = tune(frame, params, n_jobs=1, noise_std=self.noise_std)
+        hyper, _ = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache)
         self.hyperparameters_ = hyper[self.model]
         self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std).fit(X, y)
         return self
@@ -270,7 +292,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
                     params: CoupledParams, *, tuning_keys: pd.DataFrame | None = None, n_jobs: int | None = 1,
                     failures: dict[str, dict[str, str]] | None = None,
                     on_model: Callable[[str, dict[str, Any] | None], None] | None = None,
-                    progress: Callable[..., Any] | None = None) -> dict[str, Any]:
+                    progress: Callable[..., Any] | None = None, cache: SearchCache | None = None) -> dict[str, Any]:
     """Blocked CV on the train_test block and the final check on the test trial(s), per model.
 
     Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted}}``; the
@@ -281,8 +303,10 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
     on; without, it is raised as a ModelError. ``on_model(model, result or None)`` is called as each model
     finishes or fails (the stage writes that model's artifacts then, not after the whole study).
     ``progress(done, total, desc)`` (optional): CV folds and final fits of all models, as they finish.
+    ``cache``: the run's :class:`SearchCache` for the nested folds' searches (default: one of this call).
     """
     _check_columns(train_test, [*params.outputs, "trial", "t_ns"], "evaluate")
+    cache = cache if cache is not None else SearchCache()
     keys = train_test[["trial", "t_ns"]]
     if len(test):
         check_no_leakage(train_test[["trial", "t_ns"]], test[["trial", "t_ns"]], tuning_keys)
@@ -300,7 +324,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
 
         try:
             results[model] = _evaluate_model(model, train_test, test, y, keys, hyper, params, tuning_keys, n_jobs,
-                                             progress=tick if progress is not None else None)
+                                             cache, progress=tick if progress is not None else None)
         except MODEL_FAILURES as err:
             entry = model_failure(model, err)
             if failures is None:
@@ -320,7 +344,8 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
 
 def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np.ndarray, keys: pd.DataFrame,
                     hyper: dict[str, dict[str, Any]], params: CoupledParams, tuning_keys: pd.DataFrame | None,
-                    n_jobs: int | None, progress: Callable[..., Any] | None = None) -> dict[str, Any]:
+                    n_jobs: int | None, cache: SearchCache, progress: Callable[..., Any] | None = None
+                    ) -> dict[str, Any]:
     est = build_model(model, hyper.get(model), params, train=train_test)
     cols = model_inputs(model, params)
     _check_columns(train_test, cols, model)
@@ -328,7 +353,7 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     # nested: each fold searches its own hyperparameters on its training blocks; the final model (below) uses the
     # tune stage's, searched on the whole train_test block it is fitted on
     nested = params.tuning == "nested" and model not in EXPLICIT_MODELS
-    cv_est = NestedTuned(model, params, noise_std_from(train_test)) if nested else est
+    cv_est = NestedTuned(model, params, noise_std_from(train_test), cache) if nested else est
     folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
                                    outputs=params.outputs, n_jobs=n_jobs, progress=progress)
     final_est = est.fit(X, y)
@@ -341,82 +366,114 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     return {"folds": folds, "summary": summarize_folds(folds), "final": final, "estimator": final_est}
 
 
-def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1) -> dict[str, Any]:
-    """Everything on one table with a ``split`` column: tune, CV, final check (no files). A model that fails
-    is left out of ``results`` and named in ``failed`` (``{model: {"error", "reason"}}``); the others stay."""
+def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
+              cache: SearchCache | None = None) -> dict[str, Any]:
+    """Everything on one table with a ``split`` column: tune, CV, final check (no files), the searches of both
+    through one :class:`SearchCache` (``cache``, default a new one). A model that fails is left out of ``results``
+    and named in ``failed`` (``{model: {"error", "reason"}}``); the others stay."""
+    cache = cache if cache is not None else SearchCache()
     blocks = split_blocks(frame)
-    block = "train_test" if params.tuning == "nested" else "tuning"
-    hyper, trace = tune(blocks[block], params, n_jobs=n_jobs, split=block)
+    block = tuning_block(params)
+    hyper, trace = tune(blocks[block], params, n_jobs=n_jobs, split=block, cache=cache)
     failed: dict[str, dict[str, str]] = {}
     results = evaluate_models(blocks["train_test"], blocks["test"], hyper, params,
-                              tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs, failures=failed)
+                              tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs, failures=failed,
+                              cache=cache)
     return {"hyper": hyper, "trace": trace, "results": results, "failed": failed}
 
 
-# -- tables and figures ------------------------------------------------------------------------------------
-
-def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], inputs: Sequence[str]) -> str:
-    """Table II-like markdown: chosen hyperparameters per model and output (gammas on standardized inputs)."""
-    lines = ["| Regressor | Hyperparameter | " + " | ".join(outputs) + " |",
-             "| --- | --- | " + " | ".join("---:" for _ in outputs) + " |"]
-    for model, per_out in hyper.items():
-        first = per_out[outputs[0]]
-        rows: list[tuple[str, list[float]]] = [("epsilon", [per_out[o]["epsilon"] for o in outputs]),
-                                               ("C", [per_out[o]["C"] for o in outputs])]
-        if all("C_rows" in per_out[o] for o in outputs):  # the rows that C was chosen on (svr.scaled_C)
-            rows.append(("C chosen on rows", [per_out[o]["C_rows"] for o in outputs]))
-        if "gammas" in first:
-            rows += [(f"gamma_{inp}", [per_out[o]["gammas"][i] for o in outputs]) for i, inp in enumerate(inputs)]
-        else:
-            rows += [(k, [per_out[o][k] for o in outputs]) for k in first if k.startswith("gamma")]
-        for k, (name, vals) in enumerate(rows):
-            label = MODEL_LABELS.get(model, model) if k == 0 else ""
-            lines.append(f"| {label} | {name} | " + " | ".join(f"{v:.3g}" for v in vals) + " |")
-    return "\n".join(lines) + "\n"
 
 
-def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, dict[str, str]] | None = None
-           ) -> tuple[str, dict[str, Any]]:
-    """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check.
-    The models in ``failed`` are named under the table (JSON: ``{model: {"failed": entry}}``)."""
-    lines = ["| Model | Output | train R² mean | train R² SD | test R² mean | test R² SD | test MAE mean | "
-             "final-check R² |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    doc: dict[str, Any] = {}
-    for model, res in results.items():
-        doc[model] = {"cv": res["summary"], "final": res["final"]}
-        for out in outputs:
-            s = res["summary"][out]
-            final = f"{res['final'][out]['r2']:.3f}" if res["final"] else "n/a"
-            lines.append(f"| {MODEL_LABELS.get(model, model)} | {out} | {s['train_r2']['mean']:.3f} | "
-                         f"{s['train_r2']['sd']:.3f} | {s['test_r2']['mean']:.3f} | {s['test_r2']['sd']:.3f} | "
-                         f"{s['test_mae']['mean']:.4g} | {final} |")
-    for model, entry in (failed or {}).items():
-        doc[model] = {"failed": entry}
-        lines.append(f"\nFailed, not in the table: {MODEL_LABELS.get(model, model)} "
-                     f"({entry['error']}: {entry['reason']})")
-    return "\n".join(lines) + "\n", doc
+# -- the stages ----------------------------------------------------------------------------------------------
+
+def tuning_block(params: CoupledParams) -> str:
+    """The split the searches run on: ``train_test`` (``coupled.tuning: nested``) or ``tuning`` (``split``)."""
+    return "train_test" if params.tuning == "nested" else "tuning"
 
 
-def fold_boxplot(results: dict[str, Any], outputs: Sequence[str], target: Any) -> None:
-    """Fig. 4-like box plots of the fold test R² per model, one panel per output (PNG, Agg)."""
-    import matplotlib
+def tune_columns(params: CoupledParams, available: Collection[str]) -> list[str]:
+    """The feature-store columns the tune stage reads (of ``available``, the store's)."""
+    cols = sorted({c for m in params.models for c in model_inputs(m, params)} | set(params.inputs)
+                  | set(params.outputs))
+    # a gray box's base is weighted by the smoother's SDs here as in train, so its residual is the one tuned on
+    cols += [c for c in NOISE_STD_COLUMNS if c in available]
+    return [*cols, "split"]
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from pipeline.tableio import atomic_path
+def tune_stage(frame: pd.DataFrame, params: CoupledParams, *, vehicle: str,
+               progress: Callable[..., Any] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The tune stage's work: :func:`tune` on the rows of :func:`tuning_block` (``frame``), with one
+    :class:`SearchCache` for the run. Returns ``(doc, trace)``: the document of hyperparameters.json (settings,
+    block, ``hyperparameters[model][output]``) and each search's :class:`SearchResult` as a dict."""
+    block = tuning_block(params)
+    hyper, trace = tune(frame, params, n_jobs=params.n_jobs, split=block, progress=progress, cache=SearchCache())
+    doc = {"vehicle": vehicle, "search": params.search, "seed": params.seed, "inputs": params.inputs,
+           "outputs": params.outputs, "tuning": params.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
+           "hyperparameters": hyper}
+    return doc, trace
 
-    fig, axes = plt.subplots(1, len(outputs), figsize=(4.2 * len(outputs), 4.0), squeeze=False)
-    models = list(results)
-    for ax, out in zip(axes[0], outputs, strict=True):
-        data = [[f["test"][out]["r2"] for f in results[m]["folds"]] for m in models]
-        ax.boxplot(data, whis=(0, 100))
-        ax.set_xticks(range(1, len(models) + 1), [MODEL_LABELS.get(m, m) for m in models], rotation=35,
-                      ha="right", fontsize=8)
-        ax.set_title(axis_label(out))
-        ax.set_ylabel("fold test R² [-]")
-        ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    with atomic_path(target) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
-    plt.close(fig)
+
+def train_columns(params: CoupledParams, available: Collection[str]) -> list[str]:
+    """The feature-store columns the train stage reads (of ``available``, the store's)."""
+    cols = ["t_ns", *sorted({c for m in params.models for c in model_inputs(m, params)} | set(params.outputs))]
+    cols += [c for c in NOISE_STD_COLUMNS if c in available]  # the explicit models' errors-in-variables weights
+    return cols
+
+
+def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, vehicle: str,
+               hyper: dict[str, Any], data_lineage: Any, train_test: pd.DataFrame, test: pd.DataFrame
+               ) -> dict[str, Any]:
+    """The card of a fitted model (:func:`pipeline.models.card.save_model` adds versions and the file's hash)."""
+    card = {"model": model, "study": "coupled 3-DOF (paper 000)", "vehicle": vehicle,
+            "inputs": model_inputs(model, params), "outputs": params.outputs,
+            "hyperparameters": hyper.get(model, {"solver": "tls"}), "seed": params.seed,
+            "params_hash": config_hash(params), "data_lineage": data_lineage,
+            "trained_on": {"split": "train_test", "rows": len(train_test),
+                           "trials": sorted(train_test["trial"].unique())},
+            "scores": {"cv": result["summary"], "final_check": result["final"],
+                       "final_check_trials": sorted(test["trial"].unique())}}
+    estimator = result["estimator"]
+    if hasattr(estimator, "coefficients"):
+        card["coefficients"] = estimator.coefficients()
+    if getattr(estimator, "refine", False):  # coupled.explicit_refine
+        cost = estimator.refine_cost_
+        card["refinement"] = {"refined": bool(estimator.refined_),
+                              "free_run_cost": None if cost is None else {"wtls": cost[0], "refined": cost[1]},
+                              "horizon_s": params.refine_horizon_s}
+    return card
+
+
+def metrics(results: dict[str, Any], failed: dict[str, dict[str, str]]) -> dict[str, Any]:
+    """metrics.json: per model and output the CV test R² (mean, SD) and the final check's; the failed models'
+    reasons."""
+    out: dict[str, Any] = {
+        m: {o: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
+                "final_r2": (r["final"] or {}).get(o, {}).get("r2")} for o, s in r["summary"].items()}
+        for m, r in results.items()}
+    out.update({m: {"failed": f"{e['error']}: {e['reason']}"} for m, e in failed.items()})
+    return out
+
+
+def train_stage(train_test: pd.DataFrame, test: pd.DataFrame, tuning_keys: pd.DataFrame,
+                hyper: dict[str, dict[str, Any]], params: CoupledParams, *, vehicle: str, data_lineage: Any,
+                failures: dict[str, dict[str, str]],
+                on_model: Callable[[str, dict[str, Any] | None, dict[str, Any] | None], None] | None = None,
+                progress: Callable[..., Any] | None = None) -> dict[str, Any]:
+    """The train stage's work: :func:`evaluate_models` with the tuned ``hyper``, the nested folds' searches through
+    one :class:`SearchCache` for the run. A model that fails is recorded in ``failures`` and the others go on;
+    ``on_model(model, result, card)`` as each model finishes (its :func:`model_card`), ``(model, None, None)`` as
+    one fails, so the stage writes it at once. Returns the results; a ModelError when every model failed."""
+
+    def finished(model: str, res: dict[str, Any] | None) -> None:
+        if on_model is not None:
+            card = None if res is None else model_card(model, res, params, vehicle=vehicle, hyper=hyper,
+                                                       data_lineage=data_lineage, train_test=train_test, test=test)
+            on_model(model, res, card)
+
+    results = evaluate_models(train_test, test, hyper, params, tuning_keys=tuning_keys[["trial", "t_ns"]],
+                              n_jobs=params.n_jobs, failures=failures, on_model=finished, progress=progress,
+                              cache=SearchCache())
+    if not results:
+        raise ModelError("every coupled model failed: " + "; ".join(f"{m}: {e['reason']}"
+                                                                   for m, e in failures.items()))
+    return results
