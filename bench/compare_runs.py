@@ -22,6 +22,9 @@ from typing import Any
 TIMING_KEYS = re.compile(r"(^|_)(time|times|timing|timings|seconds|elapsed|wall|cpu|duration|started|finished|"
                          r"fit_time|score_time|predict_time|fit_s|predict_s|s_per_fit|rows_per_s|created|date)($|_)",
                          re.IGNORECASE)
+#: A report table's column of measured times (by its header), and a figure of them (by its alt text).
+TIMING_HEADER = re.compile(r"time|longest fit", re.IGNORECASE)
+TIMING_FIGURE = re.compile(r'<img alt="[^"]*timing[^"]*" src="[^"]*"', re.IGNORECASE)
 #: Files whose content is a timing or a log by nature.
 TIMING_FILES = re.compile(r"(timings?\.json|timings?\.png|\.log)$")
 
@@ -40,6 +43,28 @@ def _json_diff(a: Path, b: Path) -> str:
     except ValueError:
         return "differs (not JSON)"
     return "timing only" if _strip(da) == _strip(db) else "differs"
+
+
+def _cells(row: str) -> list[str]:
+    return re.split(r"(?=<t[dh][ >])", row)
+
+
+def html_without_timing(text: str) -> str:
+    """The report with its timing columns emptied and its timing figures dropped."""
+    def table(match: re.Match[str]) -> str:
+        rows = re.split(r"(?=<tr[ >])", match.group(0))
+        header = next((r for r in rows if re.search(r"<th[ >]", r)), "")
+        drop = {i for i, c in enumerate(_cells(header)) if TIMING_HEADER.search(re.sub(r"<[^>]+>", "", c))}
+        if not drop:
+            return match.group(0)
+        return "".join("".join("<td>" if i in drop and not re.match(r"<th[ >]", c) else c
+                               for i, c in enumerate(_cells(r))) for r in rows)
+    return TIMING_FIGURE.sub("<img>", re.sub(r"<table.*?</table>", table, text, flags=re.S))
+
+
+def _html_diff(a: Path, b: Path) -> str:
+    same = html_without_timing(a.read_text()) == html_without_timing(b.read_text())
+    return "timing only" if same else "differs"
 
 
 def _parquet_diff(a: Path, b: Path) -> str:
@@ -70,6 +95,8 @@ def compare(run_a: Path, run_b: Path) -> list[tuple[str, str]]:
             verdict = "timing only"
         elif rel.suffix == ".json":
             verdict = _json_diff(a, b)
+        elif rel.suffix == ".html":
+            verdict = _html_diff(a, b)
         elif rel.suffix == ".parquet":
             verdict = _parquet_diff(a, b)
         else:
