@@ -38,12 +38,15 @@ def test_sklearn_contract(estimator, check):
     check(estimator)
 
 
-def test_graybox_at_least_as_good_as_its_parents():
-    """Truth outside both families (thrust lost to inflow, a tanh term, linear damping): the gray box, tuned as the
-    study tunes it, scores at least the better of McFarland-Whitcomb and WDSE-SVR on every output of an unseen
-    trial."""
-    frame = synthetic_frame(1500, rate_hz=4.0, seed=2, noise=0.02)
-    test = synthetic_frame(800, rate_hz=4.0, seed=3, noise=0.02, split="test", trial="syn02")
+#: Five training/unseen-trial pairs (seed, seed + 1), declared before any was scored: one seed's R² on one output
+#: moves by a few hundredths with the search's path, which a single seed and a 0.01 margin cannot carry.
+GRAYBOX_SEEDS = (2, 4, 6, 8, 10)
+
+
+def _parents_and_graybox(seed: int) -> dict[str, np.ndarray]:
+    """Test-trial R² per output of WDSE-SVR, McFarland-Whitcomb and the gray box, trained on ``seed``'s trial."""
+    frame = synthetic_frame(1500, rate_hz=4.0, seed=seed, noise=0.02)
+    test = synthetic_frame(800, rate_hz=4.0, seed=seed + 1, noise=0.02, split="test", trial="syn02")
     params = CoupledParams(models=["wdse_svr", "mcfarland_whitcomb", "graybox"], max_evals=12, tuning_folds=3)
     tuning, train = frame[frame["split"] == "tuning"], frame[frame["split"] == "train_test"]
     hyper, _ = tune(tuning, params)
@@ -54,17 +57,23 @@ def test_graybox_at_least_as_good_as_its_parents():
         est = build_model(model, hyper.get(model), params, train=train)
         est.fit(train[cols].to_numpy(float), train[params.outputs].to_numpy(float))
         pred = est.predict(test[cols].to_numpy(float))
-        scores[model] = {o: s["r2"] for o, s in regression_scores(test[params.outputs].to_numpy(float), pred,
-                                                                   params.outputs).items()}
-    # Measured (thrust inputs, the default): WDSE 0.973 / 0.937 / 0.943, gray box 0.990 / 0.978 / 0.938; with the
-    # paper's speed inputs the WDSE was far below (0.849 / 0.908 / 0.726) and the gray box 0.991 / 0.986 / 0.928.
-    # Where the WDSE alone already learns an output (r_dot) the gray box matches it within the search's noise; over
-    # the outputs it is clearly the better model.
-    for out in params.outputs:
-        parents = max(scores["wdse_svr"][out], scores["mcfarland_whitcomb"][out])
-        assert scores["graybox"][out] >= parents - 0.01, (out, scores)
-    mean = {m: np.mean([scores[m][o] for o in params.outputs]) for m in scores}
-    assert mean["graybox"] > max(mean["wdse_svr"], mean["mcfarland_whitcomb"]) + 0.01, (mean, scores)
+        scores[model] = np.array([s["r2"] for s in regression_scores(test[params.outputs].to_numpy(float), pred,
+                                                                     params.outputs).values()])
+    return scores
+
+
+def test_graybox_at_least_as_good_as_its_parents():
+    """Truth outside both families (thrust lost to inflow, a tanh term, linear damping): the gray box, tuned as the
+    study tunes it, scores on unseen trials, averaged over five training/test pairs, at least the better of
+    McFarland-Whitcomb and WDSE-SVR on every output (within 0.01), clearly more over the outputs, and collapses
+    on no single trial."""
+    runs = [_parents_and_graybox(seed) for seed in GRAYBOX_SEEDS]
+    graybox = np.array([r["graybox"] for r in runs])  # (seeds, outputs)
+    parents = np.array([np.maximum(r["wdse_svr"], r["mcfarland_whitcomb"]) for r in runs])
+    assert np.all(graybox.mean(axis=0) >= parents.mean(axis=0) - 0.01), (graybox, parents)
+    mean = {m: np.mean([r[m] for r in runs]) for m in runs[0]}
+    assert mean["graybox"] > max(mean["wdse_svr"], mean["mcfarland_whitcomb"]) + 0.01, (mean, graybox, parents)
+    assert np.all(graybox >= parents - 0.05), (graybox, parents)
 
 
 def test_graybox_columns_and_clone():
