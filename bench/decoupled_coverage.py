@@ -4,9 +4,9 @@
     python bench/decoupled_coverage.py --configs default corrected     # the table of docs/models.md
 
 Each seed set is three single-DOF trials of the project's simulator (surge 120 s, sway 45 s, yaw 100 s, DVL
-drop-outs on; the trials of tests/test_decoupled_sim.py with seeds 11 + 100 k ...) written as MCAP and taken through
-the real stages (ingest ... features). On each DOF's train_test rows (at most 400, as the test) it fits LS and the
-GP with and without the (nu, nu|nu|) warp, and scores the curves on 2-98 % of the DOF's velocities against the
+drop-outs on; the trials of tests/rollout/test_decoupled_sim.py with seeds 11 + 100 k ...) written as MCAP and taken
+through the real stages (ingest ... features). On each DOF's train_test rows (at most 400, as the test) it fits LS and
+the GP with and without the (nu, nu|nu|) warp, and scores the curves on 2-98 % of the DOF's velocities against the
 simulator's true damping: coverage = fraction of the curve inside mean +- 2 sd, errors = mean |curve - truth|.
 Configs: ``default`` = the default differentiate params (plain Gaussian derivative, 0.25 s); ``corrected`` = the
 bias-corrected kernel (``gaussian_degree: 4``) at 0.35 s, ``corrected-0.25`` the same at 0.25 s. Prints one
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for path in (ROOT, ROOT / "tests"):
+for path in (ROOT,):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
@@ -45,10 +45,9 @@ def true_curve(dof: str, x: np.ndarray) -> np.ndarray:
 
 def seed_set(root: Path, k: int, differentiate: dict) -> dict[str, object]:
     """The train_test rows of each DOF's trial for seed set ``k``."""
-    from helpers_sim_store import build_store
-
     from pipeline import store
     from pipeline.config import Params
+    from tests.studies.helpers import build_store
 
     params = Params(features={"test_trials": []}, differentiate=differentiate)
     specs = {"surge": ("surge", 11 + 100 * k, 120.0, True), "sway": ("sway", 12 + 100 * k, 45.0, True),

@@ -6,7 +6,7 @@
     python bench/fuzz_ingest.py --replay mcap-zstd:17    # one case in-process, with its traceback
     python bench/fuzz_ingest.py --replay mcap-zstd:17 --keep /tmp/case   # and keep the mutated log
 
-Seeds: the synthetic trial of ``tests/io_helpers.py`` (a custom DVL type, an Imu, a JointState) written as MCAP
+Seeds: the synthetic trial of ``tests/io/helpers.py`` (a custom DVL type, an Imu, a JointState) written as MCAP
 (zstd, lz4, none, unchunked, no summary), ROS 1 (none, bz2, lz4, unindexed), ROS 2 (sqlite3, file-compressed
 zstd, MCAP storage) and CSV (plain, gzip). Each case applies one mutation, drawn from ``random.Random`` seeded
 with ``"{seed}:{format}:{index}"`` (so any case can be replayed alone): bit flips, a run of random bytes, a
@@ -48,7 +48,7 @@ from typing import Any
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT)]
 
 OUTCOMES = ["ok", "reported", "error", "uncaught", "memory", "hang", "crash", "silent-loss", "silent-dup"]
 FORMATS = ["mcap-zstd", "mcap-lz4", "mcap-none", "mcap-unchunked", "mcap-nosummary", "ros1-none", "ros1-bz2",
@@ -63,7 +63,7 @@ CSV_ROWS = 60
 # -- seeds ---------------------------------------------------------------------------------------------------
 def write_seed(fmt: str, where: Path) -> tuple[Path, Path]:
     """Write the intact log of ``fmt`` under ``where``: (the path to open, the file to mutate)."""
-    import io_helpers as h
+    from tests.io import helpers as h
 
     msgs = h.trial(n=10, seed=7)
     where.mkdir(parents=True, exist_ok=True)
@@ -201,9 +201,8 @@ def read_counts(fmt: str, path: Path) -> tuple[dict[str, int], Any]:
         reported = (result.salvage and (result.salvage.reason, result.salvage.kept), dropped) \
             if result.salvage is not None or dropped else None
     else:
-        import io_helpers as h
-
         from pipeline.io import open_log
+        from tests.io import helpers as h
 
         with open_log(path) as reader:
             listed = reader.topics()

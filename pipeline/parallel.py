@@ -23,7 +23,7 @@ Library code does not care which: it calls ``joblib.Parallel(n_jobs=n_jobs())`` 
 manager the CLI enters; ``backend()`` is the same with the scheduler taken from the environment.
 
 joblib itself (a noticeable import) is imported where a pool starts or a Dask backend is entered: a run
-that fans nothing out (``auvid ingest`` of one log) never pays for it (``tests/test_import_budget.py``).
+that fans nothing out (``auvid ingest`` of one log) never pays for it (``tests/io/test_import_budget.py``).
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from pipeline.config.base import Frozen
 from pipeline.vocabulary import DOFS
 
 #: The model names params may give, checked at load without importing the modelling stack (``auvid ingest`` loads
-#: params too); tests/test_config_refuses.py keeps them equal to pipeline.studies.coupled's and
+#: params too); tests/config/test_config_refuses.py keeps them equal to pipeline.studies.coupled's and
 #: pipeline.models.decoupled's.
 COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox",
                   "graybox_gh")

@@ -25,7 +25,7 @@ _MERGE_TAG = "tag:yaml.org,2002:merge"
 
 #: libyaml's parser where PyYAML was built with it (its wheels are): far cheaper than the pure-Python one, whose
 #: parsing is most of loading a config (docs/benchmarks.md); the resolver and constructor are PyYAML's either way.
-#: libyaml stops nesting at 1,000 levels itself. tests/test_config_refuses.py runs every unreadable-file case
+#: libyaml stops nesting at 1,000 levels itself. tests/config/test_config_refuses.py runs every unreadable-file case
 #: through both parsers.
 _Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
