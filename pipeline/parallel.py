@@ -50,7 +50,7 @@ LOCAL = "local"
 #: differentiate and derive) below which a local process pool does not pay and ``pmap`` runs serially.
 #: A pool pays only once a stage has several seconds of serial work (its start-up and the first run of a stage's
 #: code in its workers cost seconds); the value is the conservative side, for a machine shared with other work.
-#: Measured with ``bench/parallel.py --sweep``: docs/notes-io.md, "Pool threshold".
+#: Measured with ``bench/parallel.py --sweep``: docs/benchmarks.md, "Pool threshold".
 POOL_MIN_BYTES = 64_000_000
 
 T = TypeVar("T")
@@ -341,7 +341,7 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
     A forked worker starts with everything this process has imported (the stage modules, numpy, pandas, pyarrow)
     and costs a few ms, where a spawned loky worker starts an interpreter and imports them again. Inside a local
     backend the workers are kept for the next fan-out (the next stage): a fresh process also pays for faulting
-    in its heap again (docs/notes-io.md, "Forked workers"). Any exception (a worker's, or Ctrl-C here) cancels
+    in its heap again (docs/benchmarks.md, "Forked workers"). Any exception (a worker's, or Ctrl-C here) cancels
     what has not started and ends the workers before it propagates.
     """
     import multiprocessing

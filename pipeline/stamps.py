@@ -106,7 +106,7 @@ def check_stamps(stamps_ns: np.ndarray, *, clock: str, log_ns: np.ndarray | None
     n = int(t.size)
     checked = label or {"header": "header stamps", "log": "log times", "column": "time column"}.get(clock, clock)
     # One scratch array holds the intervals, then header - log; each median partitions it in place: fresh pages
-    # of stamp-sized temporaries are much of a long stream's check (docs/notes-io.md, "Stamp checks").
+    # of stamp-sized temporaries are much of a long stream's check (docs/benchmarks.md, "Stamp checks").
     work = np.empty(n, dtype=np.int64)
     diffs = np.subtract(t[1:], t[:-1], out=work[:max(n - 1, 0)])
     zeros = int((t == 0).sum())

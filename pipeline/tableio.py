@@ -70,7 +70,7 @@ def write_parquet(table: pa.Table, target: str | Path, provenance: dict[str, Any
     metadata. zstd level 1: much less compression time than level 3 for a few per cent more bytes, which
     matters for ingest, the stage that grows with the logs. Each column is encoded as :func:`column_encodings`
     says (floats byte-stream-split, integers delta-packed): fewer bytes than plain encoding and less CPU, since
-    zstd then works on bytes it can compress (figures: docs/notes-io.md, "Parquet encodings").
+    zstd then works on bytes it can compress (figures: docs/benchmarks.md, "Parquet encodings").
     """
     import pyarrow.parquet as pq
 

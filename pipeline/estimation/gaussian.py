@@ -7,7 +7,7 @@
   degree 4, cancelling the plain kernel's bias sigma^2/2 x'''. That bias matters: with quadratic damping, x''' holds
   a term in sign(u) u_dot^2, so the plain kernel's damping target steps across u = 0. The corrected kernel is not
   the default: with it, the coupled acceptance ranking changes (``docs/models.md``; figures in
-  ``docs/notes-estimation.md``).
+  ``docs/benchmarks.md``).
 - Edge rule: the kernel is truncated at ``edge_sigmas`` sigma (4 when ``edge_sigmas`` < 1), and exactly the samples
   whose kernel would reach past a segment edge are dropped (:func:`edge_samples`). Edges are reflected, so the
   kept samples never see the reflection.

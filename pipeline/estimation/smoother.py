@@ -22,7 +22,7 @@ standard deviations is dropped and the problem solved again (twice at most).
 
 Why not a library: pykalman and statsmodels' state space models run a recursion per measurement, with time
 varying matrices for irregular stamps, far slower over a long trial's few dozen likelihood evaluations (figures:
-``docs/notes-estimation.md``), and neither gives the exact likelihood of measurements between grid steps without
+``docs/benchmarks.md``), and neither gives the exact likelihood of measurements between grid steps without
 adding every stamp as a step.
 
 States are scaled, z = (x, h x', h^2 x''), so the matrices are well conditioned whatever the grid step.

@@ -128,7 +128,7 @@ def field_view(rows: np.ndarray, at: int, dtype: np.dtype | str) -> np.ndarray:
 
 #: Batches of the indexed readers (MCAP and ROS 1 chunks): small enough that a batch's record headers and
 #: payloads are still in the CPU's caches when they are located and gathered after the read
-#: (docs/notes-io.md, "Batch size").
+#: (docs/benchmarks.md, "Batch size").
 BATCH_BYTES = 4 << 20
 #: Batches of a streamed record walk (:func:`stream_walk`): smaller, since up to ``ahead`` + 2 of them are alive at
 #: once (queued, being filled, being decoded), each as its payloads and then their joined copy.
@@ -257,7 +257,7 @@ PAGE = 4096
 def aligned_empty(size: int, phase: int = 0):
     """An uninitialised uint8 array of ``size`` bytes that starts ``phase`` bytes after a page boundary.
 
-    The kernel copies a read from the page cache several times slower (docs/notes-io.md, "Read alignment")
+    The kernel copies a read from the page cache several times slower (docs/benchmarks.md, "Read alignment")
     when the destination lies 8 to 40 bytes after the source in their pages ("4K aliasing" of the copy's loads
     and stores), and a large numpy array starts 16 bytes into a page: every page-aligned read into one (a sqlite
     page) hit it. A reader places each read at its file offset's phase in the page instead."""

@@ -31,7 +31,7 @@ WINDOW = 256  # recent message records compared with a new one that does not adv
 
 def crc(data: bytes | memoryview | Any) -> int:
     """CRC-32 (zlib's polynomial, as MCAP's chunk CRCs) of a bytes-like object: the check of every MCAP chunk, a
-    visible share of an ingest through zlib, much less through ISA-L (docs/notes-io.md, "Chunk CRCs")."""
+    visible share of an ingest through zlib, much less through ISA-L (docs/benchmarks.md, "Chunk CRCs")."""
     return int(_crc32(data))
 
 

@@ -82,7 +82,7 @@ def index_walk(path: Path) -> IndexedFile | None:
 class _Window:
     """Positioned reads of a file through one window of ``size`` bytes: the small records between two chunks
     (a chunk's header, short message indexes, the next header) come with one system call, not two per record.
-    64 KiB: a larger window copies more than the indexes it serves (docs/notes-io.md, "Index window")."""
+    64 KiB: a larger window copies more than the indexes it serves (docs/benchmarks.md, "Index window")."""
 
     def __init__(self, fd: int, size: int = 64 << 10) -> None:
         self.fd, self.size = fd, size

@@ -1,7 +1,7 @@
 """The rows of an intact rosbag2 ``messages`` table read from its b-tree pages, many at a time, with numpy.
 
 sqlite hands rows over one at a time, and even its aggregates (one ``group_concat`` row per batch) cost more CPU
-than rosbags' raw iteration (docs/notes-io.md, "sqlite3 fetches"). The table's pages hold the same bytes
+than rosbags' raw iteration (docs/benchmarks.md, "sqlite3 fetches"). The table's pages hold the same bytes
 in a simple format (https://sqlite.org/fileformat2.html): here the b-tree is walked from the table's root page
 (found in ``sqlite_master`` by sqlite itself) level by level to list the leaf pages in key (``id``) order; then
 ~16 MB of leaves at a time are read with one positioned read into a reused buffer, and every cell of them is

@@ -203,7 +203,7 @@ class Commander:
 
 def scalar_rhs(dyn: Dynamics):
     """A pure-Python right-hand side for one state (list in, list out): for a 17-element state the vectorized
-    numpy version's cost is array overhead (figures: docs/notes-rollout.md). Same equations as
+    numpy version's cost is array overhead (figures: docs/benchmarks.md). Same equations as
     :meth:`Dynamics.nu_dot` / :meth:`Dynamics.eta_dot` (the tests compare them)."""
     ms = 0.5 * (dyn.M + dyn.M.T)
 

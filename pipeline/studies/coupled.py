@@ -222,7 +222,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum. The
     # chain runs even where the simpler kernels are not asked for (their results serve as warm starts only): a
     # lone WDSE search of 8 hyperparameters from the GP seed lands far from the chain's optimum
-    # (docs/notes-studies.md)
+    # (docs/benchmarks.md)
     wanted = [m for m in SVR_MODELS if m in params.models]
     order = SVR_MODELS[:SVR_MODELS.index(wanted[-1]) + 1] if wanted and params.search == "fast" else wanted
     n_searches, k_search = (len(order) + len(graybox)) * len(params.outputs), 0

@@ -263,7 +263,7 @@ def _concatenated_rows(con: sqlite3.Connection, wanted: dict[int, str],
     over the next rows in ``id`` order: ``group_concat`` of the ids, stamps and payload lengths (decimal text, read
     by numpy) and of the payloads themselves (one blob). Per message, sqlite does the work in C and Python none:
     about half the CPU of the rows fetched as tuples, and no driver to import (ADBC's import took pyarrow.dataset
-    and pandas along; docs/notes-io.md, "sqlite3 fetches"). A row whose types are not integer, integer, blob raises
+    and pandas along; docs/benchmarks.md, "sqlite3 fetches"). A row whose types are not integer, integer, blob raises
     :class:`_DamagedRow`. ``after``: only the rows whose id is greater.
     """
     # A stamp or topic id that is not an integer ('soon', 1.5) is text that numpy refuses; a payload that is not a
