@@ -13,7 +13,7 @@ batch (``run_models``, one call per RK4 stage); bridging of all of them and all 
 
 Usage: nice python bench/rollout.py [trial_s=480] [train_s=300]
 
-Results: docs/benchmarks.md, "Free-run rollouts" (figures of the re-layout's move: docs/notes-rollout.md).
+Results: docs/benchmarks.md, "Free-run rollouts" (figures of the re-layout's move: docs/benchmarks.md).
 """
 
 from __future__ import annotations

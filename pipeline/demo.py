@@ -82,7 +82,7 @@ def _add_modeline(path: Path, kind: str) -> None:
     path.write_text(schema_modeline(kind) + "\n" + "".join(lines), encoding="utf-8")
 
 
-def _simulate(target: Path, duration_s: float, seed: int) -> Any:
+def _generate_logs(target: Path, duration_s: float, seed: int) -> Any:
     try:
         from pipeline.sim import example
     except ImportError as err:
@@ -99,7 +99,7 @@ def prepare(out: str | Path, *, duration_s: float | None = None, seed: int = 0) 
     gen = out / ".example"
     if gen.exists():
         shutil.rmtree(gen)
-    written = _simulate(gen, duration_s or DEFAULT_DURATION_S, seed)
+    written = _generate_logs(gen, duration_s or DEFAULT_DURATION_S, seed)
     vehicles = [Path(written.vehicle)] if getattr(written, "vehicle", None) else sorted(gen.rglob("vehicle.yaml"))
     if not vehicles:
         raise PipelineError("the example simulator wrote no vehicle.yaml", file=gen)

@@ -168,7 +168,7 @@ def test_demo_lays_out_a_run_and_prints_the_report(tmp_path: Path, monkeypatch: 
         return types.SimpleNamespace(vehicle=target / "vehicle.yaml", trials=logs)
 
     dag = FakeDag().install(monkeypatch)
-    monkeypatch.setattr(demo, "_simulate", fake_example)
+    monkeypatch.setattr(demo, "_generate_logs", fake_example)
 
     def report(root: Path, vehicle: object, params: object) -> common.StageResult:
         out = Path(root) / "reports/report.html"
