@@ -58,7 +58,11 @@ EPSILON_GRID = (1e-3, 1e-2, 3e-2, 1e-1, 3e-1)  # x y_scale
 GAMMA_BOUNDS = (1e-5, 1e2)
 C_BOUNDS = (1e-2, 1e3)  # x y_scale (fast search)
 EPSILON_BOUNDS = (1e-3, 0.5)  # x y_scale (fast search)
-MAX_ITER: int | None = None  # libsvm's iterations per candidate fit of a search (docs/models.md)
+#: libsvm's iterations per candidate fit of a search, per training row of the fold (docs/models.md): above the
+#: slowest candidate of the demo's searches (940 per row), so a runaway fit is stopped and reported while the
+#: demo's choices stay as they were; a tighter cap (300) moved r_dot's choices to lower tuning scores
+ITER_PER_ROW: float | None = 1000.0
+SLOW_FIELDS = ("params", "score", "cpu_s", "n_iter", "capped")  # a slowest candidate's fields in the trace
 
 
 @dataclass
@@ -91,7 +95,7 @@ class SearchSettings:
     n_folds: int = 3
     n_jobs: int | None = 1
     n_velocity: int = 3
-    max_iter: int | None = MAX_ITER  # libsvm's iterations per candidate fit (None: no cap)
+    iter_per_row: float | None = ITER_PER_ROW  # libsvm's iterations per candidate fit / training row (None: no cap)
     max_evals: int = 30  # fast search only, as the three below
     seed: int = 0
     smooth_tolerance: float = 0.0
@@ -100,7 +104,7 @@ class SearchSettings:
     def keywords(self) -> dict[str, Any]:
         """The keywords of :func:`search` for this method."""
         kw: dict[str, Any] = {"n_folds": self.n_folds, "n_jobs": self.n_jobs, "n_velocity": self.n_velocity,
-                              "max_iter": self.max_iter}
+                              "iter_per_row": self.iter_per_row}
         if self.method == "fast":
             kw.update(max_evals=self.max_evals, seed=self.seed, smooth_tolerance=self.smooth_tolerance,
                       one_se=self.one_se)
@@ -164,10 +168,6 @@ def grid_candidates(model: str, grid: dict[str, list[float]]) -> Iterator[dict[s
 
 # -- scoring ------------------------------------------------------------------------------------------
 
-def _fold_r2(est: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray) -> float:
-    return _fold_fit(est, X, y, train, test)[0]
-
-
 def _fold_fit(est: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray
               ) -> tuple[float, float, int]:
     """One candidate on one fold: its test R², the fit's CPU seconds (of the process that ran it) and libsvm's
@@ -198,6 +198,14 @@ def _cv_fits(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
     return list(Parallel(n_jobs=n_jobs)(delayed(_fold_fit)(est, X, y, tr, te) for tr, te in folds))
 
 
+def _iteration_cap(iter_per_row: float | None, folds: list[tuple[np.ndarray, np.ndarray]]) -> int | None:
+    """libsvm's iterations per candidate fit: ``iter_per_row`` x the folds' mean training rows (None: no cap)."""
+    if iter_per_row is not None and iter_per_row <= 0:
+        raise ModelError(f"iter_per_row must be > 0 or None, got {iter_per_row}")
+    rows = float(np.mean([len(tr) for tr, _ in folds]))
+    return None if iter_per_row is None else max(1, int(round(iter_per_row * rows)))
+
+
 def _candidate_entry(params: dict[str, Any], fits: list[tuple[float, float, int]], max_iter: int | None,
                      **extra: Any) -> dict[str, Any]:
     """A candidate's trace entry: mean fold R² (``score``), its standard error, the CPU seconds of its fits and
@@ -219,8 +227,7 @@ def cost_summary(trace: list[dict[str, Any]], max_iter: int | None, n_slowest: i
             "median_candidate_cpu_s": round(float(np.median(cpu)), 6) if cpu else 0.0,
             "max_candidate_cpu_s": round(float(max(cpu, default=0.0)), 6), "max_iter": max_iter,
             "n_capped": sum(1 for t in trace if t["capped"]),
-            "slowest_by_cpu": [{"candidate": k, **{f: trace[k][f] for f in ("params", "score", "cpu_s", "n_iter", "capped")}}
-                        for k in slowest]}
+            "slowest_by_cpu": [{"candidate": k, **{f: trace[k][f] for f in SLOW_FIELDS}} for k in slowest]}
 
 
 def cv_score(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
@@ -241,13 +248,15 @@ def _check_xy(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, list[float]] | None = None,
-                n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3, max_iter: int | None = MAX_ITER,
-                keep_trace: bool = False, progress: Progress | None = None) -> SearchResult:
+                n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3,
+                iter_per_row: float | None = ITER_PER_ROW, keep_trace: bool = False,
+                progress: Progress | None = None) -> SearchResult:
     """Exhaustive search (the paper's protocol). Candidates run in parallel through joblib; ``progress(done,
     total, desc)`` (optional) is called as their scores arrive, in candidate order."""
     X, y = _check_xy(X, y)
     grid = grid or paper_grid(model, X.shape[1], float(np.std(y)))
     folds = blocked_folds(len(X), n_folds)
+    max_iter = _iteration_cap(iter_per_row, folds)
     t0 = time.perf_counter()
     candidates = list(grid_candidates(model, grid))
     log.info("grid search %s: %d candidates x %d folds", model, len(candidates), n_folds)
@@ -338,7 +347,8 @@ def _log_bounds(n_gammas: int, y_sd: float) -> tuple[np.ndarray, np.ndarray]:
 def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n_jobs: int | None = 1,
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
-                warm_start: dict[str, Any] | None = None, max_fits: int | None = None, max_iter: int | None = MAX_ITER,
+                warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
+                iter_per_row: float | None = ITER_PER_ROW,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
                 local: str = "model", model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
     """GP-seeded adaptive pattern search on log scale (see module docstring).
@@ -369,6 +379,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
     folds = blocked_folds(len(X), n_folds)
+    max_iter = _iteration_cap(iter_per_row, folds)
     names = _names(model, X.shape[1])
     if max_fits is not None:
         max_evals = max(1, max_fits // n_folds)
@@ -433,16 +444,14 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
         result.best_params, result.best_score = _smoothest_within(trace, best, tolerance)
     result.elapsed_s = time.perf_counter() - t0
     cost = cost_summary(trace, max_iter)
-    # the calling process's CPU beyond the fits it ran itself (GP seeds, the EI model): with n_jobs == 1 every fit
-    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)
+    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)  # GP seeds, EI model steps
     result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
     _log_capped(result)
     return result
 
 
 def _log_capped(result: SearchResult) -> None:
-    cost = result.cost
-    if cost.get("n_capped"):
+    if (cost := result.cost).get("n_capped"):
         log.info("%s search: %d of %d candidates stopped at libsvm's %d iterations (scored as they are); "
                  "slowest %.3g CPU-s, median %.3g", result.model, cost["n_capped"], result.n_candidates,
                  cost["max_iter"], cost["max_candidate_cpu_s"], cost["median_candidate_cpu_s"])
