@@ -2,7 +2,8 @@
 predict over the same rows (the rows a rollout evaluates: steps x 4 RK4 stages x batch members).
 
 The models are fitted here on a synthetic plant with known damping (``pipeline.sim.synthetic.SyntheticPlant``, 20 Hz):
-RBF-, 2-weights- and WDSE-SVR on ``[u v r n1 n2 n3]`` (libsvm through ``pipeline.models.svr``), the decoupled
+RBF-, 2-weights- and WDSE-SVR on ``[u v r n1 n2 n3]`` (libsvm through ``pipeline.models.svr``), the gray box
+(McFarland-Whitcomb on ``[u v r tau_u tau_v tau_r]`` + a WDSE-SVR per output on its residual), the decoupled
 LS, KRR, SVR and GP on each DOF's damping (GP with its 32-member posterior band). Each model's free run, horizon
 errors (1, 5, 10 s) and, for the decoupled ones, DVL-outage bridging (10, 30, 60 s) are timed as the simulate
 stage runs them.
@@ -11,19 +12,26 @@ The coupled models run as the simulate stage runs them: per model, its free runs
 horizon windows in one batch (``run_model``); all decoupled models, the GP's band members included, in one
 batch (``run_models``, one call per RK4 stage); bridging of all of them and all outage lengths in one batch.
 
-Usage: nice python bench/rollout.py [trial_s=480] [train_s=300]
+Usage: nice python bench/rollout.py [trial_s=480] [train_s=300] [mode=stage]
+
+``mode``: ``stage`` (as the simulate stage runs: one BLAS thread, every model through its fast predictor) or
+``predict`` (as before issue 35: BLAS's default threads, the gray box through scikit-learn's ``predict``).
 
 Results: docs/benchmarks.md, "Free-run rollouts" (figures of the re-layout's move: docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from pipeline.models.decoupled import make_estimator
+from pipeline.models.explicit import McFarlandWhitcomb
+from pipeline.models.graybox import GrayBox
 from pipeline.models.svr import RBFSVR, WDSESVR, PerOutputRegressor, TwoWeightsSVR
 from pipeline.physics import coriolis_force
 from pipeline.rollout import (
@@ -50,6 +58,9 @@ def clock() -> tuple[float, float]:
 def main() -> None:
     trial_s = float(sys.argv[1]) if len(sys.argv) > 1 else 480.0
     train_s = float(sys.argv[2]) if len(sys.argv) > 2 else 300.0
+    mode = sys.argv[3] if len(sys.argv) > 3 else "stage"
+    if mode not in ("stage", "predict"):
+        raise SystemExit(f"mode must be 'stage' or 'predict', got {mode!r}")
     plant = SyntheticPlant()
     train = synthetic_trial(plant, duration_s=train_s, seed=1)
     test = synthetic_trial(plant, duration_s=trial_s, seed=2, gap_s=(0.4 * trial_s, 0.4 * trial_s + 5.0))
@@ -68,7 +79,15 @@ def main() -> None:
     }
     for est in coupled.values():
         est.fit(X, acc)
+    # the gray box on the study's columns [u v r tau_u tau_v tau_r n1 n2 n3]: base on the first six, residual on
+    # the velocities and the thruster speeds
+    X_gb = np.hstack([nu_tr, tau_tr, train[RPM].to_numpy()])
+    graybox = GrayBox(base=McFarlandWhitcomb(solver="ols"),
+                      residual=PerOutputRegressor([WDSESVR(gammas=[0.3, 0.2, 0.3, 0.1, 0.1, 0.1], C=1.0, epsilon=e)
+                                                   for e in eps]),
+                      residual_columns=(0, 1, 2, 6, 7, 8)).fit(X_gb, acc)
     n_sv = {m: [e.n_support_ for e in est.estimators_] for m, est in coupled.items()}
+    n_sv["graybox"] = [e.n_support_ for e in graybox.residual_.estimators_]
     decoupled = {}
     for name in ("ls", "krr", "svr", "gp"):
         decoupled[name] = {}
@@ -86,12 +105,19 @@ def main() -> None:
     horizons, outages = [1.0, 5.0, 10.0], [10.0, 30.0, 60.0]
     rows = []
 
+    blas = threadpool_limits(1, user_api="blas") if mode == "stage" else contextlib.nullcontext()
+    blas.__enter__()
     t0 = clock()
     for name, est in coupled.items():  # each coupled model: free runs + horizon windows in one batch
         a = clock()
         run, _ = run_model(name, CoupledDynamics(est), t_ns, nu, rpm, DOFS, horizons, segment=seg)
         b = clock()
         rows.append((f"coupled {name}", b[0] - a[0], b[1] - a[1], f"{run.metrics['u']['r2']:.3f}"))
+    a = clock()
+    run, _ = run_model("graybox", CoupledDynamics(graybox, fast=mode == "stage"), t_ns, nu, np.hstack([tau, rpm]),
+                       DOFS, horizons, segment=seg)
+    b = clock()
+    rows.append(("coupled graybox", b[0] - a[0], b[1] - a[1], f"{run.metrics['u']['r2']:.3f}"))
     a = clock()  # all decoupled models, the GP's band members too, in one batch (one call per RK4 stage)
     fs, batch = {}, {}
     for name, models in decoupled.items():
@@ -108,6 +134,7 @@ def main() -> None:
     b = clock()
     rows.append(("bridging (all decoupled)", b[0] - a[0], b[1] - a[1], None))
     total = (b[0] - t0[0], b[1] - t0[1])
+    blas.__exit__(None, None, None)
 
     # one SVR predict over the rows the three coupled free runs + horizons evaluated
     n_rows = 3 * 4 * (2 * len(t_ns))  # three models, 4 stages, free run + horizons (~1 row each per step)
@@ -118,7 +145,7 @@ def main() -> None:
     b = clock()
     predict = (b[0] - a[0], b[1] - a[1])
 
-    print(f"trial {trial_s:g} s at 20 Hz ({len(t_ns)} samples, one 5-s gap), SVRs trained on {train_s:g} s; "
+    print(f"mode {mode}; trial {trial_s:g} s at 20 Hz ({len(t_ns)} samples, one 5-s gap), SVRs trained on {train_s:g} s; "
           f"support vectors per output {n_sv}")
     print("| what | wall s | CPU s | free-run u R² |")
     print("| --- | ---: | ---: | ---: |")

@@ -20,14 +20,24 @@ import pyarrow as pa
 
 from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
-from pipeline.estimation.grid import filter_motion
-from pipeline.estimation.kalman import estimate_motion
 
-__all__ = ["METHODS", "differentiate", "kinematics"]
+__all__ = ["METHODS", "differentiate", "kinematics", "method_function"]
 
-#: ``params.method`` -> the function that estimates the motion: (synced, vehicle, params, streams) -> (table, report).
-METHODS: dict[str, Callable[..., tuple[pd.DataFrame, dict[str, Any]]]] = {
-    "kalman": estimate_motion, "gaussian": filter_motion, "savgol": filter_motion}
+#: The values of ``params.method``.
+METHODS = ("kalman", "gaussian", "savgol")
+
+
+def method_function(method: str) -> Callable[..., tuple[pd.DataFrame, dict[str, Any]]]:
+    """The function that estimates the motion by ``method``: (synced, vehicle, params, streams) -> (table, report).
+    Imported when asked for, so that a run imports only its method's modules (the grid filters' scipy.ndimage and
+    scipy.signal cost more to import than the default smoother needs; docs/benchmarks.md)."""
+    if method == "kalman":
+        from pipeline.estimation.kalman import estimate_motion
+        return estimate_motion
+    if method in ("gaussian", "savgol"):
+        from pipeline.estimation.grid import filter_motion
+        return filter_motion
+    raise ValueError(f"unknown differentiate method {method!r}; expected one of {list(METHODS)}")
 
 
 def differentiate(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
@@ -35,7 +45,7 @@ def differentiate(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateP
     """The kinematics table of the contract and the stage's report (noise per signal, the smoother or the filter
     widths, how much of the trial is usable). ``streams``: the trial's native streams (stem -> table), for the
     smoother and ``auto`` widths; without them the synced grid's samples stand in."""
-    return METHODS[params.method](synced, vehicle, params, streams)
+    return method_function(params.method)(synced, vehicle, params, streams)
 
 
 def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,

@@ -5,7 +5,6 @@ segment edge."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from pipeline.config.params import DifferentiateParams
 
@@ -21,5 +20,7 @@ def savgol_window(params: DifferentiateParams, dt_s: float, window_s: float | No
 
 def savgol_filters(x: np.ndarray, window: int, order: int, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     """``(smoothed, derivative)`` of uniformly sampled ``x``: Savitzky-Golay of ``order`` over ``window`` samples."""
+    from scipy.signal import savgol_filter  # here: scipy.signal costs ~0.6 CPU-s to import, for this method only
+
     smooth = savgol_filter(x, window, order, mode="interp")
     return smooth, savgol_filter(x, window, order, deriv=1, delta=dt_s, mode="interp")

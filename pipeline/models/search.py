@@ -58,6 +58,11 @@ EPSILON_GRID = (1e-3, 1e-2, 3e-2, 1e-1, 3e-1)  # x y_scale
 GAMMA_BOUNDS = (1e-5, 1e2)
 C_BOUNDS = (1e-2, 1e3)  # x y_scale (fast search)
 EPSILON_BOUNDS = (1e-3, 0.5)  # x y_scale (fast search)
+#: libsvm's iterations per candidate fit of a search, per training row of the fold (docs/models.md): above the
+#: slowest candidate of the demo's searches (940 per row), so a runaway fit is stopped and reported while the
+#: demo's choices stay as they were; a tighter cap (300) moved r_dot's choices to lower tuning scores
+ITER_PER_ROW: float | None = 1000.0
+SLOW_FIELDS = ("params", "score", "cpu_s", "n_iter", "capped")  # a slowest candidate's fields in the trace
 
 
 @dataclass
@@ -75,6 +80,7 @@ class SearchResult:
     warm_start_score: float | None = None  # fast search with a warm start: its tuning score
     warm_start_kept: bool = False  # fast search: the warm start was still the best at the end
     note: str = ""  # why (when warm_start_kept)
+    cost: dict[str, Any] = field(default_factory=dict)  # CPU, the iteration cap and the slowest candidates
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -89,6 +95,7 @@ class SearchSettings:
     n_folds: int = 3
     n_jobs: int | None = 1
     n_velocity: int = 3
+    iter_per_row: float | None = ITER_PER_ROW  # libsvm's iterations per candidate fit / training row (None: no cap)
     max_evals: int = 30  # fast search only, as the three below
     seed: int = 0
     smooth_tolerance: float = 0.0
@@ -96,18 +103,20 @@ class SearchSettings:
 
     def keywords(self) -> dict[str, Any]:
         """The keywords of :func:`search` for this method."""
-        kw: dict[str, Any] = {"n_folds": self.n_folds, "n_jobs": self.n_jobs, "n_velocity": self.n_velocity}
+        kw: dict[str, Any] = {"n_folds": self.n_folds, "n_jobs": self.n_jobs, "n_velocity": self.n_velocity,
+                              "iter_per_row": self.iter_per_row}
         if self.method == "fast":
             kw.update(max_evals=self.max_evals, seed=self.seed, smooth_tolerance=self.smooth_tolerance,
                       one_se=self.one_se)
         return kw
 
 
-def make_svr(model: str, params: dict[str, Any], n_velocity: int = 3, C_rate: float = 0.5) -> Any:
+def make_svr(model: str, params: dict[str, Any], n_velocity: int = 3, C_rate: float = 0.5,
+             max_iter: int | None = None) -> Any:
     """An unfitted SVR variant from a flat hyperparameter dict (as stored in the tuning JSON). Its ``C_rows``
     (written by :func:`search`; absent in older files: C kept) and ``C_rate`` scale C to the rows it is fitted on
-    (:func:`pipeline.models.svr.scaled_C`)."""
-    scale = {"C_rows": params.get("C_rows"), "C_rate": C_rate}
+    (:func:`pipeline.models.svr.scaled_C`). ``max_iter``: libsvm's iteration cap (None: none, libsvm's -1)."""
+    scale = {"C_rows": params.get("C_rows"), "C_rate": C_rate, "max_iter": -1 if max_iter is None else int(max_iter)}
     if model == "rbf_svr":
         return RBFSVR(gamma=params["gamma"], C=params["C"], epsilon=params["epsilon"], **scale)
     if model == "two_weights_svr":
@@ -159,25 +168,73 @@ def grid_candidates(model: str, grid: dict[str, list[float]]) -> Iterator[dict[s
 
 # -- scoring ------------------------------------------------------------------------------------------
 
-def _fold_r2(est: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray) -> float:
-    fitted = clone(est).fit(X[train], y[train])
-    return float(r2_score(y[test], fitted.predict(X[test])))
+def _fold_fit(est: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray
+              ) -> tuple[float, float, int]:
+    """One candidate on one fold: its test R², the fit's CPU seconds (of the process that ran it) and libsvm's
+    iterations. A fit stopped by ``max_iter`` is scored as it is (see :func:`fast_search`); libsvm's warning
+    about it is the search's to report, once per search, not once per fit."""
+    t0 = time.process_time()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        fitted = clone(est).fit(X[train], y[train])
+    r2 = float(r2_score(y[test], fitted.predict(X[test])))
+    return r2, time.process_time() - t0, int(getattr(fitted, "n_iter_", 0))
 
 
 def cv_fold_scores(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
-                   folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None = 1, n_velocity: int = 3
-                   ) -> list[float]:
+                   folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None = 1, n_velocity: int = 3,
+                   max_iter: int | None = None) -> list[float]:
     """Test R² of one candidate on each of the given (blocked) folds."""
-    est = make_svr(model, params, n_velocity)
+    return [r2 for r2, _, _ in _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)]
+
+
+def _cv_fits(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
+             folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None, n_velocity: int,
+             max_iter: int | None) -> list[tuple[float, float, int]]:
+    """:func:`_fold_fit` of one candidate on each fold: (test R², CPU seconds, libsvm iterations)."""
+    est = make_svr(model, params, n_velocity, max_iter=max_iter)
     if n_jobs == 1:
-        return [_fold_r2(est, X, y, tr, te) for tr, te in folds]
-    return list(Parallel(n_jobs=n_jobs)(delayed(_fold_r2)(est, X, y, tr, te) for tr, te in folds))
+        return [_fold_fit(est, X, y, tr, te) for tr, te in folds]
+    return list(Parallel(n_jobs=n_jobs)(delayed(_fold_fit)(est, X, y, tr, te) for tr, te in folds))
+
+
+def _iteration_cap(iter_per_row: float | None, folds: list[tuple[np.ndarray, np.ndarray]]) -> int | None:
+    """libsvm's iterations per candidate fit: ``iter_per_row`` x the folds' mean training rows (None: no cap)."""
+    if iter_per_row is not None and iter_per_row <= 0:
+        raise ModelError(f"iter_per_row must be > 0 or None, got {iter_per_row}")
+    rows = float(np.mean([len(tr) for tr, _ in folds]))
+    return None if iter_per_row is None else max(1, int(round(iter_per_row * rows)))
+
+
+def _candidate_entry(params: dict[str, Any], fits: list[tuple[float, float, int]], max_iter: int | None,
+                     **extra: Any) -> dict[str, Any]:
+    """A candidate's trace entry: mean fold R² (``score``), its standard error, the CPU seconds of its fits and
+    how many of them ``max_iter`` stopped (``capped``)."""
+    scores = [r2 for r2, _, _ in fits]
+    se = float(np.std(scores, ddof=1) / math.sqrt(len(scores))) if len(scores) > 1 else 0.0
+    return {"params": params, "score": float(np.mean(scores)), "se": se, **extra,
+            "cpu_s": round(float(sum(c for _, c, _ in fits)), 6), "n_iter": max(n for _, _, n in fits),
+            "capped": sum(max_iter is not None and n >= max_iter for _, _, n in fits)}
+
+
+def cost_summary(trace: list[dict[str, Any]], max_iter: int | None, n_slowest: int = 3) -> dict[str, Any]:
+    """A search's cost from its trace: the CPU of its candidates' fits (total, median and largest per
+    candidate; each measured in the process that ran it, so a parallel search counts its workers'), the
+    iteration cap, how many candidates it stopped, and the ``n_slowest`` candidates."""
+    cpu = [t["cpu_s"] for t in trace]
+    slowest = sorted(range(len(trace)), key=lambda k: -trace[k]["cpu_s"])[:n_slowest]
+    return {"fits_cpu_s": round(float(sum(cpu)), 4),
+            "median_candidate_cpu_s": round(float(np.median(cpu)), 6) if cpu else 0.0,
+            "max_candidate_cpu_s": round(float(max(cpu, default=0.0)), 6), "max_iter": max_iter,
+            "n_capped": sum(1 for t in trace if t["capped"]),
+            "slowest_by_cpu": [{"candidate": k, **{f: trace[k][f] for f in SLOW_FIELDS}} for k in slowest]}
 
 
 def cv_score(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
-             folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None = 1, n_velocity: int = 3) -> float:
+             folds: list[tuple[np.ndarray, np.ndarray]], n_jobs: int | None = 1, n_velocity: int = 3,
+             max_iter: int | None = None) -> float:
     """Mean test R² of one candidate over the given (blocked) folds."""
-    return float(np.mean(cv_fold_scores(model, params, X, y, folds, n_jobs, n_velocity)))
+    return float(np.mean(cv_fold_scores(model, params, X, y, folds, n_jobs, n_velocity, max_iter)))
 
 
 def _check_xy(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,28 +248,34 @@ def _check_xy(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, list[float]] | None = None,
-                n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3, keep_trace: bool = False,
+                n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3,
+                iter_per_row: float | None = ITER_PER_ROW, keep_trace: bool = False,
                 progress: Progress | None = None) -> SearchResult:
     """Exhaustive search (the paper's protocol). Candidates run in parallel through joblib; ``progress(done,
     total, desc)`` (optional) is called as their scores arrive, in candidate order."""
     X, y = _check_xy(X, y)
     grid = grid or paper_grid(model, X.shape[1], float(np.std(y)))
     folds = blocked_folds(len(X), n_folds)
+    max_iter = _iteration_cap(iter_per_row, folds)
     t0 = time.perf_counter()
     candidates = list(grid_candidates(model, grid))
     log.info("grid search %s: %d candidates x %d folds", model, len(candidates), n_folds)
-    jobs = (delayed(cv_score)(model, c, X, y, folds, 1, n_velocity) for c in candidates)
+    jobs = (delayed(_cv_fits)(model, c, X, y, folds, 1, n_velocity, max_iter) for c in candidates)
+    entries: list[dict[str, Any]] = []
     if progress is None:
-        scores = Parallel(n_jobs=n_jobs, batch_size="auto")(jobs)
+        fits = Parallel(n_jobs=n_jobs, batch_size="auto")(jobs)
+        entries = [_candidate_entry(c, f, max_iter) for c, f in zip(candidates, fits, strict=True)]
     else:  # the same work, its results taken as they come (in order) to move the bar
-        scores = []
-        for score in Parallel(n_jobs=n_jobs, batch_size="auto", return_as="generator")(jobs):
-            scores.append(score)
-            progress(len(scores), len(candidates), f"{model} grid")
+        for f in Parallel(n_jobs=n_jobs, batch_size="auto", return_as="generator")(jobs):
+            entries.append(_candidate_entry(candidates[len(entries)], f, max_iter))
+            progress(len(entries), len(candidates), f"{model} grid")
+    scores = [e["score"] for e in entries]
     best = int(np.argmax(scores))
-    trace = [{"params": c, "score": s} for c, s in zip(candidates, scores, strict=True)] if keep_trace else []
-    return SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
-                        len(candidates) * n_folds, n_folds, time.perf_counter() - t0, trace=trace)
+    result = SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
+                          len(candidates) * n_folds, n_folds, time.perf_counter() - t0,
+                          trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter))
+    _log_capped(result)
+    return result
 
 
 def _gp_seed(model: str, X: np.ndarray, y: np.ndarray, n_velocity: int, gp_samples: int, seed: int
@@ -285,6 +348,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
+                iter_per_row: float | None = ITER_PER_ROW,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
                 local: str = "model", model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
     """GP-seeded adaptive pattern search on log scale (see module docstring).
@@ -315,11 +379,12 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
     folds = blocked_folds(len(X), n_folds)
+    max_iter = _iteration_cap(iter_per_row, folds)
     names = _names(model, X.shape[1])
     if max_fits is not None:
         max_evals = max(1, max_fits // n_folds)
     rng = np.random.default_rng(seed)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     with threadpool_limits(1, user_api="blas"):  # GP fits on <= gp_samples points: BLAS threads only contend
         seeds, gp_s = _gp_seed(model, X, y, n_velocity, gp_samples, seed)
     phases = ["seed"] * len(seeds)
@@ -335,10 +400,10 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
         key = tuple(np.round(v, 6))
         if key not in cache:
             params = _to_params(model, names, np.exp(v))
-            scores = cv_fold_scores(model, params, X, y, folds, n_jobs, n_velocity)
-            cache[key] = float(np.mean(scores))
-            se = float(np.std(scores, ddof=1) / math.sqrt(len(scores))) if len(scores) > 1 else 0.0
-            trace.append({"params": params, "score": cache[key], "se": se, "phase": phase})
+            entry = _candidate_entry(params, _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter),
+                                     max_iter, phase=phase)
+            cache[key] = entry["score"]
+            trace.append(entry)
             if progress is not None:
                 progress(min(len(cache), max_evals), max_evals, f"{model} {phase}")
         return cache[key]
@@ -378,7 +443,18 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if tolerance > 0:
         result.best_params, result.best_score = _smoothest_within(trace, best, tolerance)
     result.elapsed_s = time.perf_counter() - t0
+    cost = cost_summary(trace, max_iter)
+    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)  # GP seeds, EI model steps
+    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
+    _log_capped(result)
     return result
+
+
+def _log_capped(result: SearchResult) -> None:
+    if (cost := result.cost).get("n_capped"):
+        log.info("%s search: %d of %d candidates stopped at libsvm's %d iterations (scored as they are); "
+                 "slowest %.3g CPU-s, median %.3g", result.model, cost["n_capped"], result.n_candidates,
+                 cost["max_iter"], cost["max_candidate_cpu_s"], cost["median_candidate_cpu_s"])
 
 
 def _model_search(evaluate: Any, x: np.ndarray, best: float, lo: np.ndarray, hi: np.ndarray, max_evals: int,

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from threadpoolctl import threadpool_limits
 
 from pipeline import physics
 from pipeline.config import Params, Vehicle
@@ -93,12 +94,13 @@ def rollout_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupl
     batches += [{n: (f, None)} for n, (f, inputs) in dynamics.items() if inputs is not tau]
     results: dict[str, Any] = {}
     batches = list(filter(None, batches))
-    for k, batch in enumerate(batches, start=1):
-        inputs = dynamics[next(iter(batch))][1]
-        label = f"{', '.join(batch)} ({k}/{len(batches)})"
-        results.update(run_models(batch, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
-                                  divergence_factor=p.divergence_factor, method=p.method,
-                                  band_members=p.band_samples, progress=part_progress(progress, label)))
+    with threadpool_limits(1, user_api="blas"):  # small per-step products: BLAS threads would only spin
+        for k, batch in enumerate(batches, start=1):
+            inputs = dynamics[next(iter(batch))][1]
+            label = f"{', '.join(batch)} ({k}/{len(batches)})"
+            results.update(run_models(batch, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
+                                      divergence_factor=p.divergence_factor, method=p.method,
+                                      band_members=p.band_samples, progress=part_progress(progress, label)))
     runs, horizons = [], {}
     for name in dynamics:  # the models' order
         run, horizons[name] = results[name]
@@ -106,6 +108,8 @@ def rollout_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupl
     rows = None
     if {"u", "v"} <= set(dofs) and "yaw_rad" in frame:
         decoupled_f = {n: f for n, (f, inputs) in dynamics.items() if inputs is tau}
-        rows = bridge_outages(decoupled_f, t_ns, nu, tau, frame["yaw_rad"].to_numpy(float), dofs,
-                              p.outage_windows_s, segment=seg, divergence_factor=p.divergence_factor, method=p.method)
+        with threadpool_limits(1, user_api="blas"):
+            rows = bridge_outages(decoupled_f, t_ns, nu, tau, frame["yaw_rad"].to_numpy(float), dofs,
+                                  p.outage_windows_s, segment=seg, divergence_factor=p.divergence_factor,
+                                  method=p.method)
     return TrialRollout(t_ns, [VELOCITY_COLUMNS[d] for d in dofs], runs, horizons, rows)

@@ -147,3 +147,22 @@ def test_auvid_inspect_starts_no_pool_machinery(tmp_path: Path) -> None:
     code = ("import contextlib, io\nfrom pipeline.cli import main\n"
             f"with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['inspect', {str(log)!r}]) == 0")
     assert loaded(code, MODELLING + ("joblib",), tmp_path) == []
+
+
+# -- the per-stage path: each stage imports what its configured method needs (issue 35) ------------------------
+#: The grid filters' modules: scipy.signal (Savitzky-Golay, ~0.6 CPU-s to import) and scipy.ndimage (Gaussian).
+GRID_FILTERS = ("scipy.signal", "scipy.ndimage")
+
+
+@pytest.mark.parametrize(("method", "expected"), [("kalman", []), ("gaussian", ["scipy.ndimage"]),
+                                                  ("savgol", ["scipy.ndimage", "scipy.signal"])])
+def test_differentiate_imports_only_its_methods_filters(tmp_path: Path, method: str, expected: list[str]) -> None:
+    """``python -m stages.differentiate`` as DVC runs it, up to its method's function (and, for savgol, one filter
+    call): the default smoother never imports the grid filters' scipy.signal or scipy.ndimage."""
+    code = ("import numpy as np\nimport stages.differentiate\n"
+            "from pipeline.estimation.differentiate import method_function\n"
+            f"method_function({method!r})\n")
+    if method == "savgol":
+        code += ("from pipeline.estimation.savgol import savgol_filters\n"
+                 "savgol_filters(np.sin(np.arange(50.0)), 7, 2, 0.1)\n")
+    assert loaded(code, GRID_FILTERS, tmp_path) == expected

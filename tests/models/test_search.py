@@ -124,3 +124,34 @@ def test_search_refuses_a_keyword_its_method_does_not_use(method, key):
     X, y = _two_of_six()
     with pytest.raises(TypeError, match=key):
         search("rbf_svr", X, y, method, n_folds=3, **{key: 1})
+
+
+def test_the_iteration_cap_stops_candidates_and_the_trace_reports_it(caplog):
+    """A cap of a tenth of an iteration per row stops the large-C candidates: their fits stop at the cap, are
+    scored as they are (a finite R²), counted per candidate and per search, and logged once per search (not
+    libsvm's warning once per fit); the same search without a cap stops none and its results agree wherever no
+    fit was stopped. The cost names the slowest candidates, slowest first."""
+    import warnings
+
+    X, y = _two_of_six(n=240)
+    kw = {"max_evals": 12, "n_folds": 3}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ConvergenceWarning per fit
+        with caplog.at_level(logging.INFO, logger="pipeline.models.search"):
+            capped = fast_search("rbf_svr", X, y, iter_per_row=0.1, **kw)
+    free = fast_search("rbf_svr", X, y, iter_per_row=None, **kw)
+    cap = capped.cost["max_iter"]
+    assert cap == round(0.1 * 160)  # 3 blocked folds of 240 rows: 160 training rows each
+    stopped = [t for t in capped.trace if t["capped"]]
+    assert stopped and capped.cost["n_capped"] == len(stopped)
+    assert all(t["n_iter"] == cap and np.isfinite(t["score"]) for t in stopped)
+    assert all(t["n_iter"] < cap for t in capped.trace if not t["capped"])
+    assert sum("stopped at libsvm's" in r.getMessage() for r in caplog.records) == 1
+    assert free.cost["max_iter"] is None and free.cost["n_capped"] == 0
+    assert max(t["n_iter"] for t in free.trace) > cap
+    first = capped.trace[0]  # the first seed: the same candidate in both; unstopped, the same score
+    if not first["capped"]:
+        assert first["score"] == free.trace[0]["score"]
+    slow = [s["cpu_s"] for s in capped.cost["slowest_by_cpu"]]
+    assert len(slow) == 3 and slow == sorted(slow, reverse=True) and slow[0] == capped.cost["max_candidate_cpu_s"]
+    assert capped.cost["cpu_s"] >= capped.cost["fits_cpu_s"] > 0

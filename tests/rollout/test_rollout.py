@@ -77,6 +77,40 @@ def test_coupled_svr_free_run_through_numpy_kernel_sums_equals_sklearn_predict()
     assert fast_predictor(object()) is None
 
 
+def test_graybox_free_run_through_its_fast_predictor_equals_sklearn_predict() -> None:
+    """The gray box (McFarland-Whitcomb base + WDSE residual, the study's columns) rolls out through its parts'
+    fast predictors (no scikit-learn call per RK4 stage) to the predict path's free run within float rounding;
+    an unfitted gray box, or one whose residual offers no fast predictor, falls back to ``predict``."""
+    from sklearn.linear_model import Ridge
+
+    from pipeline.config.params import CoupledParams
+    from pipeline.models.graybox import GrayBox
+    from pipeline.rollout import CoupledDynamics, fast_predictor, free_run
+    from pipeline.sim.synthetic import synthetic_frame
+    from pipeline.studies.coupled import build_model, model_inputs
+
+    params = CoupledParams()
+    cols = model_inputs("graybox", params)
+    train = synthetic_frame(600, rate_hz=4.0, seed=3, noise=0.02)
+    test = synthetic_frame(240, rate_hz=4.0, seed=4, noise=0.02, split="test", trial="syn02")
+    hyper = {o: {"gammas": [0.3, 0.2, 0.3, 0.1, 0.1, 0.1], "C": 1.0, "epsilon": 0.01} for o in params.outputs}
+    est = build_model("graybox", hyper, params, train=train)
+    assert fast_predictor(est) is None  # not fitted yet
+    est.fit(train[cols].to_numpy(float), train[params.outputs].to_numpy(float))
+    fast = fast_predictor(est)
+    assert fast is not None
+    X = test[cols].to_numpy(float)
+    slow = est.predict(X)
+    assert np.abs(fast(X) - slow).max() <= 1e-12 * max(1.0, np.abs(slow).max())
+    nu, inputs = X[:, :3], X[:, 3:]
+    t_ns = test["t_ns"].to_numpy()
+    runs = [free_run("graybox", CoupledDynamics(est, fast=f), t_ns, nu, inputs, ["u", "v", "r"]) for f in (True, False)]
+    assert np.isfinite(runs[1].predicted).all()
+    assert np.abs(runs[0].predicted - runs[1].predicted).max() < 1e-10
+    other = GrayBox(residual=Ridge()).fit(X, test[params.outputs].to_numpy(float))
+    assert fast_predictor(other) is None
+
+
 def _one_at_a_time(f, nu0, inputs, starts, lengths, dt_s, **kw):
     """The reference the batch replaces: each member rolled out alone with its own dynamics (take(f, [b]))."""
     from pipeline.rollout import rollout, take
