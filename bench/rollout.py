@@ -145,8 +145,8 @@ def main() -> None:
     b = clock()
     predict = (b[0] - a[0], b[1] - a[1])
 
-    print(f"mode {mode}; trial {trial_s:g} s at 20 Hz ({len(t_ns)} samples, one 5-s gap), SVRs trained on {train_s:g} s; "
-          f"support vectors per output {n_sv}")
+    print(f"mode {mode}; trial {trial_s:g} s at 20 Hz ({len(t_ns)} samples, one 5-s gap), "
+          f"SVRs trained on {train_s:g} s; support vectors per output {n_sv}")
     print("| what | wall s | CPU s | free-run u R² |")
     print("| --- | ---: | ---: | ---: |")
     for what, wall, cpu, r2 in rows:
