@@ -6,7 +6,8 @@ One run of :func:`retrain`:
    at once (status ``locked``; the CLI exits 0 with a message);
 2. removes what a crashed run left (``staging/*``, stores the registry does not name);
 3. hashes every log in the inbox (content sha256); logs already in the registry's ``seen_logs`` are skipped;
-   symbolic links (and bag directories holding one) are never followed: logged and quarantined;
+   symbolic links (and bag directories holding one) are never followed, logs whose name gives no safe trial id
+   are not copied: logged and quarantined, left in the inbox;
    no new log and a current model: status ``nothing_new``, nothing is touched;
 4. builds the candidate in ``staging/<version>/run``: a hard-linked copy of the current store's raw logs and
    per-trial tables (every stage writes by atomic replace, so the store's files are never modified through the
@@ -36,6 +37,7 @@ import yaml
 
 from pipeline import __version__, layout, registry
 from pipeline.config import Params, config_hash, load_params, load_vehicle, parse
+from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import PipelineError
 from pipeline.registry import LOCK_FILE, LockBusy, exclusive_lock
 from pipeline.tableio import file_sha256
@@ -79,15 +81,22 @@ def inbox_logs(inbox: Path, skipped: list[dict[str, Any]] | None = None) -> list
 
     Symbolic links are never followed (docs/security.md): a link in the inbox, or a bag directory holding one,
     could make the run copy any file the cron user can read (``/etc/shadow``, another user's data) into the
-    store. Each is logged and, when ``skipped`` is given, appended to it as a quarantine entry.
+    store. A log whose name gives no safe trial id (``trial 01.mcap``) is refused here too: copied into the
+    store, ingest would quarantine it on every later rebuild. Each is logged and, when ``skipped`` is given,
+    appended to it as a quarantine entry; the inbox file is left as it is.
     """
+    from pipeline.ingest import trial_id
+
     if not inbox.is_dir():
         raise PipelineError("inbox is not a directory", file=inbox)
     logs = []
     for p in sorted(inbox.iterdir()):
         if p.name.startswith(".") or p.name.endswith(_PARTIAL) or p.name.endswith(".dvc"):
             continue
-        if p.is_symlink():
+        if not SAFE_NAME.match(trial := trial_id(p)):
+            reason = (f"its name gives trial id {trial!r}, not a safe name ({SAFE_NAME_RULE}); "
+                      "not copied: rename the log in the inbox")
+        elif p.is_symlink():
             reason = "a symbolic link in the inbox; not followed (copy the log itself into the inbox)"
         elif p.is_dir() and any(q.is_symlink() for q in p.rglob("*")):
             reason = "a log directory holding a symbolic link; not followed (copy the files themselves)"

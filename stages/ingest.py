@@ -183,8 +183,9 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
 
     ok = sorted(o.parent.name for o in result.outputs if o.name == "ingest_report.json")
     _raise_if_config_sinks_every_log(result.quarantined, ok, len(paths))
+    # keyed by file: a log whose name gives no safe trial id has trial None
     result.summary = {"logs": len(paths), "trials_written": ok,
-                      "quarantined": sorted(e["trial"] for e in result.quarantined),
+                      "quarantined": sorted(e["file"] for e in result.quarantined),
                       "salvaged": sorted(e["trial"] for e in salvaged)}
     update_quarantine_file(root, [_display(p, root) for p in paths], ok, result.quarantined, salvaged)
     return result
@@ -211,7 +212,8 @@ def _raise_if_config_sinks_every_log(quarantined: list[dict[str, Any]], written:
 def update_quarantine_file(root: Path, files: list[str], written: list[str], quarantined: list[dict[str, Any]],
                            salvaged: list[dict[str, Any]]) -> Path:
     """Merge this call into ``data/signals/quarantine.json``: entries accumulate per log and are replaced only
-    when that log (same file) or its trial is ingested again."""
+    when that log (same file) or its trial is ingested again. Entries are keyed by file: a log whose name gives
+    no safe trial id is listed with trial None, and two such logs must not replace each other."""
     qpath = Path(root) / layout.SIGNALS / QUARANTINE_FILE
     old: dict[str, Any] = {}
     if qpath.exists():
@@ -220,13 +222,13 @@ def update_quarantine_file(root: Path, files: list[str], written: list[str], qua
         except (OSError, ValueError):
             log.warning("%s is unreadable; starting a new one", qpath)
     again = set(files)
-    redone = set(written) | {e["trial"] for e in quarantined}
+    redone = (set(written) | {e["trial"] for e in quarantined}) - {None}
 
     def kept(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
         return [e for e in entries if e.get("file") not in again and e.get("trial") not in redone]
 
     def order(e: dict[str, Any]) -> tuple[str, str]:
-        return (str(e.get("trial")), str(e.get("file")))
+        return (str(e.get("file")), str(e.get("trial")))
 
     doc = {"quarantined": sorted(kept(old.get("quarantined", [])) + quarantined, key=order),
            "salvaged": sorted(kept(old.get("salvaged", [])) + salvaged, key=order),

@@ -13,6 +13,7 @@ Without native streams (a table built in memory), the synced grid's valid sample
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 
 import numpy as np
@@ -28,6 +29,8 @@ from pipeline.kinematics import mounting_matrix, sensor_to_body, velocity_to_bod
 
 __all__ = ["interp_finite", "native_stream", "rate_measurements", "sensor_noise", "signal_noise",
            "velocity_measurements"]
+
+log = logging.getLogger(__name__)
 
 
 def native_stream(streams: Mapping[str, pd.DataFrame | pa.Table] | None, signal: str
@@ -55,6 +58,9 @@ def signal_noise(signal: str, t_ns: np.ndarray, x: np.ndarray, params: Different
     if not np.isfinite(est.sd) or est.sd <= 0:
         raise SyncError(f"cannot estimate the noise of signal {signal!r} ({est.samples} usable residuals); give "
                         f"it in params: differentiate.noise_sd.{signal}", field=signal)
+    if est.source == "floor":  # simulated data, or a sensor stuck at one value
+        log.warning("signal %r looks noise-free (constant or simulated without noise): its noise SD is set to the "
+                    "floor %.3g; give differentiate.noise_sd.%s if you know it", signal, est.sd, signal)
     return est
 
 

@@ -10,6 +10,11 @@ the sensor's rate) leaks in. The median absolute deviation (x 1.4826) makes the 
 
 An outlier contaminates the residuals of its neighbours too; it is counted once, where the normalized residual
 exceeds ``gate`` sigma and is the largest of the five around it.
+
+An estimate never goes below :func:`noise_floor` (source ``floor``): a noise-free signal (simulated data, a
+constant channel) leaves residuals that are float rounding (~1e-18) or exactly zero, and a measurement variance
+of 1e-36 makes the smoother's banded system singular in double precision ("not positive definite") or its
+derivatives noise, while zero cannot be used at all.
 """
 
 from __future__ import annotations
@@ -18,15 +23,30 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["NoiseEstimate", "estimate_noise", "local_residuals"]
+__all__ = ["NOISE_FLOOR", "NOISE_FLOOR_RELATIVE", "NoiseEstimate", "estimate_noise", "local_residuals", "noise_floor"]
 
 MAD_TO_SD = 1.482602218505602
+#: The floor of an estimated noise SD, in the signal's (SI) unit: 1 nm/s, 1 nrad/s. Far below any real sensor's
+#: noise (a DVL's ~1e-3 m/s, a navigation-grade FOG's ~1e-6 rad/s per sample) and far above float64 rounding
+#: of values up to 1000 (~1e-13).
+NOISE_FLOOR = 1e-9
+#: ... and at least this fraction of the signal's largest |value|, so that it stays above rounding for large
+#: values (UTM positions, 5e6 m: 5e-6 m, below an RTK fix's 1e-2 m).
+NOISE_FLOOR_RELATIVE = 1e-12
+
+
+def noise_floor(x: np.ndarray) -> float:
+    """The smallest noise SD an estimate of ``x``'s noise may give (see :data:`NOISE_FLOOR`)."""
+    x = np.asarray(x, dtype=float)
+    finite = np.abs(x[np.isfinite(x)])
+    return max(NOISE_FLOOR, NOISE_FLOOR_RELATIVE * float(finite.max()) if finite.size else 0.0)
 
 
 @dataclass(frozen=True)
 class NoiseEstimate:
     """A signal's noise: ``sd`` (its unit), ``outlier_rate`` (fraction of samples), from ``samples`` residuals;
-    ``source``: ``estimated`` or ``config`` (an override in params)."""
+    ``source``: ``estimated``, ``floor`` (the estimate was below :func:`noise_floor`: a noise-free signal) or
+    ``config`` (an override in params)."""
 
     sd: float
     outlier_rate: float
@@ -82,11 +102,11 @@ def estimate_noise(t_s: np.ndarray, x: np.ndarray, *, gate: float = 5.0, max_ste
         blocks, size = 40, max_samples // 40
         starts = np.linspace(0, x.size - size, blocks).astype(np.int64)
         z = np.concatenate([local_residuals(t_s[a: a + size], x[a: a + size], max_step_s) for a in starts])
-        return _summarize(z, gate)
-    return _summarize(local_residuals(t_s, x, max_step_s), gate)
+        return _summarize(z, gate, noise_floor(x))
+    return _summarize(local_residuals(t_s, x, max_step_s), gate, noise_floor(x))
 
 
-def _summarize(z: np.ndarray, gate: float) -> NoiseEstimate:
+def _summarize(z: np.ndarray, gate: float, floor: float) -> NoiseEstimate:
     finite = np.isfinite(z)
     n = int(finite.sum())
     if n < 10:
@@ -96,11 +116,16 @@ def _summarize(z: np.ndarray, gate: float) -> NoiseEstimate:
     if sd == 0.0:  # quantized or noise-free: the smallest non-zero residual bounds it
         nonzero = np.abs(zf[zf != 0])
         sd = float(nonzero.min()) / 10.0 if nonzero.size else 0.0
+        if sd < floor:
+            return NoiseEstimate(floor, 0.0, n, "floor")
         return NoiseEstimate(sd, 0.0, n)
+    source = "estimated"
+    if sd < floor:
+        sd, source = floor, "floor"
     a = np.abs(np.nan_to_num(z, nan=0.0))
     padded = np.pad(a, 2)
     local_max = np.ones(a.size, dtype=bool)
     for o in (-2, -1, 1, 2):
         local_max &= a >= padded[2 + o: 2 + o + a.size]
     outliers = int(np.sum((a > gate * sd) & local_max & finite))
-    return NoiseEstimate(sd, outliers / n, n)
+    return NoiseEstimate(sd, outliers / n, n, source)

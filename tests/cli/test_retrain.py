@@ -184,3 +184,25 @@ def test_holdout_score_generic_fallback(tmp_path: Path) -> None:
     assert holdout_score(tmp_path, [])["holdout_r2"] == pytest.approx(0.7)
     with pytest.raises(Exception, match="no holdout"):
         holdout_score(tmp_path / "nothing", [])
+
+
+def test_inbox_logs_with_unsafe_names_are_refused_every_night_never_copied(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """'trial 03.mcap' and 'trial 04.mcap' (a space): exit 1 with both quarantined, naming file and rule, on every
+    run; never copied into the store (where every later rebuild would meet them); the inbox files untouched."""
+    FakeDag().install(monkeypatch)
+    root, inbox = _home(tmp_path, ("trial01", "trial02", "trial 03", "trial 04"))
+    before = {p.name: p.read_bytes() for p in inbox.iterdir()}
+    for _night in range(2):
+        assert cli.main(["retrain", "--root", str(root), "--inbox", str(inbox), "-q"]) == 1
+    outcome = retrain(_opts(root, inbox))
+    assert outcome.status == "nothing_new"
+    data = registry.load(root)
+    for entries in (outcome.quarantined, data["versions"][0]["lineage"]["quarantined"]):
+        assert sorted(Path(e["file"]).name for e in entries) == ["trial 03.mcap", "trial 04.mcap"]
+        for e in entries:
+            assert repr(Path(e["file"]).stem) in e["reason"]
+            assert "not a safe name" in e["reason"] and "letters, digits" in e["reason"]
+    assert data["current"] == "v0001" and len(data["versions"]) == 1 and len(data["seen_logs"]) == 2
+    assert sorted(p.name for p in (root / data["store"] / "data/raw").iterdir()) == ["trial01.mcap", "trial02.mcap"]
+    assert {p.name: p.read_bytes() for p in inbox.iterdir()} == before

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.estimation.noise import estimate_noise
+from pipeline.estimation.noise import NOISE_FLOOR, estimate_noise
 from pipeline.estimation.smoother import Measurements, smooth, smoothed_variances, white_jerk
 from pipeline.estimation.widths import optimal_sigma
 
@@ -30,6 +30,19 @@ def test_noise_estimate_within_10_percent_on_irregular_stamps(sd: float) -> None
     est = estimate_noise(t, y)
     assert est.sd == pytest.approx(sd, rel=0.10)
     assert 0.002 < est.outlier_rate < 0.008
+
+
+def test_noise_free_and_constant_signals_get_the_floor_never_zero_or_rounding() -> None:
+    """A noise-free signal's residuals are float rounding (~1e-18) or exactly 0: the estimate is the floor, marked
+    as such; large values lift it above their rounding; a real sensor's noise is untouched by it."""
+    t = np.arange(600) * 0.25
+    for x in (np.zeros(t.size), np.full(t.size, 0.05), np.full(t.size, -0.3)):
+        est = estimate_noise(t, x)
+        assert est.sd == NOISE_FLOOR and est.source == "floor" and est.outlier_rate == 0.0
+    est = estimate_noise(t, 5e6 + np.zeros(t.size))  # a UTM northing standing still
+    assert est.sd == pytest.approx(5e-6) and est.source == "floor"
+    noisy = estimate_noise(t, np.cos(t / 10) + 1e-6 * np.random.default_rng(1).standard_normal(t.size))
+    assert noisy.source == "estimated" and noisy.sd == pytest.approx(1e-6, rel=0.15)
 
 
 def test_noise_estimate_skips_gaps() -> None:

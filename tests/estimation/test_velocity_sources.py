@@ -172,3 +172,50 @@ def test_a_velocity_source_is_required_once_and_named() -> None:
         ship({"frame": "earth", "signals": ["xdot_mps"]})
     with pytest.raises(ConfigError, match="sensors.velocity.signals.*'surge_mps'.*not a configured signal"):
         ship({"frame": "body", "signals": ["surge_mps", "ydot_mps"]})
+
+
+def clean_dvl_trial() -> tuple[Vehicle, dict[str, pd.DataFrame]]:
+    """A noise-free 4-Hz DVL losing lock 10 s of every minute (the ingest benchmark's), body-frame: u = cos(t/10),
+    v = 0.05 and w = 0 exactly; heading and yaw rate at 20 Hz. Known accelerations: -sin(t/10)/10, 0, 0."""
+    data = ship_dict({"frame": "body", "signals": ["u_dvl_mps", "v_dvl_mps", "w_dvl_mps"]})
+    dvl_signals = ("u_dvl_mps", "v_dvl_mps", "w_dvl_mps")
+    data["streams"] = {
+        "dvl": {"topic": "/dvl", "clock": "header", "signals": {n: {"field": n} for n in dvl_signals}},
+        "nav": {"topic": "/nav", "clock": "header", "signals": {n: {"field": n} for n in ("yaw_rad", "r_radps",
+                                                                                         "n1_rpm")}}}
+    td = np.arange(0.0, 180.0, 0.25)
+    td = td[(td % 60) >= 10]
+    tn = np.arange(0.0, 180.0, 0.05)
+    streams = {"dvl": pd.DataFrame({"t_ns": T0_NS + (td * 1e9).astype(np.int64), "u_dvl_mps": np.cos(td / 10),
+                                    "v_dvl_mps": 0.05, "w_dvl_mps": 0.0}),
+               "nav": pd.DataFrame({"t_ns": T0_NS + (tn * 1e9).astype(np.int64), "yaw_rad": 0.3 * np.sin(tn / 20),
+                                    "r_radps": 0.015 * np.cos(tn / 20), "n1_rpm": 600.0})}
+    return parse(Vehicle, data), streams
+
+
+def truth_of(t_s: np.ndarray) -> dict[str, np.ndarray]:
+    return {"u_mps": np.cos(t_s / 10), "udot_mps2": -np.sin(t_s / 10) / 10, "v_mps": 0.05 + 0 * t_s,
+            "vdot_mps2": 0 * t_s, "rdot_radps2": -0.015 / 20 * np.sin(t_s / 20)}
+
+
+@pytest.mark.parametrize(("method", "tol_mps", "tol_mps2"), [("kalman", 1e-4, 1e-4), ("gaussian", 1e-3, 1e-3)])
+def test_a_noise_free_velocity_source_gives_the_true_accelerations(method: str, tol_mps: float, tol_mps2: float,
+                                                                   caplog: pytest.LogCaptureFixture) -> None:
+    """Its noise estimates (0 for w, float rounding for v) are floored instead of ending the stage ('cannot
+    estimate the noise', or a smoother 'not positive definite' / nonsense derivatives from a 1e-36 variance)."""
+    from pipeline.estimation.noise import NOISE_FLOOR
+
+    vehicle, streams = clean_dvl_trial()
+    synced = synchronize(streams, vehicle, SyncParams())
+    kin, report = differentiate(synced, vehicle, DifferentiateParams(method=method), streams)
+    for name in ("v_dvl_mps", "w_dvl_mps"):
+        assert report["noise"][name] == {"sd": NOISE_FLOOR, "outlier_rate": 0.0, "samples": 588, "source": "floor"}
+        assert f"signal {name!r} looks noise-free" in caplog.text
+    assert report["noise"]["u_dvl_mps"]["source"] == "estimated"
+    t = (kin["t_ns"].to_numpy() - T0_NS) / 1e9
+    assert t.max() - t.min() > 150  # the lock losses bridged (kalman) or cut (gaussian), not the whole trial
+    truth = truth_of(t)
+    for col in ("u_mps", "v_mps"):
+        assert np.abs(kin[col].to_numpy() - truth[col]).max() < tol_mps, col
+    for col in ("udot_mps2", "vdot_mps2", "rdot_radps2"):
+        assert np.abs(kin[col].to_numpy() - truth[col]).max() < tol_mps2, col

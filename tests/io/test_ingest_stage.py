@@ -14,7 +14,7 @@ import yaml
 
 import pipeline.ingest as ingest_mod
 import stages.ingest as stage
-from pipeline import layout
+from pipeline import cli, layout
 from pipeline.config import Params, Vehicle, config_hash
 from pipeline.errors import IngestError
 from pipeline.ingest import ingest_log, trial_id
@@ -419,3 +419,30 @@ def test_a_log_whose_name_gives_an_unsafe_trial_id_is_quarantined_not_written_ou
     assert entry["file"] == "data/raw/...csv" and "'..'" in entry["reason"] and "safe name" in entry["reason"]
     assert layout.stream_path(root, "trial01", "fog").exists()
     assert sorted(p.name for p in (root / layout.SIGNALS).iterdir()) == ["quarantine.json", "trial01"]
+
+
+def test_two_logs_with_unsafe_names_are_quarantined_by_file_and_the_batch_goes_on(tmp_path: Path) -> None:
+    """'trial 01.csv' and 'trial 02.csv' (a space is enough): both quarantined, each naming its file and the rule,
+    the good trial written, exit 1; a later ingest of one of them keeps the other's entry (keyed by file)."""
+    root = raw_root(tmp_path)
+    for name in ("trial 01", "trial 02"):
+        write_csv_trial(root / layout.RAW / name)
+    vehicle = make_vehicle(CSV_STREAMS)
+    result = stage.run(root, vehicle, Params())
+    assert result.exit_code == 1
+    by_file = {e["file"]: e for e in result.quarantined}
+    assert set(by_file) == {"data/raw/trial 01", "data/raw/trial 02"}
+    for name, entry in by_file.items():
+        assert entry["trial"] is None and f"{name.split('/')[-1]!r}" in entry["reason"]
+        assert "safe name" in entry["reason"] and "letters, digits" in entry["reason"]
+    assert result.summary["quarantined"] == ["data/raw/trial 01", "data/raw/trial 02"]
+    assert result.summary["trials_written"] == ["trial01", "trial02"]
+    summary = json.loads((root / layout.SIGNALS / "quarantine.json").read_text())
+    assert [e["file"] for e in summary["quarantined"]] == ["data/raw/trial 01", "data/raw/trial 02"]
+    again = stage.run(root, vehicle, Params(), logs=[root / layout.RAW / "trial 02", root / layout.RAW / "trial01"])
+    assert again.exit_code == 1
+    summary = json.loads((root / layout.SIGNALS / "quarantine.json").read_text())
+    assert [e["file"] for e in summary["quarantined"]] == ["data/raw/trial 01", "data/raw/trial 02"]
+    vfile = tmp_path / "vehicle.yaml"
+    vfile.write_text(yaml.safe_dump(vehicle.model_dump(mode="json"), allow_unicode=True))
+    assert cli.main(["ingest", "--root", str(root), "--vehicle", str(vfile), "-q"]) == 1  # `auvid ingest`

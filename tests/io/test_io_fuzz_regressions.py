@@ -449,3 +449,77 @@ def test_cut_zstd_storage_is_reported_and_named(tmp_path: Path) -> None:
     with pytest.raises(IngestError, match="zstd stream cut short") as info:
         _read(bag)
     assert info.value.file == str(zst)  # not the temporary file it was inflated to
+
+
+def _message_leaf_pages(db: Path, page_size: int = 4096) -> list[int]:
+    """Offsets of the leaf pages (type 0x0d) of a rosbag2 file's messages table (pages after its root, which
+    rosbags' writer fills last), the file's last page left out."""
+    data = db.read_bytes()
+    assert int.from_bytes(data[16:18], "big") == page_size
+    with sqlite3.connect(db) as con:
+        [(root,)] = con.execute("SELECT rootpage FROM sqlite_master WHERE name = 'messages'").fetchall()
+    con.close()
+    return [at for at in range((root - 1) * page_size, len(data) - page_size, page_size) if data[at] == 0x0D]
+
+
+@pytest.mark.parametrize(("fetch", "rows"), [("pages", 0), ("aggregates", 5), ("aggregates", 7), ("rows", 5),
+                                             ("rows", 7)])
+def test_rosbag2_duplicated_page_ends_in_salvage_with_every_row_not_a_loop(
+        tmp_path: Path, fetch: str, rows: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """One 4-KiB page written twice (issue 36, item 0): every later page is one off, so sqlite's ``WHERE id > ?``
+    hands back rows at or before the last id and the paging loop fetched the same rows for ever, memory growing.
+    Now a batch whose ids do not rise strictly beyond the last one is damage: the file is read from its pages,
+    every row kept, the damage reported, in as many batches as the rows need (an alarm ends a regression that
+    loops). Each of sqlite's three fetches is tried; batches of 5 rows (a page holds 20) end where the damage
+    begins (the paging key goes back), batches of 7 hold it (ids go back within a batch)."""
+    import signal
+
+    import pipeline.io.rosbag2.storage_sqlite3 as storage_sqlite3
+
+    class Hung(BaseException):  # not an Exception: the reader's per-topic decode guard must not swallow it
+        pass
+
+    batches = 0
+    decimal_list = storage_sqlite3._decimal_list  # noqa: SLF001
+
+    def counted(text: str | None, count: int) -> np.ndarray:
+        nonlocal batches
+        batches += 1
+        return decimal_list(text, count)
+
+    monkeypatch.setattr(storage_sqlite3, "_decimal_list", counted)
+    if rows:
+        monkeypatch.setattr(storage_sqlite3, "FIRST_BATCH_ROWS", rows)
+        monkeypatch.setattr(storage_sqlite3, "BATCH_ROWS", rows)
+    bag, db = _bag(tmp_path, n=40)
+    pages = _message_leaf_pages(db)
+    intact = db.read_bytes()
+    assert len(pages) >= 5
+    reasons = []
+
+    def hung(*_: object) -> None:
+        raise Hung("the read did not end: the paging loop goes round")
+
+    def read() -> object:
+        with open_log(bag) as reader:
+            reader._row_fetch = fetch == "rows"  # noqa: SLF001
+            reader._page_fetch = fetch == "pages"  # noqa: SLF001
+            return reader.read(REQUESTS)
+
+    old = signal.signal(signal.SIGALRM, hung)
+    try:
+        for at in pages:
+            db.write_bytes(intact[:at + 4096] + intact[at:at + 4096] + intact[at + 4096:])
+            batches = 0
+            signal.alarm(10)
+            try:
+                result = read()
+            finally:
+                signal.alarm(0)
+            assert batches <= 4 * (120 // 5 + 2), (at, batches)  # 4 decimal lists a batch, 5 rows or more each
+            assert {t: d.read for t, d in result.topics.items()} == {t: 40 for t in REQUESTS}, at
+            assert result.salvage is not None and result.salvage.kept == 120, at
+            reasons.append(result.salvage.reason)
+    finally:
+        signal.signal(signal.SIGALRM, old)
+    assert sum("out of id order" in r and "kept the 120 message row(s) on intact pages" in r for r in reasons) >= 3

@@ -207,3 +207,26 @@ def test_no_overlap_names_the_streams_their_spans_and_the_remedy() -> None:
     assert f"'thrusters': 0.000 s to 0.000 s (all {n} stamps equal) <- overlaps none of the others" in message
     assert "'dvl': 2023-11-14T22:13:20.000Z to 2023-11-14T22:13:25.000Z;" in message  # not marked
     assert "stamp_warnings" in message and "ingest_report.json" in message and "`clock: log`" in message
+
+
+def test_a_gap_of_exactly_max_gap_is_bridged_and_a_nanosecond_less_max_gap_cuts_it() -> None:
+    """The boundary is inclusive (``b - a <= max_gap_s``): a 4-Hz DVL, pings 250 ms apart, with ``max_gap_s: 0.25``
+    is bridged on every grid sample; one nanosecond less and only the grid samples at its pings stay valid."""
+    t = np.arange(5, dtype=np.int64) * 250_000_000
+    grid = np.arange(21, dtype=np.int64) * 50_000_000
+    x = np.arange(5, dtype=float)
+    ok = np.ones(5, dtype=bool)
+    for kind in ("linear", "zoh", "nearest"):
+        _, valid = resample(t, x, ok, grid, kind, 250_000_000)
+        assert valid.all(), kind
+        _, valid = resample(t, x, ok, grid, kind, 250_000_000 - 1)
+        assert valid.tolist() == [g % 250_000_000 == 0 for g in grid], kind
+    streams = constant_streams(10.0)
+    td = T0 + np.arange(41, dtype=np.int64) * 250_000_000
+    streams["dvl"] = stream(td, u_dvl_mps=np.full(41, 0.5), v_dvl_mps=np.full(41, 0.1), w_dvl_mps=np.zeros(41),
+                            dvl_lock_flag=np.ones(41))
+    out = synchronize(streams, VEHICLE, SyncParams(min_segment_s=1, max_gap_s={"default": 0.25}))
+    assert out["u_dvl_mps__valid"].all() and len(out) == 201 and set(out["segment"]) == {0}
+    cut = synchronize(streams, VEHICLE, SyncParams(min_segment_s=0, max_gap_s={"default": 0.25,
+                                                                               "u_dvl_mps": 0.2499}))
+    assert cut["u_dvl_mps__valid"].sum() == 41

@@ -2,7 +2,9 @@
 
 Rows come from the table's b-tree pages (:mod:`pipeline.io.sqlite_btree`) while they are as rosbag2 writes them,
 else through sqlite's aggregates or row by row; a damaged file is read from its intact pages
-(:mod:`pipeline.io.sqlite_pages`). The file is always opened read-only and never written beside.
+(:mod:`pipeline.io.sqlite_pages`): one sqlite reports, or one whose rows come back out of id order (every fetch
+checks that ids rise strictly, so the paging loop ends). The file is always opened read-only and never written
+beside.
 """
 
 from __future__ import annotations
@@ -209,6 +211,28 @@ class _DamagedRow(Exception):
     """A row of table ``messages`` whose topic_id or timestamp is not an integer, or whose data is not a blob."""
 
 
+def _unordered(ids: np.ndarray, after: int | None) -> str | None:
+    """Why the ids of a batch fetched ``ORDER BY id`` (after id ``after``) show a damaged b-tree, or None.
+
+    sqlite trusts the tree: with a page duplicated or moved, ``WHERE id > ?`` hands back rows at or before ``?``
+    (the paging loop would fetch the same rows for ever) and a scan meets rows twice. Requiring every batch's ids
+    to rise strictly, beyond the last batch's, bounds the loop by the rows the file holds.
+    """
+    if after is not None and ids.size and ids[0] <= after:
+        return f"id {int(ids[0])} came after id {after}"
+    down = np.flatnonzero(np.diff(ids) <= 0)
+    if down.size:
+        return f"id {int(ids[down[0] + 1])} came after id {int(ids[down[0]])}"
+    return None
+
+
+def _out_of_order(why: str) -> sqlite3.DatabaseError:
+    """The damage as the sqlite error that sends the file to its salvage path (read from its intact pages)."""
+    import sqlite3
+
+    return sqlite3.DatabaseError(f"rows of table 'messages' out of id order ({why}): its b-tree is damaged")
+
+
 def _messages_sql(wanted: dict[int, str], columns: str, after: bool, limit: int | None) -> str:
     where = f"topic_id IN ({','.join(str(int(i)) for i in wanted)})"
     return (f"SELECT {columns} FROM messages WHERE {'id > ? AND ' if after else ''}{where} ORDER BY id"
@@ -268,18 +292,23 @@ def _concatenated_rows(con: sqlite3.Connection, wanted: dict[int, str],
     """
     # A stamp or topic id that is not an integer ('soon', 1.5) is text that numpy refuses; a payload that is not a
     # blob would join unseen, so its type is counted (the one check paid per row).
-    aggregates = ("count(*), max(id), total(typeof(data) != 'blob'), group_concat(topic_id), "
+    aggregates = ("count(*), total(typeof(data) != 'blob'), group_concat(id), group_concat(topic_id), "
                   "group_concat(timestamp), group_concat(length(data)), CAST(group_concat(data, '') AS BLOB)")
     limit = FIRST_BATCH_ROWS
     last = after
     while True:
         inner = _messages_sql(wanted, "id, topic_id, timestamp, data", last is not None, limit)
         row = con.execute(f"SELECT {aggregates} FROM ({inner})", () if last is None else (last,)).fetchone()
-        count, last, bad, tids, stamps, lengths_text, data = row
+        count, bad, ids_text, tids, stamps, lengths_text, data = row
         if not count:
             return
         if bad:
             raise _DamagedRow(f"{int(bad)} of the next {count} rows hold a payload that is not a blob")
+        ids = _decimal_list(ids_text, count)
+        why = _unordered(ids, last)
+        if why:  # the loop goes on only while the paging key strictly advances
+            raise _out_of_order(why)
+        last = int(ids[-1])
         tid_arr, stamp_arr, lengths = (_decimal_list(t, count) for t in (tids, stamps, lengths_text))
         buf = np.frombuffer(data, dtype=np.uint8) if data else np.empty(0, dtype=np.uint8)
         if int(lengths.sum()) != len(buf):
@@ -306,13 +335,19 @@ def _decimal_list(text: str | None, count: int) -> np.ndarray:
 def _fetched_rows(con: sqlite3.Connection, wanted: dict[int, str],
                   payload: Any) -> Iterator[tuple[np.ndarray, ...]]:
     """The same batches from rows fetched as tuples by the sqlite3 module; ``payload`` maps each row's data."""
-    cur = con.execute(_messages_sql(wanted, "topic_id, timestamp, data", False, None))
+    cur = con.execute(_messages_sql(wanted, "id, topic_id, timestamp, data", False, None))
+    last: int | None = None
     while True:
         rows = cur.fetchmany(BATCH_ROWS)
         if not rows:
             return
-        tids, stamps, datas = zip(*rows, strict=True)
+        ids, tids, stamps, datas = zip(*rows, strict=True)
         del rows
+        id_arr = np.fromiter(ids, dtype=np.int64, count=len(ids))  # the primary key: always an integer
+        why = _unordered(id_arr, last)
+        if why:
+            raise _out_of_order(why)
+        last = int(id_arr[-1])
         try:
             datas = tuple(payload(d) for d in datas)
             lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
