@@ -245,7 +245,7 @@ def test_headline_metrics_are_a_handful_with_known_values() -> None:
 # ------------------------------------------------------------------------- a real DVC project (where DVC is there)
 
 def _project(tmp: Path, coupled: tuple[str, ...] = ("rbf_svr", "gertler_hagen"),
-             decoupled: tuple[str, ...] = ("ls", "svr")) -> Path:
+             decoupled: tuple[str, ...] = ("ls", "svr"), duration_s: float = 60.0) -> Path:
     """A DVC project as the user guide describes it: the code, logs basin_a and sea_b in data/raw/ (`dvc add`),
     the example stage deleted, two coupled models; sized to run in about a minute."""
     from pipeline.sim import example
@@ -258,7 +258,7 @@ def _project(tmp: Path, coupled: tuple[str, ...] = ("rbf_svr", "gertler_hagen"),
     doc = yaml.safe_load(DVC.read_text())
     del doc["stages"]["example"]
     (proj / "dvc.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    written = example(tmp / "gen", fmt="mcap", duration_s=60.0, seed=1, n_trials=2)
+    written = example(tmp / "gen", fmt="mcap", duration_s=duration_s, seed=1, n_trials=2)
     (proj / "data" / "raw").mkdir(parents=True)
     for log, name in zip(sorted(written.trials, key=str), ("basin_a", "sea_b"), strict=True):
         shutil.copy(log, proj / "data" / "raw" / f"{name}{Path(log).suffix}")
@@ -366,9 +366,9 @@ def _files(directory: Path) -> dict[str, bytes]:
 def test_dvc_round_trip_keeps_every_raw_log(tmp_path: Path) -> None:
     """The user guide's recipe shared with a colleague: `dvc add data/raw`, repro, `dvc push` to a remote; a fresh
     `git clone`, `dvc pull`, `dvc repro` (nothing to do), `dvc exp run -S`, `dvc checkout`: every raw log arrives
-    and stays byte-identical. Needs DVC: about 40 s (one coupled and one damping model)."""
+    and stays byte-identical. Needs DVC: about 30 s (two 30-s trials, one coupled and one damping model)."""
     dvc = _dvc_or_skip()
-    proj = _project(tmp_path, coupled=("gertler_hagen",), decoupled=("ls",))
+    proj = _project(tmp_path, coupled=("gertler_hagen",), decoupled=("ls",), duration_s=30.0)
     raw = _files(proj / layout.RAW)
     assert sorted(raw) == ["basin_a.mcap", "sea_b.mcap"]
     env = _dvc_env()
