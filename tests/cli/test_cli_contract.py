@@ -266,7 +266,7 @@ def test_documented_exit_codes_agree() -> None:
 # -- 2: usage mistakes of `auvid inspect`; a config mistake found before any stage ------------------------------
 def test_inspect_usage_mistakes_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """An empty directory and a mistyped --fields topic are usage mistakes (2), listing what there is; a damaged
-    log stays a failure (3)."""
+    log is no usage mistake (salvaged: 0, or failed: 3)."""
     from pipeline.sim import generate_trial, load_example_vehicle, write_trial
 
     empty = tmp_path / "empty"
