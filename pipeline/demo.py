@@ -3,8 +3,9 @@
 ``prepare(out)`` writes ``out/data/raw/<trial>.mcap`` (the simulated trial logs), ``out/vehicle.yaml`` (the
 vehicle config the simulator wrote for its logs) and ``out/params.yaml`` (small, fast settings that still
 exercise every stage), and returns where they are. Both configs start with the ``# yaml-language-server:
-$schema=`` line that ``auvid init`` writes, naming the JSON Schema shipped in the package, so that an editor
-validates and completes them. ``auvid demo`` then runs the DAG on it; ``dvc.yaml``'s
+$schema=./<kind>.schema.json`` line that ``auvid init`` writes, naming a copy of the package's JSON Schema beside
+them (``out/vehicle.schema.json``, ``out/params.schema.json``), so that an editor validates and completes them
+wherever the run directory goes. ``auvid demo`` then runs the DAG on it; ``dvc.yaml``'s
 ``example`` stage calls the same function for the repository's own run directory.
 """
 
@@ -73,13 +74,15 @@ def _find_logs(directory: Path) -> list[Path]:
 
 
 def _add_modeline(path: Path, kind: str) -> None:
-    """Put the schema line first in a config file (replacing one that names another path)."""
-    from pipeline.config.schemas import schema_modeline
+    """Put the schema line first in a config file (replacing one that names another path), naming the schema
+    copied beside it: the line stays valid when the run directory moves."""
+    from pipeline.config.schemas import copy_schema, schema_modeline
 
     lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
     if lines and lines[0].startswith(MODELINE_PREFIX):
         lines = lines[1:]
-    path.write_text(schema_modeline(kind) + "\n" + "".join(lines), encoding="utf-8")
+    copy_schema(path.parent, kind)
+    path.write_text(schema_modeline(kind, beside=True) + "\n" + "".join(lines), encoding="utf-8")
 
 
 def _generate_logs(target: Path, duration_s: float, seed: int) -> Any:

@@ -18,13 +18,19 @@ from pipeline import __version__
 from pipeline.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_USAGE, UsageError
 from pipeline.errors import ConfigError, PipelineError
 
+# A help text naming a setting says "(default, section.key: value)" and the other values in parentheses;
+# tests/cli/test_cli.py checks both against the params model (importing it here would cost every command ~0.2 s).
 STAGE_HELP = {
     "ingest": "read trial logs (MCAP, ROS 1/2 bags, CSV) into per-stream Parquet at native rate",
     "sync": "put each trial's streams on one uniform grid with validity masks and segments",
-    "differentiate": "smooth velocities and differentiate them (Gaussian / Savitzky-Golay), trim edges",
+    "differentiate": "velocities and accelerations: a Kalman/RTS smoother over every velocity and "
+                     "rate sensor at its own stamps (default, differentiate.method: kalman), or filters of the "
+                     "synced grid (gaussian, savgol)",
     "derive": "thrust per thruster, generalized forces tau, damping target d",
     "features": "write the Parquet feature store with tuning / train-test / test split labels",
-    "tune": "hyperparameter search for the coupled models on the tuning split",
+    "tune": "hyperparameter search for the coupled SVRs on the rows the final model is fitted on (default, "
+            "coupled.tuning: nested; the train stage searches each CV fold's own), or once on the tuning split "
+            "(split)",
     "train": "fit and cross-validate the coupled models (SVR variants, Gertler-Hagen, McFarland-Whitcomb)",
     "decoupled": "fit and cross-validate the decoupled damping models (LS, MLP, KRR, SVR, GP)",
     "simulate": "free-run rollouts on the test trial, DVL-outage bridging",

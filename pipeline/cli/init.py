@@ -1,7 +1,9 @@
 """``auvid init``: a starter vehicle config (YAML text) from what :func:`pipeline.io.inspect.inspect_log` sees.
 
-Its first line, ``# yaml-language-server: $schema=<path>``, names the vehicle JSON Schema shipped in the package
-(:func:`pipeline.config.schemas.schema_path`), so editors validate and complete the file while the TODOs are filled in.
+Its first line, ``# yaml-language-server: $schema=./vehicle.schema.json``, names a copy of the vehicle JSON Schema
+shipped in the package written beside the config (:func:`pipeline.config.schemas.copy_schema`; printed to stdout:
+the package's schema by its absolute path), so editors validate and complete the file while the TODOs are filled
+in, wherever the directory goes.
 
 Recognised topics (by message type, then by topic name where the type says too little):
 
@@ -38,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cli.common import EXIT_OK, check_paths, user_definitions
-from pipeline.config.schemas import schema_modeline
+from pipeline.config.schemas import copy_schema, schema_modeline
 from pipeline.errors import ConfigError
 from pipeline.io.inspect import inspect_log, topic_fields
 from pipeline.io.msgdefs import UserTypes
@@ -234,8 +236,9 @@ def _todo(what: str) -> str:
 
 def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = None,
                    definitions: UserTypes | None = None, definition_dirs: list[Path] | None = None,
-                   base_dir: Path | None = None) -> Starter:
-    """The starter config of a vehicle from its logs (see the module docstring); nothing is written."""
+                   base_dir: Path | None = None, schema_beside: bool = False) -> Starter:
+    """The starter config of a vehicle from its logs (see the module docstring); nothing is written.
+    ``schema_beside``: the first line names ``./vehicle.schema.json`` (the caller copies the schema there)."""
     paths = [Path(p) for p in logs]
     if not paths:
         raise ValueError("give at least one log")
@@ -243,7 +246,7 @@ def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = No
     streams, roles, joints, notes = _classify(topics, paths, definitions)
     vehicle_name = name or re.sub(r"[^A-Za-z0-9_\-]", "_", paths[0].name.split(".")[0]) or "vehicle"
     out: list[str] = [
-        schema_modeline("vehicle"),
+        schema_modeline("vehicle", beside=schema_beside),
         f"# Starter vehicle config written by `auvid init` from {len(paths)} log(s): "
         + ", ".join(p.name for p in paths[:5]) + (" ..." if len(paths) > 5 else ""),
         "# Fill in every TODO (the loader lists those left). Body axes FRD, world NED; matrices in the DOF",
@@ -362,11 +365,13 @@ def cmd_init(args: argparse.Namespace) -> int:
         raise ConfigError(f"{out} exists; choose another --out or give --force")
     base = Path.cwd() if str(out) == "-" else out.resolve().parent
     starter = starter_config(args.logs, name=args.name, definitions=definitions,
-                             definition_dirs=[Path(d).resolve() for d in args.definitions], base_dir=base)
+                             definition_dirs=[Path(d).resolve() for d in args.definitions], base_dir=base,
+                             schema_beside=str(out) != "-")
     if str(out) == "-":
         print(starter.text, end="")
     else:
         out.write_text(starter.text, encoding="utf-8")
+        copy_schema(base, "vehicle")
         print(f"wrote {out}: {len(starter.streams)} stream(s), {starter.todo_count} TODO(s) to fill in")
     for note in starter.notes:
         print(f"  {note}", file=sys.stderr)

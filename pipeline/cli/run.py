@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pipeline import layout
 from pipeline.cli.common import (
     EXIT_OK,
     EXIT_QUARANTINED,
@@ -86,12 +87,40 @@ def _check_inputs(args: argparse.Namespace, stages: list[str]) -> None:
             raise UsageError(f"stage {stages[0]} has no input for trial {trial!r}; available: {have}")
 
 
+def _known_trials(args: argparse.Namespace, stages: list[str]) -> set[str]:
+    """The trials a run that reaches the features stage can have: the logs given and those under data/raw/, the
+    trials ingested (data/signals/) or derived before (what the features stage checks, known before it runs)."""
+    from pipeline.ingest import trial_id
+    from stages.common import discover_trials
+    from stages.ingest import discover_logs
+
+    root = Path(args.root)
+    logs = list(getattr(args, "logs", None) or []) if "ingest" in stages else []
+    derived = {p.stem for p in (root / layout.DERIVED).glob("*.parquet")}
+    return {trial_id(p) for p in [*logs, *discover_logs(root)]} | set(discover_trials(root)) | derived
+
+
+def _check_test_trials(args: argparse.Namespace, stages: list[str], params: Any) -> None:
+    """A ``features.test_trials`` name that matches none of the run's trials is a config error found before the
+    first stage runs (the features stage would find it only after ingest..derive), naming the trials there are."""
+    if "features" not in stages or not params.features.test_trials:
+        return
+    known = _known_trials(args, stages)
+    unknown = [t for t in params.features.test_trials if t not in known]
+    if known and unknown:
+        where = args.params or (Path(args.root) / "params.yaml" if (Path(args.root) / "params.yaml").exists()
+                                else None)
+        raise ConfigError(f"features.test_trials names {unknown}, which match no trial of this run; its trials: "
+                          f"{sorted(known)}", file=where, field="features.test_trials")
+
+
 def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
     from stages.common import run_stages
 
     _check_inputs(args, stages)
     vehicle, params = _load(args, stages)
     params = _with_overrides(params, args)
+    _check_test_trials(args, stages, params)
     logs = list(getattr(args, "logs", None) or []) or None
     start = time.perf_counter()
     if getattr(args, "trial", None):

@@ -22,6 +22,30 @@ def test_help_teaches_with_examples(capsys: pytest.CaptureFixture[str]) -> None:
         assert name in out
 
 
+def test_help_texts_name_the_params_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+    """A stage's help that names a setting gives its default as the params model has it, and the other values:
+    `auvid differentiate --help` says the Kalman/RTS smoother, `auvid tune --help` nested tuning."""
+    import re
+    import typing
+
+    from pipeline.config import Params
+
+    defaults = Params()
+    named = {}
+    for stage, text in cli.STAGE_HELP.items():
+        for section, key, value in re.findall(r"\(default, (\w+)\.(\w+): (\w+)[;)]", text):
+            named[f"{section}.{key}"] = stage
+            assert str(getattr(getattr(defaults, section), key)) == value, f"{stage} --help: {section}.{key}"
+            field = type(getattr(defaults, section)).model_fields[key]
+            for other in typing.get_args(field.annotation):
+                assert other in text, f"{stage} --help does not name {section}.{key}: {other}"
+    assert named == {"differentiate.method": "differentiate", "coupled.tuning": "tune"}
+    assert "Kalman/RTS" in cli.STAGE_HELP["differentiate"]
+    with pytest.raises(SystemExit):
+        cli.main(["tune", "--help"])
+    assert "coupled.tuning: nested" in " ".join(capsys.readouterr().out.split())
+
+
 def test_every_stage_has_a_subcommand() -> None:
     parser = cli.build_parser()
     for name in common.STAGE_ORDER:

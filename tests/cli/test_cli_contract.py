@@ -261,3 +261,50 @@ def test_documented_exit_codes_agree() -> None:
         flat = " ".join(text.replace("(", " ").split()).replace("; ", ", ")
         missing = [p for p in phrases if p not in flat]
         assert not missing, (where, missing)
+
+
+# -- 2: usage mistakes of `auvid inspect`; a config mistake found before any stage ------------------------------
+def test_inspect_usage_mistakes_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An empty directory and a mistyped --fields topic are usage mistakes (2), listing what there is; a damaged
+    log is no usage mistake (salvaged: 0, or failed: 3)."""
+    from pipeline.sim import generate_trial, load_example_vehicle, write_trial
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli.main(["inspect", str(empty)]) == cli_common.EXIT_USAGE
+    assert "nothing to inspect" in capsys.readouterr().err
+    other = tmp_path / "notes"  # a directory of no log
+    other.mkdir()
+    (other / "notes.pdf").write_bytes(b"%PDF-1.7")
+    assert cli.main(["inspect", str(other)]) == cli_common.EXIT_USAGE
+    assert "give one log" in capsys.readouterr().err
+    log = write_trial(generate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", tmp_path / "run01.mcap")
+    assert cli.main(["inspect", str(log), "--fields", "/fog/rat"]) == cli_common.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "usage error" in err and "'/fog/rat'" in err and "'/fog/rate'" in err  # the topics there are
+    assert cli.main(["inspect", str(log), "--fields", "/fog/rate"]) == cli_common.EXIT_OK
+    assert "header.stamp.sec" in capsys.readouterr().out
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x89MCAP0\r\nnot a record" * 3)
+    assert cli.main(["inspect", str(bad)]) != cli_common.EXIT_USAGE  # salvaged or failed: not the user's mistake
+
+
+def test_unknown_test_trial_is_a_config_error_before_any_stage(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """features.test_trials naming no trial: exit 2 before ingest runs (not after ingest..derive), naming the key,
+    the params file and the trials there are (raw logs, logs given, trials ingested before)."""
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path)
+    params = root / "params.yaml"
+    params.write_text("features:\n  test_trials: [trial2]\n")
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "config error" in err and "features.test_trials" in err and str(params) in err
+    assert "['trial2']" in err and "its trials: ['trial01', 'trial02']" in err
+    assert dag.calls == []
+    assert cli.main(["run", *_base(root), "-q", "--to", "derive"]) == cli_common.EXIT_OK  # no features: no check
+    elsewhere = tmp_path / "sea" / "trial2.mcap"  # a log given on the command line is a trial of the run
+    elsewhere.parent.mkdir()
+    elsewhere.write_text("log trial2")
+    assert cli.main(["run", *_base(root), "-q", str(elsewhere)]) == cli_common.EXIT_OK
+    assert ("features", None) in dag.calls

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 import yaml
 
+from pipeline import layout
 from pipeline.config import Params, load_params
 from pipeline.models.card import card_path
 from stages.common import STAGE_ORDER
@@ -243,7 +244,8 @@ def test_headline_metrics_are_a_handful_with_known_values() -> None:
 
 # ------------------------------------------------------------------------- a real DVC project (where DVC is there)
 
-def _project(tmp: Path) -> Path:
+def _project(tmp: Path, coupled: tuple[str, ...] = ("rbf_svr", "gertler_hagen"),
+             decoupled: tuple[str, ...] = ("ls", "svr"), duration_s: float = 60.0) -> Path:
     """A DVC project as the user guide describes it: the code, logs basin_a and sea_b in data/raw/ (`dvc add`),
     the example stage deleted, two coupled models; sized to run in about a minute."""
     from pipeline.sim import example
@@ -256,15 +258,14 @@ def _project(tmp: Path) -> Path:
     doc = yaml.safe_load(DVC.read_text())
     del doc["stages"]["example"]
     (proj / "dvc.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    written = example(tmp / "gen", fmt="mcap", duration_s=60.0, seed=1, n_trials=2)
+    written = example(tmp / "gen", fmt="mcap", duration_s=duration_s, seed=1, n_trials=2)
     (proj / "data" / "raw").mkdir(parents=True)
     for log, name in zip(sorted(written.trials, key=str), ("basin_a", "sea_b"), strict=True):
         shutil.copy(log, proj / "data" / "raw" / f"{name}{Path(log).suffix}")
     params = yaml.safe_load((proj / "params.yaml").read_text())
     params["features"]["test_trials"] = ["sea_b"]
-    params["coupled"].update(models=["rbf_svr", "gertler_hagen"], folds=2, max_evals=4, max_samples=300,
-                             tuning="split")
-    params["decoupled"].update(models=["ls", "svr"], folds=2, curve_points=2, max_samples=300)
+    params["coupled"].update(models=list(coupled), folds=2, max_evals=4, max_samples=300, tuning="split")
+    params["decoupled"].update(models=list(decoupled), folds=2, curve_points=2, max_samples=300)
     params["simulate"].update(horizons_s=[1.0], outage_windows_s=[10.0], band_samples=2)
     (proj / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     load_params(proj / "params.yaml")
@@ -275,23 +276,37 @@ def _ran(log: str) -> set[str]:
     return set(re.findall(r"Running stage '([\w@.-]+)'", log))
 
 
-def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
-    """Reproduces, then does nothing, then reruns only what is downstream of a changed param; `dvc metrics diff`
-    shows the change. Needs DVC (`pip install -e '.[dvc]'`): about a minute."""
-    dvc = shutil.which("dvc")
+def _dvc_or_skip() -> str:
+    dvc = shutil.which("dvc") or shutil.which("dvc", path=str(Path(sys.executable).parent))
     if dvc is None:
-        pytest.skip("dvc is not installed (pip install -e '.[dvc]'): the real `dvc repro` check did not run; "
-                    "the structural checks of dvc.yaml above did")
-    proj = _project(tmp_path)
+        pytest.skip("dvc is not installed (pip install -e '.[dvc]'): the real DVC checks did not run; "
+                    "the structural checks of dvc.yaml and .gitignore did")
+    return dvc
+
+
+def _dvc_env() -> dict[str, str]:
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
            "DVC_NO_ANALYTICS": "1", "AUVID_JOBS": "1", "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
            "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t"}
     env.pop("AUVID_SCHEDULER", None)
+    return env
 
+
+def _shell(cwd: Path, env: dict[str, str]) -> Any:
     def sh(*cmd: str) -> str:
-        done = subprocess.run(cmd, cwd=proj, env=env, capture_output=True, text=True)
+        done = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
         assert done.returncode == 0, f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stdout}\n{done.stderr}"
         return done.stdout + done.stderr
+    return sh
+
+
+def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
+    """Reproduces, then does nothing, then reruns only what is downstream of a changed param; `dvc metrics diff`
+    shows the change. Needs DVC (`pip install -e '.[dvc]'`): about a minute."""
+    dvc = _dvc_or_skip()
+    proj = _project(tmp_path)
+    env = _dvc_env()
+    sh = _shell(proj, env)
 
     sh("git", "init", "-q")
     sh(dvc, "init", "-q")
@@ -326,6 +341,64 @@ def test_dvc_repro_with_the_users_trials(tmp_path: Path) -> None:
     plots = {Path(k).stem: v for k, v in plots.get("data", plots).items()}
     for name in ("coupled_r2", "learning_curves"):  # both revisions in one plot: the model plots diff
         assert {d["rev"] for d in plots[name][0]["content"]["data"]["values"]} == {"HEAD", "workspace"}, name
+
+
+def _ignored(path: str) -> bool:
+    return subprocess.run(["git", "check-ignore", "-q", "--no-index", path], cwd=REPO).returncode == 0
+
+
+def test_gitignore_ignores_each_data_directory_not_data_itself() -> None:
+    """Every directory a stage writes under data/ is git-ignored by name; data/ itself is not, so git carries
+    data/raw.dvc and DVC reads it. With `/data/*` git (and DVC's scmrepo) take data/ for ignored: DVC never reads
+    data/raw.dvc, `dvc push` skips the raw logs and `dvc checkout` / `dvc exp run` delete them (dvc#10987)."""
+    written = [v for k, v in vars(layout).items() if k.isupper() and isinstance(v, str) and v.startswith("data/")]
+    assert layout.RAW in written and len(written) >= 9
+    for directory in written:
+        assert _ignored(f"{directory}/") and _ignored(f"{directory}/trial01.parquet"), directory
+    for path in ("data/", "data/raw.dvc", "data/.gitignore", "data/calibration.dvc"):
+        assert not _ignored(path), f"{path} is git-ignored: DVC would not see the .dvc files under data/"
+
+
+def _files(directory: Path) -> dict[str, bytes]:
+    return {p.relative_to(directory).as_posix(): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
+
+
+def test_dvc_round_trip_keeps_every_raw_log(tmp_path: Path) -> None:
+    """The user guide's recipe shared with a colleague: `dvc add data/raw`, repro, `dvc push` to a remote; a fresh
+    `git clone`, `dvc pull`, `dvc repro` (nothing to do), `dvc exp run -S`, `dvc checkout`: every raw log arrives
+    and stays byte-identical. Needs DVC: about 30 s (two 30-s trials, one coupled and one damping model)."""
+    dvc = _dvc_or_skip()
+    proj = _project(tmp_path, coupled=("gertler_hagen",), decoupled=("ls",), duration_s=30.0)
+    raw = _files(proj / layout.RAW)
+    assert sorted(raw) == ["basin_a.mcap", "sea_b.mcap"]
+    env = _dvc_env()
+    sh = _shell(proj, env)
+    sh("git", "init", "-q")
+    sh(dvc, "init", "-q")
+    sh(dvc, "add", "data/raw")
+    sh(dvc, "remote", "add", "-d", "shared", str(tmp_path / "remote"))
+    sh("git", "add", ".")
+    sh("git", "commit", "-qm", "project")
+    sh(dvc, "repro")
+    sh("git", "add", "dvc.lock", "reports/headline.json", "reports/plots")
+    sh("git", "commit", "-qm", "first run")
+    assert sh("git", "status", "--porcelain").strip() == ""
+    sh(dvc, "push")
+
+    clone = tmp_path / "clone"
+    sh("git", "clone", "-q", str(proj), str(clone))
+    cl = _shell(clone, env)
+    assert not (clone / layout.RAW).exists()
+    cl(dvc, "pull")
+    assert _files(clone / layout.RAW) == raw, "dvc pull did not deliver the raw logs"
+    assert _ran(cl(dvc, "repro")) == set(), "the pull left outputs out"
+    assert _ran(cl(dvc, "exp", "run", "-S", "simulate.band_samples=3")) == {"simulate", "report"}
+    assert _files(clone / layout.RAW) == raw, "dvc exp run lost raw logs"
+    cl("git", "checkout", "--", ".")  # back to the first run's params and lock: checkout restores its outputs
+    cl(dvc, "checkout")
+    assert _files(clone / layout.RAW) == raw, "dvc checkout lost raw logs"
+    assert (clone / "data/simulation/sea_b/free_run.json").is_file()
+    assert _ran(cl(dvc, "repro")) == set()
 
 
 # ------------------------------------------------------------------------------------- model plots for `dvc plots`

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 from pipeline.cli.init import starter_config
@@ -35,6 +36,27 @@ def test_auvid_init_writes_the_modeline_first(tmp_path: Path) -> None:
     assert first.startswith("# yaml-language-server: $schema=")
     assert Path(first.split("$schema=", 1)[1]) == schema_path("vehicle")
     assert yaml.safe_load(text)["name"] == "run01"  # a comment: the YAML is unchanged
+
+
+def test_auvid_init_puts_the_schema_beside_the_config_moved_or_not(tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """`auvid init -o DIR/dagon.yaml` names ./vehicle.schema.json, written into DIR: the line stays valid when DIR
+    moves; to stdout the line names the package's schema (there is no directory to put a copy in)."""
+    from pipeline import cli
+    from pipeline.config.schemas import MODELINE
+
+    log = tmp_path / "run01.mcap"
+    write_trial(generate_trial(load_example_vehicle(), 3.0, seed=1), "mcap", log)
+    config = tmp_path / "vehicle" / "dagon.yaml"
+    config.parent.mkdir()
+    assert cli.main(["init", str(log), "-o", str(config)]) == 0
+    moved = Path(shutil.move(config.parent, tmp_path / "lab" / "dagon")) / "dagon.yaml"
+    first = moved.read_text().splitlines()[0]
+    assert first == f"{MODELINE}./vehicle.schema.json"
+    assert (moved.parent / "vehicle.schema.json").read_bytes() == schema_path("vehicle").read_bytes()
+    capsys.readouterr()
+    assert cli.main(["init", str(log), "-o", "-"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == schema_modeline("vehicle")
 
 
 def test_the_schemas_are_package_data(tmp_path: Path) -> None:
