@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pipeline import __version__
 from pipeline.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_USAGE, UsageError
-from pipeline.errors import ConfigError, PipelineError
+from pipeline.errors import ConfigError, PipelineError, RunRootBusy
 
 STAGE_HELP = {
     "ingest": "read trial logs (MCAP, ROS 1/2 bags, CSV) into per-stream Parquet at native rate",
@@ -290,6 +290,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except ConfigError as err:
         print(f"auvid: config error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except RunRootBusy as err:  # another command is writing the run directory: nothing done
+        print(f"auvid: {args.command}: {err}", file=sys.stderr)
         return EXIT_USAGE
     except PipelineError as err:
         print(f"auvid: {args.command} failed: {err}", file=sys.stderr)
