@@ -202,6 +202,17 @@ class TextLogReader:
                                   has_header=False)
         return out
 
+    def is_empty(self, name: str) -> bool:
+        """Whether a file holds no line with anything but white space (no header, no data): an empty stream."""
+        def scan() -> bool:
+            with self._binary(name) as handle:
+                return not any(line.strip() for line in handle)
+
+        try:
+            return self._tolerating_cut(name, scan)
+        except (OSError, EOFError, zlib.error) as err:
+            raise IngestError(f"cannot read: {err}", file=self._file(name)) from err
+
     def fields(self, topic: str) -> list[str]:
         """Column names of a file (stripped of surrounding spaces)."""
         return list(self._header(topic)[1])
