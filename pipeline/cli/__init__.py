@@ -193,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--trial", action="append", default=None, metavar="T",
                     help="export this trial only (repeatable; default: every trial with a synced table)")
     ex.add_argument("--out", type=_abs_path, default=None, help="output directory (default: ROOT/exports)")
+    ex.add_argument("--params", type=Path, default=None, help="the run's params YAML, whose coupled.models and "
+                    "decoupled.models are the models exported (default: ROOT/params.yaml if present)")
     ex.add_argument("-q", "--quiet", action="store_true", help="one summary line; no progress, no warnings")
     ex.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
