@@ -37,7 +37,11 @@ log = logging.getLogger(__name__)
 
 @contextmanager
 def atomic_path(target: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; move it over ``target`` only if the block succeeds."""
+    """Yield a temporary path beside ``target``; move it over ``target`` only if the block succeeds.
+
+    An OSError that names no file (a full disk: ENOSPC from a write, Arrow's I/O errors) or only the temporary is
+    raised again naming ``target``, so the message says which output could not be written.
+    """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
@@ -46,6 +50,10 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     try:
         yield tmp_path
         os.replace(tmp_path, target)
+    except OSError as err:
+        if err.filename in (None, str(tmp_path)):  # a full disk (ENOSPC) names no file: name the one being written
+            raise OSError(err.errno, err.strerror or str(err), str(target)) from err
+        raise
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
