@@ -62,3 +62,7 @@ class SyncError(PipelineError):
 
 class ModelError(PipelineError):
     """Model fitting, search or evaluation cannot proceed (too little data, leakage, divergence)."""
+
+
+class RunRootBusy(PipelineError):
+    """Another auvid command holds the run directory's lock (a usage error: exit 2, nothing done)."""

@@ -18,8 +18,10 @@ topic                                     source (one message per row)
 
 A value that is NaN in the source is ``null``. Each channel names its source file in its metadata; one metadata
 record ``auvid`` holds the trial, the package version and each source's sha256. Models load only through their
-card (:func:`pipeline.models.card.load_model`). The file is written to a temporary path beside the target and
-renamed; the same inputs give the same bytes (no wall-clock time is written; messages in (time, channel) order).
+card (:func:`pipeline.models.card.load_model`), and only those the run's params name (``models``, from
+:func:`named_models`): a carded file the run did not produce (an earlier run's, one copied in) is never unpickled.
+The file is written to a temporary path beside the target and renamed; the same inputs give the same bytes (no
+wall-clock time is written; messages in (time, channel) order).
 """
 
 from __future__ import annotations
@@ -44,7 +46,8 @@ from pipeline.tableio import atomic_path, file_sha256
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BAND_SIGMAS", "TOPICS", "ExportResult", "export_trial", "export_trials", "trials_available"]
+__all__ = ["BAND_SIGMAS", "TOPICS", "ExportResult", "export_trial", "export_trials", "named_models",
+           "trials_available"]
 
 BAND_SIGMAS = 2.0
 TOPICS = ("/auvid/synced", "/auvid/kinematics", "/auvid/velocity", "/auvid/acceleration",
@@ -196,11 +199,25 @@ def _band_channels(path: Path, root: Path) -> list[Channel]:
     return out
 
 
-def _model_cards(root: Path) -> Iterator[tuple[str, Path, dict[str, Any]]]:
-    """(kind, model file, card) of every carded model under data/models/{coupled,decoupled}."""
+def named_models(params: Any) -> set[str]:
+    """The model files a run with ``params`` fits, as ``<kind>/<file>``: ``coupled/<model>.joblib`` for each of
+    ``coupled.models``, ``decoupled/<dof>_<model>.joblib`` for each of ``decoupled.dofs`` x ``decoupled.models``."""
+    decoupled = params.decoupled
+    return ({f"coupled/{m}.joblib" for m in params.coupled.models}
+            | {f"decoupled/{d}_{m}.joblib" for d in decoupled.dofs for m in decoupled.models})
+
+
+def _model_cards(root: Path, models: set[str] | None,
+                 skipped: list[str]) -> Iterator[tuple[str, Path, dict[str, Any]]]:
+    """(kind, model file, card) of every carded model under data/models/{coupled,decoupled} that ``models`` names
+    (None: all); the others are listed in ``skipped``, their cards not even read."""
     for kind in ("coupled", "decoupled"):
         base = root / layout.MODELS / kind
         for cpath in sorted(base.glob("*.card.json")) if base.is_dir() else []:
+            model_file = cpath.name.removesuffix(".card.json") + ".joblib"
+            if models is not None and f"{kind}/{model_file}" not in models:
+                skipped.append(f"{kind} model {model_file}: not named by the run's params ({kind}.models)")
+                continue
             try:
                 card = json.loads(cpath.read_text(encoding="utf-8"))
             except (OSError, UnicodeDecodeError, json.JSONDecodeError):
@@ -210,7 +227,7 @@ def _model_cards(root: Path) -> Iterator[tuple[str, Path, dict[str, Any]]]:
                 yield kind, cpath.with_name(cpath.name.removesuffix(".card.json") + ".joblib"), card
 
 
-def _prediction_channels(root: Path, trial: str, skipped: list[str]) -> list[Channel]:
+def _prediction_channels(root: Path, trial: str, skipped: list[str], models: set[str] | None) -> list[Channel]:
     """Each carded model's predictions on the trial's derived rows, beside what it predicts."""
     from pipeline.models.card import load_model
 
@@ -221,7 +238,7 @@ def _prediction_channels(root: Path, trial: str, skipped: list[str]) -> list[Cha
     cols = set(table.column_names)
     t_ns = table.column("t_ns").to_numpy().astype(np.int64)
     groups: dict[tuple[str, str], dict[str, dict[str, np.ndarray]]] = {}
-    for kind, model_path, card in _model_cards(root):
+    for kind, model_path, card in _model_cards(root, models, skipped):
         inputs = card.get("inputs")
         outputs = card.get("outputs") or ([card["output"]] if isinstance(card.get("output"), str) else None)
         name = str(card.get("model") or model_path.stem.split("_", 1)[-1]) if kind == "decoupled" \
@@ -281,7 +298,7 @@ def trials_available(root: str | Path) -> list[str]:
     return sorted(p.stem for p in base.glob("*.parquet")) if base.is_dir() else []
 
 
-def _channels(root: Path, trial: str, skipped: list[str]) -> list[Channel]:
+def _channels(root: Path, trial: str, skipped: list[str], models: set[str] | None) -> list[Channel]:
     synced = layout.synced_path(root, trial)
     if not synced.is_file():
         raise ExportError(f"trial {trial!r} has no synced table (run `auvid sync` first)", file=synced)
@@ -293,7 +310,7 @@ def _channels(root: Path, trial: str, skipped: list[str]) -> list[Channel]:
     else:
         skipped.append(f"no {_rel(kin, root)}: no velocity, acceleration or prediction channels")
         return channels
-    channels += _prediction_channels(root, trial, skipped)
+    channels += _prediction_channels(root, trial, skipped, models)
     channels += _free_run_channels(root, trial)
     return channels
 
@@ -328,14 +345,15 @@ def _write(stream: Any, trial: str, channels: list[Channel], sources: dict[str, 
     return {c.topic: counts[k] for k, c in enumerate(channels)}
 
 
-def export_trial(root: str | Path, trial: str, out_dir: str | Path, progress: Progress | None = None
-                 ) -> ExportResult:
-    """Write ``<out_dir>/<trial>.mcap`` (atomically) and return what it holds."""
+def export_trial(root: str | Path, trial: str, out_dir: str | Path, progress: Progress | None = None,
+                 models: set[str] | None = None) -> ExportResult:
+    """Write ``<out_dir>/<trial>.mcap`` (atomically) and return what it holds; ``models``: the model files to
+    load (:func:`named_models`; None: every carded one)."""
     root = Path(root)
     if _SAFE.search(trial) or trial in (".", ".."):
         raise ExportError(f"trial name {trial!r} is not a plain file name")
     skipped: list[str] = []
-    channels = _channels(root, trial, skipped)
+    channels = _channels(root, trial, skipped, models)
     sources = {c.source: "" for c in channels}
     for src in sources:
         sources[src] = file_sha256(root / src) if (root / src).is_file() else ""
@@ -350,8 +368,10 @@ def export_trial(root: str | Path, trial: str, out_dir: str | Path, progress: Pr
 
 
 def export_trials(root: str | Path, trials: list[str] | None = None, out_dir: str | Path | None = None,
-                  progress_factory: Callable[[str], Progress] | None = None) -> list[ExportResult]:
-    """Export every trial with a synced table (or ``trials``) into ``out_dir`` (default ``<root>/exports``)."""
+                  progress_factory: Callable[[str], Progress] | None = None,
+                  models: set[str] | None = None) -> list[ExportResult]:
+    """Export every trial with a synced table (or ``trials``) into ``out_dir`` (default ``<root>/exports``);
+    ``models``: as :func:`export_trial`."""
     root = Path(root)
     have = trials_available(root)
     wanted = have if trials is None else list(trials)
@@ -363,7 +383,7 @@ def export_trials(root: str | Path, trials: list[str] | None = None, out_dir: st
     for trial in wanted:
         progress = progress_factory(f"export {trial}") if progress_factory else None
         try:
-            results.append(export_trial(root, trial, out, progress))
+            results.append(export_trial(root, trial, out, progress, models))
         finally:
             if progress is not None and hasattr(progress, "close"):
                 progress.close()

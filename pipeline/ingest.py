@@ -342,6 +342,9 @@ def _topic_report(data: TopicData, info: TopicInfo | None) -> dict[str, Any]:
     if dropped:
         rep["rows_dropped"] = int(dropped)
         rep["rows_dropped_lines"] = list(getattr(data, "dropped_lines", []))
+    if getattr(data, "line_counts", None):  # a text file: its data lines by kind, the dropped ones by number
+        rep["lines"] = dict(data.line_counts)  # type: ignore[attr-defined]
+        rep["lines_dropped"] = dict(data.line_numbers)  # type: ignore[attr-defined]
     return rep
 
 

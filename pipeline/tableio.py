@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -27,10 +29,19 @@ if TYPE_CHECKING:
 
 META_KEY = b"auvid"
 
+#: The name :func:`atomic_path` gives a temporary: ``.<target name>.<8 characters of mkstemp>.tmp`` beside the target.
+TEMP_NAME = re.compile(r"^\.(?P<target>.+)\.[a-z0-9_]{8}\.tmp$")
+
+log = logging.getLogger(__name__)
+
 
 @contextmanager
 def atomic_path(target: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; move it over ``target`` only if the block succeeds."""
+    """Yield a temporary path beside ``target``; move it over ``target`` only if the block succeeds.
+
+    An OSError that names no file (a full disk: ENOSPC from a write, Arrow's I/O errors) or only the temporary is
+    raised again naming ``target``, so the message says which output could not be written.
+    """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
@@ -39,9 +50,39 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     try:
         yield tmp_path
         os.replace(tmp_path, target)
+    except OSError as err:
+        if err.filename in (None, str(tmp_path)):  # a full disk (ENOSPC) names no file: name the one being written
+            raise OSError(err.errno, err.strerror or str(err), str(target)) from err
+        raise
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def remove_stale_temps(directory: str | Path, *, targets: set[str] | None = None,
+                       recursive: bool = False) -> list[Path]:
+    """Remove the temporaries of :func:`atomic_path` that a killed writer left in ``directory``.
+
+    Only files named as :data:`TEMP_NAME` says; with ``targets``, only those of these target names (a per-trial
+    stage clears its own trial's, not a sibling worker's); ``recursive``: in sub-directories too. A stage calls it
+    at start, when no writer of its own can be running (the run root's lock keeps other commands out).
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    found = directory.rglob(".*.tmp") if recursive else directory.glob(".*.tmp")
+    removed = []
+    for path in sorted(found):
+        match = TEMP_NAME.match(path.name)
+        if match is None or (targets is not None and match["target"] not in targets):
+            continue
+        if path.is_symlink() or path.is_file():
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    if removed:
+        log.warning("removed %d temporary file(s) a killed run left in %s: %s", len(removed), directory,
+                    [p.name for p in removed[:5]])
+    return removed
 
 
 def file_sha256(path: str | Path, chunk_bytes: int = 1 << 20) -> str:

@@ -30,8 +30,9 @@ from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
-from pipeline.errors import ConfigError, PipelineError
+from pipeline.errors import ConfigError, PipelineError, RunRootBusy
 from pipeline.parallel import backend
+from pipeline.rootlock import run_root_lock
 
 if TYPE_CHECKING:  # pydantic (~0.2 s of CPU) is imported where configs are validated, not by importing a stage
     from pipeline.config import Params, Vehicle
@@ -103,10 +104,14 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
     kwargs = {k: v for k, v in vars(args).items() if k not in {"root", "vehicle", "params", "verbose"}}
     try:
         vehicle, params = load_configs(args.root, args.vehicle, args.params, snapshot=name == "ingest")
-        with backend():  # AUVID_SCHEDULER sends joblib fan-out to a Dask cluster, else local processes
+        # AUVID_SCHEDULER sends joblib fan-out to a Dask cluster, else local processes
+        with run_root_lock(args.root), backend():
             result = run(args.root, vehicle, params, **kwargs)
     except ConfigError as err:
         print(f"config error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except RunRootBusy as err:
+        print(f"{name}: {err}", file=sys.stderr)
         return EXIT_USAGE
     except PipelineError as err:
         print(f"{name} failed: {err}", file=sys.stderr)
@@ -277,7 +282,17 @@ def run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] |
     ``progress_factory(stage)`` gives the progress callback for a stage (or None); ``on_stage(stage, result,
     seconds)`` is called before (result None) and after each stage. A PipelineError stops the run; so does an
     ingest that leaves no trial at all (every log quarantined): the list is then shorter than ``stages``.
+    The run root's lock is held throughout (:mod:`pipeline.rootlock`): RunRootBusy if another command has it.
     """
+    with run_root_lock(root):
+        return _run_stages(root, vehicle, params, stages, logs=logs, progress_factory=progress_factory,
+                           on_stage=on_stage)
+
+
+def _run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] | tuple[str, ...], *,
+                logs: list[Path] | None,
+                progress_factory: Callable[[str], Callable[..., Any] | None] | None,
+                on_stage: Callable[[str, StageResult | None, float], None] | None) -> list[StageResult]:
     import time
 
     from pipeline.parallel import release_workers

@@ -25,7 +25,7 @@ from pipeline.errors import ModelError
 from pipeline.models.card import card_path, save_model
 from pipeline.report.decoupled import plot_damping, plot_learning_curves, plot_timings, table_markdown
 from pipeline.studies.decoupled import ModelResult, StudyResult, decoupled_stage, run_lineage, stage_columns
-from pipeline.tableio import atomic_path, write_json
+from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
 
 NAME = "decoupled"
@@ -44,6 +44,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     """Learn d_i(nu_i) per DOF with LS, MLP, KRR, SVR and GP; score, time and save them. ``progress``: one unit
     per (DOF, model) finished or failed (stages.common)."""
     root = Path(root)
+    for directory in (models_dir(root), evaluation_dir(root)):
+        remove_stale_temps(directory)
     p = params.decoupled
     columns = stage_columns(p)
     tuning = store.load(root, vehicle=vehicle.name, split="tuning", columns=columns)

@@ -9,7 +9,7 @@ from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.derive import derive
 from pipeline.errors import SchemaError, SyncError
-from pipeline.tableio import read_parquet, write_parquet
+from pipeline.tableio import read_parquet, remove_stale_temps, write_parquet
 from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, to_arrow, trials_in
 from stages.common import StageResult, stage_main
 
@@ -21,6 +21,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
     """Per-thruster thrust, generalized forces, M nu_dot, C(nu) nu, g(eta) and the damping target."""
     root = Path(root)
     result = StageResult(stage=NAME)
+    remove_stale_temps(root / layout.DERIVED, targets=None if trial is None else {f"{trial}.parquet"})
     for name in trials_in(root / layout.KINEMATICS, trial):
         source = layout.kinematics_path(root, name)
         target = layout.derived_path(root, name)

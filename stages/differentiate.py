@@ -11,7 +11,7 @@ from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.differentiate import differentiate
-from pipeline.tableio import read_parquet, write_json, write_parquet
+from pipeline.tableio import read_parquet, remove_stale_temps, write_json, write_parquet
 from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, to_arrow, trials_in
 from stages.common import StageResult, stage_main
 
@@ -23,6 +23,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
     """Body velocities and attitude, then smoothed velocities and accelerations per segment, edges trimmed."""
     root = Path(root)
     result = StageResult(stage=NAME)
+    remove_stale_temps(root / layout.KINEMATICS,
+                       targets=None if trial is None else {f"{trial}.parquet", f"{trial}.estimation.json"})
     for name in trials_in(root / layout.SYNCED, trial):
         source = layout.synced_path(root, name)
         target = layout.kinematics_path(root, name)

@@ -8,7 +8,7 @@ from pathlib import Path
 from pipeline import layout, store
 from pipeline.config import Params, Vehicle
 from pipeline.errors import SchemaError
-from pipeline.tableio import read_parquet
+from pipeline.tableio import read_parquet, remove_stale_temps
 from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, trials_in
 from stages.common import StageResult, stage_main
 
@@ -21,6 +21,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
     root = Path(root)
     result = StageResult(stage=NAME)
     written: list[str] = []
+    remove_stale_temps(store.partition_dir(root, vehicle.name, trial) if trial else layout.features_dir(root),
+                       recursive=True)
     store.check_test_trials(params.features, trials_in(root / layout.DERIVED, None), _seen_trials(root))
     for name in trials_in(root / layout.DERIVED, trial):
         source = layout.derived_path(root, name)

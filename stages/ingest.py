@@ -29,7 +29,7 @@ from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import Checksum, ingest_log, trial_id
 from pipeline.parallel import imap, usable_cpus
-from pipeline.tableio import write_json, write_parquet
+from pipeline.tableio import remove_stale_temps, write_json, write_parquet
 from stages.common import StageResult, stage_main
 
 if TYPE_CHECKING:  # the configs may be a snapshot's views (pipeline.config.snapshot): no pydantic to ingest
@@ -123,6 +123,7 @@ def _cleanup_stale(root: Path) -> None:
         for p in parent.iterdir():
             if p.is_dir() and p.name.startswith(".") and (".tmp-" in p.name or ".old-" in p.name):
                 shutil.rmtree(p, ignore_errors=True)
+        remove_stale_temps(parent)  # quarantine.json's
 
 
 def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | None = None,

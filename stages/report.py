@@ -19,7 +19,7 @@ from typing import Any
 from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.report.build import build
-from pipeline.tableio import atomic_path, write_json
+from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
 
 log = logging.getLogger(__name__)
@@ -96,6 +96,7 @@ def headline(coupled: Any, decoupled: Any, simulation: Any) -> dict[str, Any]:
 def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     """Build the self-contained HTML report, metrics.json and the plot data of the run."""
     root = Path(root)
+    remove_stale_temps(root / layout.REPORTS, recursive=True)
     report = build(root, vehicle, params)
     out = root / layout.REPORTS
     outputs = []

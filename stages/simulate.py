@@ -27,7 +27,7 @@ from pipeline.config import Params, Vehicle
 from pipeline.errors import ModelError
 from pipeline.report.rollout import bridging_markdown, plot_bridging, plot_free_runs
 from pipeline.rollout import TrialRollout, part_progress, rollout_trial
-from pipeline.tableio import atomic_path, write_json, write_parquet
+from pipeline.tableio import atomic_path, remove_stale_temps, write_json, write_parquet
 from pipeline.vocabulary import VELOCITY_COLUMNS, acceleration_column
 from stages.common import StageResult, stage_main
 
@@ -121,6 +121,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     """Free-run the fitted models on each test trial; horizons; DVL-outage bridging. ``progress``: the rollout
     steps of each trial's batches (stages.common)."""
     root = Path(root)
+    remove_stale_temps(root / layout.SIMULATION, recursive=True)
     dofs = list(params.decoupled.dofs)
     test = store.load(root, vehicle=vehicle.name, split="test")
     if test.empty:

@@ -9,7 +9,7 @@ from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.sync import synchronize
-from pipeline.tableio import read_parquet, write_parquet
+from pipeline.tableio import read_parquet, remove_stale_temps, write_parquet
 from stages._pertrial import add_trial_argument, drop_stale, provenance, quarantine, shown, to_arrow, trials_in
 from stages.common import StageResult, stage_main
 
@@ -21,6 +21,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
     """Resample each trial's streams onto one uniform grid with validity masks and segment ids."""
     root = Path(root)
     result = StageResult(stage=NAME)
+    remove_stale_temps(root / layout.SYNCED, targets=None if trial is None else {f"{trial}.parquet"})
     for name in trials_in(root / layout.SIGNALS, trial, dirs=True):
         source = layout.signals_dir(root, name)
         target = layout.synced_path(root, name)

@@ -24,7 +24,7 @@ from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
 from pipeline.report.coupled import fold_boxplot, table3
 from pipeline.studies.coupled import metrics, train_columns, train_stage
-from pipeline.tableio import atomic_path, write_json
+from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
 from stages.tune import hyperparameters_path
 
@@ -36,6 +36,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     """Blocked CV, final check, models with cards, tables and figures (coupled study, paper 000). ``progress``:
     CV folds and final fits (stages.common)."""
     root = Path(root)
+    for directory in (root / MODELS / "coupled", root / EVALUATION / "coupled"):
+        remove_stale_temps(directory)
     cp = params.coupled
     hp = hyperparameters_path(root)
     if not hp.exists() and any(m not in EXPLICIT_MODELS for m in cp.models):

@@ -13,7 +13,7 @@ from pipeline.config import Params, Vehicle
 from pipeline.layout import EVALUATION, MODELS
 from pipeline.report.coupled import table2
 from pipeline.studies.coupled import tune_columns, tune_stage, tuning_block
-from pipeline.tableio import atomic_path, write_json
+from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
 
 log = logging.getLogger(__name__)
@@ -28,6 +28,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     """Search SVR hyperparameters (coupled study, paper 000): on the train_test block, the rows the final models
     are fitted on (``coupled.tuning: nested``, the default), or on the tuning split (``split``, the papers').
     ``progress``: each search's candidates (stages.common)."""
+    for directory in (Path(root) / MODELS / "coupled", Path(root) / EVALUATION / "coupled"):
+        remove_stale_temps(directory)
     cp = params.coupled
     columns = tune_columns(cp, set(store.dataset(root).schema.names))
     frame = store.load(root, vehicle=vehicle.name, split=tuning_block(cp), columns=columns)

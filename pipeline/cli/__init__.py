@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pipeline import __version__
 from pipeline.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_USAGE, UsageError
-from pipeline.errors import ConfigError, PipelineError
+from pipeline.errors import ConfigError, PipelineError, RunRootBusy
 
 # A help text naming a setting says "(default, section.key: value)" and the other values in parentheses;
 # tests/cli/test_cli.py checks both against the params model (importing it here would cost every command ~0.2 s).
@@ -199,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--trial", action="append", default=None, metavar="T",
                     help="export this trial only (repeatable; default: every trial with a synced table)")
     ex.add_argument("--out", type=_abs_path, default=None, help="output directory (default: ROOT/exports)")
+    ex.add_argument("--params", type=Path, default=None, help="the run's params YAML, whose coupled.models and "
+                    "decoupled.models are the models exported (default: ROOT/params.yaml if present)")
     ex.add_argument("-q", "--quiet", action="store_true", help="one summary line; no progress, no warnings")
     ex.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
@@ -296,6 +298,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except ConfigError as err:
         print(f"auvid: config error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except RunRootBusy as err:  # another command is writing the run directory: nothing done
+        print(f"auvid: {args.command}: {err}", file=sys.stderr)
         return EXIT_USAGE
     except PipelineError as err:
         print(f"auvid: {args.command} failed: {err}", file=sys.stderr)

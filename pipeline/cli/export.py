@@ -10,7 +10,8 @@ from pipeline.cli.common import EXIT_OK, UsageError, check_paths, progress_facto
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from pipeline.export import export_trials, trials_available
+    from pipeline.config import load_params
+    from pipeline.export import export_trials, named_models, trials_available
 
     check_paths([args.root], "run directory")
     have = trials_available(args.root)
@@ -20,8 +21,11 @@ def cmd_export(args: argparse.Namespace) -> int:
     unknown = [t for t in args.trial or [] if t not in have]
     if unknown:
         raise UsageError(f"no synced table for trial(s) {unknown}; available: {have}")
+    # only the models the run's params name are loaded (as the simulate stage does)
+    params_path = args.params or (args.root / "params.yaml" if (args.root / "params.yaml").is_file() else None)
+    models = named_models(load_params(params_path))
     start = time.perf_counter()
-    results = export_trials(args.root, args.trial, args.out, progress_factory=progress_factory(args))
+    results = export_trials(args.root, args.trial, args.out, progress_factory=progress_factory(args), models=models)
     for r in results if not args.quiet else []:
         print(f"[export] {r.path}: {sum(r.messages.values())} message(s) on {len(r.messages)} channel(s)")
         for reason in r.skipped:

@@ -124,9 +124,11 @@ def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
     logs = list(getattr(args, "logs", None) or []) or None
     start = time.perf_counter()
     if getattr(args, "trial", None):
+        from pipeline.rootlock import run_root_lock
         from stages.common import call_stage
 
-        result = call_stage(stages[0], args.root, vehicle, params, trial=args.trial)
+        with run_root_lock(args.root):
+            result = call_stage(stages[0], args.root, vehicle, params, trial=args.trial)
         results = [result]
         if not args.quiet:
             print_stage(stages[0], result, time.perf_counter() - start)

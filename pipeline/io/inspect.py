@@ -160,6 +160,14 @@ def _text_topics(reader: Any, csv_options: dict[str, CsvOptions]) -> dict[str, A
     base = reader.path if reader.path.is_dir() else reader.path.parent
     topics: dict[str, Any] = {}
     for name in sorted(reader.topics()):
+        if reader.is_empty(name):  # nothing to sniff or parse: an empty stream, said so
+            log.warning("%s: empty file (no header or data lines)", base / name)
+            topics[name] = {"msgtype": "text", "serialization": "text", "has_header": False, "decodable": True,
+                            "undecodable_reason": None, "options_from": None, "columns": [], "count": 0,
+                            "time_column": None, "csv": None, "sniff_note": "empty file (no header or data lines)",
+                            **_timing(np.empty(0, dtype=np.int64)), "stamps": None, "stamp_warnings": [],
+                            "suggested_clock": None}
+            continue
         given = _options_for(name, csv_options)
         sniffed = sniff_csv(base / name) if given is None else None
         opts = given if given is not None else sniffed.options if sniffed is not None else None
@@ -262,7 +270,11 @@ def format_inspect(info: dict[str, Any]) -> str:
         if text:
             how = t.get("options_from", "sniffed")
             lines.append(f"{name}: columns {t.get('columns')}")
-            lines.append(f"  csv ({how}): {t.get('csv')}" + (f"  [{t['sniff_note']}]" if t.get("sniff_note") else ""))
+            if t.get("csv") is None:  # an empty file
+                lines.append(f"  {t.get('sniff_note')}")
+            else:
+                lines.append(f"  csv ({how}): {t.get('csv')}" + (f"  [{t['sniff_note']}]" if t.get("sniff_note")
+                                                                  else ""))
         if t.get("undecodable_reason"):
             lines.append(f"{name}: cannot decode: {t['undecodable_reason']}")
         if not text and t.get("has_header") and t.get("suggested_clock") == "log":

@@ -17,6 +17,11 @@ A value that does not parse as a number is not fatal: its row is dropped from th
 1-based line numbers are reported in :attr:`CsvTopicData.dropped_lines` (the ingest report shows them). A bad
 or empty time stamp raises :class:`~pipeline.errors.IngestError` with the line numbers. Line numbers assume one
 record per physical line (no quoted newlines).
+
+Every data line is classified by :mod:`pipeline.io.textlines` (blank, all-NaN, ragged, split in two) and counted in
+:attr:`CsvTopicData.line_counts`; a dropped line keeps its sample slot and a split line takes one, so a time
+rebuilt from the row index (``time: {rate_hz: ...}``) is not shifted by either. Dropped and split lines are
+logged as a warning with their line numbers.
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ if TYPE_CHECKING:  # pandas parses the text where a file is read: `auvid inspect
 
     from pipeline.config.sources import CsvOptions  # (pydantic: the options come validated)
 from pipeline.io.base import ReadResult, SalvageInfo, TopicData, TopicInfo
+from pipeline.io.textlines import LinePlan, field_counts, plan_lines
 from pipeline.units import TIME_UNITS_NS
 
 log = logging.getLogger(__name__)
@@ -59,15 +65,20 @@ _T = TypeVar("_T")
 
 @dataclass
 class CsvTopicData(TopicData):
-    """TopicData of one CSV file, plus the rows dropped because a value did not parse.
+    """TopicData of one CSV file, plus the rows dropped because a value did not parse, and every line's kind.
 
-    ``rows``: the index of each kept row among the file's data rows (blank lines not counted), so that time
-    rebuilt from the row index (the stream option ``time: {rate_hz: ...}``) counts dropped rows too.
+    ``rows``: the sample slot of each kept row: its index among the file's data lines, blank lines and the second
+    half of a split line not counted, so that time rebuilt from the row index (the stream option
+    ``time: {rate_hz: ...}``) counts dropped rows too. ``line_counts``: data lines by kind (``lines``, ``kept``,
+    ``blank``, ``all_nan``, ``ragged``, ``split``, ``unparseable``); ``line_numbers``: the first 1-based line numbers
+    of each kind that is dropped (blank lines only between data lines).
     """
 
     dropped_lines: list[int] = field(default_factory=list)
     dropped_count: int = 0
     rows: np.ndarray | None = None
+    line_counts: dict[str, int] = field(default_factory=dict)
+    line_numbers: dict[str, list[int]] = field(default_factory=dict)
 
 
 def is_gzip(path: str | Path) -> bool:
@@ -190,6 +201,17 @@ class TextLogReader:
             out[name] = TopicInfo(topic=name, msgtype="csv", count=count, first_ns=None, last_ns=None,
                                   has_header=False)
         return out
+
+    def is_empty(self, name: str) -> bool:
+        """Whether a file holds no line with anything but white space (no header, no data): an empty stream."""
+        def scan() -> bool:
+            with self._binary(name) as handle:
+                return not any(line.strip() for line in handle)
+
+        try:
+            return self._tolerating_cut(name, scan)
+        except (OSError, EOFError, zlib.error) as err:
+            raise IngestError(f"cannot read: {err}", file=self._file(name)) from err
 
     def fields(self, topic: str) -> list[str]:
         """Column names of a file (stripped of surrounding spaces)."""
@@ -348,13 +370,15 @@ class TextLogReader:
         except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error, pd.errors.ParserError) as err:
             raise IngestError(f"cannot parse as delimited text: {err}", file=path, topic=name) from err
         frame.columns = [str(c).strip() for c in frame.columns]
-        first_line = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0) + 1
-        lines = np.arange(len(frame), dtype=np.int64) + first_line
-        blank = frame.isna().all(axis=1).to_numpy()
-        if blank.any():
-            frame = frame.loc[~blank].reset_index(drop=True)
-            lines = lines[~blank]
-        expected = len(frame)
+        skip = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0)
+        plan = self._line_plan(name, str(kwargs["sep"]), skip, len(raw), len(frame))
+        all_nan = frame.isna().all(axis=1).to_numpy() & ~(plan.blank | plan.ragged | plan.split)
+        keep = ~(plan.blank | plan.ragged | plan.split | all_nan)
+        lines = np.flatnonzero(keep).astype(np.int64) + skip + 1
+        slots = plan.slot[keep]
+        frame = frame.loc[keep].reset_index(drop=True)
+        expected = len(frame) + int(plan.ragged.sum()) + int(plan.split.sum()) // 2
+        counts, numbers = _line_kinds(plan, all_nan, skip)
 
         if opts is not None:
             log_ns = time_to_ns(frame[opts.time_column.strip()], opts, path=path, topic=name, lines=lines)
@@ -373,7 +397,7 @@ class TextLogReader:
             else:
                 values[col] = series.to_numpy(dtype=np.float64, na_value=np.nan)
         dropped: list[int] = []
-        rows = np.arange(len(frame), dtype=np.int64)
+        rows = slots
         if bad.any():
             dropped = lines[bad].tolist()
             log.warning("%s: dropped %d row(s) with unparseable numbers at line(s) %s", path, len(dropped),
@@ -382,9 +406,60 @@ class TextLogReader:
             log_ns = log_ns[keep]
             rows = rows[keep]
             values = {k: v[keep] for k, v in values.items()}
+        counts.update(kept=len(log_ns), unparseable=len(dropped))
+        if dropped:
+            numbers["unparseable"] = dropped[:_MAX_REPORTED_LINES]
+        _warn_lines(path, counts, numbers)
         return CsvTopicData(topic=name, msgtype="csv", log_ns=log_ns, header_ns=None, columns=values,
                             path="csv", read=len(log_ns), expected=expected,
-                            dropped_lines=dropped[:_MAX_REPORTED_LINES], dropped_count=len(dropped), rows=rows)
+                            dropped_lines=dropped[:_MAX_REPORTED_LINES], dropped_count=len(dropped), rows=rows,
+                            line_counts=counts, line_numbers=numbers)
+
+    def _line_plan(self, name: str, sep: str, skip: int, header_fields: int, parsed: int) -> LinePlan:
+        """The kind and slot of each data line; every parsed row a whole line when the lines cannot be counted."""
+        opts = self._opts(name)
+        encoding = opts.encoding if opts else "utf-8"
+        delimiter = None if sep == _WHITESPACE else sep
+        plan = None
+        if delimiter is None or (len(delimiter) == 1 and delimiter.isascii()):
+            with self._binary(name) as handle:
+                fields = field_counts(handle, skip=skip, delimiter=delimiter, encoding=encoding)
+            if fields.size == parsed:
+                plan = plan_lines(fields, header_fields)
+            else:  # quoted line breaks, bare CR line ends: physical lines are not the parser's rows
+                log.warning("%s: %d lines after the header but %d rows parsed (quoted line breaks or CR line "
+                            "ends?): lines not classified, every row taken as one sample", self._file(name),
+                            fields.size, parsed)
+        if plan is None:
+            plan = plan_lines(np.full(parsed, header_fields, dtype=np.int64), header_fields)
+        return plan
+
+
+def _line_kinds(plan: LinePlan, all_nan: np.ndarray, skip: int) -> tuple[dict[str, int], dict[str, list[int]]]:
+    """Counts of the data lines by kind and the first line numbers of each dropped kind."""
+    filled = np.flatnonzero(~plan.blank)
+    inner_blank = plan.blank.copy()
+    inner_blank[filled[-1] + 1 if filled.size else 0:] = False  # blank lines at the end are no news
+    counts = {"lines": int(plan.blank.size), "blank": int(plan.blank.sum()), "blank_between": int(inner_blank.sum()),
+              "all_nan": int(all_nan.sum()), "ragged": int(plan.ragged.sum()), "split": int(plan.split.sum())}
+    numbers = {kind: (np.flatnonzero(mask)[:_MAX_REPORTED_LINES] + skip + 1).tolist()
+               for kind, mask in (("blank", inner_blank), ("all_nan", all_nan), ("ragged", plan.ragged),
+                                  ("split", plan.split)) if mask.any()}
+    return counts, numbers
+
+
+def _warn_lines(path: Path, counts: dict[str, int], numbers: dict[str, list[int]]) -> None:
+    """One warning per file naming the lines dropped or split, and how time from the row index treats them."""
+    parts = []
+    for kind, what in (("all_nan", "without a value"), ("ragged", "with a field count unlike the file's"),
+                       ("split", "split in two (each pair read as one dropped sample)"),
+                       ("blank", "blank between data lines (not counted as samples)")):
+        if kind in numbers:
+            total = counts["blank_between" if kind == "blank" else kind]
+            parts.append(f"{total} line(s) {what} at {numbers[kind][:10]}")
+    if parts:
+        log.warning("%s: dropped %s; every other dropped line keeps its slot in a time rebuilt from the row index",
+                    path, "; ".join(parts))
 
 
 def sniff_delimiter(lines: list[str]) -> str:

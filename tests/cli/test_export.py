@@ -223,6 +223,29 @@ def test_an_uncarded_model_is_never_loaded(run_root: Path, tmp_path: Path) -> No
     assert not (tmp_path / "pwned").exists()
 
 
+def test_a_carded_model_the_params_do_not_name_is_never_loaded(run_root: Path, tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """A model file with a valid card that the run did not fit (an earlier run's, one copied in): not unpickled."""
+    class Payload:
+        def __reduce__(self) -> tuple[object, tuple[str, str]]:
+            return (open, (str(tmp_path / "pwned"), "w"))
+
+    stray = run_root / "data/models/decoupled/u_evil.joblib"
+    written = save_model(Payload(), stray, {"inputs": ["u_mps"], "outputs": ["d_u_N"], "model": "evil"})
+    try:
+        results = export.export_trials(run_root, ["test"], tmp_path / "out", models=export.named_models(PARAMS))
+        assert cli.main(["export", str(run_root), "--trial", "test", "--out", str(tmp_path / "cli"), "-q"]) == 0
+    finally:
+        for path in written:
+            path.unlink()
+    assert not (tmp_path / "pwned").exists()
+    skipped = results[0].skipped
+    assert "decoupled model u_evil.joblib: not named by the run's params (decoupled.models)" in skipped
+    assert "coupled model lin.joblib: not named by the run's params (coupled.models)" in skipped
+    assert {"/auvid/prediction/decoupled/ls", "/auvid/prediction/decoupled/gp"} <= set(results[0].messages)
+    assert not any("evil" in topic or "coupled/lin" in topic for topic in results[0].messages)
+
+
 def test_cli(run_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["export", str(run_root), "--trial", "test", "--out", str(tmp_path), "-q"]) == cli_common.EXIT_OK
     out = capsys.readouterr().out

@@ -57,6 +57,20 @@ def test_one_text_file_sniffed_with_the_stamp_warnings(tmp_path: Path) -> None:
     assert "WARNING quantized" in format_inspect(info)
 
 
+@pytest.mark.parametrize("content", [b"", b"\n\n  \n"], ids=["no byte", "blank lines"])
+def test_an_empty_text_file_is_an_empty_stream_named(tmp_path: Path, content: bytes,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "trial").mkdir()
+    (tmp_path / "trial" / "dvl.csv").write_bytes(content)
+    info = inspect_log(tmp_path / "trial")
+    entry = info["topics"]["dvl.csv"]
+    assert entry["count"] == 0 and entry["columns"] == [] and entry["csv"] is None and info["messages"] == 0
+    assert "dvl.csv: columns []\n  empty file (no header or data lines)" in format_inspect(info)
+    assert cli.main(["inspect", str(tmp_path / "trial")]) == 0
+    out = capsys.readouterr().out
+    assert "dvl.csv" in out and "empty file" in out
+
+
 def test_vehicle_csv_options_win_over_the_sniffed_ones(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "log").mkdir()
     _tank_file(tmp_path / "log" / "run07.dat")

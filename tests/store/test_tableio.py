@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import errno
+import json
 from pathlib import Path
 
 import numpy as np
@@ -8,7 +10,7 @@ import pytest
 
 from pipeline import SCHEMA_VERSION, __version__
 from pipeline.errors import SchemaError
-from pipeline.tableio import atomic_path, read_meta, read_parquet, write_parquet
+from pipeline.tableio import atomic_path, read_meta, read_parquet, write_json, write_parquet
 
 
 def _table() -> pa.Table:
@@ -93,3 +95,55 @@ def test_sensor_streams_take_fewer_bytes_than_plain_encoding(tmp_path: Path) -> 
     ours = write_parquet(table, tmp_path / "ours.parquet", {})
     pq.write_table(table, tmp_path / "plain.parquet", compression="zstd", compression_level=1, use_dictionary=False)
     assert ours.stat().st_size < 0.8 * (tmp_path / "plain.parquet").stat().st_size
+
+
+def _disk_full(*_args: object, **_kwargs: object) -> None:
+    raise OSError(errno.ENOSPC, "No space left on device")  # as a write(2) reports it: no file name
+
+
+def test_a_full_disk_names_the_file_being_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "data" / "evaluation" / "metrics.json"
+    write_json({"old": 1}, target)
+    monkeypatch.setattr(Path, "write_text", _disk_full)
+    with pytest.raises(OSError) as info:
+        write_json({"new": 2}, target)
+    assert info.value.errno == errno.ENOSPC and info.value.filename == str(target)
+    assert "No space left on device" in str(info.value) and str(target) in str(info.value)
+    monkeypatch.undo()
+    assert json.loads(target.read_text()) == {"old": 1} and sorted(p.name for p in target.parent.iterdir()) == [
+        "metrics.json"]
+
+
+def test_arrow_s_disk_full_error_names_the_parquet_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import pyarrow.parquet as pq
+
+    def arrow_full(*_args: object, **_kwargs: object) -> None:
+        raise OSError("[Errno 28] Error writing bytes to file. Detail: [errno 28] No space left on device")
+
+    monkeypatch.setattr(pq, "write_table", arrow_full)
+    target = tmp_path / "t.parquet"
+    with pytest.raises(OSError, match="No space left on device") as info:
+        write_parquet(_table(), target, {"stage": "test"})
+    assert info.value.filename == str(target) and list(tmp_path.iterdir()) == []
+
+
+def test_the_cli_says_which_file_the_full_disk_stopped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    from pipeline import cli
+    from tests.cli.helpers import FakeDag, make_run_dir
+
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path)
+    target = root / "data" / "evaluation" / "coupled" / "table2.json"
+
+    def tune(root: Path, vehicle: object, params: object) -> object:
+        write_json({"hyperparameters": {}}, target)
+        raise AssertionError("unreachable")
+
+    dag.modules["tune"].run = tune
+    monkeypatch.setattr(Path, "write_text", _disk_full)
+    code = cli.main(["tune", "--root", str(root), "--vehicle", str(root / "vehicle.yaml"), "-q"])
+    monkeypatch.undo()
+    assert code == 3
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and str(target) in err
