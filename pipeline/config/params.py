@@ -141,7 +141,11 @@ class CoupledParams(Frozen):
         "docs/models.md); graybox_gh is the same on Gertler-Hagen.")
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
-    max_samples: int | None = Field(None, description="Subsample (evenly, in time order) for tuning.")
+    max_samples: int | None = Field(
+        600, ge=10, description="The rows each search scores its candidates on: this many, evenly spaced in time "
+        "over the block searched (its whole span of motion), so a search's cost does not grow with the trials' "
+        "length; the final models are fitted on every train_test row. null: every row (a search's cost then grows "
+        "as rows squared: hours on two 480-s trials). docs/models.md, 'A bounded search by default'.")
     c_rate: float = Field(
         0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
         "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "
@@ -161,6 +165,10 @@ class CoupledParams(Frozen):
     tuning_folds: int = Field(5, ge=2, description="Blocked CV folds inside each search's data (search score): "
                               "each candidate is scored on this many test blocks (docs/models.md).")
     max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
+    fold_evals: int | None = Field(
+        8, ge=1, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
+        "by a local search of at most this many candidates started from the tune stage's optimum (steps of x2), "
+        "not a whole search. null: a whole search per fold (folds + 1 times the tune stage). docs/models.md.")
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")

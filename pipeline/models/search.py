@@ -32,16 +32,17 @@ from typing import Any
 
 import numpy as np
 from joblib import Parallel, delayed
-from scipy.stats import norm, qmc
+from scipy.stats import qmc
 from sklearn.base import clone
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import RBF, ConstantKernel, Matern, WhiteKernel
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 from sklearn.metrics import r2_score
 from threadpoolctl import threadpool_limits
 
 from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
+from pipeline.models.search_steps import model_steps, pattern_search
 from pipeline.models.svr import RBFSVR, WDSESVR, TwoWeightsSVR
 
 log = logging.getLogger(__name__)
@@ -49,7 +50,7 @@ log = logging.getLogger(__name__)
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
-           "fast_search", "search", "SearchResult", "SearchSettings"]
+           "fast_search", "local_search", "search", "SearchResult", "SearchSettings"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -80,6 +81,8 @@ class SearchResult:
     warm_start_score: float | None = None  # fast search with a warm start: its tuning score
     warm_start_kept: bool = False  # fast search: the warm start was still the best at the end
     note: str = ""  # why (when warm_start_kept)
+    budget_exhausted: bool = False  # the budget ran out before the local steps converged (all below min_step)
+    n_rows: int = 0  # the rows the search scored its candidates on (its folds' training and test rows)
     cost: dict[str, Any] = field(default_factory=dict)  # CPU, the iteration cap and the slowest candidates
 
     def to_dict(self) -> dict[str, Any]:
@@ -273,7 +276,7 @@ def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, lis
     best = int(np.argmax(scores))
     result = SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
                           len(candidates) * n_folds, n_folds, time.perf_counter() - t0,
-                          trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter))
+                          trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter), n_rows=len(X))
     _log_capped(result)
     return result
 
@@ -358,7 +361,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     (``n_explore`` scrambled-Sobol points within a decade of the best seed, deterministic; default a quarter of
     the budget left after the seeds, at most one per hyperparameter), ``model`` (``local="model"``, the default:
     ``model_share`` of the remaining budget on expected-improvement steps of a GP fitted to the scores so far,
-    see :func:`_model_search`), ``local`` (pattern search from the best point, one step size
+    see :func:`pipeline.models.search_steps.model_steps`), ``local`` (pattern search from the best point, one step size
     per coordinate: a step that improves is extended and its size doubled, a coordinate on which both directions
     fail halves its step; after each sweep a Hooke-Jeeves move along the sweep's displacement) and ``restart``
     (random log-scale perturbations of the best once every step is below ``min_step``), so the budget is used.
@@ -427,10 +430,11 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 x, best = cand, score
     if local == "model":
         with threadpool_limits(1, user_api="blas"):  # the same: a GP on the few candidates so far
-            x, best = _model_search(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
-    x, best = _pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
+            x, best = model_steps(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
+    x, best, converged = pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          len(cache) * n_folds, n_folds, 0.0, gp_fit_s=gp_s, trace=trace)
+                          len(cache) * n_folds, n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
+                          budget_exhausted=not converged, n_rows=len(X))
     if warm_key is not None:
         result.warm_start_score = float(cache[warm_key])
         if tuple(np.round(x, 6)) == warm_key:
@@ -450,100 +454,54 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     return result
 
 
+def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, Any], n_folds: int = 3,
+                 n_jobs: int | None = 1, n_velocity: int = 3, max_evals: int = 8,
+                 iter_per_row: float | None = ITER_PER_ROW, initial_step: float = math.log(2.0),
+                 min_step: float = math.log(1.25)) -> SearchResult:
+    """A small search around ``start`` (another search's optimum, e.g. the tune stage's on the rows these are cut
+    from): ``start`` scored, then the pattern search of :func:`fast_search` from it, steps of ``initial_step``
+    (x2), no restarts, at most ``max_evals`` candidates in all. The nested CV's folds use it, so a fold re-tunes
+    on its own training rows at a fraction of a whole search's cost. ``warm_start_kept``/``note`` say whether
+    ``start`` stayed the best; ``budget_exhausted`` whether the budget ran out before the steps converged."""
+    X, y = _check_xy(X, y)
+    folds = blocked_folds(len(X), n_folds)
+    max_iter = _iteration_cap(iter_per_row, folds)
+    names = _names(model, X.shape[1])
+    lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    cache: dict[tuple[float, ...], float] = {}
+    trace: list[dict[str, Any]] = []
+
+    def evaluate(v: np.ndarray, phase: str) -> float:
+        key = tuple(np.round(np.clip(v, lo, hi), 6))
+        if key not in cache:
+            params = _to_params(model, names, np.exp(np.array(key)))
+            fits = _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)
+            trace.append(_candidate_entry(params, fits, max_iter, phase=phase))
+            cache[key] = trace[-1]["score"]
+        return cache[key]
+
+    x0 = np.clip(np.log(_expand(model, start, X.shape[1], n_velocity)), lo, hi)
+    start_score = evaluate(x0, "warm_start")
+    x, best, converged = pattern_search(evaluate, x0, start_score, lo, hi, np.random.default_rng(0),
+                                        max(1, max_evals), cache, initial_step, min_step, restarts=False)
+    result = SearchResult(model, "local", _to_params(model, names, np.exp(x)), float(best), len(cache),
+                          len(cache) * n_folds, n_folds, time.perf_counter() - t0, trace=trace,
+                          warm_start_score=float(start_score), budget_exhausted=not converged, n_rows=len(X))
+    if tuple(np.round(x, 6)) == tuple(np.round(x0, 6)):
+        result.warm_start_kept = True
+        result.note = _kept_note(trace, start_score, n_folds)
+    cost = cost_summary(trace, max_iter)
+    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)
+    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
+    return result
+
+
 def _log_capped(result: SearchResult) -> None:
     if (cost := result.cost).get("n_capped"):
         log.info("%s search: %d of %d candidates stopped at libsvm's %d iterations (scored as they are); "
                  "slowest %.3g CPU-s, median %.3g", result.model, cost["n_capped"], result.n_candidates,
                  cost["max_iter"], cost["max_candidate_cpu_s"], cost["median_candidate_cpu_s"])
-
-
-def _model_search(evaluate: Any, x: np.ndarray, best: float, lo: np.ndarray, hi: np.ndarray, max_evals: int,
-                  cache: dict[tuple[float, ...], float], seed: int, share: float = 0.6) -> tuple[np.ndarray, float]:
-    """Model-based steps: a GP (Matern 5/2, ARD) on the candidates scored so far (log scale, unit box) and the
-    expected improvement over Sobol points and perturbations of the best; ``share`` of the remaining budget."""
-    n_steps = int(share * max(0, max_evals - len(cache)))
-    span = hi - lo
-    rng = np.random.default_rng(seed + 1)
-    sobol = qmc.Sobol(x.size, scramble=True, seed=seed + 2)
-    for _ in range(n_steps):
-        if len(cache) >= max_evals:
-            break
-        V = (np.array(list(cache.keys())) - lo) / span
-        f = np.array(list(cache.values()))
-        f = np.maximum(f, np.quantile(f, 0.25) if len(f) > 4 else f.min())  # cap the failures' pull
-        kernel = ConstantKernel(1.0, (1e-3, 1e3)) * Matern(np.full(x.size, 0.3), (1e-2, 1e1), nu=2.5) + \
-            WhiteKernel(1e-4, (1e-8, 1e-1))
-        gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=seed, n_restarts_optimizer=1)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            gp.fit(V, f)
-        xb = (x - lo) / span
-        local_pts = np.clip(xb + rng.normal(0.0, 0.05, size=(512, x.size)), 0, 1)
-        cands = np.vstack([sobol.random(512), local_pts])
-        mu, sd = gp.predict(cands, return_std=True)
-        z = (mu - best) / np.maximum(sd, 1e-9)
-        ei = (mu - best) * norm.cdf(z) + sd * norm.pdf(z)
-        cand = lo + cands[int(np.argmax(ei))] * span
-        score = evaluate(cand, "model")
-        if score > best:
-            x, best = np.clip(cand, lo, hi), score
-    return x, best
-
-
-def _pattern_search(evaluate: Any, x: np.ndarray, best: float, lo: np.ndarray, hi: np.ndarray,
-                    rng: np.random.Generator, max_evals: int, cache: dict[tuple[float, ...], float],
-                    initial_step: float, min_step: float) -> tuple[np.ndarray, float]:
-    """Adaptive coordinate pattern search with Hooke-Jeeves moves and random restarts (see :func:`fast_search`)."""
-    steps = np.full(x.size, initial_step)
-    direction = np.ones(x.size)
-
-    def budget_left() -> bool:
-        return len(cache) < max_evals
-
-    while budget_left():
-        if np.all(steps < min_step):  # converged: restart around the best point with a random perturbation
-            n_before = len(cache)
-            for _ in range(20):
-                cand = np.clip(x + rng.normal(0.0, initial_step / 2, size=x.size), lo, hi)
-                score = evaluate(cand, "restart")
-                if len(cache) > n_before:
-                    break
-            if len(cache) == n_before:
-                break  # nothing new to try
-            if score > best:
-                x, best = cand, score
-            steps[:] = initial_step / 2
-            continue
-        x_sweep = x.copy()
-        for i in range(x.size):
-            if steps[i] < min_step:
-                continue
-            moved = False
-            for sign in (direction[i], -direction[i]):
-                if not budget_left():
-                    break
-                cand = x.copy()
-                cand[i] = np.clip(cand[i] + sign * steps[i], lo[i], hi[i])
-                if cand[i] == x[i]:
-                    continue
-                score = evaluate(cand, "local")
-                if score > best:
-                    x, best, moved, direction[i] = cand, score, True, sign
-                    while budget_left():  # extend the successful step while it keeps improving
-                        further = x.copy()
-                        further[i] = np.clip(x[i] + sign * steps[i], lo[i], hi[i])
-                        if further[i] == x[i] or (s2 := evaluate(further, "local")) <= best:
-                            break
-                        x, best = further, s2
-                    break
-            steps[i] = min(2.0 * steps[i], 4.0 * initial_step) if moved else steps[i] / 2.0
-        shift = x - x_sweep
-        if np.any(shift != 0) and budget_left():  # Hooke-Jeeves: try the sweep's displacement once more
-            cand = np.clip(x + shift, lo, hi)
-            score = evaluate(cand, "local")
-            if score > best:
-                x, best = cand, score
-    return x, best
 
 
 def _kept_note(trace: list[dict[str, Any]], warm_score: float, n_folds: int) -> str:
@@ -579,22 +537,22 @@ def _smoothest_within(trace: list[dict[str, Any]], best: float, tolerance: float
 
 
 def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
-    """Dispatch to :func:`fast_search` or :func:`grid_search` (``method="paper_grid"``) with the keywords ``kw``
-    of that function; one it does not take is refused (TypeError naming it). The best parameters carry
-    ``C_rows``: the mean training rows of the search's folds, the rows its C was chosen on (see
-    :func:`pipeline.models.svr.scaled_C`)."""
-    methods = {"fast": fast_search, "paper_grid": grid_search}
+    """Dispatch to :func:`fast_search`, :func:`grid_search` (``method="paper_grid"``) or :func:`local_search`
+    (``"local"``) with the keywords ``kw`` of that function; one it does not take is refused (TypeError naming
+    it). The best parameters carry ``C_rows``: the mean training rows of the search's folds, the rows its C was
+    chosen on (see :func:`pipeline.models.svr.scaled_C`)."""
+    methods = {"fast": fast_search, "paper_grid": grid_search, "local": local_search}
     if method not in methods:
-        raise ModelError(f"unknown search method {method!r}; expected 'fast' or 'paper_grid'")
+        raise ModelError(f"unknown search method {method!r}; expected 'fast', 'paper_grid' or 'local'")
     takes = [n for n, a in inspect.signature(methods[method]).parameters.items()
              if a.kind is inspect.Parameter.KEYWORD_ONLY and n != "keep_trace"]
     unknown = sorted(set(kw) - set(takes))
     if unknown:
         raise TypeError(f"search(method={method!r}) does not use {unknown}; it takes {takes}")
-    if method == "fast":
-        res = fast_search(model, X, y, **kw)
-    else:
+    if method == "paper_grid":
         res = grid_search(model, X, y, keep_trace=False, **kw)
+    else:
+        res = methods[method](model, X, y, **kw)
     train_rows = [len(train) for train, _ in blocked_folds(len(X), res.n_folds)]
     res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
     return res

@@ -86,9 +86,19 @@ def protocol_line(hyper_doc: dict[str, Any] | None) -> str:
     rows = hyper_doc.get("n_tuning_rows")
     where = f"on the {block} block" + (f" ({rows} rows)" if rows is not None else "")
     if mode == "nested":
-        return (f"Tuning protocol: nested (coupled.tuning: nested, the default). Table II was searched {where}; in "
-                "the cross-validation each fold searched its own training blocks again, so no test block chose the "
-                "hyperparameters it is scored with. This is not the papers' protocol.")
+        subsample = hyper_doc.get("max_samples")
+        if subsample is not None and rows is not None and rows > subsample:
+            where += f", each candidate scored on {subsample} of them evenly spaced in time"
+        fold_evals = hyper_doc.get("fold_evals")
+        if fold_evals is not None and hyper_doc.get("search", "fast") == "fast":
+            folds = (f"in the cross-validation each fold re-tuned on its own training blocks by a local search of at "
+                     f"most {fold_evals} candidates started from Table II's hyperparameters (chosen on rows that "
+                     "include the fold's test block: a start, not the answer; docs/models.md)")
+        else:
+            folds = ("in the cross-validation each fold searched its own training blocks again, so no test block "
+                     "chose the hyperparameters it is scored with")
+        return (f"Tuning protocol: nested (coupled.tuning: nested, the default). Table II was searched {where}; "
+                f"{folds}. This is not the papers' protocol.")
     return (f"Tuning protocol: split (coupled.tuning: split, the papers' protocol). Hyperparameters were searched "
             f"once {where} and kept fixed for the cross-validation and the final model.")
 
@@ -102,6 +112,29 @@ def _named(values: dict[str, Any], inputs: Sequence[str]) -> dict[str, Any]:
     elif gammas is not None:
         out["gammas"] = gammas
     return out
+
+
+def search_notes(trace: dict[str, Any], outputs: Sequence[str]) -> str:
+    """The searches of Table II that kept their warm start (the simpler kernel's optimum: why, from the search's
+    ``note``) or whose budget ran out before their local steps converged (``search_trace.json``); '' if none."""
+    rows = []
+    for model in sorted(trace, key=lambda m: (list(LABELS).index(m) if m in LABELS else 99, m)):
+        per_out = trace[model] if isinstance(trace[model], dict) else {}
+        for out in [o for o in outputs if isinstance(per_out.get(o), dict)]:
+            res = per_out[out]
+            if not (res.get("warm_start_kept") or res.get("budget_exhausted")):
+                continue
+            rows.append({"regressor": label(model), "output": OUTPUT_LABELS.get(out, out),
+                         "tuning R²": res.get("best_score"), "candidates": res.get("n_candidates"),
+                         "warm start kept": res.get("note") if res.get("warm_start_kept") else "no",
+                         "budget ran out": "yes: still moving when it stopped" if res.get("budget_exhausted")
+                         else "no: converged"})
+    if not rows:
+        return ""
+    return H.table(rows, caption="Searches to read with care: a search that kept its warm start (the simpler "
+                                 "kernel's optimum, so the richer kernel adds nothing there) and a search whose "
+                                 "budget of candidates ran out before its local steps converged (coupled.max_evals; "
+                                 "a larger budget may find better hyperparameters)")
 
 
 def _table2(doc: dict[str, Any], outputs: Sequence[str], inputs: Sequence[str]) -> str:
@@ -194,6 +227,9 @@ def coupled(root: Path, figs: dict[str, bytes]) -> Part:
     parts = [f"<p class='box'>{H.esc(part.protocol)}</p>"]
     if isinstance(t2, dict) and t2:
         parts.append(_table2(t2, outputs, list((hyper_doc or {}).get("inputs") or [])))
+    trace = _read(root, f"{COUPLED}/search_trace.json", used)
+    if isinstance(trace, dict):
+        parts.append(search_notes(trace, outputs))
     used.add(f"{COUPLED}/table2.md")
     failed: list[dict[str, Any]] = []
     if isinstance(t3, dict):

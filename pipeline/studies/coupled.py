@@ -46,7 +46,7 @@ from pipeline.vocabulary import NOISE_STD_COLUMNS
 log = logging.getLogger(__name__)
 
 __all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "noise_std_from",
-           "tune", "search_settings", "tuning_block", "tune_columns", "tune_stage",
+           "tune", "tune_local", "search_settings", "tuning_block", "tune_columns", "tune_stage",
            "build_model", "model_inputs", "model_card", "metrics",
            "evaluate_models", "run_study", "train_columns", "train_stage"]
 
@@ -260,27 +260,62 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     return hyper, trace
 
 
+def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: dict[str, dict[str, Any]], *,
+               noise_std: Sequence[float] | None = None) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+    """One model's hyperparameters re-tuned on ``frame`` (a CV fold's training rows) by a local search per output
+    (:func:`pipeline.models.search.local_search`, at most ``params.fold_evals`` candidates) from ``start``
+    (output -> the tune stage's hyperparameters). A gray-box model's residual is the one :func:`tune` forms: its
+    base fitted on ``frame`` weighted by ``noise_std``. Returns ``(hyper, trace)`` as :func:`tune` for ``model``."""
+    data = _subsample(frame, params.max_samples)
+    X = data[params.inputs].to_numpy(float)
+    Y = data[params.outputs].to_numpy(float)
+    svr = model
+    if model in GRAYBOX_MODELS:
+        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](
+            solver="wtls", noise_std=noise_std if noise_std is not None else noise_std_from(frame))
+        base.fit(frame[EXPLICIT_INPUTS].to_numpy(float), frame[params.outputs].to_numpy(float))
+        Y = Y - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
+        svr = "wdse_svr"
+    hyper: dict[str, dict[str, Any]] = {}
+    trace: dict[str, Any] = {}
+    for k, out in enumerate(params.outputs):
+        res = search(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds, n_jobs=1,
+                     n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals)
+        hyper[out], trace[out] = res.best_params, res.to_dict()
+    return hyper, trace
+
+
 class NestedTuned(RegressorMixin, BaseEstimator):
     """A coupled SVR or gray-box model whose hyperparameters are searched (:func:`tune`) on the rows it is fitted
     on, then fitted there: the estimator of each CV fold under ``params.tuning == "nested"``, so that no fold's
     test block has a say in its hyperparameters. ``X`` holds :func:`model_inputs` columns in order, ``y`` the
     outputs. ``noise_std``: a gray-box base's errors-in-variables weights (:func:`noise_std_from` the rows the
     fold is cut from: ``X`` has no SD columns). ``cache``: the run's :class:`SearchCache`, shared by the folds (None:
-    one per fit). Fitted: ``hyperparameters_`` (output -> params), ``estimator_``."""
+    one per fit). ``start`` (output -> hyperparameters, the tune stage's): with the fast search and
+    ``params.fold_evals`` set, the fold's search is :func:`tune_local` from it, not a whole :func:`tune`.
+    Fitted: ``hyperparameters_`` (output -> params), ``search_`` (output -> the fold's search as a dict),
+    ``estimator_``."""
 
     def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None,
-                 noise_std: Sequence[float] | None = None, cache: SearchCache | None = None) -> None:
+                 noise_std: Sequence[float] | None = None, cache: SearchCache | None = None,
+                 start: dict[str, dict[str, Any]] | None = None) -> None:
         self.model = model
         self.params = params
         self.noise_std = noise_std
         self.cache = cache
+        self.start = start
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
         params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
         frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
-        hyper, _ = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache)
-        self.hyperparameters_ = hyper[self.model]
+        if self.start is not None and params.fold_evals is not None and params.search == "fast":
+            hyper, trace = tune_local(frame, self.model, params, self.start, noise_std=self.noise_std)
+        else:
+            whole, searches = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache)
+            hyper, trace = whole[self.model], searches[self.model]
+        self.hyperparameters_ = hyper
+        self.search_ = trace
         self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std).fit(X, y)
         return self
 
@@ -353,7 +388,7 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     # nested: each fold searches its own hyperparameters on its training blocks; the final model (below) uses the
     # tune stage's, searched on the whole train_test block it is fitted on
     nested = params.tuning == "nested" and model not in EXPLICIT_MODELS
-    cv_est = NestedTuned(model, params, noise_std_from(train_test), cache) if nested else est
+    cv_est = NestedTuned(model, params, noise_std_from(train_test), cache, hyper.get(model)) if nested else est
     folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
                                    outputs=params.outputs, n_jobs=n_jobs, progress=progress)
     final_est = est.fit(X, y)
@@ -409,7 +444,7 @@ def tune_stage(frame: pd.DataFrame, params: CoupledParams, *, vehicle: str,
     hyper, trace = tune(frame, params, n_jobs=params.n_jobs, split=block, progress=progress, cache=SearchCache())
     doc = {"vehicle": vehicle, "search": params.search, "seed": params.seed, "inputs": params.inputs,
            "outputs": params.outputs, "tuning": params.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
-           "hyperparameters": hyper}
+           "max_samples": params.max_samples, "fold_evals": params.fold_evals, "hyperparameters": hyper}
     return doc, trace
 
 

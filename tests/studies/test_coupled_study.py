@@ -134,13 +134,18 @@ def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch)
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
     params = CoupledParams(models=["rbf_svr", "mcfarland_whitcomb"], max_evals=3, folds=3, tuning="nested")
     searched: list[np.ndarray] = []
-    real_tune = coupled.tune
+    real_tune, real_local = coupled.tune, coupled.tune_local
 
     def spy(rows, p, **kw):
         searched.append(rows[params.inputs].to_numpy(float))
         return real_tune(rows, p, **kw)
 
+    def spy_local(rows, model, p, start, **kw):  # a fold's local search from the tune stage's optimum
+        searched.append(rows[params.inputs].to_numpy(float))
+        return real_local(rows, model, p, start, **kw)
+
     monkeypatch.setattr(coupled, "tune", spy)
+    monkeypatch.setattr(coupled, "tune_local", spy_local)
     out = run_study(frame, params)
     train_test = frame[frame["split"] == "train_test"][params.inputs].to_numpy(float)
     assert len(searched) == 1 + params.folds  # the final model's search, then one per fold (rbf only: MW has none)
@@ -198,15 +203,16 @@ def test_the_final_models_C_follows_the_rows_they_are_fitted_on(study):
 
 
 def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
-    """coupled.tuning = nested with the three kernels: in each fold the WDSE's fast-search chain (RBF, then
-    2-weights, then WDSE) repeats the searches the RBF and 2-weights models of that fold ran on the same rows. Each
-    runs once; the scores are those of running every search (a cache that keeps none)."""
+    """coupled.tuning = nested with the three kernels and a whole search per fold (fold_evals null): in each fold
+    the WDSE's fast-search chain (RBF, then 2-weights, then WDSE) repeats the searches the RBF and 2-weights models
+    of that fold ran on the same rows. Each runs once; the scores are those of running every search (a cache that
+    keeps none)."""
     from pipeline.studies import coupled
 
     frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
     params = CoupledParams(models=["rbf_svr", "two_weights_svr", "wdse_svr"], outputs=["udot_mps2"], max_evals=3,
-                           folds=2, tuning="nested")
+                           folds=2, tuning="nested", fold_evals=None)
     ran: list[str] = []
     real_search = coupled.search
 
