@@ -101,13 +101,16 @@ def test_nested_cv_folds_weight_the_gray_box_base_as_the_final_model(monkeypatch
         frame[col] = 0.01 * (k + 1)
     params = CoupledParams(models=["graybox"], folds=2, tuning_folds=2, max_evals=2)
     seen: list = []
-    real = coupled.tune
 
-    def recording(*a, **kw):
-        seen.append(kw.get("noise_std"))
-        return real(*a, **kw)
+    def recording(real):
+        def search(*a, **kw):
+            seen.append(kw.get("noise_std"))
+            return real(*a, **kw)
+        return search
 
-    monkeypatch.setattr(coupled, "tune", recording)
+    # a fold searches from the tune stage's result (tune_local) or, with fold_evals null, from scratch (tune)
+    monkeypatch.setattr(coupled, "tune", recording(coupled.tune))
+    monkeypatch.setattr(coupled, "tune_local", recording(coupled.tune_local))
     hyper = {o: {"gammas": [0.1] * 6, "C": 1.0, "epsilon": 0.01} for o in params.outputs}
     out = evaluate_models(frame, frame.iloc[:0], {"graybox": hyper}, params)
     expected = noise_std_from(frame)
