@@ -24,6 +24,11 @@ EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb")
 DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
+#: A length of time a run can mean: up to a day (longer is a unit mistake, and overflows int64 nanoseconds on the
+#: way to 1e300).
+Seconds = Annotated[float, Field(gt=0, le=86_400.0)]
+#: numpy's seeds are 32-bit unsigned integers.
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 
 
 def _unique_safe_names(names: list[str], what: str) -> list[str]:
@@ -60,8 +65,9 @@ class IngestParams(Frozen):
 
 
 class SyncParams(Frozen):
-    rate_hz: float = Field(20.0, gt=0)
-    max_gap_s: dict[str, NonNegative] = Field(
+    rate_hz: float = Field(20.0, gt=0, le=1000.0, description="The grid's rate (Hz): vehicle motion needs tens of "
+                           "Hz; faster sensors are interpolated onto it.")
+    max_gap_s: dict[str, Annotated[float, Field(ge=0, le=86_400.0)]] = Field(
         default_factory=lambda: {"default": 0.5},
         description="Largest gap between samples bridged by interpolation, per signal ('default' for the rest).")
     interpolation: dict[str, Literal["linear", "zoh", "nearest"]] = Field(
@@ -90,9 +96,9 @@ class DifferentiateParams(Frozen):
     gate_sigmas: float = Field(5.0, ge=0, description="kalman: measurements whose residual exceeds this many SDs "
                                "are rejected as outliers (0: none).")
     max_velocity_sd_mps: float = Field(
-        0.03, gt=0, description="kalman: a grid sample is usable where each smoothed linear velocity's SD is within "
-        "this (bridged lock losses grow it).")
-    max_rate_sd_radps: float = Field(0.01, gt=0, description="kalman: the same for the angular rates.")
+        0.03, gt=0, le=10.0, description="kalman: a grid sample is usable where each smoothed linear velocity's SD "
+        "is within this (bridged lock losses grow it).")
+    max_rate_sd_radps: float = Field(0.01, gt=0, le=10.0, description="kalman: the same for the angular rates.")
     min_segment_s: float = Field(5.0, ge=0, description="kalman: shorter usable stretches get no segment id.")
     sigma_s: float | Literal["auto"] = Field(
         "auto", description="gaussian: kernel width (s), or auto: per signal, the width of least estimated "
@@ -103,12 +109,20 @@ class DifferentiateParams(Frozen):
         2, description="Gaussian kernels exact for polynomials up to this degree: 2 = the plain Gaussian derivative "
         "(bias sigma^2/2 times the third derivative), 4 = bias-corrected (a Gaussian-weighted local cubic fit).")
     savgol_window_s: float | Literal["auto"] = Field(1.0, description="savgol: window (s), or auto (per signal).")
-    savgol_order: int = Field(3, ge=1)
+    savgol_order: int = Field(3, ge=1, le=7, description="savgol: the local polynomial's degree (higher degrees "
+                              "fit the noise).")
     edge_sigmas: float = Field(3.0, ge=0, description="Samples within this many sigma of a segment edge are dropped.")
+
+    @field_validator("sigma_s", "savgol_window_s")
+    @classmethod
+    def _positive_width(cls, width: float | str) -> float | str:
+        if width != "auto" and not width > 0:
+            raise ValueError(f"a filter width must be 'auto' or a positive number of seconds, not {width}")
+        return width
 
 
 class FeaturesParams(Frozen):
-    tuning_fraction: float = Field(0.2, ge=0, lt=1, description="First fraction of each trial's time: tuning block.")
+    tuning_fraction: float = Field(0.2, ge=0, le=0.9, description="First fraction of each trial's time: tuning block.")
     test_trials: list[str] = Field(default_factory=list, description=(
         "Trials held out of tuning and CV (final check); each must be a trial of the run (the features stage "
         "checks), named with letters, digits, '_', '.', '-'."))
@@ -138,7 +152,7 @@ class CoupledParams(Frozen):
         default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
                                  "graybox"],
         description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual; "
-        "docs/models.md); graybox_gh is the same on Gertler-Hagen.")
+        "docs/models.md); graybox_gh is the same on Gertler-Hagen.", min_length=1)
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(
@@ -150,7 +164,7 @@ class CoupledParams(Frozen):
         0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
         "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "
         "n^-c_rate (0: C kept as searched, regularization ~ 1/n; 1: regularization kept). docs/models.md.")
-    seed: int = 0
+    seed: Seed = 0
     explicit_refine: bool = Field(
         False, description="Output-error refinement of the explicit models (Gertler-Hagen, McFarland-Whitcomb): "
         "from the WTLS fit, coefficients refined by minimizing the free-run velocity error over windows of "
@@ -176,6 +190,13 @@ class CoupledParams(Frozen):
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")
     n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
+
+    @field_validator("n_jobs")
+    @classmethod
+    def _workers(cls, n_jobs: int) -> int:
+        if n_jobs == 0 or n_jobs < -1:
+            raise ValueError(f"n_jobs must be a number of workers (1, 2, ...) or -1 for all cores, not {n_jobs}")
+        return n_jobs
 
     @field_validator("models")
     @classmethod
@@ -218,10 +239,10 @@ class DecoupledParams(Frozen):
     gp_warp: Literal["signed_square", "none"] = Field(
         "signed_square", description="GP inputs: (nu, nu|nu|) with a length scale each (default), or nu alone (the "
         "paper's RBF, whose band misses the truth around nu = 0; docs/models.md).")
-    seed: int = 0
+    seed: Seed = 0
     max_samples: int | None = Field(
         3000, ge=50, description="Each split thinned to this many rows by an even time stride (None: all rows).")
-    curve_points: int = Field(5, ge=2, description="Training sizes on each learning curve.")
+    curve_points: int = Field(5, ge=2, le=50, description="Training sizes on each learning curve.")
     trials: dict[str, list[str]] = Field(
         default_factory=dict, description="Per DOF, the trials its damping is learned from (paper 001: experiments "
         "that excite that DOF alone, e.g. pipeline.sim Controls(excite='surge')); DOFs not named use every trial.")
@@ -255,14 +276,15 @@ def _decoupled_models(models: list[str]) -> list[str]:
 
 
 class SimulateParams(Frozen):
-    horizons_s: list[float] = Field(default_factory=lambda: [1.0, 5.0, 10.0])
-    outage_windows_s: list[float] = Field(default_factory=lambda: [10.0, 30.0, 60.0])
+    horizons_s: list[Seconds] = Field(default_factory=lambda: [1.0, 5.0, 10.0], min_length=1)
+    outage_windows_s: list[Seconds] = Field(default_factory=lambda: [10.0, 30.0, 60.0])
     divergence_factor: float = Field(
         10.0, gt=1, description="A rollout beyond this many times the measured range diverged.")
     method: Literal["rk4", "euler"] = Field("rk4", description="Fixed-step integrator at the grid rate (ZOH inputs).")
-    band_samples: int = Field(32, ge=0, description="GP posterior functions rolled out for the 2-sigma band (0: none).")
+    band_samples: int = Field(32, ge=0, le=1000,
+                              description="GP posterior functions rolled out for the 2-sigma band (0: none).")
     models: list[str] | None = Field(None, description="Decoupled models to simulate (None: every fitted one).")
-    seed: int = 0
+    seed: Seed = 0
 
     @field_validator("models")
     @classmethod

@@ -399,7 +399,56 @@ PARAMS_CASES = [
     pytest.param({"sync": {"max_gap_s": {"default": -1.0}}}, "sync.max_gap_s.default", "greater than or equal",
                  id="max-gap-negative"),
     pytest.param({"coupled": {"folds": True}}, "coupled.folds", "boolean", id="folds-true"),
+    # values that reached a traceback at their stage, or ran on with nonsense (issue 36, item 3)
+    pytest.param({"sync": {"rate_hz": 1e9}}, "sync.rate_hz", "less than or equal to 1000", id="rate-1e9"),
+    pytest.param({"sync": {"max_gap_s": {"default": 1e300}}}, "sync.max_gap_s.default", "less than or equal",
+                 id="max-gap-1e300"),
+    pytest.param({"differentiate": {"method": "gaussian", "sigma_s": 0}}, "differentiate.sigma_s",
+                 "positive number of seconds", id="sigma-zero"),
+    pytest.param({"differentiate": {"method": "gaussian", "sigma_s": -1}}, "differentiate.sigma_s",
+                 "positive number of seconds", id="sigma-negative"),
+    pytest.param({"differentiate": {"savgol_window_s": 0}}, "differentiate.savgol_window_s",
+                 "positive number of seconds", id="savgol-window-zero"),
+    pytest.param({"differentiate": {"savgol_order": 100}}, "differentiate.savgol_order", "less than or equal to 7",
+                 id="savgol-order-100"),
+    pytest.param({"differentiate": {"max_velocity_sd_mps": 1e300}}, "differentiate.max_velocity_sd_mps",
+                 "less than or equal to 10", id="max-velocity-sd-1e300"),
+    pytest.param({"features": {"tuning_fraction": 0.99999}}, "features.tuning_fraction", "less than or equal to 0.9",
+                 id="tuning-fraction-all"),
+    pytest.param({"coupled": {"max_samples": -5}}, "coupled.max_samples", "greater than or equal",
+                 id="max-samples-negative"),
+    pytest.param({"coupled": {"seed": -1}}, "coupled.seed", "greater than or equal to 0", id="coupled-seed-negative"),
+    pytest.param({"coupled": {"seed": 2**70}}, "coupled.seed", "less than or equal to 4294967295",
+                 id="coupled-seed-huge"),
+    pytest.param({"coupled": {"n_jobs": 0}}, "coupled.n_jobs", "-1 for all cores", id="n-jobs-zero"),
+    pytest.param({"coupled": {"n_jobs": -1000}}, "coupled.n_jobs", "-1 for all cores", id="n-jobs-minus-1000"),
+    pytest.param({"coupled": {"models": []}}, "coupled.models", "at least 1 item", id="coupled-models-empty"),
+    pytest.param({"decoupled": {"seed": -1}}, "decoupled.seed", "greater than or equal to 0",
+                 id="decoupled-seed-negative"),
+    pytest.param({"decoupled": {"curve_points": 10**6}}, "decoupled.curve_points", "less than or equal to 50",
+                 id="curve-points-1e6"),
+    pytest.param({"simulate": {"outage_windows_s": [0]}}, "simulate.outage_windows_s.0", "greater than 0",
+                 id="outage-window-zero"),
+    pytest.param({"simulate": {"band_samples": 10**9}}, "simulate.band_samples", "less than or equal to 1000",
+                 id="band-samples-1e9"),
+    pytest.param({"simulate": {"seed": -1}}, "simulate.seed", "greater than or equal to 0", id="simulate-seed"),
+    pytest.param({"simulate": {"horizons_s": []}}, "simulate.horizons_s", "at least 1 item", id="horizons-empty"),
+    pytest.param({"simulate": {"horizons_s": [-1]}}, "simulate.horizons_s.0", "greater than 0",
+                 id="horizon-negative"),
+    pytest.param({"simulate": {"horizons_s": [1e9]}}, "simulate.horizons_s.0", "less than or equal to 86400",
+                 id="horizon-1e9"),
 ]
+
+
+def test_the_bounds_admit_what_users_give() -> None:
+    """The bounds refuse nonsense, not settings: all cores, auto widths, a 1-kHz grid, no bridging windows."""
+    from pipeline.config.params import Params
+
+    ok = Params.model_validate({"sync": {"rate_hz": 1000.0, "max_gap_s": {"default": 0.0}},
+                                "differentiate": {"sigma_s": "auto", "savgol_window_s": 0.05},
+                                "coupled": {"n_jobs": -1, "seed": 2**32 - 1, "max_samples": None},
+                                "simulate": {"outage_windows_s": [], "horizons_s": [86_400.0]}})
+    assert ok.coupled.n_jobs == -1 and ok.simulate.outage_windows_s == []
 
 
 @pytest.mark.parametrize(("doc", "field", "says"), PARAMS_CASES)
