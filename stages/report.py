@@ -18,6 +18,7 @@ from typing import Any
 
 from pipeline import layout
 from pipeline.config import Params, Vehicle
+from pipeline.report import verdicts
 from pipeline.report.build import build
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
@@ -42,34 +43,33 @@ def _number(value: Any) -> float | None:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
-def headline(coupled: Any, decoupled: Any, simulation: Any) -> dict[str, Any]:
+def headline(coupled: Any, decoupled: Any, simulation: Any, table3: Any = None) -> dict[str, Any]:
     """The few numbers ``dvc metrics`` shows, from the stages' metrics files (each may be missing: ``None``).
 
     ``coupled``: ``{model: {output: {final_r2, ...}}}``; ``decoupled``: ``{"results": {dof: {model: {"cv":
     {"test_mae_mean"}}}}}``; ``simulation``: ``{trial: {"free_run": [{model, status, metrics: {dof: {mae}}}]}}``.
-    Diverged free runs are left out (their error covers only the part before they diverged)."""
+    Diverged free runs are left out (their error covers only the part before they diverged), and so is a model
+    that failed (``pipeline.report.verdicts``: train R² below 0 on that output (``table3``: Table III's JSON), a
+    free run worse than the mean on that DOF): the report's summary picks with the same functions."""
     out: dict[str, Any] = {}
-    best: dict[str, tuple[float, str]] = {}
-    for model, per_output in (coupled or {}).items():
-        for output, scores in (per_output if isinstance(per_output, dict) else {}).items():
-            r2 = _number(scores.get("final_r2")) if isinstance(scores, dict) else None
-            if r2 is not None and (output not in best or r2 > best[output][0]):
-                best[output] = (r2, model)
+    finals = {m: {o: sc.get("final_r2") for o, sc in per_output.items() if isinstance(sc, dict)}
+              for m, per_output in (coupled or {}).items() if isinstance(per_output, dict)}
+    best = verdicts.best_coupled(finals, table3)
     if best:
-        out["coupled_final_r2"] = {o: {"best": round(r2, 6), "model": m} for o, (r2, m) in sorted(best.items())}
+        out["coupled_final_r2"] = {o: {"best": round(r2, 6), "model": m} for o, (m, r2) in sorted(best.items())}
     damping: dict[str, Any] = {}
     results = decoupled.get("results", {}) if isinstance(decoupled, dict) else {}
     for dof, per_model in (results if isinstance(results, dict) else {}).items():
-        maes = {m: _number((r.get("cv") or {}).get("test_mae_mean")) for m, r in per_model.items()
-                if isinstance(r, dict)}
-        maes = {m: v for m, v in maes.items() if v is not None}
-        if maes:
-            model = min(maes, key=maes.__getitem__)
-            row: dict[str, Any] = {"best_mae": round(maes[model], 6), "model": model}
-            if "ls" in maes:
-                row["ls_mae"] = round(maes["ls"], 6)
-                if maes["ls"] > 0:
-                    row["vs_ls"] = round(maes[model] / maes["ls"], 4)
+        chosen = verdicts.best_damping(per_model) if isinstance(per_model, dict) else None
+        if chosen is not None:
+            model, mae = chosen
+            row: dict[str, Any] = {"best_mae": round(mae, 6), "model": model}
+            ls = _number(((per_model.get("ls") or {}).get("cv") or {}).get("test_mae_mean")) if isinstance(
+                per_model.get("ls"), dict) else None
+            if ls is not None:
+                row["ls_mae"] = round(ls, 6)
+                if ls > 0:
+                    row["vs_ls"] = round(mae / ls, 4)
             damping[dof] = row
     if damping:
         out["damping_mae"] = damping
@@ -80,8 +80,9 @@ def headline(coupled: Any, decoupled: Any, simulation: Any) -> dict[str, Any]:
         for run_ in runs if isinstance(runs, list) else []:
             if not isinstance(run_, dict) or run_.get("status") != "ok":
                 continue
+            worse = verdicts.worse_dofs(run_)
             for dof, m in (run_.get("metrics") or {}).items():
-                mae = _number(m.get("mae")) if isinstance(m, dict) else None
+                mae = _number(m.get("mae")) if isinstance(m, dict) and dof not in worse else None
                 if mae is not None and (dof not in per_dof or mae < per_dof[dof][0]):
                     per_dof[dof] = (mae, str(run_.get("model")))
         for dof, value in per_dof.items():
@@ -107,7 +108,8 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     outputs.append(write_json(report.metrics, out / "metrics.json"))
     outputs.append(write_json(headline(_load(root / layout.EVALUATION / "coupled" / "metrics.json"),
                                        _load(root / layout.EVALUATION / "decoupled" / "metrics.json"),
-                                       _load(root / layout.SIMULATION / "metrics.json")),
+                                       _load(root / layout.SIMULATION / "metrics.json"),
+                                       _load(root / layout.EVALUATION / "coupled" / "table3.json")),
                               out / "headline.json"))
     for name, rows in sorted(report.plots.items()):
         outputs.append(write_json(rows, out / "plots" / f"{name}.json"))

@@ -16,16 +16,14 @@ from pathlib import Path
 from typing import Any
 
 from pipeline import layout
-from pipeline.report import figures
+from pipeline.report import figures, verdicts
 from pipeline.report import html as H
 
 log = logging.getLogger(__name__)
 
 COUPLED = f"{layout.EVALUATION}/coupled"
 DECOUPLED = f"{layout.EVALUATION}/decoupled"
-# The labels of paper 000 (pipeline.report.coupled.MODEL_LABELS, repeated so the report imports no model code).
-LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
-          "gertler_hagen": "Gertler–Hagen", "mcfarland_whitcomb": "McFarland–Whitcomb", "graybox": "gray-box"}
+LABELS = verdicts.COUPLED_LABELS  # paper 000's labels
 SVRS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 OUTPUT_LABELS = {"udot_mps2": "u̇ [m/s²]", "vdot_mps2": "v̇ [m/s²]", "rdot_radps2": "ṙ [rad/s²]"}
 DAMPING_UNIT = {"u": "N", "v": "N", "r": "N·m"}
@@ -41,10 +39,11 @@ class Part:
     headline: list[dict[str, Any]] = field(default_factory=list)
     failed: list[dict[str, Any]] = field(default_factory=list)
     protocol: str = ""
+    verdicts: list[str] = field(default_factory=list)  # "model on output (why)": failed, left out of "best"
 
 
 def label(model: str) -> str:
-    return LABELS.get(model, model)
+    return verdicts.label(model)
 
 
 def _read(root: Path, rel: str, used: set[str]) -> Any:
@@ -173,22 +172,32 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str]) -> tuple[str, list[dict
                                                               c.get("test_mae", {}).get("sd"), 4),
                          "CV train R² (mean ± sd)": H.mean_sd(c.get("train_r2", {}).get("mean"),
                                                               c.get("train_r2", {}).get("sd")),
-                         "final check R² (unseen trial)": f.get("r2"), "final check MAE": f.get("mae")})
+                         "final check R² (unseen trial)": f.get("r2"), "final check MAE": f.get("mae"),
+                         "verdict": verdicts.TRAIN_FAILED if verdicts.coupled_train_failed(entry, out) else "ok"})
     html = H.table(rows, caption="Table III — cross-validation and final check (paper 000): blocked k-fold CV on "
                                  "the train_test block (mean ± sd over folds), then the model fitted on all of it "
-                                 "scored on the unseen test trial(s)")
+                                 "scored on the unseen test trial(s); verdict “failed: train R² < 0”: worse than "
+                                 "the mean on its own training rows, left out of “best”")
     return html, failed
 
 
 def _best_per_output(doc: dict[str, Any], outputs: Sequence[str]) -> dict[str, tuple[str, float]]:
-    best: dict[str, tuple[str, float]] = {}
-    for out in outputs:
-        scores = {m: e["final"][out]["r2"] for m, e in doc.items()
-                  if isinstance(e, dict) and isinstance(e.get("final", {}).get(out, {}).get("r2"), (int, float))}
-        if scores:
-            model = max(scores, key=lambda m: (scores[m], m))
-            best[out] = (model, float(scores[model]))
-    return best
+    """Per output, the best final R² among the models not failed on it (verdicts.best_coupled)."""
+    finals = {m: {o: (e["final"].get(o) or {}).get("r2") for o in outputs if isinstance(e["final"].get(o), dict)}
+              for m, e in doc.items() if isinstance(e, dict) and isinstance(e.get("final"), dict)}
+    best = verdicts.best_coupled(finals, doc)
+    return {o: best[o] for o in outputs if o in best}
+
+
+def _train_failures(doc: dict[str, Any], outputs: Sequence[str]) -> list[str]:
+    """'Gertler–Hagen on ṙ [rad/s²] (train R² -3.38)' for each model and output whose train R² is below 0."""
+    notes = []
+    for model, entry in doc.items():
+        for out in outputs:
+            if verdicts.coupled_train_failed(entry, out):
+                mean = entry["cv"][out]["train_r2"]["mean"]
+                notes.append(f"{label(model)} on {OUTPUT_LABELS.get(out, out)} (train R² {mean:.3g})")
+    return notes
 
 
 def ranking_note(best: dict[str, tuple[str, float]], hyper_doc: dict[str, Any] | None) -> str:
@@ -239,6 +248,7 @@ def coupled(root: Path, figs: dict[str, bytes]) -> Part:
         parts.append(ranking_note(best, hyper_doc))
         part.headline = [{"output": OUTPUT_LABELS.get(o, o), "best model": label(m),
                           "R² on the unseen trial": r2} for o, (m, r2) in best.items()]
+        part.verdicts = _train_failures(t3, outputs)
     used.add(f"{COUPLED}/table3.md")
     if failed:
         part.failed = [{"study": "coupled", **f} for f in failed]
@@ -288,20 +298,22 @@ def decoupled(root: Path, figs: dict[str, bytes]) -> Part:
             learned = r.get("learned") or {}
             params = r.get("best_params") or ({"kernel": learned["kernel"]} if "kernel" in learned else {})
             t = timings.get(f"{dof}/{model}", {}) if isinstance(timings, dict) else {}
-            rows.append({"DOF": dof, "model": model, "MAE unit": unit, "best hyperparameters": params or "—",
+            rows.append({"DOF": dof, "model": label(model), "MAE unit": unit, "best hyperparameters": params or "—",
                          "search MAE": r.get("search_mae"),
                          "CV test MAE (mean ± sd)": H.mean_sd(cv.get("test_mae_mean"), cv.get("test_mae_sd")),
                          "CV test R² (mean ± sd)": H.mean_sd(cv.get("test_r2_mean"), cv.get("test_r2_sd")),
                          "CV train MAE": cv.get("train_mae_mean"),
-                         "fit time [ms]": 1e3 * t["fit_time_s"] if isinstance(t.get("fit_time_s"), float) else None})
+                         "fit time [ms]": 1e3 * t["fit_time_s"] if isinstance(t.get("fit_time_s"), float) else None,
+                         "verdict": verdicts.TRAIN_FAILED if verdicts.damping_train_failed(r) else "ok"})
             if isinstance(r.get("learning_curve"), dict):
-                curves.setdefault(dof, {})[model] = r["learning_curve"]
-            if model != "ls" and isinstance(cv.get("test_mae_mean"), (int, float)):
-                ls = per_model.get("ls", {}).get("cv", {}).get("test_mae_mean") if isinstance(
-                    per_model.get("ls"), dict) else None
-                if isinstance(ls, (int, float)):
-                    part.headline.append({"dof": dof, "model": model, "mae": cv["test_mae_mean"], "ls": ls,
-                                          "unit": unit})
+                curves.setdefault(dof, {})[label(model)] = r["learning_curve"]
+            if verdicts.damping_train_failed(r):
+                part.verdicts.append(f"{label(model)} on {dof} (train R² {r['cv']['train_r2_mean']:.3g})")
+        best = verdicts.best_damping(per_model)  # least squares, the reference, competes too
+        ls = verdicts.number(((per_model.get("ls") or {}).get("cv") or {}).get("test_mae_mean")) if isinstance(
+            per_model.get("ls"), dict) else None
+        if best is not None:
+            part.headline.append({"dof": dof, "model": best[0], "mae": best[1], "ls": ls, "unit": unit})
     parts = [H.table(rows, caption="Table I — the damping study (paper 001): per DOF, each model's search result "
                                    "and its blocked-CV scores on the train_test rows; MAE of the damping d_i(ν_i)")]
     if failed:
@@ -339,7 +351,7 @@ def _free_run_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     rows = []
     for run in runs:
         metrics = run.get("metrics") or {}
-        row: dict[str, Any] = {"model": run.get("model"), "status": run.get("status"),
+        row: dict[str, Any] = {"model": label(run.get("model")), "status": verdicts.free_run_status(run),
                                "diverged at [s]": run.get("diverged_at_s")}
         for dof in sorted(metrics, key=_dof_key):
             m, unit = metrics[dof], VELOCITY_UNIT.get(dof, "")
@@ -360,7 +372,7 @@ def _horizon_rows(doc: dict[str, Any]) -> list[dict[str, Any]]:
             continue
         for h in sorted(per_h, key=lambda k: float(k) if k.replace(".", "", 1).isdigit() else 0.0):
             e = per_h[h] or {}
-            row: dict[str, Any] = {"model": model, "horizon [s]": h, "windows": e.get("n_windows"),
+            row: dict[str, Any] = {"model": label(model), "horizon [s]": h, "windows": e.get("n_windows"),
                                    "diverged": e.get("n_diverged")}
             for dof, v in (e.get("mae_end") or {}).items():
                 row[f"{dof} MAE at end [{VELOCITY_UNIT.get(dof, '')}]"] = v
@@ -375,7 +387,7 @@ def _bridging_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         base = hold.get(r.get("window_s"))
         mean = r.get("mean_error_m")
         ratio = mean / base if isinstance(mean, (int, float)) and isinstance(base, (int, float)) and base else None
-        out.append({"outage [s]": r.get("window_s"), "model": r.get("model"), "windows": r.get("n_windows"),
+        out.append({"outage [s]": r.get("window_s"), "model": label(r.get("model")), "windows": r.get("n_windows"),
                     "diverged": r.get("n_diverged"), "mean error [m]": mean, "median [m]": r.get("median_error_m"),
                     "max [m]": r.get("max_error_m"), "distance travelled [m]": r.get("mean_distance_m"),
                     "vs hold-last": None if ratio is None else f"{ratio:.2f}×"})
@@ -399,7 +411,9 @@ def simulation(root: Path, figs: dict[str, bytes]) -> Part:
                                  caption=f"Free runs on {trial}: each model rolled out from the measured initial "
                                          "velocity over the whole trial; R² and MAE of the velocity; coverage: "
                                          "share of measured samples inside the model's 2σ band"))
-        banded = [r.get("model") for r in runs or [] if isinstance(r, dict) and r.get("band_coverage")]
+        banded = [label(r.get("model")) for r in runs or [] if isinstance(r, dict) and r.get("band_coverage")]
+        part.verdicts += [f"{label(r.get('model'))} free run on {trial}: {verdicts.free_run_status(r)}"
+                          for r in runs or [] if isinstance(r, dict) and verdicts.free_run_status(r) != "ok"]
         data = _png(root, f"{rel}/free_run.png", used, figs, f"simulation_{trial}_free_run.png")
         if data:
             band = (f"the shaded band is the 2σ band of {', '.join(map(str, banded))} (posterior samples)"
@@ -420,7 +434,7 @@ def simulation(root: Path, figs: dict[str, bytes]) -> Part:
                                                "velocity vs holding the last DVL velocity; position error at "
                                                "the end of the outage"))
             for r in rows:
-                if r["model"] != "hold_last" and isinstance(r["mean error [m]"], (int, float)):
+                if r["model"] != label("hold_last") and isinstance(r["mean error [m]"], (int, float)):
                     part.headline.append({"trial": trial, **r})
         data = _png(root, f"{rel}/bridging.png", used, figs, f"simulation_{trial}_bridging.png")
         if data:
@@ -450,16 +464,16 @@ def headline(coupled_part: Part, decoupled_part: Part, sim_part: Part, quarantin
         parts.append(H.table(coupled_part.headline, caption="Best coupled model per output: R² on the unseen "
                                                             "trial (Table III's final check)"))
     if decoupled_part.headline:
-        best: dict[str, dict[str, Any]] = {}
-        for h in decoupled_part.headline:
-            if h["dof"] not in best or h["mae"] < best[h["dof"]]["mae"]:
-                best[h["dof"]] = h
-        parts.append(H.table([{"DOF": d, "best damping model": h["model"],
+        parts.append(H.table([{"DOF": h["dof"], "best damping model": label(h["model"]),
                                "CV test MAE": f"{h['mae']:.4g} {h['unit']}",
-                               "LS (reference)": f"{h['ls']:.4g} {h['unit']}",
+                               "LS (reference)": "—" if h["ls"] is None else f"{h['ls']:.4g} {h['unit']}",
                                "vs LS": f"{h['mae'] / h['ls']:.2f}×" if h["ls"] else "—"}
-                              for d, h in sorted(best.items(), key=lambda kv: _dof_key(kv[0]))],
-                             caption="Damping models (paper 001): the best CV test MAE per DOF against least squares"))
+                              for h in sorted(decoupled_part.headline, key=lambda h: _dof_key(h["dof"]))],
+                             caption="Damping models (paper 001): per DOF the lowest CV test MAE among all models, "
+                                     "least squares (the reference) included, and LS's beside it"))
+    failures = coupled_part.verdicts + decoupled_part.verdicts + sim_part.verdicts
+    if failures:
+        parts.append(f"<p class='warn'><b>Failed, left out of “best”:</b> {H.esc('; '.join(failures))}.</p>")
     if sim_part.headline:
         best_b: dict[tuple[str, Any], dict[str, Any]] = {}
         for h in sim_part.headline:
@@ -473,8 +487,8 @@ def headline(coupled_part: Part, decoupled_part: Part, sim_part: Part, quarantin
                               for (t, w), h in best_b.items()],
                              caption="DVL-outage bridging: the best model's position error against holding the "
                                      "last velocity"))
-    left = (f"{quarantined} input(s) quarantined, {failed} model(s) failed"
-            if quarantined or failed else "Nothing was quarantined and no model failed.")
+    left = (f"{quarantined} input(s) quarantined, {failed} model(s) failed to fit"
+            if quarantined or failed else "Nothing was quarantined and every model fitted.")
     cls = "warn" if quarantined or failed else "muted"
     parts.append(f"<p class='{cls}'>{H.esc(left)} (see <a href='#quarantine'>Quarantine and failures</a>).</p>")
     return "<div class='box'>" + "".join(parts) + "</div>"
