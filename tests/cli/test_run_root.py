@@ -92,10 +92,13 @@ def hold_lock(root: Path, *, fork_child: bool = False) -> tuple[subprocess.Popen
         with run_root_lock({str(root)!r}):
             pids = [os.getpid()]
             if {fork_child!r}:
+                ready, tell = os.pipe()
                 child = os.fork()
-                if child == 0:
+                if child == 0:  # os.fork ran the at-fork handlers before it returned here
+                    os.write(tell, b"x")
                     time.sleep(60)
                     os._exit(0)
+                os.read(ready, 1)  # the child is past its at-fork handlers before anyone looks at the lock
                 pids.append(child)
             print(*pids, flush=True)
             sys.stdin.read()
