@@ -80,7 +80,13 @@ class SyncParams(Frozen):
 class DifferentiateParams(Frozen):
     method: Literal["kalman", "gaussian", "savgol"] = Field(
         "kalman", description="kalman: a Kalman/RTS smoother over every velocity and rate sensor at its own stamps "
-        "with its own noise (pipeline.estimation); gaussian / savgol: filters of the synced grid.")
+        "with its own noise, and the vehicle's model as its process equation (pipeline.estimation); gaussian / "
+        "savgol: filters of the synced grid.")
+    model_passes: int = Field(
+        3, ge=0, le=10, description="kalman: passes with the vehicle's model in the smoother's process equation "
+        "(the logged thrust, then Coriolis and a damping fitted on the previous pass); each DOF keeps the pass of "
+        "highest likelihood. 0: the kinematic (white-jerk) smoother alone, for a vehicle without a usable force "
+        "model.")
     noise_sd: dict[str, Positive] = Field(
         default_factory=dict, description="Per signal, its white-noise SD in the signal's unit; signals not named "
         "get an SD estimated from the data (robust local fit).")

@@ -43,10 +43,11 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
+from pipeline.estimation.forced import force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
 from pipeline.estimation.noise import NoiseEstimate
 from pipeline.estimation.position import body_motion_from_positions, smooth_positions, with_position_rates
-from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
+from pipeline.estimation.smoother import Measurements, Smoothed, smoothed_variances
 from pipeline.kinematics import body_kinematics
 from pipeline.sync import segments, valid_column
 from pipeline.vocabulary import (
@@ -85,6 +86,14 @@ def _process_noise_source(dof: str, res: Smoothed, key: str, params: Differentia
     return "config" if dof in params.process_noise else "maximum likelihood"
 
 
+def _passes_report(passes: dict, results: dict[str, Smoothed]) -> dict[str, Any]:
+    """The smoother's passes for the report: each pass's model and log-likelihood per DOF, and which one each DOF
+    kept (0: the kinematic smoother)."""
+    return {"force_model": passes["force_model"],
+            "passes": passes["passes"],
+            "chosen_pass": {dof: passes["chosen"][dof] for dof in results if dof in passes["chosen"]}}
+
+
 def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,
                     streams: Mapping[str, pd.DataFrame | pa.Table] | None = None
                     ) -> tuple[pd.DataFrame, dict[str, Any]]:
@@ -106,15 +115,14 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     meas = {} if source.differentiated else velocity_measurements(synced, body, streams, vehicle, params, noise)
     meas.update(rate_measurements(synced, streams, vehicle, params, noise))
 
-    results: dict[str, Smoothed] = {}
-    for dof in DOFS:
-        if dof not in meas:
-            continue
-        try:
-            results[dof] = smooth(grid, meas[dof], q=params.process_noise.get(dof), gate=params.gate_sigmas)
-        except ValueError as err:
-            raise SyncError(f"cannot smooth {dof}: {err}", field=dof) from err
-    smoothed_variances(list(results.values()))
+    meas = {dof: meas[dof] for dof in DOFS if dof in meas}
+    model = force_model(synced, body, vehicle) if params.model_passes and meas else None
+    try:
+        results, inputs, passes = smooth_passes(grid, meas, model, passes=params.model_passes,
+                                                process_noise=params.process_noise, gate=params.gate_sigmas,
+                                                dofs=DOFS)
+    except ValueError as err:
+        raise SyncError(f"cannot smooth {err}", field=str(err).split(":")[0]) from err
     accelerometer = None
     if vehicle.sensors.accelerometer is not None:
         if source.differentiated:
@@ -124,8 +132,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
             acc, accelerometer = accelerometer_measurements(synced, body, streams, vehicle, params, results, noise)
             for dof, extra in acc.items():
                 try:
-                    results[dof] = smooth(grid, Measurements.concat(meas[dof], extra),
-                                          q=params.process_noise.get(dof), gate=params.gate_sigmas)
+                    results[dof] = smooth_with_input(grid, Measurements.concat(meas[dof], extra), inputs[dof],
+                                                     q=params.process_noise.get(dof), gate=params.gate_sigmas)
                 except ValueError as err:
                     raise SyncError(f"cannot smooth {dof} with the accelerometer: {err}", field=dof) from err
             smoothed_variances([results[dof] for dof in acc])
@@ -179,6 +187,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
                        "median_acceleration_sd": float(np.median(res.xdot_sd))}
                  for dof, res in results.items()},
     }
+    report["model"] = _passes_report(passes, results)
     if accelerometer is not None:
         report["accelerometer"] = accelerometer
     log.info("kalman: %d of %d grid samples usable (%.0f %%, sync's segments alone: %.0f %%), %d segment(s)",

@@ -48,6 +48,18 @@ _LOGDET_QT = float(np.linalg.slogdet(_QT)[1])
 _PRIOR_PRECISION = 1e-10  # on the first state (scaled units): effectively diffuse
 
 
+def process_precision(q: float, s: float, h_s: float) -> tuple[np.ndarray, float]:
+    """Precision and log-determinant of one step's process noise in scaled states: the white jerk's
+    q h^5 QT, plus, with ``s`` > 0, a white acceleration of spectral density ``s`` (a random walk of x, s h).
+    The second term is the error of a known input (:mod:`pipeline.estimation.forced`): fast, unsmooth, and
+    integrated by the velocity like the input itself."""
+    if s <= 0:
+        return _QT_INV / (q * h_s**5), 3.0 * np.log(q * h_s**5) + _LOGDET_QT
+    Q = q * h_s**5 * _QT
+    Q[0, 0] += s * h_s
+    return np.linalg.inv(Q), float(np.linalg.slogdet(Q)[1])
+
+
 def white_jerk(h_s: float, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Transition and process-noise covariance of (x, x', x'') over ``h_s`` for jerk spectral density ``q``."""
     phi = np.array([[1.0, h_s, h_s**2 / 2], [0.0, 1.0, h_s], [0.0, 0.0, 1.0]])
@@ -76,6 +88,10 @@ class Measurements:
         if not ok.all():
             self.t_ns, self.y, self.var, self.order = self.t_ns[ok], self.y[ok], self.var[ok], self.order[ok]
 
+    def subset(self, mask: np.ndarray) -> Measurements:
+        """The measurements where ``mask`` is true (the ones a smoother result kept, say)."""
+        return Measurements(self.t_ns[mask], self.y[mask], self.var[mask], self.order[mask])
+
     @classmethod
     def concat(cls, *parts: Measurements) -> Measurements:
         """Several sources of one DOF as one set (any order of stamps)."""
@@ -101,6 +117,15 @@ class Smoothed:
     h_s: float = 0.0
     xddot: np.ndarray | None = None
     xddot_sd: np.ndarray | None = None
+    # which of the given measurements the likelihood counts (inside the grid, not gated), to score other models
+    # of the same DOF on the same measurements
+    kept: np.ndarray | None = None
+    # the smoothed covariance of x and x' (filled by smoothed_variances), for SDs of functions of both
+    x_xdot_cov: np.ndarray | None = None
+    # the known input's error (white acceleration, spectral density; 0 without an input)
+    s: float = 0.0
+    # cov(x_k, x_{k+2}) (last two steps 0), for the SD of x's central difference
+    x_lag2_cov: np.ndarray | None = None
 
 
 class _Problem:
@@ -116,6 +141,7 @@ class _Problem:
         self.h_s = self.h_ns / 1e9
         rel = meas.t_ns - self.t0
         inside = (rel >= 0) & (rel <= (self.n - 1) * self.h_ns)
+        self.inside = inside
         rel = rel[inside]
         self.k = np.minimum(rel // self.h_ns, self.n - 1).astype(np.int64)
         self.delta = (rel - self.k * self.h_ns) / self.h_ns            # in steps, 0 <= delta < 1
@@ -132,13 +158,13 @@ class _Problem:
         self._HH = np.stack([self.H[:, a] * self.H[:, c] for a, c in self._pairs], axis=1)
         self._Hy = self.H * self.y[:, None]
 
-    def variances(self, q: float) -> np.ndarray:
+    def variances(self, q: float, s: float = 0.0) -> np.ndarray:
         d = self.delta * self.h_s
-        return self.var0 + q * np.where(self.rate, d**3 / 3.0, d**5 / 20.0)
+        return self.var0 + np.where(self.rate, q * d**3 / 3.0 + s / self.h_s, q * d**5 / 20.0 + s * d)
 
-    def information(self, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def information(self, q: float, s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per step (N, 3, 3) information and (N, 3) vector of the kept measurements; their variances."""
-        r = self.variances(q)
+        r = self.variances(q, s)
         w = np.where(self.keep, 1.0 / r, 0.0)
         info = np.zeros((self.n, 3, 3))
         vec = np.zeros((self.n, 3))
@@ -149,19 +175,19 @@ class _Problem:
             info[:, c, a] = info[:, a, c]
         return info, vec, r
 
-    def prior_blocks(self, q: float) -> tuple[np.ndarray, np.ndarray]:
+    def prior_blocks(self, q: float, s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Diagonal blocks (N, 3, 3) and the constant sub-diagonal block of the process model's precision."""
-        W = _QT_INV / (q * self.h_s**5)
+        W = process_precision(q, s, self.h_s)[0]
         diag = np.zeros((self.n, 3, 3))
         diag[:-1] += _PHI.T @ W @ _PHI
         diag[1:] += W
         diag[0] += _PRIOR_PRECISION * np.eye(3)
         return diag, -W @ _PHI
 
-    def solve(self, q: float) -> tuple[np.ndarray, float, np.ndarray]:
+    def solve(self, q: float, s: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
         """Posterior mean z (N, 3), -2 log-likelihood (+ const), information blocks."""
-        info, vec, r = self.information(q)
-        diag, sub = self.prior_blocks(q)
+        info, vec, r = self.information(q, s)
+        diag, sub = self.prior_blocks(q, s)
         D = diag + info
         n3 = 3 * self.n
         ab = np.zeros((6, n3))
@@ -177,12 +203,12 @@ class _Problem:
         keep = self.keep
         zz = z.reshape(self.n, 3)
         logdet_A = 2.0 * float(np.sum(np.log(cb[0])))
-        logdet_prior = -(self.n - 1) * (3.0 * np.log(q * self.h_s**5) + _LOGDET_QT) + 3 * np.log(_PRIOR_PRECISION)
+        W, logdet_Q = process_precision(q, s, self.h_s)
+        logdet_prior = -(self.n - 1) * logdet_Q + 3 * np.log(_PRIOR_PRECISION)
         # y'R^-1 y - b'A^-1 b, written as the posterior's residual and process terms (no cancellation of large
         # numbers when the signal is far larger than its noise)
         e = self.residuals(zz)
         w = zz[1:] - zz[:-1] @ _PHI.T
-        W = _QT_INV / (q * self.h_s**5)
         quad = (float(np.sum(e[keep] ** 2 / r[keep])) + float(np.sum((w @ W) * w))
                 + _PRIOR_PRECISION * float(zz[0] @ zz[0]))
         m2ll = float(np.sum(np.log(r[keep]))) + quad + logdet_A - logdet_prior
@@ -193,12 +219,12 @@ class _Problem:
         return self.y - (self.H[:, 0] * zk[:, 0] + self.H[:, 1] * zk[:, 1] + self.H[:, 2] * zk[:, 2])
 
 
-def _fit_q(problem: _Problem, q_bounds: tuple[float, float]) -> float:
+def _fit_q(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> float:
     lo, hi = np.log10(q_bounds[0]), np.log10(q_bounds[1])
 
     def objective(lq: float) -> float:
         try:
-            return problem.solve(10.0**lq)[1]
+            return problem.solve(10.0**lq, s)[1]
         except np.linalg.LinAlgError:
             return float("inf")
 
@@ -207,6 +233,33 @@ def _fit_q(problem: _Problem, q_bounds: tuple[float, float]) -> float:
         log.info("smoother: maximum-likelihood process noise at the bound of [%g, %g]: q = %g",
                  q_bounds[0], q_bounds[1], 10.0**res.x)
     return float(10.0**res.x)
+
+
+def _fit_qs(problem: _Problem, q_bounds: tuple[float, float], s_bounds: tuple[float, float],
+            rounds: int = 2) -> tuple[float, float]:
+    """q and s by maximum likelihood, one coordinate at a time (each a Brent search on its log); s's lower
+    bound stands for 0, kept when the input's error does not show."""
+    q, s = _fit_q(problem, q_bounds), 0.0
+    best = problem.solve(q, s)[1]
+    lo, hi = np.log10(s_bounds[0]), np.log10(s_bounds[1])
+    for _ in range(rounds):
+        def objective(ls: float, q: float = q) -> float:
+            try:
+                return problem.solve(q, 10.0**ls)[1]
+            except np.linalg.LinAlgError:
+                return float("inf")
+
+        res = minimize_scalar(objective, bounds=(lo, hi), method="bounded", options={"xatol": 0.05})
+        if res.fun >= best - 1e-6:
+            break
+        s = float(10.0**res.x)
+        q = _fit_q(problem, q_bounds, s)
+        best = problem.solve(q, s)[1]
+    return q, s
+
+
+def _median_interval(meas: Measurements) -> float:
+    return float(np.median(np.diff(np.sort(meas.t_ns)))) / 1e9 if meas.t_ns.size > 1 else 0.0
 
 
 def _gate(problem: _Problem, z: np.ndarray, q: float, gate: float) -> bool:
@@ -223,7 +276,8 @@ def _gate(problem: _Problem, z: np.ndarray, q: float, gate: float) -> bool:
 
 def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, gate: float = 5.0,
            q_bounds: tuple[float, float] = (1e-9, 1e3), gate_rounds: int = 2, ml_max_s: float = 300.0,
-           ml_min_s: float = 60.0, ml_measurements: int = 5000) -> Smoothed:
+           ml_min_s: float = 60.0, ml_measurements: int = 5000, input_error: bool = False,
+           s_bounds: tuple[float, float] = (1e-8, 1e2)) -> Smoothed:
     """Smoothed x and x' of one DOF on the uniform ``grid_ns`` from its measurements (see the module docstring).
 
     ``q``: the jerk's spectral density ((unit/s^3)^2 s); None: maximum likelihood within ``q_bounds`` times
@@ -233,6 +287,9 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
     at most ``ml_max_s`` seconds; a longer stretch changes the estimate little and costs in proportion); the
     smoother then runs over the whole trial, gating its residuals once more.
     ``gate``: residuals beyond this many robust SDs (MAD of the normalized residuals) are rejected; 0: none.
+    ``input_error``: the measurements had a known input taken out (:mod:`pipeline.estimation.forced`); fit, with
+    q, the spectral density ``s`` of that input's error (within ``s_bounds`` times sigma^2 / h; the lower bound
+    stands for none).
     """
     grid_ns = np.asarray(grid_ns, dtype=np.int64)
     problem = _Problem(grid_ns, meas)
@@ -248,25 +305,34 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
         steps = int(np.clip(span_s, ml_min_s, ml_max_s) / problem.h_s)
         # q is a continuous-time quantity: for a sensor much slower than the grid (a DVL), the likelihood on a
         # grid of half its interval is the same to within the optimizer's tolerance, at a fraction of the cost
-        interval = float(np.median(np.diff(np.sort(meas.t_ns)))) / 1e9 if meas.t_ns.size > 1 else problem.h_s
+        interval = _median_interval(meas) or problem.h_s
         stride = int(np.clip(interval / (2 * problem.h_s), 1, 4))
         if grid_ns.size > steps or stride > 1:
             first = max((grid_ns.size - steps) // 2, 0)
             ml = _Problem(grid_ns[first: first + steps: stride], meas)
-        q_fit = _fit_q(ml, q_bounds)
+        s_fit = 0.0
+        if input_error:
+            s_unit = float(np.median(values)) / problem.h_s
+            q_fit, s_fit = _fit_qs(ml, q_bounds, (s_bounds[0] * s_unit, s_bounds[1] * s_unit))
+            if s_fit <= 1.5 * s_bounds[0] * s_unit:
+                s_fit = 0.0
+        else:
+            q_fit = _fit_q(ml, q_bounds)
         for _ in range(rounds):  # outliers inflate q: refit without them (when there are enough to matter)
             before = int(ml.keep.sum())
             if not _gate(ml, ml.solve(q_fit)[0], q_fit, gate) or before - int(ml.keep.sum()) < 0.001 * before:
                 break
             q_fit = _fit_q(ml, q_bounds)
     else:
-        q_fit = q
-    z, m2ll, info = problem.solve(q_fit)
+        q_fit, s_fit = q, 0.0
+    z, m2ll, info = problem.solve(q_fit, s_fit)
     if rounds and _gate(problem, z, q_fit, gate):
-        z, m2ll, info = problem.solve(q_fit)
+        z, m2ll, info = problem.solve(q_fit, s_fit)
     h = problem.h_s
+    kept = problem.inside.copy()
+    kept[kept] = problem.keep
     return Smoothed(x=z[:, 0], xdot=z[:, 1] / h, q=q_fit, loglik=-0.5 * m2ll, used=int(problem.keep.sum()),
-                    gated=int((~problem.keep).sum()), info=info, h_s=h, xddot=z[:, 2] / h**2)
+                    gated=int((~problem.keep).sum()), info=info, h_s=h, xddot=z[:, 2] / h**2, kept=kept, s=s_fit)
 
 
 def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_intervals: float = 40.0,
@@ -300,7 +366,7 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
     n = results[0].x.size
     h = results[0].h_s
     dofs = len(results)
-    W = np.stack([_QT_INV / (res.q * h**5) for res in results])            # (dofs, 3, 3)
+    W = np.stack([process_precision(res.q, res.s, h)[0] for res in results])  # (dofs, 3, 3)
     base = np.zeros((n, dofs, 3, 3))
     base[:-1] += np.einsum("ji,djk,kl->dil", _PHI, W, _PHI)
     base[1:] += W
@@ -332,25 +398,35 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
         si = _inv3_soa(S)
         sinv[:, :, k] = si
         gmat[:, :, k] = np.einsum("imb,mjb->ijb", Lb, si, optimize=False)  # G = L S^-1
-    var = np.empty((3, length, batch))
+    # the diagonal, the (x, x') entry, and cov(x_k, x_{k+2}) for the variance of a central difference of x
+    var = np.empty((5, length, batch))
+    var[4] = 0.0
+    cross = None  # column 0 of cov(z_k, z_{k+1}) = -G_k^T Sigma_{k+1}
     sigma = sinv[:, :, length - 1]
     var[0, length - 1], var[1, length - 1], var[2, length - 1] = sigma[0, 0], sigma[1, 1], sigma[2, 2]
+    var[3, length - 1] = sigma[0, 1]
     for k in range(length - 2, -1, -1):  # Sigma_k = S_k^-1 + G_k^T Sigma_{k+1} G_k
         g = gmat[:, :, k]
+        if cross is not None:  # cov(x_k, x_{k+2}) = -(G_k^T cov(z_{k+1}, z_{k+2}))_00
+            var[4, k] = -np.sum(g[:, 0] * cross, axis=0)
+        cross = -np.einsum("mib,mb->ib", g, sigma[:, 0], optimize=False)
         u = np.einsum("imb,mjb->ijb", sigma, g, optimize=False)
         sigma = sinv[:, :, k] + np.einsum("mib,mjb->ijb", g, u, optimize=False)
-        var[0, k], var[1, k], var[2, k] = sigma[0, 0], sigma[1, 1], sigma[2, 2]
-    var = np.moveaxis(var.reshape(3, length, len(starts), dofs), (0, 1, 2), (3, 1, 0))  # (chunks, length, dofs, 3)
-    out = np.empty((n, dofs, 3))
+        var[0, k], var[1, k], var[2, k], var[3, k] = sigma[0, 0], sigma[1, 1], sigma[2, 2], sigma[0, 1]
+    var = np.moveaxis(var.reshape(5, length, len(starts), dofs), (0, 1, 2), (3, 1, 0))  # (chunks, length, dofs, 5)
+    out = np.empty((n, dofs, 5))
     # each step from the chunk whose window centre is nearest (its burn-in on both sides)
     centre = starts + length / 2.0
     owner = np.searchsorted((centre[1:] + centre[:-1]) / 2.0, np.arange(n), side="right")
     out[:] = var[owner, np.arange(n) - starts[owner]]
-    out = np.maximum(out, 0.0)
+    out[..., :3] = np.maximum(out[..., :3], 0.0)
     for j, res in enumerate(results):
         res.x_sd = np.sqrt(out[:, j, 0])
+        # + the known input's error, white: its variance on one grid step (none without an input)
         res.xdot_sd = np.sqrt(out[:, j, 1]) / h
         res.xddot_sd = np.sqrt(out[:, j, 2]) / h**2
+        res.x_xdot_cov = out[:, j, 3] / h
+        res.x_lag2_cov = out[:, j, 4]
 
 
 def _inv3_soa(S: np.ndarray) -> np.ndarray:

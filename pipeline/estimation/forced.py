@@ -1,0 +1,228 @@
+"""The vehicle's own model as the smoother's process equation: what the logged actuators say about the
+acceleration, so that the smoother need not guess it from the velocity sensors alone.
+
+The white-jerk smoother (:mod:`pipeline.estimation.smoother`) models each DOF's acceleration as a smooth unknown
+function; fast thrust changes (a thruster reversed in a fraction of a second) then look like noise, and the
+3.6 Hz DVL cannot resolve them. But the logged thruster speeds give the thrust exactly, so the acceleration is
+
+    nu_dot = a(t) + b(t),        a(t) = M^-1 (tau(t) - g(eta) - C(nu) nu - d_hat(nu)),
+
+with ``a`` known on the grid and ``b`` what the model does not know (damping errors, currents, a tether),
+modelled per DOF by the same white-jerk process as before. With ``U(t) = int a dt``, the state
+``w = nu - U`` follows the white-jerk model exactly, measured by ``y - U(t)`` (a velocity sample) or
+``y - a(t)`` (a measured acceleration). So the smoother, its exact likelihood and its variances are reused
+unchanged (a known input shifts the mean, not the covariance: Särkkä, *Bayesian Filtering and Smoothing*, 2013,
+eqs. 4.20-4.21 p. 57 with a control input, and 8.6 p. 136 for the RTS smoother), and the likelihood of the
+measurements under each model is directly comparable (the change of variables has unit Jacobian).
+
+Passes (the scheme of Alexandersson, Mao & Ringsberg, Ocean Eng. 266 (2022) 112940, §3: a filter and smoother
+with the vehicle model, then inverse dynamics): pass 1 uses a = M^-1 (tau - g); each later pass fits the damping
+``d_hat`` by least squares on the previous estimates (linear and quadratic terms, :func:`fit_damping`) and adds
+C(nu) nu and d_hat(nu) from them. Per DOF the smoother keeps whichever pass, the kinematic one included, has the
+highest likelihood; the passes stop when none improves.
+
+Piecewise-linear ``a`` between grid samples: U at t_k + delta h is U_k + h (a_k delta + (a_{k+1} - a_k)
+delta^2 / 2), exact for that interpolation.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from pipeline import physics
+from pipeline.config.vehicle import Vehicle
+from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ForceModel", "force_model", "fit_damping", "input_at", "smooth_with_input"]
+
+
+@dataclass(frozen=True)
+class ForceModel:
+    """What the vehicle config and the logged actuators give on the grid: M, M^-1, tau (N, 6) and g(eta) (N, 6)."""
+
+    M: np.ndarray
+    M_inv: np.ndarray
+    tau: np.ndarray
+    g: np.ndarray
+
+    def acceleration(self, nu: np.ndarray | None = None, damping: np.ndarray | None = None) -> np.ndarray:
+        """a = M^-1 (tau - g - C(nu) nu - d_hat) on the grid (N, 6); without ``nu``, a = M^-1 (tau - g)."""
+        force = self.tau - self.g
+        if nu is not None:
+            force = force - physics.coriolis_force(self.M, nu)
+        if damping is not None:
+            force = force - damping
+        return force @ self.M_inv.T
+
+
+def force_model(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle) -> ForceModel | None:
+    """The force model on the synced grid, or None when the vehicle has no thrusters (nothing to model). Thruster
+    inputs are interpolated over their invalid samples (those samples are unusable anyway)."""
+    if not vehicle.thrusters:
+        return None
+    grid = synced["t_ns"].to_numpy(dtype=np.int64)
+    speeds = np.empty((grid.size, len(vehicle.thrusters)))
+    for i, thr in enumerate(vehicle.thrusters):
+        x = synced[thr.input_signal].to_numpy(dtype=float)
+        ok = np.isfinite(x)
+        speeds[:, i] = np.interp(grid, grid[ok], x[ok]) if ok.any() else 0.0
+    tau = physics.generalized_forces(vehicle, speeds)
+    M = physics.mass_matrix(vehicle)
+    g = physics.restoring_force(vehicle, body["roll_rad"].to_numpy(dtype=float),
+                                body["pitch_rad"].to_numpy(dtype=float))
+    return ForceModel(M=M, M_inv=np.linalg.inv(M), tau=tau, g=np.atleast_2d(g))
+
+
+def damping_features(nu: np.ndarray, dofs: list[int]) -> np.ndarray:
+    """Regressors of d_hat: a constant, every measured DOF's velocity, and each one's nu |nu|."""
+    cols = [np.ones(nu.shape[0])] + [nu[:, j] for j in dofs] + [nu[:, j] * np.abs(nu[:, j]) for j in dofs]
+    return np.stack(cols, axis=1)
+
+
+def fit_damping(model: ForceModel, nu: np.ndarray, nudot: np.ndarray, rows: np.ndarray, dofs: list[int]
+                ) -> np.ndarray:
+    """d_hat(nu) on the grid (N, 6): per measured DOF, least squares of the damping target
+    d = tau - M nu_dot - C(nu) nu - g on :func:`damping_features`, over ``rows``; zero for the other DOFs."""
+    target = physics.damping_target(model.M, model.tau, nudot, nu, model.g)
+    X = damping_features(nu, dofs)
+    out = np.zeros_like(nu)
+    if rows.sum() <= X.shape[1]:
+        return out
+    coef, *_ = np.linalg.lstsq(X[rows], target[rows][:, dofs], rcond=None)
+    out[:, dofs] = X @ coef
+    return out
+
+
+def _cumulative(a: np.ndarray, h_s: float) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(0.5 * h_s * (a[1:] + a[:-1]))])
+
+
+def input_at(grid_ns: np.ndarray, a: np.ndarray, t_ns: np.ndarray, order: np.ndarray | int = 0
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The known input at measurement stamps: U(t) for value measurements (order 0), a(t) for derivative ones
+    (order 1); and U on the grid. Stamps outside the grid get the end values (the smoother drops them)."""
+    h_ns = int(grid_ns[1] - grid_ns[0])
+    h_s = h_ns / 1e9
+    U = _cumulative(a, h_s)
+    rel = np.clip(np.asarray(t_ns, dtype=np.int64) - int(grid_ns[0]), 0, (grid_ns.size - 1) * h_ns)
+    k = np.minimum(rel // h_ns, grid_ns.size - 2)
+    delta = (rel - k * h_ns) / h_ns
+    slope = a[k + 1] - a[k]
+    value = U[k] + h_s * (a[k] * delta + slope * delta**2 / 2)
+    rate = a[k] + slope * delta
+    return np.where(np.asarray(order) == 1, rate, value), U
+
+
+def smooth_with_input(grid_ns: np.ndarray, meas: Measurements, a: np.ndarray | None, **kwargs) -> Smoothed:
+    """:func:`pipeline.estimation.smoother.smooth` of nu_dot = a + b (see the module docstring); ``a`` None: the
+    kinematic smoother itself. SDs are filled later by ``smoothed_variances`` (unchanged by a known input)."""
+    if a is None:
+        return smooth(grid_ns, meas, **kwargs)
+    shift, U = input_at(grid_ns, a, meas.t_ns, meas.order)
+    res = smooth(grid_ns, Measurements(meas.t_ns, meas.y - shift, meas.var, meas.order), **kwargs)
+    res.x = res.x + U
+    res.xdot = res.xdot + a
+    res.xddot = res.xddot + np.gradient(a, res.h_s)
+    return res
+
+
+_MODELS = ("kinematic", "thrust", "thrust, Coriolis and fitted damping")
+
+
+def _covered(grid_ns: np.ndarray, meas: dict[str, Measurements], max_gap_s: float) -> np.ndarray:
+    """Grid samples within ``max_gap_s`` of a measurement of every DOF: where the first pass's estimates are
+    measured, not bridged, and the damping fit may use them."""
+    ok = np.ones(grid_ns.size, dtype=bool)
+    for m in meas.values():
+        t = np.sort(m.t_ns)
+        if t.size == 0:
+            return np.zeros(grid_ns.size, dtype=bool)
+        i = np.clip(np.searchsorted(t, grid_ns), 1, max(t.size - 1, 1))
+        near = np.minimum(np.abs(grid_ns - t[i - 1]), np.abs(t[np.minimum(i, t.size - 1)] - grid_ns))
+        ok &= near <= max_gap_s * 1e9
+    return ok
+
+
+def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: ForceModel | None, *, passes: int,
+                  process_noise: dict[str, float], gate: float, dofs: tuple[str, ...]
+                  ) -> tuple[dict[str, Smoothed], dict[str, np.ndarray | None], dict]:
+    """Per measured DOF, the smoothed result (SDs filled) of the model chosen, the known input it used (None: the
+    kinematic smoother) and a report of the passes.
+
+    Pass 0 is the kinematic smoother, whose residual gate fixes the measurements every later pass is scored on
+    (so their likelihoods compare). Pass 1 adds a = M^-1 (tau - g); pass k > 1 also C(nu) nu and the damping
+    fitted on the best estimates so far. A DOF takes a pass's result when it raises the DOF's log-likelihood
+    and its median SD of nu_dot is not above the kinematic pass's: an input noisier than what it explains (the
+    AHRS's angle noise times a restoring moment, say) is absorbed by the input-error term, which raises the
+    likelihood but leaves nu_dot less known than without the model. The passes stop after ``passes`` or when no
+    DOF improves.
+    """
+    best: dict[str, Smoothed] = {}
+    for dof, m in meas.items():
+        try:
+            best[dof] = smooth(grid_ns, m, q=process_noise.get(dof), gate=gate)
+        except ValueError as err:
+            raise ValueError(f"{dof}: {err}") from err
+    smoothed_variances(list(best.values()))
+    chosen = {dof: 0 for dof in best}
+    inputs: dict[str, np.ndarray | None] = {dof: None for dof in best}
+    history = [_record(0, best)]
+    if model is None or passes <= 0:
+        return best, inputs, {"passes": history, "chosen": chosen, "force_model": model is not None}
+    kinematic_sd = {dof: float(np.median(res.xdot_sd)) for dof, res in best.items()}
+    kept = {dof: m.subset(best[dof].kept) for dof, m in meas.items()}
+    index = {dof: dofs.index(dof) for dof in best}
+    rows = _covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
+    for k in range(1, passes + 1):
+        if k == 1:
+            a = model.acceleration()
+        else:
+            nu = np.zeros((grid_ns.size, len(dofs)))
+            nudot = np.zeros_like(nu)
+            for dof, res in best.items():
+                nu[:, index[dof]], nudot[:, index[dof]] = res.x, res.xdot
+            a = model.acceleration(nu, fit_damping(model, nu, nudot, rows, sorted(index.values())))
+        step = {dof: smooth_with_input(grid_ns, kept[dof], a[:, index[dof]], q=process_noise.get(dof), gate=0,
+                                       input_error=True)
+                for dof in best}
+        smoothed_variances(list(step.values()))
+        for res in step.values():
+            _central_difference(res)
+        improved = []
+        for dof, res in step.items():
+            if res.loglik > best[dof].loglik and np.median(res.xdot_sd) <= kinematic_sd[dof]:
+                best[dof], chosen[dof], inputs[dof] = res, k, a[:, index[dof]]
+                improved.append(dof)
+        history.append(_record(k, step))
+        log.info("smoother pass %d (%s): better for %s", k, _MODELS[min(k, 2)], ", ".join(improved) or "none")
+        if not improved:
+            break
+    return best, inputs, {"passes": history, "chosen": chosen, "force_model": True}
+
+
+def _central_difference(res: Smoothed) -> None:
+    """nu_dot as the central difference of the smoothed nu (input included), with its exact posterior SD.
+
+    With the input's error in the model, nu = U + w moves by b + e: x' is the smooth part b alone, while the
+    posterior of w's increments also holds what the measurements say about e. Inner samples only; the two ends
+    keep x' + a."""
+    h = res.h_s
+    x, var, lag2 = res.x, res.x_sd**2, res.x_lag2_cov
+    res.xdot = res.xdot.copy()
+    res.xdot_sd = res.xdot_sd.copy()
+    res.xdot[1:-1] = (x[2:] - x[:-2]) / (2 * h)
+    res.xdot_sd[1:-1] = np.sqrt(np.maximum(var[2:] + var[:-2] - 2 * lag2[:-2], 0.0)) / (2 * h)
+
+
+def _record(k: int, results: dict[str, Smoothed]) -> dict:
+    return {"pass": k, "model": _MODELS[min(k, 2)],
+            "loglik": {d: float(r.loglik) for d, r in results.items()},
+            "process_noise": {d: float(r.q) for d, r in results.items()},
+            "input_error": {d: float(r.s) for d, r in results.items()},
+            "median_acceleration_sd": {d: float(np.median(r.xdot_sd)) for d, r in results.items()}}
