@@ -10,6 +10,12 @@ The AHRS's ``linear_acceleration`` is the specific force (acceleration less grav
 and a constant bias per axis (a MEMS IMU's); drawn after every other stream, so the other streams are the same
 with or without it.
 
+Rate sensors may carry a bias (off by default; :meth:`SensorOptions.hard`): a constant per axis plus the Earth's
+rotation at ``earth_rate_latitude_deg`` seen in body axes, ``R(eta)^T Omega (cos L, 0, -sin L)`` (NED), on the
+AHRS's gyros and on the FOG; :func:`rate_bias` gives its value per truth row. Thruster speeds may come from a Hall
+counter (``thruster_counter_ppr``): the mean speed over each counting window (back to back, ``1 / rate_hz`` long),
+quantized to whole pulses per window, stamped at the window's end, so it lags the truth by half a window.
+
 Sample times are the nominal times ``k / rate_hz`` snapped to the integration grid, so a noise-free stream
 equals the truth at those rows exactly. Every message has a log time (``t + latency_s``) and a header stamp
 (``t + clock_offset_s``, the sensor's own clock); the vehicle config's ``offset_s`` undoes the one its
@@ -65,8 +71,25 @@ class SensorOptions:
     bottom_depth_m: float = 10.0
     dropout_bursts_per_min: float = 0.0                                     # long outages (turns, steep slopes)
     dropout_duration_s: tuple[float, float] = (2.0, 8.0)
-    noise: bool = True      # False: every sensor ideal (no noise, outliers, scale, misalignment or averaging)
+    gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)            # AHRS gyros, constant, body FRD
+    fog_bias_radps: float = 0.0                                             # the FOG (yaw rate), constant
+    earth_rate_latitude_deg: float | None = None                            # None: no Earth rate on the rates
+    thruster_counter_ppr: int | None = None   # Hall pulses per revolution; None: speeds sampled, plus noise
+    noise: bool = True      # False: every sensor ideal (no noise, outliers, scale, misalignment, averaging, bias,
+    #                         counter quantization)
     dropouts: bool = True   # False: the DVL never loses bottom lock
+
+    @classmethod
+    def hard(cls) -> SensorOptions:
+        """The hard preset's sensors: the default ones, plus rate-sensor biases and Hall-counter thruster speeds.
+
+        Gyros (MEMS): (3, -2, 3) x 1e-4 rad/s; FOG: 2e-4 rad/s; both plus the Earth's rate at 45 deg N
+        (7.29e-5 rad/s, -5.2e-5 on r when level): about 2.5e-4 (gyro) and 1.5e-4 (FOG) rad/s in all on r.
+        Thruster speeds: one Hall sensor's rising edges on a 14-pole motor (7 pulses per revolution) counted over
+        0.1-s windows (10 Hz): 85.7 rpm per count, 50 ms late, no other noise.
+        """
+        return cls(gyro_bias_radps=(3e-4, -2e-4, 3e-4), fog_bias_radps=2e-4, earth_rate_latitude_deg=45.0,
+                   thruster_counter_ppr=7, thrusters=StreamSpec(10.0, 0.001, 0.0, 0.0))
 
 
 @dataclass
@@ -91,6 +114,42 @@ def sample_rows(n_rows: int, grid_hz: float, rate_hz: float) -> np.ndarray:
     """Truth rows nearest to the nominal sample times k / rate_hz."""
     count = int(math.floor((n_rows - 1) / grid_hz * rate_hz + 1e-9)) + 1
     return np.minimum(np.rint(np.arange(count) * (grid_hz / rate_hz)).astype(np.int64), n_rows - 1)
+
+
+EARTH_RATE_RADPS = 7.2921159e-5
+
+
+def rate_bias(eta: np.ndarray, opts: SensorOptions) -> tuple[np.ndarray, np.ndarray]:
+    """The rate sensors' total bias per row of ``eta`` (m, 6): (gyro (m, 3) in body FRD, FOG (m,) on r), zero
+    without noise. Constant biases plus the Earth's rate in body axes at the vehicle's attitude."""
+    gyro = np.zeros((eta.shape[0], 3))
+    fog = np.zeros(eta.shape[0])
+    if not opts.noise:
+        return gyro, fog
+    gyro += np.asarray(opts.gyro_bias_radps, dtype=float)
+    fog += opts.fog_bias_radps
+    if opts.earth_rate_latitude_deg is not None:
+        lat = math.radians(opts.earth_rate_latitude_deg)
+        w_ned = EARTH_RATE_RADPS * np.array([math.cos(lat), 0.0, -math.sin(lat)])
+        w_body = np.einsum("mji,j->mi", euler_rotation(eta[:, 3], eta[:, 4], eta[:, 5]), w_ned)  # R^T w
+        gyro += w_body
+        fog += w_body[:, 2]
+    return gyro, fog
+
+
+def hall_counter(n_rpm: np.ndarray, grid_hz: float, ends: np.ndarray, ppr: int, rng: np.random.Generator
+                 ) -> np.ndarray:
+    """Speeds (rpm) a Hall counter reports at the window ends ``ends`` (truth rows; a window runs from the previous
+    end): whole pulses counted in the window (``ppr`` per revolution, from a random initial shaft angle) over the
+    window's length. The count carries the fraction of a pulse over to the next window, as a counter does."""
+    if int(ppr) != ppr or ppr < 1:
+        raise ValueError(f"thruster_counter_ppr must be a whole number of pulses per revolution >= 1, not {ppr!r}")
+    revs = np.concatenate([np.zeros((1, n_rpm.shape[1])),
+                           np.cumsum(0.5 * (n_rpm[1:] + n_rpm[:-1]), axis=0) / (60.0 * grid_hz)])
+    pulses = np.floor((revs + rng.uniform(size=n_rpm.shape[1])) * ppr)
+    counts = np.diff(pulses[ends], axis=0)
+    window_s = np.diff(ends)[:, None] / grid_hz
+    return counts * 60.0 / (ppr * window_s)
 
 
 def _stamps(t_ns: np.ndarray, spec: StreamSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -185,7 +244,10 @@ def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: Sensor
     i = sample_rows(rows, grid_hz, opts.ahrs.rate_hz)
     ang = eta[i, 3:] + scale * opts.ahrs.noise * rng.standard_normal((i.size, 3))
     q = ahrs_quaternion(ang[:, 0], ang[:, 1], ang[:, 2], opts.ahrs_convention)
+    gyro_bias, fog_bias = rate_bias(eta, opts)
     w = nu[i, 3:] + scale * opts.ahrs_rate_noise_radps * rng.standard_normal((i.size, 3))
+    if opts.noise and np.any(gyro_bias):
+        w = w + gyro_bias[i]
     if opts.ahrs_convention == "flu_enu":
         w = w @ _FRD_FLU
     fields = {f"orientation.{a}": q[:, j] for j, a in enumerate("xyzw")}
@@ -197,6 +259,8 @@ def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: Sensor
 
     i = sample_rows(rows, grid_hz, opts.fog.rate_hz)
     rate = nu[i, 5] + scale * opts.fog.noise * rng.standard_normal(i.size)
+    if opts.noise and np.any(fog_bias):
+        rate = rate + fog_bias[i]
     log_ns, hdr_ns = _stamps(t_ns[i], opts.fog)
     out["fog"] = Stream("fog", "/fog/rate", "geometry_msgs/msg/Vector3Stamped", log_ns, hdr_ns,
                         {"vector.x": np.zeros(i.size), "vector.y": np.zeros(i.size), "vector.z": rate}, "fog",
@@ -236,7 +300,11 @@ def make_streams(truth: dict[str, np.ndarray], vehicle_mount: dict, opts: Sensor
                          "bottom_lock": lock, "altitude": altitude.astype(np.float32)}, "dvl", index=i)
 
     i = sample_rows(rows, grid_hz, opts.thrusters.rate_hz)
-    speed = n_rpm[i] + scale * opts.thrusters.noise * rng.standard_normal(n_rpm[i].shape)
+    if opts.thruster_counter_ppr is not None and opts.noise:  # stamped at each window's end; the first has none
+        speed = hall_counter(n_rpm, grid_hz, i, opts.thruster_counter_ppr, rng)
+        i = i[1:]
+    else:
+        speed = n_rpm[i] + scale * opts.thrusters.noise * rng.standard_normal(n_rpm[i].shape)
     if opts.thruster_unit == "rad/s":
         speed = speed * (2 * np.pi / 60.0)
     elif opts.thruster_unit != "rpm":

@@ -1,5 +1,14 @@
 """One simulated trial: the 6-DOF vehicle integrated under its commands (:mod:`pipeline.sim.vehicle`), the truth
 table at the integration rate and the sensor streams (:mod:`pipeline.sim.sensors`), and the packaged DAGON vehicle.
+
+Two presets of excitation, disturbance and sensors (``generate_trial(..., preset=...)``):
+
+- ``"gentle"`` (the default, what the demo and every existing output use): three summed sines per horizontal
+  thruster, periods 6-45 s, 2600 rpm; no disturbance; :class:`SensorOptions` defaults.
+- ``"hard"``, a trial that outruns its sensors: :meth:`Controls.hard` (one sinusoid per thruster, periods 5-18 s,
+  1800 rpm), :meth:`Disturbance.hard` (a tether-like Ornstein-Uhlenbeck force in surge, sway and yaw) and
+  :meth:`SensorOptions.hard` (Hall-counter thruster speeds, gyro and FOG biases with the Earth's rate).
+  Benchmarks draw its trials from their own seeds, :data:`PRESET_SEED_OFFSET` (seed k -> 3200 + k).
 """
 
 from __future__ import annotations
@@ -15,10 +24,16 @@ import pandas as pd
 from pipeline import physics
 from pipeline.config import load_vehicle
 from pipeline.config.vehicle import Vehicle
-from pipeline.sim.sensors import SensorOptions, Stream, dvl_rotation, make_streams
+from pipeline.sim.disturbance import Disturbance
+from pipeline.sim.sensors import SensorOptions, Stream, dvl_rotation, make_streams, rate_bias
 from pipeline.sim.truth import SimTruth, load_truth
 from pipeline.sim.vehicle import Commander, Controls, Dynamics, integrate
 from pipeline.vocabulary import DOFS, acceleration_column, force_columns, velocity_column
+
+PRESETS = ("gentle", "hard")
+#: Benchmark seed k of a preset is simulator seed ``PRESET_SEED_OFFSET[preset] + k``: the presets' trials never
+#: share a seed (and so never share command phases or sensor noise).
+PRESET_SEED_OFFSET = {"gentle": 0, "hard": 3200}
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +51,8 @@ class SimTrial:
     seed: int
     duration_s: float
     sensors: SensorOptions = field(default_factory=SensorOptions)
+    preset: str = "gentle"
+    disturbance: Disturbance | None = None
 
 
 def example_vehicle_path(fmt: str = "mcap") -> Path:
@@ -56,10 +73,18 @@ def load_example_vehicle(fmt: str = "mcap") -> Vehicle:
     return vehicle
 
 
-def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], t_ns: np.ndarray) -> pd.DataFrame:
-    """The truth DataFrame: velocities, accelerations, pose, speeds, thrusts, forces and true damping."""
+def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], t_ns: np.ndarray,
+                sensors: SensorOptions | None = None) -> pd.DataFrame:
+    """The truth DataFrame: velocities, accelerations, pose, speeds, thrusts, forces and true damping.
+
+    After the columns every trial has always had (unchanged): ``dist_*``, the external force f (zero without a
+    disturbance); ``d_true_*`` = ``d_* - dist_*``, what the damping target tau - M nu_dot - C(nu) nu - g(eta)
+    equals with exact nu, nu_dot and applied tau (``tau_*``, the force the thrusters actually apply); and the rate
+    sensors' total biases ``gyro_bias_{p,q,r}_radps``, ``fog_bias_r_radps`` (:func:`pipeline.sim.sensors.rate_bias`).
+    """
     eta, nu, n = states["eta"], states["nu"], states["n"]
-    nudot = dyn.nu_dot(eta, nu, n)
+    force = states.get("force")
+    nudot = dyn.nu_dot(eta, nu, n, force)
     thrust = dyn.thrust(n, nu)  # applied (after the truth's inflow loss, if any); tau_* = B T: the true forces
     tau = thrust @ dyn.B.T
     cols: dict[str, np.ndarray] = {"t_ns": t_ns.astype(np.int64)}
@@ -83,9 +108,16 @@ def truth_table(vehicle: Vehicle, dyn: Dynamics, states: dict[str, np.ndarray], 
         "g": dyn.restoring(eta[:, 3], eta[:, 4]),
         "d": dyn.truth.damping(nu),
     }
+    dist = np.zeros_like(nu) if force is None else force
+    terms["dist"] = dist
+    terms["d_true"] = terms["d"] - dist
     for prefix, values in terms.items():
         for j, name in enumerate(force_columns(prefix)):
             cols[name] = values[:, j]
+    gyro, fog = rate_bias(eta, sensors or SensorOptions())
+    for j, dof in enumerate(("p", "q", "r")):
+        cols[f"gyro_bias_{velocity_column(dof)}"] = gyro[:, j]
+    cols[f"fog_bias_{velocity_column('r')}"] = fog
     return pd.DataFrame(cols)
 
 
@@ -98,6 +130,8 @@ def generate_trial(
     rate_hz: float = 200.0,
     controls: Controls | None = None,
     sensors: SensorOptions | None = None,
+    disturbance: Disturbance | None = None,
+    preset: str = "gentle",
     nu0: np.ndarray | None = None,
     eta0: np.ndarray | None = None,
     start_offset_s: float = 0.0,
@@ -110,11 +144,19 @@ def generate_trial(
     depth/pitch hold; ``sensors``: rates, noise, stamps, dropouts; ``start_offset_s``: trial start after
     :data:`EPOCH_NS`; ``warmup_s``: seconds simulated (same commands) before the trial starts and dropped, so
     that a trial begins already in motion rather than from rest (as a logged run cut out of a longer mission).
+    ``preset``: ``"gentle"`` or ``"hard"`` (module docstring); it fills ``controls``, ``sensors`` and
+    ``disturbance`` where they are not given (``"gentle"``: no disturbance). The disturbance is drawn from its own
+    child of the seed, so the commands and sensor noise of a trial do not depend on it.
     """
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {PRESETS}, not {preset!r}")
+    hard = preset == "hard"
     vehicle = vehicle if vehicle is not None else load_example_vehicle()
     truth = truth if truth is not None else load_truth()
-    controls = controls or Controls()
-    sensors = sensors or SensorOptions()
+    controls = controls or (Controls.hard() if hard else Controls())
+    sensors = sensors or (SensorOptions.hard() if hard else SensorOptions())
+    if disturbance is None and hard:
+        disturbance = Disturbance.hard()
     dt_ns = 1e9 / rate_hz
     if abs(dt_ns - round(dt_ns)) > 1e-6:
         raise ValueError(f"rate_hz {rate_hz} does not give an integer step in ns")
@@ -125,15 +167,22 @@ def generate_trial(
     if eta0 is None and controls.depth_control:
         eta_start[2] = controls.depth_ref_m
     nu_start = np.zeros(6) if nu0 is None else np.asarray(nu0, dtype=float)
+    force = None
+    if disturbance is not None:
+        n_steps = int(round((duration_s + warmup_s) * rate_hz)) + 1
+        rng_force = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+        force = disturbance.sample(n_steps, 1.0 / rate_hz, rng_force)
     states = integrate(dyn, commander, duration_s + warmup_s, rate_hz, eta_start, nu_start,
-                       np.zeros(len(vehicle.thrusters)))
+                       np.zeros(len(vehicle.thrusters)), force)
+    if force is not None:
+        states["force"] = force
     skip = int(round(warmup_s * rate_hz))
     if skip:
         states = {key: val[skip:] for key, val in states.items()}
         states["t_s"] = states["t_s"] - states["t_s"][0]
     start_ns = EPOCH_NS + int(round(start_offset_s * 1e9))
     t_ns = start_ns + np.arange(states["t_s"].size, dtype=np.int64) * int(round(dt_ns))
-    table = truth_table(vehicle, dyn, states, t_ns)
+    table = truth_table(vehicle, dyn, states, t_ns, sensors)
     mount = {
         "position_m": np.asarray(vehicle.sensors.dvl.position_m, dtype=float),
         "rotation": dvl_rotation(vehicle.sensors.dvl.rotation_rpy_deg),
@@ -147,4 +196,4 @@ def generate_trial(
                            rng_sensor)
     log.info("simulated %s for %.1f s (seed %d): %d truth rows, %s", vehicle.name, duration_s, seed, len(table),
              {k: len(s) for k, s in streams.items()})
-    return SimTrial(table, streams, vehicle, truth, seed, duration_s, sensors)
+    return SimTrial(table, streams, vehicle, truth, seed, duration_s, sensors, preset, disturbance)

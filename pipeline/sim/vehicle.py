@@ -1,12 +1,14 @@
 """Vehicle dynamics: 6-DOF rigid body with added mass, true damping, restoring forces and lagged thrusters.
 
-    M nu_dot + C(nu) nu + d(nu) + g(eta) = tau = B T(n, nu),   eta_dot = J(eta) nu,   n_dot = (n_cmd - n) / lag
+    M nu_dot + C(nu) nu + d(nu) + g(eta) = tau + f,  tau = B T(n, nu),  eta_dot = J(eta) nu,  n_dot = (n_cmd - n) / lag
 
-(T(n, nu): the static curve T0(n), less the truth's thrust loss to inflow, :class:`pipeline.sim.truth.SimTruth`)
+(T(n, nu): the static curve T0(n), less the truth's thrust loss to inflow, :class:`pipeline.sim.truth.SimTruth`;
+f: an unknown external force such as a tether's, :mod:`pipeline.sim.disturbance`, zero unless given)
 
 integrated with fixed-step RK4 (commands held over a step). The horizontal thrusters get sums of sines
 (several periods, separate per thruster, zero offset, as in the DAGON trials); the vertical thrusters hold
-depth and pitch with a PD controller with restoring-force feed-forward.
+depth and pitch with a PD controller with restoring-force feed-forward. :meth:`Controls.hard` is the hard
+preset's excitation: one sinusoid per horizontal thruster, periods 5-18 s, 1800 rpm against 3500 max.
 """
 
 from __future__ import annotations
@@ -48,6 +50,12 @@ class Controls:
     kd_depth: float = 250.0             # N/(m/s)
     kp_pitch: float = 60.0              # N*m/rad
     kd_pitch: float = 40.0              # N*m/(rad/s)
+
+    @classmethod
+    def hard(cls) -> Controls:
+        """The hard preset: one sinusoid per horizontal thruster (not summed sines), periods drawn uniformly in
+        5-18 s, 1800 rpm amplitude against 3500 max (as a basin trial that outruns its DVL)."""
+        return cls(amplitude_rpm=1800.0, period_range_s=(5.0, 18.0), n_sines=1)
 
 
 def euler_rotation(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -121,9 +129,12 @@ class Dynamics:
             -(xg * w - xb * b) * ct * sf - (yg * w - yb * b) * st,
         ], axis=-1)
 
-    def nu_dot(self, eta: np.ndarray, nu: np.ndarray, n: np.ndarray) -> np.ndarray:
+    def nu_dot(self, eta: np.ndarray, nu: np.ndarray, n: np.ndarray, force: np.ndarray | None = None) -> np.ndarray:
+        """M^-1 (tau - C(nu) nu - d(nu) - g(eta) + f), ``force``: the external force f (m, 6), default none."""
         tau = self.thrust(n, nu) @ self.B.T
         rhs = tau - physics.coriolis_force(self.M, nu) - self.truth.damping(nu) - self.restoring(eta[:, 3], eta[:, 4])
+        if force is not None:
+            rhs = rhs + force
         return rhs @ self.M_inv.T
 
     def eta_dot(self, eta: np.ndarray, nu: np.ndarray) -> np.ndarray:
@@ -201,10 +212,11 @@ class Commander:
         return np.clip(n_cmd, -self.c.max_rpm, self.c.max_rpm)
 
 
-def scalar_rhs(dyn: Dynamics):
+def scalar_rhs(dyn: Dynamics, external: bool = False):
     """A pure-Python right-hand side for one state (list in, list out): for a 17-element state the vectorized
     numpy version's cost is array overhead (figures: docs/benchmarks.md). Same equations as
-    :meth:`Dynamics.nu_dot` / :meth:`Dynamics.eta_dot` (the tests compare them)."""
+    :meth:`Dynamics.nu_dot` / :meth:`Dynamics.eta_dot` (the tests compare them). ``external``: the input is the
+    thruster commands followed by an external force f (6 values), held over the step like the commands."""
     ms = 0.5 * (dyn.M + dyn.M.T)
 
     def sparse_rows(matrix: np.ndarray) -> list[list[tuple[int, float]]]:
@@ -266,6 +278,9 @@ def scalar_rhs(dyn: Dynamics):
         g = [wb * st, -wb * ct * sf, -wb * ct * cf, -yw * ct * cf + zw * ct * sf, zw * st + xw * ct * cf,
              -xw * ct * sf - yw * st]
         rhs6 = [-cor[i] - damp[i] - g[i] for i in range(6)]
+        if external:
+            for i in range(6):
+                rhs6[i] += cmd[n_thr + i]
         for i in range(6):
             for j, val in bmat[i]:
                 rhs6[i] += val * thrust[j]
@@ -289,16 +304,20 @@ def scalar_rhs(dyn: Dynamics):
 
 
 def integrate(dyn: Dynamics, commander: Commander | None, duration_s: float, rate_hz: float,
-              eta0: np.ndarray, nu0: np.ndarray, n0: np.ndarray) -> dict[str, np.ndarray]:
+              eta0: np.ndarray, nu0: np.ndarray, n0: np.ndarray, force: np.ndarray | None = None
+              ) -> dict[str, np.ndarray]:
     """Fixed-step RK4 (:mod:`pipeline.rk4` on lists); returns states at every step: t_s (N,), eta (N, 6), nu (N, 6),
-    n (N, n_thr), n_cmd."""
+    n (N, n_thr), n_cmd. ``force``: an external force (N, 6) per step, held over the step (N = steps + 1)."""
     dt = 1.0 / rate_hz
     steps = int(round(duration_s * rate_hz))
     n_thr = n0.size
     out = np.empty((steps + 1, 12 + n_thr))
     cmd_all = np.zeros((steps + 1, n_thr))
     y = np.concatenate([eta0, nu0, n0]).astype(float).tolist()
-    f = scalar_rhs(dyn)
+    if force is not None and force.shape != (steps + 1, 6):
+        raise ValueError(f"force must have shape {(steps + 1, 6)}, not {force.shape}")
+    f = scalar_rhs(dyn, external=force is not None)
+    ext = force.tolist() if force is not None else None
     instant = [i for i, lag in enumerate(dyn.lag_s.tolist()) if lag <= 0]
     zeros = [0.0] * n_thr
     for step in range(steps + 1):
@@ -313,7 +332,7 @@ def integrate(dyn: Dynamics, commander: Commander | None, duration_s: float, rat
         cmd_all[step] = cmd
         if step == steps:
             break
-        y = rk4_step(f, y, cmd, dt, LISTS)
+        y = rk4_step(f, y, cmd if ext is None else cmd + ext[step], dt, LISTS)
         if not all(math.isfinite(val) for val in y):
             raise FloatingPointError(f"simulation diverged at t = {step * dt:.3f} s")
     return {"t_s": np.arange(steps + 1) * dt, "eta": out[:, :6], "nu": out[:, 6:12], "n": out[:, 12:],
