@@ -396,7 +396,11 @@ def _build_table(path: Path, name: str, stream: StreamSource,
     if stream.time is not None and base.size:
         rows = getattr(data, "rows", None)
         rows = np.arange(base.size, dtype=np.int64) if rows is None else np.asarray(rows, dtype=np.int64)
-        base = uniform_times(int(base[0]), rows, stream.time.rate_hz)
+        try:
+            base = uniform_times(int(base[0]), rows, stream.time.rate_hz)
+        except ValueError as err:
+            raise IngestError(f"stream {name!r}: time.rate_hz: {err}", file=path, topic=data.topic,
+                              field="time.rate_hz") from None
     shift = round(stream.offset_s * 1e9)
     t_ns = base + np.int64(shift) if shift else base  # no copy of the stamps for a stream without an offset
     # Sorted stably by time; logs are nearly always in order already, and then no permuted copies are made.

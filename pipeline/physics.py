@@ -14,12 +14,19 @@ speeds are all non-negative while its thrust takes both signs (the Blue Robotics
 reverse thrust negative) is read as *unsigned* speed: each row's speed takes the sign of its thrust. Rows
 with equal speed are averaged. Speeds beyond the table are **clamped** to the end values (the propeller was
 not measured there; extrapolating a fitted curve would invent thrust), with a logged warning.
+
+A table is read only if it is a regular file of at most :data:`MAX_TABLE_BYTES` (a device such as ``/dev/zero``
+or a FIFO would never end); every cell of the columns used must be a finite number (a row left wholly empty is
+skipped), and the thrust must be monotonic in the speed (PWM), up to :data:`MONOTONIC_SLACK` of its range.
 """
 
 from __future__ import annotations
 
 import functools
+import io
 import logging
+import os
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -129,14 +136,41 @@ def allocation_matrix(vehicle: Vehicle) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+#: Largest thrust table read (bytes): a measured sheet is a few hundred rows (the T200's 10-20 V sheet: 14 kB).
+MAX_TABLE_BYTES = 16 << 20
+
+#: How far the thrust may go against the table's direction between neighbouring speeds, as a share of the
+#: thrust's range: measurement noise in a dead band (the T200 sheet: 0.2 %); a mistyped row is far beyond.
+MONOTONIC_SLACK = 0.05
+
+
+def _table_text(path: str) -> str:
+    """The table's text: a regular file of at most MAX_TABLE_BYTES, as UTF-8 (stat first: opening a FIFO blocks)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ConfigError("thrust table not found", file=path, field="thrust.table") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError("thrust table is not a regular file (a directory, device or FIFO); give a CSV file",
+                          file=path, field="thrust.table")
+    with open(path, "rb") as handle:
+        data = handle.read(MAX_TABLE_BYTES + 1)  # the size stat gave may have grown since
+    if len(data) > MAX_TABLE_BYTES:
+        raise ConfigError(f"thrust table is larger than {MAX_TABLE_BYTES >> 20} MiB; a measured table is a few "
+                          "hundred rows", file=path, field="thrust.table")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"thrust table is not UTF-8 text: {err}", file=path, field="thrust.table") from None
+
+
 def _read_table(path: str) -> pd.DataFrame:
     import pandas as pd  # only for a thrust table: the config validation on every command's path does not need it
 
+    text = _table_text(path)
     try:
-        frame = pd.read_csv(path, encoding="utf-8", sep=None, engine="python")
-    except FileNotFoundError:
-        raise ConfigError("thrust table not found", file=path, field="thrust.table") from None
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as err:
+        frame = pd.read_csv(io.StringIO(text), sep=None, engine="python")
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
         raise ConfigError(f"thrust table cannot be parsed: {err}", file=path, field="thrust.table") from None
     frame.columns = [str(c).strip() for c in frame.columns]
     return frame
@@ -151,9 +185,36 @@ def _numeric(frame: pd.DataFrame, column: str, key: str, path: str) -> np.ndarra
     return pd.to_numeric(frame[column.strip()], errors="coerce").to_numpy(dtype=float)
 
 
+def _check_finite(columns: dict[str, np.ndarray], path: str) -> np.ndarray:
+    """Rows to use: those with every used cell empty are skipped; any other non-finite cell is refused by line."""
+    stacked = np.column_stack(list(columns.values()))
+    finite = np.isfinite(stacked)
+    empty = np.isnan(stacked).all(axis=1)
+    bad = ~finite.all(axis=1) & ~empty
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        col = list(columns)[int(np.flatnonzero(~finite[rows[0]])[0])]
+        raise ConfigError(f"thrust table has {rows.size} row(s) with a cell that is empty, not a number, NaN or "
+                          f"infinite in the columns used (first: data row {int(rows[0]) + 1}, column {col!r}); every "
+                          "speed, PWM, thrust and voltage must be a finite number", file=path, field="thrust.table")
+    return ~empty
+
+
+def _check_monotonic(x: np.ndarray, thrust: np.ndarray, path: str, by: str) -> None:
+    """Thrust monotonic in x (rising or falling), up to MONOTONIC_SLACK of its range."""
+    steps = np.diff(thrust)
+    against = -steps if thrust[-1] >= thrust[0] else steps
+    worst = int(np.argmax(against))
+    span = float(thrust.max() - thrust.min())
+    if against[worst] > MONOTONIC_SLACK * span:
+        what = "speed (rpm)" if by == "speed" else "PWM"
+        raise ConfigError(f"thrust is not monotonic in the {what}: from {x[worst]:g} to {x[worst + 1]:g} it goes "
+                          f"from {thrust[worst]:g} N to {thrust[worst + 1]:g} N, against the table's direction by "
+                          f"more than {MONOTONIC_SLACK:.0%} of its range ({span:g} N); a mistyped row?", file=path,
+                          field="thrust.table")
+
+
 def _curve(x: np.ndarray, thrust: np.ndarray, unsigned_speed: bool) -> tuple[np.ndarray, np.ndarray]:
-    ok = np.isfinite(x) & np.isfinite(thrust)
-    x, thrust = x[ok], thrust[ok]
     if unsigned_speed and x.min() >= 0 and thrust.min() < 0:
         x = x * np.sign(thrust)  # unsigned speed column: the thrust sign gives the direction
     uniq, inverse = np.unique(x, return_inverse=True)
@@ -177,10 +238,15 @@ def _load_table(path: str, speed_column: str, thrust_column: str, unit: str, by:
         raise ConfigError(f"table_thrust_unit {unit!r} is not a force unit; known: {known}", file=path,
                           field="thrust.table_thrust_unit")
     thrust_all = thrust_all * unit_def.factor + unit_def.offset
+    used = {speed_column: x_all, thrust_column: thrust_all}
+    if voltage_column is not None:
+        used[voltage_column] = _numeric(frame, voltage_column, "thrust.table_voltage_column", path)
+    rows = _check_finite(used, path)
+    x_all, thrust_all = x_all[rows], thrust_all[rows]
     if voltage_column is None:
         curves = [(1.0, _curve(x_all, thrust_all, by == "speed"))]
     else:
-        volts = _numeric(frame, voltage_column, "thrust.table_voltage_column", path)
+        volts = used[voltage_column][rows]
         levels = np.unique(volts[np.isfinite(volts)])
         near = levels[np.abs(levels - voltage_V) <= 0.05]
         if near.size:
@@ -199,6 +265,7 @@ def _load_table(path: str, speed_column: str, thrust_column: str, unit: str, by:
     if x.size < 2:
         raise ConfigError("thrust table needs at least two numeric rows", file=path, field="thrust.table")
     thrust = np.asarray(thrust, dtype=float)
+    _check_monotonic(x, thrust, path, by)
     x.setflags(write=False)
     thrust.setflags(write=False)
     return x, thrust

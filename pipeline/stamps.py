@@ -197,8 +197,12 @@ def uniform_times(first_ns: int, rows: np.ndarray, rate_hz: float) -> np.ndarray
     k = np.asarray(rows, dtype=np.int64)
     if k.size == 0:
         return np.empty(0, dtype=np.int64)
-    steps = np.rint((k - k[0]).astype(np.float64) * (NS_PER_S / rate_hz)).astype(np.int64)
-    return np.int64(first_ns) + steps
+    steps = np.rint((k - k[0]).astype(np.float64) * (NS_PER_S / rate_hz))
+    last = float(first_ns) + float(steps.max(initial=0.0))
+    if not last < 2.0**63:  # the cast below would wrap round to stamps centuries back, without a word
+        raise ValueError(f"row {int(k.max() - k[0])} at {rate_hz:g} Hz from the first stamp is beyond int64 "
+                         "nanoseconds (year 2262)")
+    return np.int64(first_ns) + steps.astype(np.int64)
 
 
 def time_stats(t_ns: np.ndarray) -> dict[str, Any]:

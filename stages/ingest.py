@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from pipeline import layout
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
-from pipeline.ingest import Checksum, ingest_log, trial_id
+from pipeline.ingest import Checksum, ingest_log, trial_id, user_types
 from pipeline.parallel import imap, usable_cpus
 from pipeline.tableio import remove_stale_temps, write_json, write_parquet
 from stages.common import StageResult, stage_main
@@ -132,6 +132,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
     root = Path(root)
     paths = [Path(p) for p in logs] if logs else discover_logs(root)
     result = StageResult(stage=NAME)
+    unmatched = [] if logs else unmatched_overrides(vehicle, [trial_id(p) for p in paths])
+    user_types(vehicle)  # a definition directory that is missing, the root or a whole disk: refused once, here
     _cleanup_stale(root)
     jobs: list[tuple[Path, str]] = []
     seen: dict[str, Path] = {}
@@ -187,9 +189,23 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
     # keyed by file: a log whose name gives no safe trial id has trial None
     result.summary = {"logs": len(paths), "trials_written": ok,
                       "quarantined": sorted(e["file"] for e in result.quarantined),
-                      "salvaged": sorted(e["trial"] for e in salvaged)}
+                      "salvaged": sorted(e["trial"] for e in salvaged),
+                      **({"unmatched_overrides": unmatched} if unmatched else {})}
     update_quarantine_file(root, [_display(p, root) for p in paths], ok, result.quarantined, salvaged)
     return result
+
+
+def unmatched_overrides(vehicle: Vehicle, trials: list[str]) -> list[str]:
+    """The ``trials:`` keys of the vehicle config that name none of the run's logs: never applied (a typo, a
+    renamed log), so each is warned, naming the key, and listed in the stage's summary. A warning, not an error:
+    a config kept for logs that are not (yet) in the run must not stop it."""
+    from pipeline.config.checks import applies_to
+
+    unmatched = [p for p in vehicle.override_keys() if not any(applies_to(p, t) for t in trials)]
+    for pattern in unmatched:
+        log.warning("vehicle config: trials.%s matches none of the run's %d log(s) (trial ids %s%s): it is never "
+                    "applied", pattern, len(trials), sorted(trials)[:10], " ..." if len(trials) > 10 else "")
+    return unmatched
 
 
 def _raise_if_config_sinks_every_log(quarantined: list[dict[str, Any]], written: list[str], n_logs: int) -> None:

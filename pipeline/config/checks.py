@@ -27,6 +27,14 @@ MAX_OFFSET_S = 2.0**62 / 1e9
 #: keeps at least 4 of float64's 16 significant digits. Real vehicles are at 10 to 10^4.
 MAX_MASS_CONDITION = 1e12
 
+#: Largest distance (m) of a body-axes point (a thruster, a sensor, the CG) from the reference point: the largest
+#: submarines are under 200 m long; a point beyond is a unit or typing error (mm given as m, 1e9).
+MAX_BODY_POINT_M = 1000.0
+
+#: The masses a vehicle may have (kg): from a few grams (a micro robot) to 1e8 kg (the largest submarines are
+#: under 5e7 kg); outside, a unit or typing error (1e-300, tonnes given as kg squared ...).
+MIN_MASS_KG, MAX_MASS_KG = 1e-3, 1e8
+
 
 class KeyedError(ValueError):
     """A validation error that knows the offending key, relative to where the validator runs."""
@@ -53,6 +61,15 @@ def check_offset_s(value: float | None, what: str = "offset_s") -> float | None:
         raise ValueError(f"{what} {value:g} s is beyond +/-{MAX_OFFSET_S:.3g} s (2^62 ns, ~146 years): "
                          "a clock offset that large cannot be meant")
     return value
+
+
+def check_body_point(point: Sequence[float], what: str) -> Sequence[float]:
+    """``point`` (body axes, m) if within :data:`MAX_BODY_POINT_M` of the reference point; a ValueError otherwise."""
+    far = max(abs(float(x)) for x in point)
+    if far > MAX_BODY_POINT_M:
+        raise ValueError(f"{what} {list(point)} lies {far:g} m from the reference point; accepted: within "
+                         f"{MAX_BODY_POINT_M:g} m on each axis (a vehicle is at most a few hundred metres long)")
+    return point
 
 
 def square(rows: Sequence[Sequence[float]], n: int, what: str) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from pipeline.config import checks
 from pipeline.config.base import Frozen, Vec3
@@ -33,11 +33,24 @@ class RigidBody(Frozen):
         checks.check_positive_definite(inertia, "the inertia")
         return rows
 
+    @field_validator("cg_m", "cb_m")
+    @classmethod
+    def _centre_on_board(cls, point: tuple[float, float, float], info: ValidationInfo) -> tuple[float, float, float]:
+        return checks.check_body_point(point, str(info.field_name))  # type: ignore[return-value]
+
     @model_validator(mode="after")
     def _weight_finite(self) -> RigidBody:
         if not math.isfinite(self.mass_kg * self.gravity_mps2):
             raise checks.KeyedError("mass_kg", f"the weight mass_kg * gravity_mps2 = {self.mass_kg:g} * "
                                     f"{self.gravity_mps2:g} is not a finite number of newtons")
+        return self
+
+    @model_validator(mode="after")
+    def _mass_physical(self) -> RigidBody:
+        """After the weight check, which names the overflow of a mass like 1e308 itself."""
+        if not checks.MIN_MASS_KG <= self.mass_kg <= checks.MAX_MASS_KG:
+            raise checks.KeyedError("mass_kg", f"mass_kg {self.mass_kg:g} is outside {checks.MIN_MASS_KG:g} to "
+                                    f"{checks.MAX_MASS_KG:g} kg (a few grams to the largest submarines)")
         return self
 
 

@@ -104,6 +104,13 @@ class CsvOptions(Frozen):
             codecs.lookup(encoding)
         except LookupError:
             raise ValueError(f"unknown text encoding {encoding!r} (e.g. utf-8, cp1252, latin-1)") from None
+        try:  # rot13, base64, hex, zlib ... are codecs too, but not from bytes to text: a file cannot be read so
+            b"a".decode(encoding)  # (an empty input would skip the check)
+        except UnicodeError:
+            pass  # a text codec that needs more bytes (utf-16)
+        except LookupError:
+            raise ValueError(f"{encoding!r} is not a text encoding (bytes to text); give the file's character "
+                             "encoding (e.g. utf-8, cp1252, latin-1, utf-16)") from None
         return encoding
 
     @field_validator("epoch_s")
@@ -118,13 +125,28 @@ class CsvOptions(Frozen):
         return self
 
 
+#: The rates ``time: {rate_hz}`` accepts: one sample per 1000 s (a slow tank logger is far faster) to one per
+#: nanosecond (the resolution of the int64 stamps). Outside, k / rate_hz leaves int64 nanoseconds within a few
+#: thousand rows, or two rows share a stamp.
+MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 1e9
+
+
 class TimeOptions(Frozen):
     """Rebuild a stream's time from the row index: uniformly sampled from its first stamp."""
 
     rate_hz: float = Field(gt=0, allow_inf_nan=False, description=(
         "Sampling rate of the stream. Its time becomes first + k / rate_hz (k: the row or message index, "
         "dropped rows counted), the first stamp taken from `clock` and `offset_s` added. For stamps that are "
-        "zero, constant, duplicated or rounded (3 significant digits) while the samples are uniform."))
+        "zero, constant, duplicated or rounded (3 significant digits) while the samples are uniform. "
+        f"From {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz."))
+
+    @field_validator("rate_hz")
+    @classmethod
+    def _rate_in_range(cls, rate_hz: float) -> float:
+        if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
+            raise ValueError(f"rate_hz {rate_hz:g} is outside {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz (one sample "
+                             "per 1000 s to one per nanosecond, the stamps' resolution)")
+        return rate_hz
 
 
 class StreamSource(Frozen):

@@ -82,6 +82,11 @@ class Thruster(Frozen):
     thrust: ThrustCurve | None = Field(None, description="Thrust model; not needed with `thrust_signal`.")
     lag_s: float = Field(0.0, ge=0, description="First-order lag of the propeller (simulator only).")
 
+    @field_validator("position_m")
+    @classmethod
+    def _on_board(cls, point: Vec3) -> Vec3:
+        return checks.check_body_point(point, "position_m")  # type: ignore[return-value]
+
     @model_validator(mode="after")
     def _direction_nonzero(self) -> Thruster:
         norm = math.hypot(*self.direction)
@@ -281,6 +286,17 @@ class Sensors(Frozen):
             raise ValueError("give exactly one velocity source: `dvl` (a DVL with its mounting), `velocity` "
                              "(frame: body or earth, with its signals) or `position` (earth-frame positions, "
                              "differentiated)")
+        return self
+
+    @model_validator(mode="after")
+    def _mounts_on_board(self) -> Sensors:
+        for key in ("dvl", "velocity", "position", "accelerometer"):
+            mount = getattr(self, key)
+            if mount is not None:
+                try:
+                    checks.check_body_point(mount.position_m, "position_m")
+                except ValueError as err:
+                    raise checks.KeyedError(f"{key}.position_m", str(err)) from None
         return self
 
     def linear_velocity(self) -> LinearVelocity:

@@ -7,6 +7,19 @@ does not take (:class:`NotPlain`), a damaged sqlite cell (:class:`Malformed`).
 
 from __future__ import annotations
 
+#: The most a chunk (MCAP, ROS 1) may claim uncompressed: writers make chunks of 0.75 to 4 MiB (rosbag's 768 KiB,
+#: the mcap writers' 1 MiB, rosbag2's 4 MiB); a larger claim is a damaged size field or a bomb, reported as
+#: :class:`Damaged` before anything is allocated or inflated.
+MAX_CHUNK_BYTES = 256 << 20
+
+
+def oversized_chunk(usize: int) -> str | None:
+    """Why a chunk's claimed uncompressed size is refused, or None."""
+    if usize > MAX_CHUNK_BYTES:
+        return (f"chunk claims {usize} bytes uncompressed, more than the {MAX_CHUNK_BYTES >> 20} MiB a chunk may "
+                "hold")
+    return None
+
 
 class Damaged(Exception):
     """The file is damaged at byte ``at``."""

@@ -196,6 +196,8 @@ def _partial_chunk(
     """Keep the complete messages of a chunk that the file's end cut through."""
     try:
         usize, _crc, compression, rstart, rlen = _chunk_head(buf, body)
+        if implausible_chunk(compression, rlen, usize) is not None:
+            return
         data = decompress(compression, bytes(buf[rstart:min(end, rstart + rlen)]), usize, partial=True)
     except Exception:  # noqa: BLE001 - nothing recoverable in this chunk
         return

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pipeline.io.dedup import Seen
-from pipeline.io.errors import Damaged
+from pipeline.io.errors import Damaged, oversized_chunk
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
@@ -46,6 +46,9 @@ def implausible_chunk(compression: str, rlen: int, usize: int) -> str | None:
 
     Checked before anything is allocated: a damaged size field (2**40, 2**64 - 1) must not become a buffer.
     """
+    too_large = oversized_chunk(usize)
+    if too_large is not None:
+        return too_large
     ratio = _MAX_RATIO.get(compression)
     if ratio is None:
         return None  # an unknown compression is reported where it is decompressed

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from pipeline.errors import IngestError
 from pipeline.io.base import RELEASE_BYTES, Batch, SalvageInfo, TopicInfo, release_behind, stream_walk
 from pipeline.io.dedup import crc
-from pipeline.io.errors import Damaged, Restart
+from pipeline.io.errors import Damaged, Restart, oversized_chunk
 from pipeline.io.fields import TypeRegistry
 from pipeline.io.reader import RawReader
 from pipeline.io.rosbag1_records import (
@@ -104,13 +104,16 @@ def walk_records(
                 log.warning("chunk at byte %d repeats an earlier chunk byte for byte; dropped", at)
                 pos = dend
                 continue
+            claimed = U32.unpack(hdr["size"])[0]
+            if oversized_chunk(claimed) is not None:
+                raise Damaged(str(oversized_chunk(claimed)), at)
             try:
-                data = decompress(comp, raw, partial=False)
+                data = decompress(comp, raw, partial=False, limit=claimed)
             except Damaged:
                 raise Damaged(f"unknown chunk compression {comp!r}", at) from None
             except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
                 raise Damaged(f"chunk does not decompress ({err})", at) from err
-            if len(data) != U32.unpack(hdr["size"])[0]:
+            if len(data) != claimed:
                 raise Damaged("chunk size mismatch (corrupt bytes)", at)
             staged: list[tuple[int, int, bytes]] = []
             walk_records(data, 0, len(data), out, _stager(staged), wanted, tolerant=tolerant, origin=at)

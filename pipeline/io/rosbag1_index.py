@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.base import BATCH_BYTES, Batch, Rows, ascending, field_view, take_rows
-from pipeline.io.errors import Damaged
+from pipeline.io.errors import Damaged, oversized_chunk
 from pipeline.io.rosbag1_records import (
     MAGIC,
     OP_BAG_HEADER,
@@ -184,18 +184,24 @@ def chunk_batches(path: Path, bag: IndexedBag, wanted: dict[int, str], limit: in
             mine = {cid: offs for cid, offs in chunk.index.items() if cid in wanted and len(offs)}
             if not mine:
                 continue
-            data = _room(scratch, size, chunk.size, limit)[size:size + chunk.size]
+            # The claimed size is checked (cap, and an uncompressed chunk's own length) or met by inflating,
+            # bounded by it, before the batch buffer grows for it.
+            too_large = oversized_chunk(chunk.size)
+            if too_large is not None:
+                raise Damaged(too_large, chunk.at)
             if chunk.compression == "none" and chunk.length == chunk.size:
+                data = _room(scratch, size, chunk.size, limit)[size:size + chunk.size]
                 if os.preadv(fd, [data], chunk.data) != chunk.size:
                     raise Damaged("chunk size mismatch (corrupt bytes)", chunk.at)
             else:
                 raw = os.pread(fd, chunk.length, chunk.data)
                 try:
-                    dec = decompress(chunk.compression, raw, partial=False)
+                    dec = decompress(chunk.compression, raw, partial=False, limit=chunk.size)
                 except Exception as err:  # noqa: BLE001 - bz2/lz4 raise their own errors
                     raise Damaged(f"chunk does not decompress ({err})", chunk.at) from err
                 if len(dec) != chunk.size:
                     raise Damaged("chunk size mismatch (corrupt bytes)", chunk.at)
+                data = _room(scratch, size, chunk.size, limit)[size:size + chunk.size]
                 data[:] = np.frombuffer(dec, dtype=np.uint8)
             for cid, offs in mine.items():
                 offs = offs.astype(np.int64)

@@ -10,7 +10,7 @@ import struct
 from dataclasses import dataclass, field
 
 from pipeline.io.dedup import Seen
-from pipeline.io.errors import Damaged
+from pipeline.io.errors import MAX_CHUNK_BYTES, Damaged
 from pipeline.io.fields import normalize_msgtype
 
 MAGIC = b"#ROSBAG V2.0\n"
@@ -55,16 +55,26 @@ def read_header(buf: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
     return fields
 
 
-def decompress(compression: str, data: bytes, *, partial: bool) -> bytes:
-    """A chunk's records, inflated (``partial``: as much as a cut stream gives, for salvage)."""
+def decompress(compression: str, data: bytes, *, partial: bool, limit: int = MAX_CHUNK_BYTES) -> bytes:
+    """A chunk's records, inflated (``partial``: as much as a cut stream gives, for salvage); never more than
+    ``limit`` + 1 bytes (the caller compares the length with the chunk's claimed size)."""
     if compression == "none":
         return data
     if compression == "bz2":
-        return bz2.BZ2Decompressor().decompress(data) if partial else bz2.decompress(data)
+        inflater = bz2.BZ2Decompressor()
+        out = inflater.decompress(data, max_length=limit + 1)
+        if not partial and len(out) <= limit and not inflater.eof:
+            raise ValueError("compressed data ended before the end-of-stream marker")
+        return out
     if compression == "lz4":
         import lz4.frame
 
-        return lz4.frame.LZ4FrameDecompressor().decompress(data) if partial else lz4.frame.decompress(data)
+        lz = lz4.frame.LZ4FrameDecompressor()
+        # the output buffer is allocated at max_length: bounded by what LZ4 can inflate to (~255x) as well
+        out = lz.decompress(data, max_length=min(limit, 256 * len(data) + 1024) + 1)
+        if not partial and len(out) <= limit and not lz.eof:
+            raise ValueError("compressed data ended before the end-of-frame marker")
+        return out
     raise Damaged(f"unknown chunk compression {compression!r}", 0)
 
 

@@ -282,8 +282,8 @@ class TextLogReader:
 
         try:
             return self._tolerating_cut(name, head)
-        except (UnicodeDecodeError, OSError, EOFError, zlib.error) as err:
-            raise IngestError(f"cannot read as {encoding} text: {err}", file=path) from err
+        except (UnicodeError, OSError, EOFError, zlib.error) as err:
+            raise IngestError(f"cannot read as {encoding} text: {err}{_bom_hint(err, encoding)}", file=path) from err
 
     def _count_data_lines(self, name: str) -> int:
         path = self._file(name)
@@ -345,8 +345,9 @@ class TextLogReader:
                 self._source(name), nrows=0, **{**kwargs, **self._compression(name)}))
         except pd.errors.EmptyDataError as err:
             raise IngestError("empty file (no header or data lines)", file=path) from err
-        except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error) as err:
-            raise IngestError(f"cannot parse as delimited text: {err}", file=path) from err
+        except (ValueError, UnicodeError, OSError, EOFError, zlib.error) as err:
+            raise IngestError(f"cannot parse as delimited text: {err}{_bom_hint(err, kwargs['encoding'])}",
+                              file=path) from err
         raw = [str(c) for c in frame.columns]
         return raw, [c.strip() for c in raw]
 
@@ -367,8 +368,9 @@ class TextLogReader:
         try:
             frame = self._tolerating_cut(name, lambda: pd.read_csv(  # type: ignore[call-overload]
                 self._source(name), usecols=use, dtype=dtype, **{**kwargs, **self._compression(name)}))
-        except (ValueError, UnicodeDecodeError, OSError, EOFError, zlib.error, pd.errors.ParserError) as err:
-            raise IngestError(f"cannot parse as delimited text: {err}", file=path, topic=name) from err
+        except (ValueError, UnicodeError, OSError, EOFError, zlib.error, pd.errors.ParserError) as err:
+            raise IngestError(f"cannot parse as delimited text: {err}{_bom_hint(err, kwargs['encoding'])}",
+                              file=path, topic=name) from err
         frame.columns = [str(c).strip() for c in frame.columns]
         skip = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0)
         plan = self._line_plan(name, str(kwargs["sep"]), skip, len(raw), len(frame))
@@ -422,8 +424,12 @@ class TextLogReader:
         delimiter = None if sep == _WHITESPACE else sep
         plan = None
         if delimiter is None or (len(delimiter) == 1 and delimiter.isascii()):
-            with self._binary(name) as handle:
-                fields = field_counts(handle, skip=skip, delimiter=delimiter, encoding=encoding)
+            try:
+                with self._binary(name) as handle:
+                    fields = field_counts(handle, skip=skip, delimiter=delimiter, encoding=encoding)
+            except (UnicodeError, OSError, EOFError, zlib.error) as err:
+                raise IngestError(f"cannot read as {encoding} text: {err}{_bom_hint(err, encoding)}",
+                                  file=self._file(name), topic=name) from err
             if fields.size == parsed:
                 plan = plan_lines(fields, header_fields)
             else:  # quoted line breaks, bare CR line ends: physical lines are not the parser's rows
@@ -433,6 +439,14 @@ class TextLogReader:
         if plan is None:
             plan = plan_lines(np.full(parsed, header_fields, dtype=np.int64), header_fields)
         return plan
+
+
+def _bom_hint(err: BaseException, encoding: object) -> str:
+    """What to give instead when ``utf-16`` / ``utf-32`` meets a file without a byte-order mark."""
+    if isinstance(err, UnicodeError) and "BOM" in str(err):
+        return (f" (`encoding: {encoding}` needs a byte-order mark at the start of the file; for a file without "
+                "one give the byte order: utf-16-le, utf-16-be, utf-32-le or utf-32-be)")
+    return ""
 
 
 def _line_kinds(plan: LinePlan, all_nan: np.ndarray, skip: int) -> tuple[dict[str, int], dict[str, list[int]]]:
