@@ -135,8 +135,9 @@ class Model:
         if not np.allclose(dt, dt[0], rtol=1e-6, atol=0.0) or dt[0] <= 0:
             raise ValueError("t_s must be increasing with a constant step (the integrator's step)")
         inputs = np.asarray(tau(t_s) if callable(tau) else tau, dtype=float).reshape(t_s.size, -1)
-        nu0, inputs = self._arrays(np.asarray(nu0, dtype=float).reshape(1, -1), inputs)
-        out, _ = rollout(self.dynamics(), nu0[:1], inputs[None], float(dt[0]))
+        nu0 = np.asarray(nu0, dtype=float).reshape(1, -1)
+        self._arrays(np.repeat(nu0, t_s.size, axis=0), inputs)  # the shapes checked
+        out, _ = rollout(self.dynamics(), nu0, inputs[None], float(dt[0]))
         return out[0]
 
 

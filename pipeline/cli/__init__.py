@@ -195,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
                         epilog="examples:\n  auvid export runs/basin                      # every trial -> "
                                "runs/basin/exports/<trial>.mcap\n"
                                "  auvid export runs/basin --trial trial03 --out /tmp/mcap\n"
+                               "  auvid export runs/basin --fossen ls          # Fossen YAML + UUV Simulator\n"
                                "Channels: docs/user-guide.md, 'Looking at a run in Foxglove or PlotJuggler'.\n")
     ex.add_argument("root", type=_abs_path, help="run directory (holding data/synced, data/kinematics, ...)")
     ex.add_argument("--trial", action="append", default=None, metavar="T",
@@ -202,6 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--out", type=_abs_path, default=None, help="output directory (default: ROOT/exports)")
     ex.add_argument("--params", type=Path, default=None, help="the run's params YAML, whose coupled.models and "
                     "decoupled.models are the models exported (default: ROOT/params.yaml if present)")
+    ex.add_argument("--fossen", default=None, metavar="MODEL", help="instead of MCAP: the physics model MODEL (a "
+                    "decoupled ls) as a Fossen YAML and UUV Simulator parameters (OUT/fossen_MODEL.yaml, "
+                    "OUT/uuv_MODEL.xml), each coefficient with its 95%% interval and trials")
     ex.add_argument("-q", "--quiet", action="store_true", help="one summary line; no progress, no warnings")
     ex.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
