@@ -12,6 +12,7 @@ Layout of a retraining home (``ROOT``)::
 The document::
 
     {"format": 1, "current": "v0002" | null, "store": "stores/v0003" | null,
+     "aliases": {"champion": {"udot_mps2": {"version": "v0003", "model": "coupled_wdse_svr"}, ...}},
      "holdout": {"trials": [...], "logs": {trial: sha256}, "metric": "...", "mode": "max"},
      "seen_logs": {sha256: {"name": ..., "trial": ..., "version": ..., "seen_at": ...}},
      "versions": [{"version", "created_at", "status": "promoted" | "rejected" | "rolled_back", "reason",
@@ -20,7 +21,10 @@ The document::
 
 ``status`` and ``reason`` are what retraining decided; :func:`promote` and :func:`rollback` (``auvid models
 promote|rollback``) change ``current`` by hand, set ``status`` and append an event to the versions involved,
-keeping retraining's ``reason``. They take the same lock as a retrain (``ROOT/.retrain.lock``), so a manual
+keeping retraining's ``reason``. :func:`promote_model` (``auvid models promote VERSION --model NAME [--output
+COL]``) points an alias (default ``champion``) at one model of a version for some of its outputs only, leaving
+``current`` and the other outputs as they are; ``auvid.load(ROOT, alias="champion")`` loads what it names. They
+all take the same lock as a retrain (``ROOT/.retrain.lock``), so a manual
 promotion cannot interleave with a cron retrain's commit.
 """
 
@@ -38,6 +42,7 @@ from typing import Any
 
 from pipeline.errors import PipelineError
 from pipeline.tableio import write_json
+from pipeline.vocabulary import DOFS, acceleration_column
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +87,8 @@ def exclusive_lock(root: Path) -> Iterator[None]:
 
 
 def empty() -> dict[str, Any]:
-    return {"format": FORMAT, "current": None, "store": None, "holdout": None, "seen_logs": {}, "versions": []}
+    return {"format": FORMAT, "current": None, "store": None, "holdout": None, "seen_logs": {}, "versions": [],
+            "aliases": {}}
 
 
 def registry_path(root: str | Path) -> Path:
@@ -209,6 +215,70 @@ def rollback(root: str | Path, note: str = "rolled back by hand") -> dict[str, A
         return _switch(root, data, parent, "rollback", f"{note} from {cur['version']}")
 
 
+# ----------------------------------------------------------------------------------- per-model promotion
+
+def model_outputs(root: str | Path, name: str, model: str) -> list[str]:
+    """The outputs (acceleration columns) model ``model`` of version ``name`` predicts, from its cards:
+    ``coupled_<m>``: the card's ``outputs``; a decoupled model ``<m>``: one per DOF it was fitted for."""
+    base = Path(root) / "models" / name / "data" / "models"
+    if model.startswith("coupled_"):
+        card = base / "coupled" / f"{model.removeprefix('coupled_')}.card.json"
+        try:
+            outputs = json.loads(card.read_text(encoding="utf-8")).get("outputs") if card.is_file() else None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            outputs = None
+        return [str(o) for o in outputs] if isinstance(outputs, list) else []
+    return [acceleration_column(d) for d in DOFS if (base / "decoupled" / f"{d}_{model}.card.json").is_file()]
+
+
+def _known_models(root: Path, name: str) -> list[str]:
+    base = root / "models" / name / "data" / "models"
+    coupled = [f"coupled_{p.name.removesuffix('.card.json')}" for p in (base / "coupled").glob("*.card.json")]
+    decoupled = {p.name.removesuffix(".card.json").split("_", 1)[1] for p in (base / "decoupled").glob("*_*.card.json")}
+    return sorted(coupled + sorted(decoupled))
+
+
+def promote_model(root: str | Path, name: str, model: str, outputs: list[str] | None = None,
+                  alias: str = "champion", note: str = "promoted by hand") -> dict[str, Any]:
+    """Point ``alias`` at model ``model`` of version ``name`` for ``outputs`` (default: every output it has),
+    under the retrain lock; ``current`` and the alias's other outputs are left as they are. UnknownVersion for a
+    version, model or output the registry's files do not have."""
+    root = Path(root)
+    with exclusive_lock(root):
+        data = load(root)
+        require_version(data, name, root)
+        have = model_outputs(root, name, model)
+        if not have:
+            raise UnknownVersion(f"version {name} has no model {model!r}; its models: "
+                                 f"{_known_models(root, name) or 'none'}", file=root / "models" / name)
+        wanted = list(outputs) if outputs else have
+        unknown = [o for o in wanted if o not in have]
+        if unknown:
+            raise UnknownVersion(f"model {model!r} of {name} predicts {have}, not {unknown}", file=registry_path(root))
+        table = dict((data.get("aliases") or {}).get(alias) or {})
+        before = {o: table.get(o) for o in wanted}
+        table.update({o: {"version": name, "model": model} for o in wanted})
+        event = {"at": _now(), "action": "promote_model", "alias": alias, "model": model, "outputs": wanted,
+                 "from": before, "to": name, "note": note}
+        versions = [{**v, "events": [*v.get("events", []), event]} if v["version"] == name else v
+                    for v in data["versions"]]
+        data = {**data, "aliases": {**(data.get("aliases") or {}), alias: dict(sorted(table.items()))},
+                "versions": versions}
+        save(root, data)
+        log.info("registry %s: %s of %s for %s", alias, model, name, wanted)
+        return data
+
+
+def resolve_alias(data: dict[str, Any], alias: str, root: str | Path) -> dict[str, dict[str, str]]:
+    """``{output: {"version", "model"}}`` of ``alias``; UnknownVersion (listing the aliases) if there is none."""
+    table = (data.get("aliases") or {}).get(alias)
+    if not table:
+        known = sorted(data.get("aliases") or {}) or "none"
+        raise UnknownVersion(f"no alias {alias!r} in the registry; aliases: {known}"
+                             " (set one with `auvid models promote VERSION --model NAME`)", file=registry_path(root))
+    return dict(table)
+
+
 def lineage_chain(data: dict[str, Any], name: str) -> list[str]:
     """``name``, its parent, the parent's parent, ... (stops at a cycle or an unknown parent)."""
     chain: list[str] = []
@@ -241,6 +311,9 @@ def format_table(data: dict[str, Any]) -> str:
     widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head) - 1)]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row[:-1], widths, strict=True)) + "  " + row[-1]
              for row in [head, *body]]
+    for alias, table in sorted((data.get("aliases") or {}).items()):
+        lines.append(f"{alias}: " + ", ".join(f"{o} <- {e['model']} of {e['version']}"
+                                              for o, e in sorted(table.items())))
     return "\n".join(line.rstrip() for line in lines)
 
 

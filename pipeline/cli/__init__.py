@@ -48,6 +48,7 @@ examples:
   auvid retrain --root /srv/auvid --inbox /srv/incoming --vehicle dagon.yaml
   auvid models list --root /srv/auvid          # registered model versions; show, promote, rollback
   auvid export runs/basin                      # one MCAP per trial for Foxglove / PlotJuggler
+  auvid predict new.mcap --root runs/basin     # the models' accelerations on a new log (or a Parquet table)
   AUVID_SCHEDULER=tcp://scheduler:8786 auvid run ...   # fan-out on a Dask cluster (or --scheduler)
 
 exit codes: 0 done, 1 done with quarantined inputs or failed models, 2 usage or config error (before any stage
@@ -194,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
                         epilog="examples:\n  auvid export runs/basin                      # every trial -> "
                                "runs/basin/exports/<trial>.mcap\n"
                                "  auvid export runs/basin --trial trial03 --out /tmp/mcap\n"
+                               "  auvid export runs/basin --fossen ls          # Fossen YAML + UUV Simulator\n"
                                "Channels: docs/user-guide.md, 'Looking at a run in Foxglove or PlotJuggler'.\n")
     ex.add_argument("root", type=_abs_path, help="run directory (holding data/synced, data/kinematics, ...)")
     ex.add_argument("--trial", action="append", default=None, metavar="T",
@@ -201,8 +203,32 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--out", type=_abs_path, default=None, help="output directory (default: ROOT/exports)")
     ex.add_argument("--params", type=Path, default=None, help="the run's params YAML, whose coupled.models and "
                     "decoupled.models are the models exported (default: ROOT/params.yaml if present)")
+    ex.add_argument("--fossen", default=None, metavar="MODEL", help="instead of MCAP: the physics model MODEL (a "
+                    "decoupled ls) as a Fossen YAML and UUV Simulator parameters (OUT/fossen_MODEL.yaml, "
+                    "OUT/uuv_MODEL.xml), each coefficient with its 95%% interval and trials")
     ex.add_argument("-q", "--quiet", action="store_true", help="one summary line; no progress, no warnings")
     ex.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+    pr = sub.add_parser("predict", help="the fitted models' accelerations (with a band where a model has one) on a "
+                        "new log or a Parquet table", formatter_class=argparse.RawDescriptionHelpFormatter,
+                        epilog="examples:\n  auvid predict trial09.mcap --root runs/basin -o trial09.parquet\n"
+                               "  auvid predict table.parquet --root /srv/auvid --alias champion -o pred.csv\n"
+                               "A log runs through ingest..derive with the run's vehicle.yaml and params.yaml in a "
+                               "temporary directory. Columns: docs/user-guide.md, 'Use the model'.\n")
+    pr.add_argument("input", type=_abs_path, help="a log (any format ingest reads) or a .parquet table with the "
+                    "models' input columns")
+    pr.add_argument("--root", type=_abs_path, default=Path("."), help="run directory, retraining home or "
+                    "HOME/models/<version> (default: .)")
+    pr.add_argument("--version", default=None, help="a registered version (default: the registry's current)")
+    pr.add_argument("--alias", default=None, help="the per-output models an alias names, e.g. champion")
+    pr.add_argument("--model", action="append", default=None, metavar="NAME", help="only this model (repeatable; "
+                    "default: every model the run's params name)")
+    pr.add_argument("-o", "--out", type=_abs_path, default=None, help="output .parquet or .csv (default: "
+                    "./<input>.predictions.parquet)")
+    pr.add_argument("--vehicle", type=Path, default=None, help="vehicle config (default: the run's vehicle.yaml)")
+    pr.add_argument("--params", type=Path, default=None, help="params YAML (default: the run's params.yaml)")
+    pr.add_argument("-q", "--quiet", action="store_true", help="one summary line; no progress, no warnings")
+    pr.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
     models = sub.add_parser("models", help="the retraining registry: list versions, show one, promote, roll back",
                             formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -214,12 +240,20 @@ def build_parser() -> argparse.ArgumentParser:
     msub = models.add_subparsers(dest="models_command", metavar="ACTION", required=True)
     actions = {"list": "every version: status, created_at, holdout score, parent, reason (* = current)",
                "show": "one version: lineage, metrics, why it was promoted or rejected, manual events",
-               "promote": "make a registered version the current model",
+               "promote": "make a registered version the current model, or (--model) one of its models the "
+                          "champion for some outputs",
                "rollback": "make the current model's parent current again"}
     for action, text in actions.items():
         a = msub.add_parser(action, help=text, description=text)
         if action in ("show", "promote"):
             a.add_argument("version", help="a registered version, e.g. v0004")
+        if action == "promote":
+            a.add_argument("--model", default=None, metavar="NAME", help="promote this model of the version only "
+                           "(e.g. ls, coupled_wdse_svr) under --alias, leaving the current version as it is")
+            a.add_argument("--output", action="append", default=None, metavar="COLUMN", help="with --model: only "
+                           "for this output (repeatable, e.g. udot_mps2; default: every output the model has)")
+            a.add_argument("--alias", default="champion", help="with --model: the alias to point (default: "
+                           "champion)")
         a.add_argument("--root", type=Path, default=Path("."), help="retraining home holding registry.json "
                        "(default: .)")
         if action in ("list", "show"):
@@ -253,6 +287,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         from pipeline.cli.export import cmd_export
 
         return cmd_export(args)
+    if args.command == "predict":
+        from pipeline.cli.predict import cmd_predict
+
+        return cmd_predict(args)
     from pipeline.parallel import backend
 
     with backend(getattr(args, "scheduler", None)):

@@ -14,6 +14,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     from pipeline.export import export_trials, named_models, trials_available
 
     check_paths([args.root], "run directory")
+    if args.fossen is not None:
+        return _export_fossen(args)
     have = trials_available(args.root)
     if not have:
         raise UsageError(f"nothing to export: no synced trial under {args.root / 'data' / 'synced'} (run `auvid "
@@ -32,4 +34,22 @@ def cmd_export(args: argparse.Namespace) -> int:
             print(f"  not exported: {reason}", file=sys.stderr)
     print(f"auvid export: done (exit 0): {len(results)} trial(s) in {time.perf_counter() - start:.1f} s -> "
           f"{results[0].path.parent}", flush=True)
+    return EXIT_OK
+
+
+def _export_fossen(args: argparse.Namespace) -> int:
+    from pipeline.api import LoadError, load
+    from pipeline.fossen import FossenError, write_fossen, write_uuv
+
+    try:
+        models = load(args.root, params=args.params)
+        if args.fossen not in models:
+            raise UsageError(f"--fossen {args.fossen}: no such model in {args.root}; available: {sorted(models)}")
+        model = models[args.fossen]
+        out = args.out or args.root / "exports"
+        paths = [write_fossen(model, out / f"fossen_{model.name}.yaml"),
+                 write_uuv(model, out / f"uuv_{model.name}.xml")]
+    except (LoadError, FossenError) as err:
+        raise UsageError(str(err)) from None
+    print(f"auvid export: done (exit 0): model {model.name} -> {', '.join(str(p) for p in paths)}", flush=True)
     return EXIT_OK

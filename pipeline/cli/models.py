@@ -24,7 +24,15 @@ def cmd_models(args: argparse.Namespace) -> int:
         elif action == "show":
             info = registry.describe_version(registry.load(root), args.version, root)
             print(json.dumps(info, indent=2, sort_keys=True) if args.json else registry.format_version(info, root))
+        elif action == "promote" and args.model is not None:
+            data = registry.promote_model(root, args.version, args.model, args.output, args.alias)
+            table = data["aliases"][args.alias]
+            print(f"models promote: {args.alias} = " + ", ".join(f"{o} <- {e['model']} of {e['version']}"
+                                                                 for o, e in sorted(table.items()))
+                  + f" (current stays {data.get('current')})")
         else:
+            if getattr(args, "output", None):
+                raise UsageError("--output needs --model (a whole version has no per-output promotion)")
             before = registry.load(root).get("current")
             data = registry.promote(root, args.version) if action == "promote" else registry.rollback(root)
             now = data["current"]

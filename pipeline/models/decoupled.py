@@ -146,11 +146,38 @@ class LinearQuadraticDamping(RegressorMixin, BaseEstimator):
 
     def fit(self, X: Any, y: Any) -> LinearQuadraticDamping:
         X, y = validate_data(self, X, y, y_numeric=True, multi_output=True)
-        theta, *_ = np.linalg.lstsq(self._design(X), y, rcond=None)
+        A = self._design(X)
+        theta, *_ = np.linalg.lstsq(A, y, rcond=None)
         n = 2 * X.shape[1]
         self.coef_ = theta[:n].T
         self.intercept_ = theta[n] if self.fit_intercept else np.zeros(y.shape[1:]) if y.ndim > 1 else 0.0
+        self.coef_cov_ = self._covariance(A, y - A @ theta, n) if y.ndim == 1 else None
         return self
+
+    @staticmethod
+    def _covariance(A: np.ndarray, resid: np.ndarray, n: int) -> np.ndarray | None:
+        """Covariance of ``coef_``: s^2 (A'A)^-1, scaled by the residuals' integrated autocorrelation time
+        (:func:`decorrelation`; the rows are taken in time order, and smoothed targets are correlated in time,
+        which plain OLS errors would ignore and so come out too narrow). None where it is not defined."""
+        dof = A.shape[0] - A.shape[1]
+        gram = A.T @ A
+        if dof < 1 or np.linalg.matrix_rank(gram) < A.shape[1]:
+            return None
+        _, tau = decorrelation(resid)
+        return (float(resid @ resid) / dof * tau * np.linalg.inv(gram))[:n, :n]
+
+    def coefficient_intervals(self, level: float = 0.95) -> np.ndarray | None:
+        """``(2 * n_features, 2)``: the ``level`` confidence interval of each of ``coef_`` (normal approximation,
+        from ``coef_cov_``), or None (a multi-output fit, too few rows, a model pickled before it was kept)."""
+        from scipy.stats import norm
+
+        check_is_fitted(self)
+        cov = getattr(self, "coef_cov_", None)
+        if cov is None:
+            return None
+        half = norm.ppf(0.5 + level / 2) * np.sqrt(np.diag(cov))
+        coef = np.ravel(self.coef_)
+        return np.column_stack([coef - half, coef + half])
 
     def predict(self, X: Any) -> np.ndarray:
         check_is_fitted(self)
