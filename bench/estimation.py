@@ -24,6 +24,7 @@ Speed: the smoother on a one-hour trial (the same simulator, 3600 s), timed as t
     python bench/estimation.py                         # both presets, 5 seeds x 480 s, then the one-hour timing
     python bench/estimation.py --preset hard --seeds 0 1 --methods kalman --skip-speed
     python bench/estimation.py --seeds 0 1 --methods kalman gaussian --skip-speed
+    python bench/estimation.py --methods kalman kalman-kinematic --skip-speed   # with and without the model
     python bench/estimation.py --methods kalman --accelerometer --skip-speed   # + IMU accelerometers
 
 ``--accelerometer``: the trial's AHRS accelerometers (the simulator's: 0.02 m/s^2 white noise, a constant bias per
@@ -134,7 +135,10 @@ def quality(presets: list[str], seeds: list[int], methods: list[str], duration_s
                 _, trial = prepare(root, seed, duration_s, params, imu, preset)
                 vehicle = load_example_vehicle()
                 for method in methods:
-                    p = Params.model_validate({"differentiate": {"method": method}})
+                    # "kalman-kinematic": the kalman method without the vehicle's model (model_passes 0)
+                    how = ({"method": "kalman", "model_passes": 0} if method == "kalman-kinematic"
+                           else {"method": method})
+                    p = Params.model_validate({"differentiate": how})
                     rows.append((preset, method, seed, score(root, vehicle, trial, p)))
                 if imu is not None:
                     rows.append((preset, "kalman+imu", seed, score(root, imu, trial, Params())))

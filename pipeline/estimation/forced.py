@@ -161,7 +161,7 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
     and its median SD of nu_dot is not above the kinematic pass's: an input noisier than what it explains (the
     AHRS's angle noise times a restoring moment, say) is absorbed by the input-error term, which raises the
     likelihood but leaves nu_dot less known than without the model. The passes stop after ``passes`` or when no
-    DOF improves.
+    DOF improves (from pass 2 on: pass 1, without the damping, may lose where pass 2 wins).
     """
     best: dict[str, Smoothed] = {}
     for dof, m in meas.items():
@@ -201,7 +201,7 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
                 improved.append(dof)
         history.append(_record(k, step))
         log.info("smoother pass %d (%s): better for %s", k, _MODELS[min(k, 2)], ", ".join(improved) or "none")
-        if not improved:
+        if not improved and k >= 2:  # pass 1 lacks the damping, which pass 2 adds: always try both
             break
     return best, inputs, {"passes": history, "chosen": chosen, "force_model": True}
 
