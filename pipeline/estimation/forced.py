@@ -35,6 +35,7 @@ import pandas as pd
 
 from pipeline import physics
 from pipeline.config.vehicle import Vehicle
+from pipeline.estimation.noise import estimate_noise
 from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,8 @@ class ForceModel:
     M_inv: np.ndarray
     tau: np.ndarray
     g: np.ndarray
+    # the variance of M^-1 tau per sample from the actuator signals' own noise (estimated from the data)
+    noise_var: np.ndarray | None = None
 
     def acceleration(self, nu: np.ndarray | None = None, damping: np.ndarray | None = None) -> np.ndarray:
         """a = M^-1 (tau - g - C(nu) nu - d_hat) on the grid (N, 6); without ``nu``, a = M^-1 (tau - g)."""
@@ -62,26 +65,53 @@ class ForceModel:
 
 
 def force_model(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle) -> ForceModel | None:
-    """The force model on the synced grid, or None when the vehicle has no thrusters (nothing to model). Thruster
-    inputs are interpolated over their invalid samples (those samples are unusable anyway)."""
+    """The force model on the synced grid, or None when the vehicle has no thrusters (nothing to model). Each
+    thruster input is smoothed by the white-jerk smoother with its own noise estimated from the data (bridging
+    invalid samples, which are unusable anyway), and what the smoother leaves of that noise is counted in
+    ``noise_var``."""
     if not vehicle.thrusters:
         return None
     grid = synced["t_ns"].to_numpy(dtype=np.int64)
-    speeds = np.empty((grid.size, len(vehicle.thrusters)))
-    for i, thr in enumerate(vehicle.thrusters):
+    speeds = np.zeros((grid.size, len(vehicle.thrusters)))
+    sd = np.zeros_like(speeds)
+    runs = []
+    for i, thr in enumerate(vehicle.thrusters):  # each input smoothed with its own noise (a counter's steps too)
         x = synced[thr.input_signal].to_numpy(dtype=float)
         ok = np.isfinite(x)
-        speeds[:, i] = np.interp(grid, grid[ok], x[ok]) if ok.any() else 0.0
-    tau = physics.generalized_forces(vehicle, speeds)
+        if ok.sum() < 3:
+            continue
+        noise = estimate_noise(grid[ok] / 1e9, x[ok]).sd
+        if not np.isfinite(noise) or noise <= 0:
+            speeds[:, i] = np.interp(grid, grid[ok], x[ok])
+            continue
+        runs.append((i, smooth(grid, Measurements(grid[ok], x[ok], noise**2), gate=0)))
+    smoothed_variances([res for _, res in runs])
+    for i, res in runs:
+        speeds[:, i], sd[:, i] = res.x, res.x_sd
+    B = physics.allocation_matrix(vehicle)
+    tau = physics.thrusts(vehicle, speeds) @ B.T
     M = physics.mass_matrix(vehicle)
+    M_inv = np.linalg.inv(M)
     g = physics.restoring_force(vehicle, body["roll_rad"].to_numpy(dtype=float),
                                 body["pitch_rad"].to_numpy(dtype=float))
-    return ForceModel(M=M, M_inv=np.linalg.inv(M), tau=tau, g=np.atleast_2d(g))
+    # what is left of each input's noise, through the thrust map's slope (numerical) and M^-1 B
+    step = np.maximum(sd, 1e-6 * np.maximum(np.abs(speeds).max(axis=0), 1.0))
+    slope = (physics.thrusts(vehicle, speeds + step) - physics.thrusts(vehicle, speeds - step)) / (2 * step)
+    noise_var = ((slope * sd) ** 2) @ ((M_inv @ B) ** 2).T
+    return ForceModel(M=M, M_inv=M_inv, tau=tau, g=np.atleast_2d(g), noise_var=noise_var)
 
 
-def damping_features(nu: np.ndarray, dofs: list[int]) -> np.ndarray:
-    """Regressors of d_hat: a constant, every measured DOF's velocity, and each one's nu |nu|."""
-    cols = [np.ones(nu.shape[0])] + [nu[:, j] for j in dofs] + [nu[:, j] * np.abs(nu[:, j]) for j in dofs]
+#: A vehicle symmetric port-starboard: its damping couples the longitudinal DOFs (u, w, q) among themselves and
+#: the lateral ones (v, p, r) among themselves, not across (Fossen 2011, §7.5.2, p. 172, the decoupled
+#: longitudinal and lateral models). Across the groups a coupling would also absorb a DVL misalignment (v
+#: measured with a share of u), which the smoother estimates instead.
+_GROUPS = ((0, 2, 4), (1, 3, 5))
+
+
+def damping_features(nu: np.ndarray, dof: int, dofs: list[int]) -> np.ndarray:
+    """Regressors of d_hat for DOF ``dof``: a constant, the measured DOFs of its group (linear), its own nu |nu|."""
+    group = next(g for g in _GROUPS if dof in g)
+    cols = [np.ones(nu.shape[0])] + [nu[:, j] for j in dofs if j in group] + [nu[:, dof] * np.abs(nu[:, dof])]
     return np.stack(cols, axis=1)
 
 
@@ -90,12 +120,13 @@ def fit_damping(model: ForceModel, nu: np.ndarray, nudot: np.ndarray, rows: np.n
     """d_hat(nu) on the grid (N, 6): per measured DOF, least squares of the damping target
     d = tau - M nu_dot - C(nu) nu - g on :func:`damping_features`, over ``rows``; zero for the other DOFs."""
     target = physics.damping_target(model.M, model.tau, nudot, nu, model.g)
-    X = damping_features(nu, dofs)
     out = np.zeros_like(nu)
-    if rows.sum() <= X.shape[1]:
-        return out
-    coef, *_ = np.linalg.lstsq(X[rows], target[rows][:, dofs], rcond=None)
-    out[:, dofs] = X @ coef
+    for j in dofs:
+        X = damping_features(nu, j, dofs)
+        if rows.sum() <= X.shape[1]:
+            continue
+        coef, *_ = np.linalg.lstsq(X[rows], target[rows, j], rcond=None)
+        out[:, j] = X @ coef
     return out
 
 
@@ -126,6 +157,11 @@ def smooth_with_input(grid_ns: np.ndarray, meas: Measurements, a: np.ndarray | N
         return smooth(grid_ns, meas, **kwargs)
     shift, U = input_at(grid_ns, a, meas.t_ns, meas.order)
     res = smooth(grid_ns, Measurements(meas.t_ns, meas.y - shift, meas.var, meas.order), **kwargs)
+    if res.s > 0:
+        # with the input's error e in the model, w = nu - U moves by b + e: x' is the smooth part b alone, while
+        # w's increments also hold what the measurements say about e (inner samples; the ends keep x')
+        res.xdot = res.xdot.copy()
+        res.xdot[1:-1] = (res.x[2:] - res.x[:-2]) / (2 * res.h_s)
     res.x = res.x + U
     res.xdot = res.xdot + a
     res.xddot = res.xddot + np.gradient(a, res.h_s)
@@ -158,10 +194,11 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
     Pass 0 is the kinematic smoother, whose residual gate fixes the measurements every later pass is scored on
     (so their likelihoods compare). Pass 1 adds a = M^-1 (tau - g); pass k > 1 also C(nu) nu and the damping
     fitted on the best estimates so far. A DOF takes a pass's result when it raises the DOF's log-likelihood
-    and its median SD of nu_dot is not above the kinematic pass's: an input noisier than what it explains (the
-    AHRS's angle noise times a restoring moment, say) is absorbed by the input-error term, which raises the
-    likelihood but leaves nu_dot less known than without the model. The passes stop after ``passes`` or when no
-    DOF improves (from pass 2 on: pass 1, without the damping, may lose where pass 2 wins).
+    (so the passes never lower it) and the model's own error leaves nu_dot no less known (median SD) than the
+    kinematic pass: an input noisier than what it explains (the AHRS's angle noise times a restoring moment,
+    say) is absorbed by the input-error term, which raises the likelihood but not the derivative's quality. The
+    passes stop after ``passes`` or when no DOF gains (from pass 2 on: pass 1, without the damping, may lose
+    where pass 2 wins).
     """
     best: dict[str, Smoothed] = {}
     for dof, m in meas.items():
@@ -169,55 +206,56 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
             best[dof] = smooth(grid_ns, m, q=process_noise.get(dof), gate=gate)
         except ValueError as err:
             raise ValueError(f"{dof}: {err}") from err
-    smoothed_variances(list(best.values()))
     chosen = {dof: 0 for dof in best}
     inputs: dict[str, np.ndarray | None] = {dof: None for dof in best}
-    history = [_record(0, best)]
-    if model is None or passes <= 0:
-        return best, inputs, {"passes": history, "chosen": chosen, "force_model": model is not None}
+    smoothed_variances(list(best.values()))
     kinematic_sd = {dof: float(np.median(res.xdot_sd)) for dof, res in best.items()}
-    kept = {dof: m.subset(best[dof].kept) for dof, m in meas.items()}
-    index = {dof: dofs.index(dof) for dof in best}
-    rows = _covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
-    for k in range(1, passes + 1):
-        if k == 1:
-            a = model.acceleration()
-        else:
-            nu = np.zeros((grid_ns.size, len(dofs)))
-            nudot = np.zeros_like(nu)
-            for dof, res in best.items():
-                nu[:, index[dof]], nudot[:, index[dof]] = res.x, res.xdot
-            a = model.acceleration(nu, fit_damping(model, nu, nudot, rows, sorted(index.values())))
-        step = {dof: smooth_with_input(grid_ns, kept[dof], a[:, index[dof]], q=process_noise.get(dof), gate=0,
-                                       input_error=True)
-                for dof in best}
-        smoothed_variances(list(step.values()))
-        for res in step.values():
-            _central_difference(res)
-        improved = []
-        for dof, res in step.items():
-            if res.loglik > best[dof].loglik and np.median(res.xdot_sd) <= kinematic_sd[dof]:
-                best[dof], chosen[dof], inputs[dof] = res, k, a[:, index[dof]]
-                improved.append(dof)
-        history.append(_record(k, step))
-        log.info("smoother pass %d (%s): better for %s", k, _MODELS[min(k, 2)], ", ".join(improved) or "none")
-        if not improved and k >= 2:  # pass 1 lacks the damping, which pass 2 adds: always try both
-            break
-    return best, inputs, {"passes": history, "chosen": chosen, "force_model": True}
+    history = [_record(0, best)]
+    if model is not None and passes > 0:
+        kept = {dof: m.subset(best[dof].kept) for dof, m in meas.items()}
+        index = {dof: dofs.index(dof) for dof in best}
+        rows = _covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
+        for k in range(1, passes + 1):
+            if k == 1:
+                a = model.acceleration()
+            else:
+                nu = np.zeros((grid_ns.size, len(dofs)))
+                nudot = np.zeros_like(nu)
+                for dof, res in best.items():
+                    nu[:, index[dof]], nudot[:, index[dof]] = res.x, res.xdot
+                a = model.acceleration(nu, fit_damping(model, nu, nudot, rows, sorted(index.values())))
+            step = {dof: smooth_with_input(grid_ns, kept[dof], a[:, index[dof]], q=process_noise.get(dof),
+                                           gate=0, input_error=True)
+                    for dof in best}
+            smoothed_variances(list(step.values()))
+            gained = []
+            for dof, res in step.items():
+                _input_error_sd(res, a[:, index[dof]],
+                                None if model.noise_var is None else model.noise_var[:, index[dof]])
+                if res.loglik > best[dof].loglik and np.median(res.xdot_sd) <= kinematic_sd[dof]:
+                    best[dof], chosen[dof], inputs[dof] = res, k, a[:, index[dof]]
+                    gained.append(dof)
+            history.append(_record(k, step))
+            log.info("smoother pass %d (%s): higher likelihood for %s", k, _MODELS[min(k, 2)],
+                     ", ".join(gained) or "none")
+            if not gained and k >= 2:  # pass 1 lacks the damping, which pass 2 adds: always try both
+                break
+    return best, inputs, {"passes": history, "chosen": chosen, "force_model": model is not None}
 
 
-def _central_difference(res: Smoothed) -> None:
-    """nu_dot as the central difference of the smoothed nu (input included), with its exact posterior SD.
+def _input_error_sd(res: Smoothed, a: np.ndarray, noise_var: np.ndarray | None) -> None:
+    """Add the input's error to nu_dot's SD (the smooth part's posterior so far).
 
-    With the input's error in the model, nu = U + w moves by b + e: x' is the smooth part b alone, while the
-    posterior of w's increments also holds what the measurements say about e. Inner samples only; the two ends
-    keep x' + a."""
-    h = res.h_s
-    x, var, lag2 = res.x, res.x_sd**2, res.x_lag2_cov
-    res.xdot = res.xdot.copy()
-    res.xdot_sd = res.xdot_sd.copy()
-    res.xdot[1:-1] = (x[2:] - x[:-2]) / (2 * h)
-    res.xdot_sd[1:-1] = np.sqrt(np.maximum(var[2:] + var[:-2] - 2 * lag2[:-2], 0.0)) / (2 * h)
+    The smoother models the input's error e white, but its pointwise size cannot come from that model
+    (measurements at a few Hz do not see e's fast content, and a white e has no pointwise variance). Two parts:
+    the actuator signals' own noise left after smoothing them (``noise_var``), and the model's error, which
+    follows the thrust (a gain, a lag): the level s the data resolve over the input's own bandwidth B (Rice's
+    mean frequency, sqrt(var a' / var a) / 2 pi), var = 2 s B.
+    """
+    spread = float(np.var(a))
+    bandwidth = np.sqrt(float(np.var(np.diff(a) / res.h_s)) / spread) / (2 * np.pi) if spread > 0 else 0.0
+    extra = 0.0 if noise_var is None else noise_var
+    res.xdot_sd = np.sqrt(res.xdot_sd**2 + 2 * res.s * bandwidth + extra)
 
 
 def _record(k: int, results: dict[str, Smoothed]) -> dict:

@@ -120,13 +120,14 @@ def test_joint_and_lag_two_covariances_are_the_textbook_rts() -> None:
 
 
 def _plant(seed: int, duration_s: float = 120.0, model_error: float = 0.0):
-    """Surge of a vehicle with linear + quadratic damping driven by a known thrust with fast reversals; a DVL-like
+    """Surge of a vehicle with linear + quadratic damping driven by a known thrust with fast reversals, logged with
+    white noise as a speed sensor gives it; a DVL-like
     sensor. Returns (grid, measurements, ForceModel, true nu_dot)."""
     rng = np.random.default_rng(seed)
     m, d1, d2 = 90.0, 20.0, 40.0
     fine = 1e-3
     tt = np.arange(0, duration_s + fine / 2, fine)
-    tau = 60 * np.sign(np.sin(2 * np.pi * tt / 7.0)) * (1 - np.exp(-((tt % 3.5) / 0.3))) + 15 * np.sin(0.9 * tt)
+    tau = 60 * np.tanh(4 * np.sin(2 * np.pi * tt / 7.0)) + 15 * np.sin(0.9 * tt)   # reversals within ~0.3 s
     u = np.zeros(tt.size)
     for i in range(1, tt.size):  # semi-implicit Euler at 1 kHz: the truth
         acc = (tau[i - 1] - d1 * u[i - 1] - d2 * u[i - 1] * abs(u[i - 1])) / m
@@ -140,8 +141,10 @@ def _plant(seed: int, duration_s: float = 120.0, model_error: float = 0.0):
     n = grid.size
     M = np.diag([m, 100.0, 100.0, 10.0, 10.0, 10.0])
     tau6 = np.zeros((n, 6))
-    tau6[:, 0] = tau[::step] * (1 + model_error)
-    model = ForceModel(M=M, M_inv=np.linalg.inv(M), tau=tau6, g=np.zeros((n, 6)))
+    tau6[:, 0] = tau[::step] * (1 + model_error) + 1.5 * rng.standard_normal(n)
+    noise_var = np.zeros((n, 6))
+    noise_var[:, 0] = (1.5 / m) ** 2  # the logged thrust's noise, as force_model estimates it from the signal
+    model = ForceModel(M=M, M_inv=np.linalg.inv(M), tau=tau6, g=np.zeros((n, 6)), noise_var=noise_var)
     return grid, meas, model, udot[::step]
 
 
@@ -155,13 +158,12 @@ def test_passes_never_lower_the_likelihood_and_lift_the_targets() -> None:
     assert chosen >= 1 and inputs["u"] is not None
     assert best["u"].loglik == max(h["loglik"]["u"] for h in history[: chosen + 1])
 
-    def r2(x: np.ndarray) -> float:
+    def rmse(x: np.ndarray) -> float:
         inner = slice(100, -100)
-        return 1 - np.mean((x[inner] - truth[inner]) ** 2) / np.var(truth[inner])
+        return float(np.sqrt(np.mean((x[inner] - truth[inner]) ** 2)))
 
     plain = smooth_passes(grid, meas, model, passes=0, process_noise={}, gate=5.0, dofs=DOFS)[0]
-    assert r2(best["u"].xdot) >= r2(plain["u"].xdot) + 0.015
-    assert r2(best["u"].xdot) >= 0.99
+    assert rmse(best["u"].xdot) <= 0.6 * rmse(plain["u"].xdot)   # measured: 0.021 against 0.052 m/s^2
     # an honest band: 2-sigma covers the true acceleration 90-99 % of the time
     inner = slice(100, -100)
     cover = np.mean(np.abs(best["u"].xdot - truth)[inner] <= 2 * best["u"].xdot_sd[inner])
@@ -169,11 +171,25 @@ def test_passes_never_lower_the_likelihood_and_lift_the_targets() -> None:
 
 
 def test_a_wrong_model_is_not_taken() -> None:
-    """Thrust logged 3 times too large: the model explains the data worse than the kinematic smoother (or its SD is
-    no better), and the DOF keeps the kinematic result."""
+    """Thrust logged 3 times too large: the model explains the data worse than the kinematic smoother, and the DOF
+    keeps the kinematic result."""
     grid, meas, model, _ = _plant(2, model_error=2.0)
     best, inputs, report = smooth_passes(grid, meas, model, passes=3, process_noise={}, gate=5.0, dofs=DOFS)
+    assert len(report["passes"]) == 3  # passes 1 and 2 tried, then stopped
     for h in report["passes"][1:]:
-        assert h["loglik"]["u"] < report["passes"][0]["loglik"]["u"] or (
-            h["median_acceleration_sd"]["u"] > report["passes"][0]["median_acceleration_sd"]["u"])
+        assert h["loglik"]["u"] < report["passes"][0]["loglik"]["u"]
+    assert report["chosen"]["u"] == 0 and inputs["u"] is None
+
+
+def test_an_input_noisier_than_what_it_explains_is_not_taken() -> None:
+    """Roll under a restoring moment computed from a noisy attitude, say: here the logged thrust carries white noise
+    of 60 N the model does not know of. The input-error term absorbs it (the likelihood may rise) but the
+    derivative would be worse than the kinematic smoother's: the DOF keeps the kinematic result."""
+    grid, meas, model, truth = _plant(3)
+    rng = np.random.default_rng(33)
+    noisy = model.tau.copy()
+    noisy[:, 0] += 20.0 * rng.standard_normal(noisy.shape[0])
+    model = ForceModel(M=model.M, M_inv=model.M_inv, tau=noisy, g=model.g, noise_var=None)
+    best, inputs, report = smooth_passes(grid, meas, model, passes=3, process_noise={}, gate=5.0, dofs=DOFS)
+    assert max(h["loglik"]["u"] for h in report["passes"][1:]) > report["passes"][0]["loglik"]["u"]
     assert report["chosen"]["u"] == 0 and inputs["u"] is None
