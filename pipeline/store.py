@@ -58,6 +58,8 @@ PATTERN_COLUMNS: list[tuple[str, pa.DataType, str]] = [
     (r"^[A-Za-z0-9_]+_rpm$", pa.float64(), "propeller speed signal of one thruster"),
     (r"^[uvwpqr]_smooth_std_(mps|radps)$", pa.float64(), "SD of the smoothed velocity (kalman method)"),
     (r"^[uvwpqr]dot_std_(mps2|radps2)$", pa.float64(), "SD of the estimated acceleration (kalman method)"),
+    (r"^[uvwpqr]_[uvwpqr]dot_cov_(m2ps3|rad2ps3)$", pa.float64(),
+     "covariance of the smoothed velocity and the acceleration of one DOF (kalman method; 0 for the grid methods)"),
     (r"^[uvwpqr]_meas_(mps|radps)$", pa.float64(),
      "measured velocity on the grid, NaN where none (kalman method; u_mps ... are then the estimate)"),
     (r"^d_std_[uvwpqr]_(N|Nm)$", pa.float64(), "first-order SD of the damping target (kalman method)"),

@@ -14,6 +14,8 @@ VEL_UNIT = {"u": "mps", "v": "mps", "w": "mps", "p": "radps", "q": "radps", "r":
 ACC_UNIT = {"u": "mps2", "v": "mps2", "w": "mps2", "p": "radps2", "q": "radps2", "r": "radps2"}
 FORCE_UNIT = {"u": "N", "v": "N", "w": "N", "p": "Nm", "q": "Nm", "r": "Nm"}
 FORCE_UNITS = tuple(FORCE_UNIT[d] for d in DOFS)
+#: ... and of the covariance of a DOF's velocity and acceleration (velocity unit x acceleration unit).
+COV_UNIT = {"u": "m2ps3", "v": "m2ps3", "w": "m2ps3", "p": "rad2ps3", "q": "rad2ps3", "r": "rad2ps3"}
 
 #: Attitude columns on the grid (Z-Y-X Euler angles of body FRD in NED).
 ATTITUDE = ["roll_rad", "pitch_rad", "yaw_rad"]
@@ -42,6 +44,11 @@ def std_column(dof: str) -> str:
 def accel_std_column(dof: str) -> str:
     """SD of the estimated acceleration: ``udot_std_mps2``."""
     return f"{dof}dot_std_{ACC_UNIT[dof]}"
+
+
+def cov_column(dof: str) -> str:
+    """Covariance of the smoothed velocity and the acceleration of the same DOF: ``u_udot_cov_m2ps3``."""
+    return f"{dof}_{dof}dot_cov_{COV_UNIT[dof]}"
 
 
 def meas_column(dof: str) -> str:

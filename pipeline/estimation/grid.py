@@ -7,7 +7,8 @@
 2. per velocity column, the filter width: fixed, per signal (``sigma_s_per_signal``) or ``auto``
    (:func:`auto_widths`, from each sensor's noise and rate at its native stamps);
 3. :func:`filter_segments`: per segment, smoothed velocities (``u_smooth_mps`` ...) and accelerations
-   (``udot_mps2`` ...) by :mod:`pipeline.estimation.gaussian` or :mod:`pipeline.estimation.savgol`, and the
+   (``udot_mps2`` ...) by :mod:`pipeline.estimation.gaussian` or :mod:`pipeline.estimation.savgol` (their
+   covariance ``u_udot_cov_m2ps3`` ... 0: a filter gives no SDs), and the
    samples near each segment's edges dropped (a segment loses the edge samples of its widest filter). Nothing is
    extrapolated across a gap: each segment is filtered alone.
 """
@@ -29,7 +30,7 @@ from pipeline.estimation.position import smooth_positions, with_position_rates
 from pipeline.estimation.savgol import savgol_filters, savgol_window
 from pipeline.estimation.widths import optimal_sigma
 from pipeline.kinematics import body_kinematics
-from pipeline.vocabulary import ACCELERATION, DOFS, SMOOTH, VELOCITY
+from pipeline.vocabulary import ACCELERATION, DOFS, SMOOTH, VELOCITY, cov_column
 
 log = logging.getLogger(__name__)
 
@@ -105,11 +106,12 @@ def filter_segments(table: pd.DataFrame, params: DifferentiateParams, widths: di
                 smooth, acc = savgol_filters(nu, window[col], params.savgol_order, dt_s)
             part[SMOOTH[j]] = smooth
             part[ACCELERATION[j]] = acc
+            part[cov_column(DOFS[j])] = 0.0  # the filters give no covariance (nor SDs): the contract's columns
         parts.append(part.iloc[edge: len(part) - edge])
     if not parts:
         raise SyncError(f"no segment longer than {2 * edge} samples ({2 * edge * dt_s:g} s) to differentiate")
     out = pd.concat(parts, ignore_index=True)
-    first = ["t_ns", "segment", *VELOCITY, *SMOOTH, *ACCELERATION]
+    first = ["t_ns", "segment", *VELOCITY, *SMOOTH, *ACCELERATION, *(cov_column(d) for d in DOFS)]
     return out[first + [c for c in out.columns if c not in first]]
 
 

@@ -25,7 +25,8 @@ velocity and rate sensor at its own stamps, each with its own noise.
   lock no longer cuts a segment: the smoother bridges it and says how sure it is.
 - **Columns.** ``u_mps`` ... ``r_radps`` and ``u_smooth_mps`` ... are the smoothed estimate (the models' inputs: a
   bridged sample has no measurement), ``udot_mps2`` ... its derivative, ``u_smooth_std_mps`` ... and
-  ``udot_std_mps2`` ... their SDs, ``u_meas_mps`` ... the measured value on the grid as sync resampled it (NaN
+  ``udot_std_mps2`` ... their SDs, ``u_udot_cov_m2ps3`` ... the covariance of the two (0 where velocities come
+  from positions), ``u_meas_mps`` ... the measured value on the grid as sync resampled it (NaN
   without bottom lock). DOFs without a sensor (rates not configured) are 0 with SD 0, as before.
 """
 
@@ -57,6 +58,7 @@ from pipeline.vocabulary import (
     VEL_UNIT,
     VELOCITY,
     accel_std_column,
+    cov_column,
     meas_column,
     std_column,
 )
@@ -166,9 +168,12 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         out[ACCELERATION[j]] = xdot
         out[std_column(dof)] = res.x_sd if res else zeros
         out[accel_std_column(dof)] = res.xdot_sd if res else zeros
+        # cov(x, x'): d's SD needs it (positions, rotated per sample, come without it: 0)
+        out[cov_column(dof)] = res.x_xdot_cov if res is not None and res.x_xdot_cov is not None else zeros
     kept = out[seg >= 0].reset_index(drop=True)
     first = ["t_ns", "segment", *VELOCITY, *SMOOTH, *ACCELERATION,
-             *[std_column(d) for d in DOFS], *[accel_std_column(d) for d in DOFS], *[meas_column(d) for d in DOFS]]
+             *[std_column(d) for d in DOFS], *[accel_std_column(d) for d in DOFS], *[cov_column(d) for d in DOFS],
+             *[meas_column(d) for d in DOFS]]
     kept = kept[first + [c for c in kept.columns if c not in first]]
 
     report = {
