@@ -196,9 +196,10 @@ def estimate_rate_biases(grid_ns: np.ndarray, angles: np.ndarray, angle_ok: np.n
             idx = rows[seg == s]
             if idx.size < 3:
                 continue
+            idx = idx[_not_spikes(np.diff(np.unwrap(integral[idx, i] - angles[idx, i])))]
             D = np.unwrap(integral[idx, i] - angles[idx, i])
             dD, dX, dt = np.diff(D), np.diff(B[idx, i, :], axis=0), np.diff(t_s[idx])
-            keep = _not_spikes(dD)
+            keep = np.ones(dD.size, dtype=bool)
             parts["dD"].append(dD[keep])
             parts["dX"].append(dX[keep])
             parts["dt"].append(dt[keep])
@@ -231,15 +232,14 @@ def estimate_rate_biases(grid_ns: np.ndarray, angles: np.ndarray, angle_ok: np.n
 
 
 def _not_spikes(dD: np.ndarray, limit: float = 8.0) -> np.ndarray:
-    """The increments to keep: an attitude outlier is a step out and a step back beyond ``limit`` robust SDs;
-    both increments go (the drift's random walk keeps its steps, so this drops no trend)."""
+    """The samples to keep (dD: their increments): an attitude outlier is a step out and a step back beyond
+    ``limit`` robust SDs; the sample goes and its neighbours' increment spans it (so this drops no trend)."""
     dev = dD - np.median(dD)
     mad = 1.4826 * np.median(np.abs(dev))
     big = np.abs(dev) > limit * max(mad, 1e-15)
     spike = big[:-1] & big[1:] & (np.sign(dev[:-1]) != np.sign(dev[1:]))
-    keep = np.ones(dD.size, dtype=bool)
-    keep[:-1] &= ~spike
-    keep[1:] &= ~spike
+    keep = np.ones(dD.size + 1, dtype=bool)
+    keep[1:-1] = ~spike
     return keep
 
 

@@ -9,7 +9,6 @@ from pipeline.estimation.rate_bias import (
     PLAUSIBLE_BIAS_RADPS,
     debias,
     estimate_rate_biases,
-    euler_rate_matrix,
 )
 from pipeline.estimation.smoother import Measurements
 
@@ -27,6 +26,14 @@ def _attitude_rate(t_s: np.ndarray, roll0: float = 0.0, pitch0: float = 0.0) -> 
     return np.stack([0.05 * 2 * np.pi / 17.0 * np.cos(2 * np.pi * t_s / 17.0),
                      0.04 * 2 * np.pi / 23.0 * np.cos(2 * np.pi * t_s / 23.0 + 1.0),
                      0.8 * 2 * np.pi / 60.0 * np.cos(2 * np.pi * t_s / 60.0) + 0.01], axis=1)
+
+
+def _body_rates(att: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """omega = T^-1 Theta_dot, written out (Fossen 2011, eq. 2.29's inverse), independent of the code tested."""
+    sr, cr, sp, cp = np.sin(att[:, 0]), np.cos(att[:, 0]), np.sin(att[:, 1]), np.cos(att[:, 1])
+    return np.stack([rate[:, 0] - sp * rate[:, 2],
+                     cr * rate[:, 1] + cp * sr * rate[:, 2],
+                     -sr * rate[:, 1] + cp * cr * rate[:, 2]], axis=1)
 
 
 def synthetic(duration_s: float, bias: tuple[float, float, float], *, seed: int = 0, angle_noise: float = 1.7e-3,
@@ -47,8 +54,8 @@ def synthetic(duration_s: float, bias: tuple[float, float, float], *, seed: int 
     rate_ns = rate_ns[rate_ns <= grid_ns[-1]]
     tr = rate_ns / 1e9
     att = _attitude(tr, roll0, pitch0)
-    omega = np.linalg.solve(euler_rate_matrix(att[:, 0], att[:, 1]), _attitude_rate(tr, roll0, pitch0)[..., None])
-    rates = {d: Measurements(rate_ns, omega[:, j, 0] + bias[j] + rate_noise[j] * rng.standard_normal(tr.size),
+    omega = _body_rates(att, _attitude_rate(tr, roll0, pitch0))
+    rates = {d: Measurements(rate_ns, omega[:, j] + bias[j] + rate_noise[j] * rng.standard_normal(tr.size),
                              rate_noise[j] ** 2) for j, d in enumerate("pqr")}
     return grid_ns, angles, rates
 
@@ -101,16 +108,20 @@ def test_wrapped_yaw_and_attitude_outliers_do_not_move_the_bias() -> None:
     angles[:, 2] = np.angle(np.exp(1j * (angles[:, 2] + 3.0)))  # turns through +-pi, wrapped as an AHRS gives it
     rng = np.random.default_rng(5)
     spikes = rng.choice(np.arange(10, grid_ns.size - 10), size=20, replace=False)
+    clean = _estimate(grid_ns, angles, rates)
     angles[spikes, rng.integers(0, 3, size=20)] += rng.choice([-0.3, 0.3], size=20)
     est = _estimate(grid_ns, angles, rates)
     for j, dof in enumerate("pqr"):
         assert est[dof].bias_radps == pytest.approx(bias[j], rel=0.2), dof
         assert abs(est[dof].bias_radps - bias[j]) <= 3 * est[dof].sd_radps, dof
+        # the outliers cost little: the same estimate, an SD at most twice that without them
+        assert abs(est[dof].bias_radps - clean[dof].bias_radps) <= 0.5 * clean[dof].sd_radps, dof
+        assert est[dof].sd_radps <= 2 * clean[dof].sd_radps, dof
 
 
 def test_the_sd_is_honest_with_autocorrelated_attitude_errors() -> None:
     """Attitude errors correlated over 5 s (an AHRS's filter): over 30 trials the 2-sigma interval covers the true
-    bias of the FOG (r) at least 80 % of the time (white-noise SDs covered about half)."""
+    bias of the FOG (r) at least 80 % of the time (an SD for white errors covers far less)."""
     hits = []
     for seed in range(30):
         est = _estimate(*synthetic(240.0, (3e-4, -2e-4, 1.5e-4), seed=100 + seed, angle_corr_s=5.0,
