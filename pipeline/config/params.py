@@ -87,6 +87,11 @@ class DifferentiateParams(Frozen):
         "(the logged thrust, then Coriolis and a damping fitted on the previous pass); each DOF keeps the pass of "
         "highest likelihood. 0: the kinematic (white-jerk) smoother alone, for a vehicle without a usable force "
         "model.")
+    rate_bias: Literal["estimate", "none"] = Field(
+        "estimate", description="kalman: estimate: per rate signal (FOG, gyros), a constant bias (its own plus the "
+        "Earth's rate) from the logged attitude, subtracted before the smoother and its variance added to the "
+        "rate's (pipeline.estimation.rate_bias); a bias the trial cannot identify is kept. none: rates as "
+        "measured.")
     noise_sd: dict[str, Positive] = Field(
         default_factory=dict, description="Per signal, its white-noise SD in the signal's unit; signals not named "
         "get an SD estimated from the data (robust local fit).")

@@ -10,6 +10,9 @@ velocity and rate sensor at its own stamps, each with its own noise.
   so the variance sum_j S_ij^2 sigma_j^2 varies per sample as the vehicle turns. One measurement of u, v (and w,
   unless the source is planar) each. Each configured rate signal (FOG, gyro) at its own stamps, times its sign.
   Without native streams (a table built in memory), the synced grid's valid samples stand in.
+- **Rate biases** (``rate_bias: estimate``): per rate signal, a constant bias from the logged attitude
+  (:mod:`pipeline.estimation.rate_bias`), subtracted from its samples; its variance is added to the smoothed
+  rate's (a constant error shifts every sample), and the report's ``rate_bias`` gives each one with its SD.
 - **Positions** (``sensors.position``): differentiated per earth axis by the same smoother, then rotated into
   body axes with their accelerations and SDs (:mod:`pipeline.estimation.position`); not smoothed again.
 - **Accelerometers** (``sensors.accelerometer``, optional): a second pass adds, per velocity DOF, the IMU's
@@ -48,6 +51,7 @@ from pipeline.estimation.forced import force_model, smooth_passes, smooth_with_i
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
 from pipeline.estimation.noise import NoiseEstimate
 from pipeline.estimation.position import body_motion_from_positions, smooth_positions, with_position_rates
+from pipeline.estimation.rate_bias import debias, rate_biases
 from pipeline.estimation.smoother import Measurements, Smoothed, smoothed_variances
 from pipeline.kinematics import body_kinematics
 from pipeline.sync import segments, valid_column
@@ -115,7 +119,9 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     h_s = float(steps[0]) / 1e9
 
     meas = {} if source.differentiated else velocity_measurements(synced, body, streams, vehicle, params, noise)
-    meas.update(rate_measurements(synced, streams, vehicle, params, noise))
+    rates = rate_measurements(synced, streams, vehicle, params, noise)
+    biases = rate_biases(synced, body, vehicle, rates) if params.rate_bias == "estimate" else {}
+    meas.update(debias(rates, biases))
 
     meas = {dof: meas[dof] for dof in DOFS if dof in meas}
     model = force_model(synced, body, vehicle) if params.model_passes and meas else None
@@ -147,6 +153,10 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         results.update(body_motion_from_positions(
             positions, source, body["roll_rad"].to_numpy(dtype=float), body["pitch_rad"].to_numpy(dtype=float),
             body["yaw_rad"].to_numpy(dtype=float), omega, omega_dot))
+
+    for dof, est in biases.items():  # a constant error: it shifts every sample of the smoothed rate alike
+        if est.identifiable and dof in results:
+            results[dof].x_sd = np.sqrt(results[dof].x_sd**2 + est.sd_radps**2)
 
     usable = _other_required_valid(synced, vehicle)
     for dof, res in results.items():
@@ -195,6 +205,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     report["model"] = _passes_report(passes, results)
     if accelerometer is not None:
         report["accelerometer"] = accelerometer
+    if params.rate_bias == "estimate":
+        report["rate_bias"] = {dof: est.as_dict() for dof, est in biases.items()}
     log.info("kalman: %d of %d grid samples usable (%.0f %%, sync's segments alone: %.0f %%), %d segment(s)",
              len(kept), len(grid), 100 * report["usable_fraction"], 100 * report["synced_segment_fraction"],
              report["segments"])
