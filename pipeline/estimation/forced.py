@@ -227,12 +227,13 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
             step = {dof: smooth_with_input(grid_ns, kept[dof], a[:, index[dof]], q=process_noise.get(dof),
                                            gate=0, input_error=True)
                     for dof in best}
-            smoothed_variances(list(step.values()))
+            candidates = {dof: res for dof, res in step.items() if res.loglik > best[dof].loglik}
+            smoothed_variances(list(candidates.values()))  # SDs only where the likelihood rose
             gained = []
-            for dof, res in step.items():
+            for dof, res in candidates.items():
                 _input_error_sd(res, a[:, index[dof]],
                                 None if model.noise_var is None else model.noise_var[:, index[dof]])
-                if res.loglik > best[dof].loglik and np.median(res.xdot_sd) <= kinematic_sd[dof]:
+                if np.median(res.xdot_sd) <= kinematic_sd[dof]:
                     best[dof], chosen[dof], inputs[dof] = res, k, a[:, index[dof]]
                     gained.append(dof)
             history.append(_record(k, step))
@@ -263,4 +264,5 @@ def _record(k: int, results: dict[str, Smoothed]) -> dict:
             "loglik": {d: float(r.loglik) for d, r in results.items()},
             "process_noise": {d: float(r.q) for d, r in results.items()},
             "input_error": {d: float(r.s) for d, r in results.items()},
-            "median_acceleration_sd": {d: float(np.median(r.xdot_sd)) for d, r in results.items()}}
+            "median_acceleration_sd": {d: float(np.median(r.xdot_sd)) for d, r in results.items()
+                                       if r.xdot_sd is not None}}
