@@ -266,3 +266,32 @@ def _record(k: int, results: dict[str, Smoothed]) -> dict:
             "input_error": {d: float(r.s) for d, r in results.items()},
             "median_acceleration_sd": {d: float(np.median(r.xdot_sd)) for d, r in results.items()
                                        if r.xdot_sd is not None}}
+
+
+def excitation_report(grid_ns: np.ndarray, model: ForceModel | None, meas: dict[str, Measurements],
+                      history: list[dict]) -> dict[str, dict[str, float]]:
+    """Per linear-velocity DOF, the band its velocity sensor resolves and the share of the thrust-driven
+    acceleration's power above it: a trial whose excitation outruns its sensors says so.
+
+    The band: where the kinematic smoother's process (white jerk: the velocity's spectrum q / omega^6) meets the
+    sensor's white noise (r T: variance r every T seconds), f_c = (q / (r T))^(1/6) / 2 pi. The acceleration:
+    a = M^-1 (tau - g) from the logged actuators (pass 1's input), its periodogram over the trial.
+    """
+    if model is None:
+        return {}
+    a = model.acceleration()
+    h_s = (grid_ns[1] - grid_ns[0]) / 1e9
+    out = {}
+    for j, dof in enumerate("uvw"):
+        if dof not in meas or meas[dof].t_ns.size < 3:
+            continue
+        q = history[0]["process_noise"][dof]
+        r = float(np.median(meas[dof].var))
+        interval = float(np.median(np.diff(np.sort(meas[dof].t_ns)))) / 1e9
+        f_c = (q / (r * interval)) ** (1 / 6) / (2 * np.pi)
+        power = np.abs(np.fft.rfft(a[:, j] - a[:, j].mean())) ** 2
+        freq = np.fft.rfftfreq(a.shape[0], h_s)
+        total = float(power[1:].sum())
+        out[dof] = {"resolved_band_hz": float(f_c),
+                    "power_above_band": float(power[freq > f_c].sum() / total) if total > 0 else 0.0}
+    return out

@@ -47,7 +47,7 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
-from pipeline.estimation.forced import force_model, smooth_passes, smooth_with_input
+from pipeline.estimation.forced import excitation_report, force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
 from pipeline.estimation.noise import NoiseEstimate
 from pipeline.estimation.position import body_motion_from_positions, smooth_positions, with_position_rates
@@ -203,6 +203,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
                  for dof, res in results.items()},
     }
     report["model"] = _passes_report(passes, results)
+    report["excitation"] = excitation_report(grid, model, meas, passes["passes"])
     if accelerometer is not None:
         report["accelerometer"] = accelerometer
     if params.rate_bias == "estimate":

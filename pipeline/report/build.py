@@ -196,6 +196,7 @@ def _estimation_section(root: Path, trials: list[str], metrics: dict[str, Any], 
                 for d, v in rep.get("dofs", {}).items()]
         if dofs:
             parts.append(H.table(dofs, caption="Kalman/RTS smoother per degree of freedom"))
+        parts.extend(_model_tables(rep))
         if rep.get("widths_s"):
             parts.append(H.kv_table(rep["widths_s"], key="velocity", value="filter width [s]"))
         kin_path = layout.kinematics_path(root, trial)
@@ -205,6 +206,38 @@ def _estimation_section(root: Path, trials: list[str], metrics: dict[str, Any], 
                 figs[f"estimation_{trial}"] = png
                 parts.append(H.image(png, f"measured vs estimated velocity of {trial}"))
     return "".join(parts) or "<p class='muted'>No estimation report found (data/kinematics/*.estimation.json).</p>"
+
+
+def _model_tables(rep: dict[str, Any]) -> list[str]:
+    """The smoother's passes with the vehicle's model (log-likelihood per DOF, the one each DOF kept), the sensor
+    errors estimated from the trial, and how much of the thrust-driven acceleration the velocity sensor resolves."""
+    parts = []
+    model = rep.get("model") or {}
+    chosen = model.get("chosen_pass", {})
+    passes = [{"pass": p.get("pass"), "model": p.get("model"),
+               **{f"log-likelihood {d}" + (" (kept)" if chosen.get(d) == p.get("pass") else ""): v
+                  for d, v in p.get("loglik", {}).items()}}
+              for p in model.get("passes", [])]
+    if len(passes) > 1:
+        parts.append(H.table(passes, caption="Smoother passes: 0 is the kinematic smoother, then the vehicle's "
+                                             "model as its input; each DOF keeps the pass marked (kept)"))
+    errors = [{"sensor error": f"{v.get('signal', d)} bias", "estimate": v.get("bias_radps"),
+               "SD": v.get("sd_radps"), "unit": "rad/s", "subtracted": v.get("subtracted", v.get("identifiable")),
+               "note": v.get("reason", "")}
+              for d, v in sorted((rep.get("rate_bias") or {}).items())]
+    errors += [{"sensor error": f"accelerometer bias {d}", "estimate": v, "SD": None, "unit": "m/s^2",
+                "subtracted": True, "note": ""}
+               for d, v in sorted(((rep.get("accelerometer") or {}).get("bias_mps2") or {}).items())]
+    if errors:
+        parts.append(H.table(errors, caption="Sensor errors estimated from the trial"))
+    excitation = [{"DOF": d, "band the velocity sensor resolves [Hz]": v.get("resolved_band_hz"),
+                   "share of the thrust's acceleration power above it": v.get("power_above_band")}
+                  for d, v in (rep.get("excitation") or {}).items()]
+    if excitation:
+        parts.append(H.table(excitation, caption="Excitation against the velocity sensor: a large share above "
+                                                 "the band means the trial outruns its sensor, and the targets "
+                                                 "lean on the vehicle's model there"))
+    return parts
 
 
 def _collect_metrics(root: Path, base: str, metrics: dict[str, Any]) -> None:

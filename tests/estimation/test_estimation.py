@@ -278,5 +278,12 @@ def test_report_shows_noise_usable_fraction_and_the_band(realistic, tmp_path) ->
     figs: dict = {}
     html = _estimation_section(tmp_path, ["t1"], metrics, figs)
     assert "dvl_x_mps" in html and "r_fog_radps" in html and "maximum likelihood" in html
+    # the passes with the vehicle's model, the sensor errors found, and the excitation against the DVL
+    assert "Smoother passes" in html and "(kept)" in html and "fitted damping" in html
+    assert "Sensor errors estimated from the trial" in html and "r_fog_radps bias" in html
+    assert "band the velocity sensor resolves" in html
+    for dof in "uv":
+        band = report["excitation"][dof]
+        assert 0.05 < band["resolved_band_hz"] < 1.0 and 0.0 <= band["power_above_band"] < 0.5
     assert metrics["estimation"]["t1"]["usable_fraction"] == pytest.approx(report["usable_fraction"], abs=1e-6)
     assert figs["estimation_t1"][:8] == b"\x89PNG\r\n\x1a\n"

@@ -193,3 +193,26 @@ def test_an_input_noisier_than_what_it_explains_is_not_taken() -> None:
     best, inputs, report = smooth_passes(grid, meas, model, passes=3, process_noise={}, gate=5.0, dofs=DOFS)
     assert max(h["loglik"]["u"] for h in report["passes"][1:]) > report["passes"][0]["loglik"]["u"]
     assert report["chosen"]["u"] == 0 and inputs["u"] is None
+
+
+def test_excitation_report_gives_the_resolved_band_and_the_power_above_it() -> None:
+    """Thrust-driven acceleration: a 0.05 Hz sine and a 1 Hz sine of half its amplitude (a fifth of the power
+    above any band between them); the band from the kinematic smoother's q, the sensor's noise and interval."""
+    from pipeline.estimation.forced import excitation_report
+
+    grid = np.arange(0, 200 * 20, dtype=np.int64) * H_NS              # 200 s, whole periods of both sines
+    t = grid / 1e9
+    n = grid.size
+    tau = np.zeros((n, 6))
+    tau[:, 1] = 100.0 * (np.sin(2 * np.pi * 0.05 * t) + 0.5 * np.sin(2 * np.pi * 1.0 * t))
+    M = np.diag([90.0, 100.0, 100.0, 10.0, 10.0, 10.0])
+    model = ForceModel(M=M, M_inv=np.linalg.inv(M), tau=tau, g=np.zeros((n, 6)))
+    r, interval, f_c = 0.02**2, 0.25, 0.3
+    q = (2 * np.pi * f_c) ** 6 * r * interval
+    stamps = np.arange(0, 199, interval)
+    meas = {"v": Measurements((stamps * 1e9).astype(np.int64), np.zeros(stamps.size), r)}
+    out = excitation_report(grid, model, meas, [{"process_noise": {"v": q}}])
+    assert set(out) == {"v"}
+    assert out["v"]["resolved_band_hz"] == pytest.approx(f_c, rel=1e-9)
+    assert out["v"]["power_above_band"] == pytest.approx(0.2, abs=1e-6)
+    assert excitation_report(grid, None, meas, [{"process_noise": {"v": q}}]) == {}
