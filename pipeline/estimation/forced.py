@@ -198,7 +198,7 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
     kinematic pass: an input noisier than what it explains (the AHRS's angle noise times a restoring moment,
     say) is absorbed by the input-error term, which raises the likelihood but not the derivative's quality. The
     passes stop after ``passes`` or when no DOF gains (from pass 2 on: pass 1, without the damping, may lose
-    where pass 2 wins).
+    where pass 2 wins); from pass 3 on, only the DOFs the previous pass improved are smoothed again.
     """
     best: dict[str, Smoothed] = {}
     for dof, m in meas.items():
@@ -208,13 +208,16 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
             raise ValueError(f"{dof}: {err}") from err
     chosen = {dof: 0 for dof in best}
     inputs: dict[str, np.ndarray | None] = {dof: None for dof in best}
-    smoothed_variances(list(best.values()))
-    kinematic_sd = {dof: float(np.median(res.xdot_sd)) for dof, res in best.items()}
-    history = [_record(0, best)]
+    noise_var = {dof: None for dof in best}
+    kinematic_sd = _median_sds(best, {}, {})
+    history = [_record(0, best, kinematic_sd)]
     if model is not None and passes > 0:
         kept = {dof: m.subset(best[dof].kept) for dof, m in meas.items()}
         index = {dof: dofs.index(dof) for dof in best}
+        if model.noise_var is not None:
+            noise_var = {dof: model.noise_var[:, index[dof]] for dof in best}
         rows = _covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
+        active = list(best)
         for k in range(1, passes + 1):
             if k == 1:
                 a = model.acceleration()
@@ -226,22 +229,48 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
                 a = model.acceleration(nu, fit_damping(model, nu, nudot, rows, sorted(index.values())))
             step = {dof: smooth_with_input(grid_ns, kept[dof], a[:, index[dof]], q=process_noise.get(dof),
                                            gate=0, input_error=True)
-                    for dof in best}
+                    for dof in active}
             candidates = {dof: res for dof, res in step.items() if res.loglik > best[dof].loglik}
-            smoothed_variances(list(candidates.values()))  # SDs only where the likelihood rose
-            gained = []
-            for dof, res in candidates.items():
-                _input_error_sd(res, a[:, index[dof]],
-                                None if model.noise_var is None else model.noise_var[:, index[dof]])
-                if np.median(res.xdot_sd) <= kinematic_sd[dof]:
-                    best[dof], chosen[dof], inputs[dof] = res, k, a[:, index[dof]]
-                    gained.append(dof)
-            history.append(_record(k, step))
+            sds = _median_sds(candidates, {dof: a[:, index[dof]] for dof in candidates}, noise_var)
+            gained = [dof for dof in candidates if sds[dof] <= kinematic_sd[dof]]
+            for dof in gained:
+                best[dof], chosen[dof], inputs[dof] = step[dof], k, a[:, index[dof]]
+            history.append(_record(k, step, sds))
+            if k >= 2:  # from pass 3 on, only the DOFs the last pass improved (the others' input hardly moved)
+                active = gained
             log.info("smoother pass %d (%s): higher likelihood for %s", k, _MODELS[min(k, 2)],
                      ", ".join(gained) or "none")
             if not gained and k >= 2:  # pass 1 lacks the damping, which pass 2 adds: always try both
                 break
+    smoothed_variances(list(best.values()))
+    for dof, res in best.items():
+        if inputs[dof] is not None:
+            _input_error_sd(res, inputs[dof], noise_var[dof])
     return best, inputs, {"passes": history, "chosen": chosen, "force_model": model is not None}
+
+
+#: The passes compare median SDs of nu_dot over the trial's middle stretch of this many grid steps (the full SDs
+#: are computed once, for the results kept)
+GUARD_STEPS = 6000
+
+
+def _median_sds(results: dict[str, Smoothed], inputs: dict[str, np.ndarray],
+                noise_var: dict[str, np.ndarray | None]) -> dict[str, float]:
+    """Each result's median SD of nu_dot (with the input's error where it has an input) over the middle stretch."""
+    windows = {}
+    for dof, res in results.items():
+        lo = max((res.x.size - GUARD_STEPS) // 2, 0)
+        cut = slice(lo, lo + GUARD_STEPS)
+        windows[dof] = (Smoothed(x=res.x[cut], xdot=res.xdot[cut], q=res.q, loglik=res.loglik, used=res.used,
+                                 gated=res.gated, info=res.info[cut], h_s=res.h_s, s=res.s), cut)
+    smoothed_variances([w for w, _ in windows.values()])
+    out = {}
+    for dof, (window, cut) in windows.items():
+        if dof in inputs:
+            extra = noise_var.get(dof)
+            _input_error_sd(window, inputs[dof], None if extra is None else extra[cut])
+        out[dof] = float(np.median(window.xdot_sd))
+    return out
 
 
 def _input_error_sd(res: Smoothed, a: np.ndarray, noise_var: np.ndarray | None) -> None:
@@ -259,13 +288,12 @@ def _input_error_sd(res: Smoothed, a: np.ndarray, noise_var: np.ndarray | None) 
     res.xdot_sd = np.sqrt(res.xdot_sd**2 + 2 * res.s * bandwidth + extra)
 
 
-def _record(k: int, results: dict[str, Smoothed]) -> dict:
+def _record(k: int, results: dict[str, Smoothed], median_sd: dict[str, float]) -> dict:
     return {"pass": k, "model": _MODELS[min(k, 2)],
             "loglik": {d: float(r.loglik) for d, r in results.items()},
             "process_noise": {d: float(r.q) for d, r in results.items()},
             "input_error": {d: float(r.s) for d, r in results.items()},
-            "median_acceleration_sd": {d: float(np.median(r.xdot_sd)) for d, r in results.items()
-                                       if r.xdot_sd is not None}}
+            "median_acceleration_sd": median_sd}
 
 
 def excitation_report(grid_ns: np.ndarray, model: ForceModel | None, meas: dict[str, Measurements],
