@@ -5,6 +5,9 @@ noise, outliers and lost lock, ...), sinusoidal thruster excitation, each cut fr
 the truth has the propellers' thrust loss to inflow (outside the explicit models' family, as on a real vehicle;
 ``--no-inflow`` to switch it off: the forcing is then exact, but the truth's damping keeps terms neither
 explicit model has — linear and cubic damping per DOF — so even then the truth is not inside their families).
+Two presets (``--preset``, default both): the simulator's default ("gentle": three summed sines per thruster,
+periods 6-45 s) and "hard" (one sine per thruster, periods 5-18 s, a tether-like disturbance, Hall-counter
+thruster speeds, rate-sensor biases), each with its own seeds (``pipeline.sim.PRESET_SEED_OFFSET``).
 Trials s1 and s2 are tuned and cross-validated on, s3 is the unseen test trial. They go through the real stages
 (ingest ... features, tune, train) with the repository's
 ``params.yaml`` (the shipped defaults; ``--params`` for another file).
@@ -17,6 +20,7 @@ each seed and the mean over seeds.
     python bench/coupled_study.py                               # 5 seeds x 480 s (long: ~10 min a seed)
     python bench/coupled_study.py --seeds 0 1 2 --duration 300 --models wdse_svr gertler_hagen
     python bench/coupled_study.py --no-cv                       # the same test scores, ~4x faster
+    python bench/coupled_study.py --no-cv --preset hard --seeds 0 1
 
 ``--no-cv`` runs the stages up to ``tune`` and then fits each model's final estimator on the train_test block
 exactly as the train stage does (``pipeline.studies.coupled.build_model`` with the tuned hyperparameters), skipping
@@ -50,7 +54,15 @@ sys.path.insert(0, str(ROOT))
 from pipeline import store  # noqa: E402
 from pipeline.config import Params  # noqa: E402
 from pipeline.models.card import load_model  # noqa: E402
-from pipeline.sim import DAGON_INFLOW_LOSS, generate_trial, load_example_vehicle, load_truth, write_trial  # noqa: E402
+from pipeline.sim import (  # noqa: E402
+    DAGON_INFLOW_LOSS,
+    PRESET_SEED_OFFSET,
+    PRESETS,
+    generate_trial,
+    load_example_vehicle,
+    load_truth,
+    write_trial,
+)
 from pipeline.sim.vehicle import Dynamics  # noqa: E402
 
 OUTPUTS = ("udot_mps2", "vdot_mps2", "rdot_radps2")
@@ -103,7 +115,7 @@ def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: 
 
 
 def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models: list[str] | None,
-             cv: bool = True, oracle: list[str] | None = None) -> dict:
+             cv: bool = True, oracle: list[str] | None = None, preset: str = "gentle") -> dict:
     from stages import derive, differentiate, features, ingest, sync, train, tune
 
     vehicle = load_example_vehicle()
@@ -111,14 +123,14 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
     if models:
         params = params.model_copy(update={"coupled": params.coupled.model_copy(update={"models": models})})
     params = params.model_copy(update={"features": params.features.model_copy(update={"test_trials": ["s3"]})})
-    out: dict = {"seed": seed}
+    out: dict = {"seed": seed, "preset": preset}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         (root / "data/raw").mkdir(parents=True)
         trials = {}
         for k, name in enumerate(("s1", "s2", "s3")):
-            trial = generate_trial(vehicle, duration_s, seed=100 * seed + k + 1, truth=truth, warmup_s=30.0,
-                                   start_offset_s=1000.0 * k)
+            trial = generate_trial(vehicle, duration_s, seed=PRESET_SEED_OFFSET[preset] + 100 * seed + k + 1,
+                                   truth=truth, warmup_s=30.0, start_offset_s=1000.0 * k, preset=preset)
             write_trial(trial, "mcap", root / f"data/raw/{name}.mcap")
             trials[name] = trial
         t0 = time.perf_counter()
@@ -159,6 +171,8 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--preset", nargs="+", choices=PRESETS, default=list(PRESETS),
+                    help="simulator presets (default both: the gentle default and the hard one, each its own seeds)")
     ap.add_argument("--duration", type=float, default=480.0)
     ap.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     ap.add_argument("--models", nargs="+", default=None)
@@ -178,17 +192,22 @@ def main() -> None:
     if args.max_samples is not None:
         params = params.model_copy(update={"coupled": params.coupled.model_copy(
             update={"max_samples": args.max_samples})})
+    for preset in args.preset:
+        report(preset, args, params)
+
+
+def report(preset: str, args: argparse.Namespace, params: Params) -> None:
     results = []
     for seed in args.seeds:
         res = one_seed(seed, args.duration, params, not args.no_inflow, args.models, cv=not args.no_cv,
-                       oracle=args.oracle)
+                       oracle=args.oracle, preset=preset)
         results.append(res)
         print(f"seed {seed}: stages {res['stages_s']:.0f} s, ceiling "
               + ", ".join(f"{o} {v:.3f}" for o, v in res["ceiling"].items()), file=sys.stderr, flush=True)
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+        args.json.with_name(f"{args.json.stem}_{preset}{args.json.suffix}").write_text(json.dumps(results, indent=2))
     models = sorted({m for r in results for m in r["models"]})
-    print(f"\nR² against the TRUE accelerations of the unseen trial s3 ({args.duration:.0f}-s trials, "
+    print(f"\n{preset} preset: R² against the TRUE accelerations of the unseen trial s3 ({args.duration:.0f}-s trials, "
           f"{'inflow loss on' if not args.no_inflow else 'no inflow loss, damping outside the explicit families'}, "
           f"seeds {args.seeds}, coupled.max_samples {params.coupled.max_samples})")
     print("| model | " + " | ".join(f"{o} mean" for o in OUTPUTS) + " | " + " | ".join(f"{o} worst" for o in OUTPUTS)
