@@ -104,7 +104,7 @@ def force_model(synced: pd.DataFrame, body: pd.DataFrame, vehicle: Vehicle) -> F
 #: A vehicle symmetric port-starboard: its damping couples the longitudinal DOFs (u, w, q) among themselves and
 #: the lateral ones (v, p, r) among themselves, not across (Fossen 2011, §7.5.2, p. 172, the decoupled
 #: longitudinal and lateral models). Across the groups a coupling would also absorb a DVL misalignment (v
-#: measured with a share of u), which the smoother estimates instead.
+#: measured with a share of u) into the model.
 _GROUPS = ((0, 2, 4), (1, 3, 5))
 
 
