@@ -212,6 +212,7 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
     kinematic_sd = _median_sds(best, {}, {})
     history = [_record(0, best, kinematic_sd)]
     if model is not None and passes > 0:
+        pass0_kept = {dof: best[dof].kept for dof in best}
         kept = {dof: m.subset(best[dof].kept) for dof, m in meas.items()}
         index = {dof: dofs.index(dof) for dof in best}
         if model.noise_var is not None:
@@ -235,6 +236,9 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
             gained = [dof for dof in candidates if sds[dof] <= kinematic_sd[dof]]
             for dof in gained:
                 best[dof], chosen[dof], inputs[dof] = step[dof], k, a[:, index[dof]]
+                full = np.zeros(meas[dof].t_ns.size, dtype=bool)  # kept: of the given measurements, as pass 0's
+                full[np.flatnonzero(pass0_kept[dof])[step[dof].kept]] = True
+                best[dof].kept = full
             history.append(_record(k, step, sds))
             if k >= 2:  # from pass 3 on, only the DOFs the last pass improved (the others' input hardly moved)
                 active = gained

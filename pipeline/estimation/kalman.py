@@ -47,6 +47,7 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
+from pipeline.estimation.dvl_alignment import estimate_misalignment, turned
 from pipeline.estimation.forced import excitation_report, force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
 from pipeline.estimation.noise import NoiseEstimate
@@ -131,6 +132,17 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
                                                 dofs=DOFS)
     except ValueError as err:
         raise SyncError(f"cannot smooth {err}", field=str(err).split(":")[0]) from err
+    misalignment = None
+    if model is not None and "u" in meas and "v" in meas and not source.differentiated:
+        misalignment = estimate_misalignment(grid, meas["u"], meas["v"], results["u"], results["v"],
+                                             inputs["u"], inputs["v"])
+        if misalignment.identifiable:  # smooth again from the measurements turned back
+            log.info("velocity sensor: yaw misalignment %.2f deg (SD %.2f) found and undone",
+                     misalignment.estimate_deg, misalignment.sd_deg)
+            meas["u"], meas["v"] = turned(meas["u"], meas["v"], np.radians(misalignment.estimate_deg))
+            results, inputs, passes = smooth_passes(grid, meas, model, passes=params.model_passes,
+                                                    process_noise=params.process_noise, gate=params.gate_sigmas,
+                                                    dofs=DOFS)
     accelerometer = None
     if vehicle.sensors.accelerometer is not None:
         if source.differentiated:
@@ -204,6 +216,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     }
     report["model"] = _passes_report(passes, results)
     report["excitation"] = excitation_report(grid, model, meas, passes["passes"])
+    if misalignment is not None:
+        report["velocity_misalignment"] = misalignment.as_dict()
     if accelerometer is not None:
         report["accelerometer"] = accelerometer
     if params.rate_bias == "estimate":

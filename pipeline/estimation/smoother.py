@@ -277,7 +277,7 @@ def _gate(problem: _Problem, z: np.ndarray, q: float, gate: float) -> bool:
 def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, gate: float = 5.0,
            q_bounds: tuple[float, float] = (1e-9, 1e3), gate_rounds: int = 2, ml_max_s: float = 300.0,
            ml_min_s: float = 60.0, ml_measurements: int = 5000, input_error: bool = False,
-           s_bounds: tuple[float, float] = (1e-8, 1e2)) -> Smoothed:
+           s_bounds: tuple[float, float] = (1e-8, 1e2), s: float = 0.0) -> Smoothed:
     """Smoothed x and x' of one DOF on the uniform ``grid_ns`` from its measurements (see the module docstring).
 
     ``q``: the jerk's spectral density ((unit/s^3)^2 s); None: maximum likelihood within ``q_bounds`` times
@@ -289,7 +289,7 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
     ``gate``: residuals beyond this many robust SDs (MAD of the normalized residuals) are rejected; 0: none.
     ``input_error``: the measurements had a known input taken out (:mod:`pipeline.estimation.forced`); fit, with
     q, the spectral density ``s`` of that input's error (within ``s_bounds`` times sigma^2 / h; the lower bound
-    stands for none).
+    stands for none). ``s``: that spectral density when ``q`` is given.
     """
     grid_ns = np.asarray(grid_ns, dtype=np.int64)
     problem = _Problem(grid_ns, meas)
@@ -324,7 +324,7 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
                 break
             q_fit = _fit_q(ml, q_bounds)
     else:
-        q_fit, s_fit = q, 0.0
+        q_fit, s_fit = q, s
     z, m2ll, info = problem.solve(q_fit, s_fit)
     if rounds and _gate(problem, z, q_fit, gate):
         z, m2ll, info = problem.solve(q_fit, s_fit)

@@ -228,6 +228,11 @@ def _model_tables(rep: dict[str, Any]) -> list[str]:
     errors += [{"sensor error": f"accelerometer bias {d}", "estimate": v, "SD": None, "unit": "m/s^2",
                 "subtracted": True, "note": ""}
                for d, v in sorted(((rep.get("accelerometer") or {}).get("bias_mps2") or {}).items())]
+    mis = rep.get("velocity_misalignment")
+    if mis:
+        errors.append({"sensor error": "velocity sensor yaw misalignment", "estimate": mis.get("estimate_deg"),
+                       "SD": mis.get("sd_deg"), "unit": "deg", "subtracted": mis.get("identifiable"),
+                       "note": mis.get("reason") or ""})
     if errors:
         parts.append(H.table(errors, caption="Sensor errors estimated from the trial"))
     excitation = [{"DOF": d, "band the velocity sensor resolves [Hz]": v.get("resolved_band_hz"),
