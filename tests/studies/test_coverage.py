@@ -50,12 +50,15 @@ def test_a_test_trial_inside_the_training_is_not_flagged(train: pd.DataFrame) ->
     assert res["hull"]["share_beyond"] <= 0.05 and res["hull"]["drivers"] == []
 
 
-def test_a_sliver_just_past_the_edge_is_not_named(train: pd.DataFrame) -> None:
-    """5 % of the samples 0.05 SD past the maximum: outside the range, but not by enough to name."""
+def test_a_sliver_just_past_the_edge_and_a_single_spike_are_not_named(train: pd.DataFrame) -> None:
+    """5 % of the samples 0.05 SD past the maximum: outside the range, but not by enough to name; one sample of 400
+    3 SD out: far, but too few to be a regime the models are asked about."""
     test = _uniform(np.random.default_rng(3), 400, 0.5)
     test.loc[:19, "x1_N"] = train["x1_N"].max() + 0.05 * train["x1_N"].std(ddof=0)
+    test.loc[20, "x2_N"] = train["x2_N"].max() + 3.0 * train["x2_N"].std(ddof=0)  # one spike: 0.25 %
     res = input_coverage(train, test, COLS)
-    assert res["inputs"][0]["share_outside_range"] == 0.05 and res["extrapolated_inputs"] == []
+    assert res["inputs"][0]["share_outside_range"] == 0.05 and res["inputs"][1]["share_outside_range"] == 0.0025
+    assert res["inputs"][1]["max_excess_sd"] == pytest.approx(3.0) and res["extrapolated_inputs"] == []
 
 
 def test_inputs_each_inside_but_combined_as_never_trained_are_flagged_by_the_hull() -> None:
@@ -73,6 +76,17 @@ def test_inputs_each_inside_but_combined_as_never_trained_are_flagged_by_the_hul
     assert pair["inputs"] == ["x1_N", "x2_N"] and pair["train_r"] > 0.99 and pair["test_r"] == pytest.approx(-1)
     text = " ".join(report_coverage.advice("s3", res))
     assert "combine x1_N, x2_N" in text and "excites x1_N, x2_N together" in text
+
+
+def test_hull_drivers_are_the_inputs_that_explain_most_of_the_excursion(train: pd.DataFrame) -> None:
+    """x1 3 SD out on 20 % of the samples, x3 3 SD out on another 5 %: 25 % beyond the hull; without x3 20 % are
+    still beyond (not a driver), without x1 only 5 % (the driver)."""
+    test = _uniform(np.random.default_rng(8), 400, 0.5)
+    for col, rows in (("x1_N", slice(0, 79)), ("x3_mps", slice(80, 99))):
+        test.loc[rows, col] = train[col].max() + 3.0 * train[col].std(ddof=0)
+    res = input_coverage(train, test, COLS)
+    assert res["hull"]["share_beyond"] == 0.25 and res["hull"]["drivers"] == ["x1_N"]
+    assert res["extrapolated_inputs"] == ["x1_N", "x3_mps"]
 
 
 def test_the_least_excited_input_is_found() -> None:
