@@ -51,3 +51,8 @@ def derived_path(root: Path, trial: str) -> Path:
 
 def features_dir(root: Path) -> Path:
     return Path(root) / FEATURES
+
+
+def coverage_path(root: Path) -> Path:
+    """The tune stage's extrapolation and excitation diagnostics: each test trial's inputs against the training's."""
+    return Path(root) / EVALUATION / "coupled" / "coverage.json"

@@ -19,7 +19,7 @@ import pandas as pd
 
 from pipeline import __version__, layout
 from pipeline.config import Params, Vehicle, config_hash
-from pipeline.report import figures, studies
+from pipeline.report import coverage, figures, studies
 from pipeline.report import html as H
 from pipeline.report.plots import model_plots
 
@@ -359,6 +359,8 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
              "simulation": studies.simulation(root, figs)}
     failed = parts["coupled"].failed + parts["decoupled"].failed
     quarantine = _quarantine_section(root, metrics, failed)
+    extrapolation, extrapolation_note, used = coverage.section(root)
+    parts["coupled"].used |= used
     bodies = {}
     for name, base in bases.items():
         rest = _artifact_section(root, base, figs, parts[name].used)
@@ -367,13 +369,14 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
         bodies[name] = (parts[name].html + rest) if parts[name].html else (
             rest or f"<p class='muted'>No readable file under {H.esc(base)}/.</p>")
     sections = [
-        ("summary", "Summary", studies.headline(parts["coupled"], parts["decoupled"], parts["simulation"],
-                                                metrics["ingest"]["quarantined"], len(failed),
-                                                parts["coupled"].protocol)),
+        ("summary", "Summary", extrapolation_note + studies.headline(
+            parts["coupled"], parts["decoupled"], parts["simulation"], metrics["ingest"]["quarantined"], len(failed),
+            parts["coupled"].protocol)),
         ("quarantine", "Quarantine and failures", quarantine),
         ("ingest", "Ingest and sensor rates", ingest),
         ("signals", "Signals and validity", signals),
         ("estimation", "Motion estimation: noise, smoother, usable data", estimation),
+        ("extrapolation", "Extrapolation and excitation: test trials against the training data", extrapolation),
         ("coupled", "Coupled models, paper 000: Tables II and III, Fig. 4", bodies["coupled"]),
         ("decoupled", "Damping study, paper 001: Table I, learning curves, damping curves", bodies["decoupled"]),
         ("simulation", "Free runs and DVL-outage bridging", bodies["simulation"]),
