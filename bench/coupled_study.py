@@ -73,10 +73,10 @@ def r2(pred: np.ndarray, true: np.ndarray) -> float:
     return float(1.0 - np.mean((pred - true) ** 2) / np.var(true))
 
 
-def final_models(root: Path, params: Params) -> dict:
+def final_models(root: Path, params: Params, vehicle) -> dict:
     """The train stage's final estimators (fitted on the whole train_test block, the tune stage's hyperparameters,
     the smoother's SDs as the explicit models' weights), without its CV folds: model -> (estimator, inputs)."""
-    from pipeline.studies.coupled import build_model, model_inputs
+    from pipeline.studies.coupled import build_model, model_inputs, rigid_body_uvr
     from pipeline.vocabulary import NOISE_STD_COLUMNS
 
     cp = params.coupled
@@ -86,7 +86,7 @@ def final_models(root: Path, params: Params) -> dict:
     out = {}
     for model in cp.models:
         cols = model_inputs(model, cp)
-        est = build_model(model, hyper.get(model), cp, train=tt)
+        est = build_model(model, hyper.get(model), cp, train=tt, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
         out[model] = (est.fit(tt[cols].to_numpy(float), tt[cp.outputs].to_numpy(float)), cols)
     return out
 
@@ -159,7 +159,7 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
             metrics = json.loads((root / "data/evaluation/coupled/metrics.json").read_text())
             out["failed"] = {m: v["failed"] for m, v in metrics.items() if isinstance(v, dict) and "failed" in v}
         else:
-            fitted, out["failed"] = final_models(root, params), {}
+            fitted, out["failed"] = final_models(root, params, vehicle), {}
         for model, (est, cols) in sorted(fitted.items()):
             pred = est.predict(test[cols].to_numpy(float))
             out["models"][model] = {o: r2(pred[:, j], a_true[:, j]) for j, o in enumerate(OUTPUTS)}

@@ -23,7 +23,7 @@ from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
 from pipeline.report.coupled import fold_boxplot, table3
-from pipeline.studies.coupled import metrics, train_columns, train_stage
+from pipeline.studies.coupled import metrics, rigid_body_uvr, train_columns, train_stage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
 from stages.tune import hyperparameters_path
@@ -72,7 +72,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
         write_tables(results, failed, cp.outputs, out_eval)
 
     train_stage(tt, te, tuning_keys, hyper, cp, vehicle=vehicle.name, data_lineage=data_lineage, failures=failed,
-                on_model=finished, progress=progress)
+                on_model=finished, progress=progress, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
     outputs += write_tables(results, failed, cp.outputs, out_eval)
     fold_boxplot(results, cp.outputs, out_eval / "fold_test_r2.png")
     outputs.append(out_eval / "fold_test_r2.png")

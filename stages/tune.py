@@ -12,7 +12,7 @@ from pipeline import layout, store
 from pipeline.config import Params, Vehicle
 from pipeline.layout import EVALUATION, MODELS
 from pipeline.report.coupled import table2
-from pipeline.studies.coupled import model_inputs, tune_columns, tune_stage, tuning_block
+from pipeline.studies.coupled import model_inputs, rigid_body_uvr, tune_columns, tune_stage, tuning_block
 from pipeline.studies.coverage import study_coverage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
@@ -35,7 +35,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     coverage = write_json(_coverage(root, vehicle, params), layout.coverage_path(root))
     columns = tune_columns(cp, set(store.dataset(root).schema.names))
     frame = store.load(root, vehicle=vehicle.name, split=tuning_block(cp), columns=columns)
-    doc, trace = tune_stage(frame, cp, vehicle=vehicle.name, progress=progress)
+    doc, trace = tune_stage(frame, cp, vehicle=vehicle.name, progress=progress,
+                            rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
     hyper = doc["hyperparameters"]
     out_eval = Path(root) / EVALUATION / "coupled"
     outputs = [coverage, write_json(doc, hyperparameters_path(root)),

@@ -17,10 +17,10 @@ from pipeline.vocabulary import DOFS
 #: The model names params may give, checked at load without importing the modelling stack (``auvid ingest`` loads
 #: params too); tests/config/test_config_refuses.py keeps them equal to pipeline.studies.coupled's and
 #: pipeline.models.decoupled's.
-COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox",
-                  "graybox_gh")
+COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "fossen",
+                  "graybox", "graybox_gh", "graybox_fossen")
 #: the coupled models whose inputs are nu and tau (not ``coupled.inputs``)
-EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb")
+EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb", "fossen")
 DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
@@ -163,7 +163,9 @@ class CoupledParams(Frozen):
         default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
                                  "graybox"],
         description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual; "
-        "docs/models.md); graybox_gh is the same on Gertler-Hagen.", min_length=1)
+        "docs/models.md); graybox_gh is the same on Gertler-Hagen. fossen: Fossen's 3-DOF model (M_RB from the "
+        "vehicle, added mass, linear + |nu|nu damping, terms selected by held-out free-run error); graybox_fossen: "
+        "the gray box on it.", min_length=1)
     folds: int = Field(5, ge=2)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(
@@ -177,7 +179,8 @@ class CoupledParams(Frozen):
         "n^-c_rate (0: C kept as searched, regularization ~ 1/n; 1: regularization kept). docs/models.md.")
     seed: Seed = 0
     explicit_refine: bool = Field(
-        False, description="Output-error refinement of the explicit models (Gertler-Hagen, McFarland-Whitcomb): "
+        False, description="Output-error refinement of the explicit models (Gertler-Hagen, McFarland-Whitcomb; not "
+        "fossen, whose terms are already chosen by free-run error): "
         "from the WTLS fit, coefficients refined by minimizing the free-run velocity error over windows of "
         "refine_horizon_s (multiple shooting, RK4 at the grid step; kept only if it lowers that error).")
     refine_horizon_s: float = Field(2.0, gt=0, description="explicit_refine: length of each free-run window (s).")

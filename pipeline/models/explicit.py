@@ -62,8 +62,8 @@ from pipeline.rk4 import rk4_step
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GertlerHagen", "McFarlandWhitcomb", "tls", "ols", "estimate_noise_std", "EXPLICIT_INPUTS",
-           "NOISE_SIGNALS", "EQUATIONS", "SOLVERS"]
+__all__ = ["GertlerHagen", "McFarlandWhitcomb", "tls", "ols", "null_vector", "contiguous_runs", "estimate_noise_std",
+           "EXPLICIT_INPUTS", "NOISE_SIGNALS", "EQUATIONS", "SOLVERS"]
 
 #: The feature-store columns an explicit model takes, in order.
 EXPLICIT_INPUTS = ["u_mps", "v_mps", "r_radps", "tau_u_N", "tau_v_N", "tau_r_Nm"]
@@ -128,7 +128,7 @@ def estimate_noise_std(X: np.ndarray, y: np.ndarray, tau_floor: float = TAU_RELA
     return np.concatenate([robust_noise_std(nu), s_tau, robust_noise_std(y)])
 
 
-def _null_vector(Z: np.ndarray, cov: np.ndarray | None) -> np.ndarray:
+def null_vector(Z: np.ndarray, cov: np.ndarray | None) -> np.ndarray:
     """A unit vector ``x`` minimizing the (weighted) TLS residual of ``Z x = 0``.
 
     ``cov=None``: plain TLS on unit-RMS columns. Otherwise ``cov`` is the columns' noise covariance: exact
@@ -163,6 +163,25 @@ def _null_vector(Z: np.ndarray, cov: np.ndarray | None) -> np.ndarray:
         x[exact] = x1 / rms[exact]
         x[noisy] = np.linalg.solve(L.T, y2)
     return x / np.linalg.norm(x)
+
+
+def contiguous_runs(nu: np.ndarray, nudot: np.ndarray, dt_s: float, groups=None) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each contiguous run of time-ordered rows (at least 2 rows): from ``groups`` (one id per
+    row) when given; otherwise a row where the measured velocity step disagrees with the trapezoid integral of the
+    measured acceleration by more than 8 robust SDs starts a new run."""
+    n = len(nu)
+    if groups is not None:
+        g = np.asarray(groups)
+        if g.shape != (n,):
+            raise ValueError(f"groups needs one id per row ({n}), got shape {g.shape}")
+        breaks = np.flatnonzero(g[1:] != g[:-1]) + 1
+    else:
+        d = nu[1:] - nu[:-1] - 0.5 * dt_s * (nudot[1:] + nudot[:-1])
+        scale = _MAD_TO_SD * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+        scale = np.maximum(scale, 1e-12 * (np.abs(nu).max(axis=0) + 1e-300))
+        breaks = np.flatnonzero(np.any(np.abs(d) > 8 * scale, axis=1)) + 1
+    edges = [0, *breaks.tolist(), n]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b - a >= 2]
 
 
 class _LinearInParameters(RegressorMixin, BaseEstimator):
@@ -380,7 +399,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
                 cov = np.zeros((len(keep) + 1, len(keep) + 1))
                 cov[:-1, :-1] = cov_phi
                 cov[-1, -1] = np.mean([(w[i] * sigma[3 + e]) ** 2 for i, e in enumerate(eqs)])
-        x = _null_vector(Z, cov)
+        x = null_vector(Z, cov)
         j = keep.index(norm_k) if homogeneous else len(keep)
         ref = x[j] * np.sqrt(np.mean(Z[:, j] ** 2))
         if abs(ref) < 1e-12 * np.linalg.norm(x * np.sqrt(np.mean(Z * Z, axis=0))):
@@ -391,19 +410,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
 
     # -- output-error refinement -------------------------------------------------------------------
     def _runs(self, nu: np.ndarray, nudot: np.ndarray, groups) -> list[tuple[int, int]]:
-        n = len(nu)
-        if groups is not None:
-            g = np.asarray(groups)
-            if g.shape != (n,):
-                raise ValueError(f"groups needs one id per row ({n}), got shape {g.shape}")
-            breaks = np.flatnonzero(g[1:] != g[:-1]) + 1
-        else:
-            d = nu[1:] - nu[:-1] - 0.5 * self.dt_s * (nudot[1:] + nudot[:-1])
-            scale = _MAD_TO_SD * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-            scale = np.maximum(scale, 1e-12 * (np.abs(nu).max(axis=0) + 1e-300))
-            breaks = np.flatnonzero(np.any(np.abs(d) > 8 * scale, axis=1)) + 1
-        edges = [0, *breaks.tolist(), n]
-        return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b - a >= 2]
+        return contiguous_runs(nu, nudot, float(self.dt_s), groups)
 
     def _rollout(self, theta: np.ndarray, nu0: np.ndarray, taus: np.ndarray, bound: np.ndarray) -> np.ndarray:
         """RK4 of ``M nudot = tau - A_rest(nu) theta`` over a batch: ``nu0 (B, 3)``, ``taus (B, L, 3)`` held per

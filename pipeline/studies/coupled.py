@@ -7,7 +7,8 @@ stage shells ``stages/tune.py`` and ``stages/train.py``, which read and write; t
 Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``coupled.inputs``, by default
 ``[u v r T1 T2 T3]``, the thrusters' static thrust, where the paper has their speeds ``n1 n2 n3``; one SVR per
 output with its own hyperparameters) and ``gertler_hagen``, ``mcfarland_whitcomb`` (inputs ``[u v r tau_u tau_v
-tau_r]``, all outputs at once, TLS). Outputs ``[udot vdot rdot]``.
+tau_r]``, all outputs at once, TLS), ``fossen`` (the same inputs; Fossen's 3-DOF model with the vehicle's M_RB,
+:mod:`pipeline.models.fossen`). Outputs ``[udot vdot rdot]``.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from sklearn.base import BaseEstimator, RegressorMixin
 
 from pipeline.config import config_hash
 from pipeline.config.params import EXPLICIT_MODELS, CoupledParams
+from pipeline.config.rigid_body import RigidBody, rigid_body_mass
 from pipeline.config.vehicle import THRUST_COLUMN
 from pipeline.errors import ModelError
 from pipeline.evaluate import (
@@ -37,6 +39,7 @@ from pipeline.evaluate import (
     summarize_folds,
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
+from pipeline.models.fossen import Fossen3DOF
 from pipeline.models.graybox import GrayBox
 from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr, search
 from pipeline.models.svr import PerOutputRegressor
@@ -45,14 +48,31 @@ from pipeline.vocabulary import NOISE_STD_COLUMNS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "noise_std_from",
+__all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "noise_std_from", "rigid_body_uvr",
            "tune", "tune_local", "search_settings", "tuning_block", "tune_columns", "tune_stage",
            "build_model", "model_inputs", "model_card", "metrics",
            "evaluate_models", "run_study", "train_columns", "train_stage"]
 
 #: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
-GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen"}
+GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen", "graybox_fossen": "fossen"}
 _EXPLICIT_CLASSES = {"gertler_hagen": GertlerHagen, "mcfarland_whitcomb": McFarlandWhitcomb}
+
+
+def rigid_body_uvr(rigid_body: RigidBody) -> np.ndarray:
+    """The vehicle's rigid-body mass matrix M_RB over (u, v, r): the ``fossen`` model's known inertia."""
+    return rigid_body_mass(rigid_body)[np.ix_([0, 1, 5], [0, 1, 5])]
+
+
+def _explicit(model: str, noise_std: Sequence[float] | None, frame: pd.DataFrame | None,
+              rigid_body_mass: np.ndarray | None, **refine: Any) -> Any:
+    """An unfitted explicit model by name: ``fossen`` with the vehicle's M_RB and the rows' grid step (when
+    ``frame`` has ``t_ns``; otherwise estimated by the model), the others by WTLS with ``refine``'s keywords."""
+    if model == "fossen":
+        dt = grid_step_s(frame["t_ns"].to_numpy()) if frame is not None and "t_ns" in frame.columns \
+            and len(frame) > 1 else None
+        m_rb = None if rigid_body_mass is None else np.asarray(rigid_body_mass, dtype=float).tolist()
+        return Fossen3DOF(rigid_body_mass=m_rb, noise_std=noise_std, dt_s=dt)
+    return _EXPLICIT_CLASSES[model](solver="wtls", noise_std=noise_std, **refine)
 
 
 # -- models -----------------------------------------------------------------------------------------------
@@ -79,20 +99,22 @@ def noise_std_from(frame: pd.DataFrame | None) -> tuple[float, ...] | None:
 
 
 def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams, *,
-                train: pd.DataFrame | None = None, noise_std: Sequence[float] | None = None) -> Any:
+                train: pd.DataFrame | None = None, noise_std: Sequence[float] | None = None,
+                rigid_body_mass: np.ndarray | None = None) -> Any:
     """An unfitted estimator predicting all outputs; ``hyper`` maps output -> SVR hyperparameters (a gray-box
     model's: its residual WDSE-SVR's). ``train`` (optional): the training rows, for the explicit models' noise SDs
-    (:func:`noise_std_from`); ``noise_std`` (optional) gives them instead."""
+    (:func:`noise_std_from`); ``noise_std`` (optional) gives them instead. ``rigid_body_mass``: the vehicle's M_RB
+    over (u, v, r) (:func:`rigid_body_uvr`) for ``fossen`` (None: its inertia is identified whole)."""
     if noise_std is None:
         noise_std = noise_std_from(train)
     if model in EXPLICIT_MODELS:
         refine = {}
-        if params.explicit_refine:
+        if params.explicit_refine and model != "fossen":
             if train is None or "t_ns" not in train.columns or len(train) < 2:
                 raise ModelError("explicit_refine needs the training rows' t_ns to know the grid step")
             refine = {"refine": True, "dt_s": grid_step_s(train["t_ns"].to_numpy()),
                       "refine_horizon_s": params.refine_horizon_s}
-        return _EXPLICIT_CLASSES[model](solver="wtls", noise_std=noise_std, **refine)
+        return _explicit(model, noise_std, train, rigid_body_mass, **refine)
     known = list(SVR_MODELS) + list(EXPLICIT_MODELS) + list(GRAYBOX_MODELS)
     if model not in SVR_MODELS and model not in GRAYBOX_MODELS:
         raise ModelError(f"unknown model {model!r}; expected {known}")
@@ -102,7 +124,7 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         cols = model_inputs(model, params)
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
-        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](solver="wtls", noise_std=noise_std)
+        base = _explicit(GRAYBOX_MODELS[model], noise_std, train, rigid_body_mass)
         residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate)
                                        for out in params.outputs])
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
@@ -191,7 +213,8 @@ def search_settings(params: CoupledParams, n_jobs: int | None = 1) -> SearchSett
 
 def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
          progress: Callable[..., Any] | None = None, noise_std: Sequence[float] | None = None,
-         cache: SearchCache | None = None) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
+         cache: SearchCache | None = None, rigid_body_mass: np.ndarray | None = None
+         ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, Any]]:
     """Search hyperparameters of every SVR model and output on one block: the tuning split (``split="tuning"``,
     the papers' protocol) or, with ``params.tuning == "nested"``, the train_test block (``split="train_test"``).
     Rows of any other split are refused.
@@ -241,8 +264,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         log.info("%s searched as the warm start of a richer kernel only", model)
         del hyper[model], trace[model]
     for model in graybox:
-        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](
-            solver="wtls", noise_std=noise_std if noise_std is not None else noise_std_from(tuning))
+        base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(tuning),
+                         tuning, rigid_body_mass)
         base.fit(tuning[EXPLICIT_INPUTS].to_numpy(float), tuning[params.outputs].to_numpy(float))
         resid = data[params.outputs].to_numpy(float) - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
         hyper[model], trace[model] = {}, {}
@@ -261,7 +284,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
 
 
 def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: dict[str, dict[str, Any]], *,
-               noise_std: Sequence[float] | None = None) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+               noise_std: Sequence[float] | None = None, rigid_body_mass: np.ndarray | None = None
+               ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
     """One model's hyperparameters re-tuned on ``frame`` (a CV fold's training rows) by a local search per output
     (:func:`pipeline.models.search.local_search`, at most ``params.fold_evals`` candidates) from ``start``
     (output -> the tune stage's hyperparameters). A gray-box model's residual is the one :func:`tune` forms: its
@@ -271,8 +295,8 @@ def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: di
     Y = data[params.outputs].to_numpy(float)
     svr = model
     if model in GRAYBOX_MODELS:
-        base = _EXPLICIT_CLASSES[GRAYBOX_MODELS[model]](
-            solver="wtls", noise_std=noise_std if noise_std is not None else noise_std_from(frame))
+        base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(frame),
+                         frame, rigid_body_mass)
         base.fit(frame[EXPLICIT_INPUTS].to_numpy(float), frame[params.outputs].to_numpy(float))
         Y = Y - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
         svr = "wdse_svr"
@@ -293,30 +317,35 @@ class NestedTuned(RegressorMixin, BaseEstimator):
     fold is cut from: ``X`` has no SD columns). ``cache``: the run's :class:`SearchCache`, shared by the folds (None:
     one per fit). ``start`` (output -> hyperparameters, the tune stage's): with the fast search and
     ``params.fold_evals`` set, the fold's search is :func:`tune_local` from it, not a whole :func:`tune`.
+    ``rigid_body_mass``: a ``graybox_fossen`` base's M_RB over (u, v, r).
     Fitted: ``hyperparameters_`` (output -> params), ``search_`` (output -> the fold's search as a dict),
     ``estimator_``."""
 
     def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None,
                  noise_std: Sequence[float] | None = None, cache: SearchCache | None = None,
-                 start: dict[str, dict[str, Any]] | None = None) -> None:
+                 start: dict[str, dict[str, Any]] | None = None, rigid_body_mass: Any = None) -> None:
         self.model = model
         self.params = params
         self.noise_std = noise_std
         self.cache = cache
         self.start = start
+        self.rigid_body_mass = rigid_body_mass
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
         params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
         frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
         if self.start is not None and params.fold_evals is not None and params.search == "fast":
-            hyper, trace = tune_local(frame, self.model, params, self.start, noise_std=self.noise_std)
+            hyper, trace = tune_local(frame, self.model, params, self.start, noise_std=self.noise_std,
+                                      rigid_body_mass=self.rigid_body_mass)
         else:
-            whole, searches = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache)
+            whole, searches = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache,
+                                   rigid_body_mass=self.rigid_body_mass)
             hyper, trace = whole[self.model], searches[self.model]
         self.hyperparameters_ = hyper
         self.search_ = trace
-        self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std).fit(X, y)
+        self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std,
+                                      rigid_body_mass=self.rigid_body_mass).fit(X, y)
         return self
 
     def predict(self, X: np.ndarray) -> np.ndarray:
@@ -327,7 +356,8 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
                     params: CoupledParams, *, tuning_keys: pd.DataFrame | None = None, n_jobs: int | None = 1,
                     failures: dict[str, dict[str, str]] | None = None,
                     on_model: Callable[[str, dict[str, Any] | None], None] | None = None,
-                    progress: Callable[..., Any] | None = None, cache: SearchCache | None = None) -> dict[str, Any]:
+                    progress: Callable[..., Any] | None = None, cache: SearchCache | None = None,
+                    rigid_body_mass: np.ndarray | None = None) -> dict[str, Any]:
     """Blocked CV on the train_test block and the final check on the test trial(s), per model.
 
     Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted}}``; the
@@ -339,6 +369,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
     finishes or fails (the stage writes that model's artifacts then, not after the whole study).
     ``progress(done, total, desc)`` (optional): CV folds and final fits of all models, as they finish.
     ``cache``: the run's :class:`SearchCache` for the nested folds' searches (default: one of this call).
+    ``rigid_body_mass``: the vehicle's M_RB over (u, v, r), for ``fossen`` and its gray box (:func:`build_model`).
     """
     _check_columns(train_test, [*params.outputs, "trial", "t_ns"], "evaluate")
     cache = cache if cache is not None else SearchCache()
@@ -359,7 +390,8 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
 
         try:
             results[model] = _evaluate_model(model, train_test, test, y, keys, hyper, params, tuning_keys, n_jobs,
-                                             cache, progress=tick if progress is not None else None)
+                                             cache, progress=tick if progress is not None else None,
+                                             rigid_body_mass=rigid_body_mass)
         except MODEL_FAILURES as err:
             entry = model_failure(model, err)
             if failures is None:
@@ -379,16 +411,17 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
 
 def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np.ndarray, keys: pd.DataFrame,
                     hyper: dict[str, dict[str, Any]], params: CoupledParams, tuning_keys: pd.DataFrame | None,
-                    n_jobs: int | None, cache: SearchCache, progress: Callable[..., Any] | None = None
-                    ) -> dict[str, Any]:
-    est = build_model(model, hyper.get(model), params, train=train_test)
+                    n_jobs: int | None, cache: SearchCache, progress: Callable[..., Any] | None = None,
+                    rigid_body_mass: np.ndarray | None = None) -> dict[str, Any]:
+    est = build_model(model, hyper.get(model), params, train=train_test, rigid_body_mass=rigid_body_mass)
     cols = model_inputs(model, params)
     _check_columns(train_test, cols, model)
     X = train_test[cols].to_numpy(float)
     # nested: each fold searches its own hyperparameters on its training blocks; the final model (below) uses the
     # tune stage's, searched on the whole train_test block it is fitted on
     nested = params.tuning == "nested" and model not in EXPLICIT_MODELS
-    cv_est = NestedTuned(model, params, noise_std_from(train_test), cache, hyper.get(model)) if nested else est
+    cv_est = NestedTuned(model, params, noise_std_from(train_test), cache, hyper.get(model),
+                         rigid_body_mass) if nested else est
     folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
                                    outputs=params.outputs, n_jobs=n_jobs, progress=progress)
     final_est = est.fit(X, y)
@@ -402,18 +435,19 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
 
 
 def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
-              cache: SearchCache | None = None) -> dict[str, Any]:
+              cache: SearchCache | None = None, rigid_body_mass: np.ndarray | None = None) -> dict[str, Any]:
     """Everything on one table with a ``split`` column: tune, CV, final check (no files), the searches of both
     through one :class:`SearchCache` (``cache``, default a new one). A model that fails is left out of ``results``
     and named in ``failed`` (``{model: {"error", "reason"}}``); the others stay."""
     cache = cache if cache is not None else SearchCache()
     blocks = split_blocks(frame)
     block = tuning_block(params)
-    hyper, trace = tune(blocks[block], params, n_jobs=n_jobs, split=block, cache=cache)
+    hyper, trace = tune(blocks[block], params, n_jobs=n_jobs, split=block, cache=cache,
+                        rigid_body_mass=rigid_body_mass)
     failed: dict[str, dict[str, str]] = {}
     results = evaluate_models(blocks["train_test"], blocks["test"], hyper, params,
                               tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs, failures=failed,
-                              cache=cache)
+                              cache=cache, rigid_body_mass=rigid_body_mass)
     return {"hyper": hyper, "trace": trace, "results": results, "failed": failed}
 
 
@@ -432,16 +466,20 @@ def tune_columns(params: CoupledParams, available: Collection[str]) -> list[str]
                   | set(params.outputs))
     # a gray box's base is weighted by the smoother's SDs here as in train, so its residual is the one tuned on
     cols += [c for c in NOISE_STD_COLUMNS if c in available]
+    if any(GRAYBOX_MODELS.get(m) == "fossen" for m in params.models):  # its free runs' grid step, as in train
+        cols.append("t_ns")
     return [*cols, "split"]
 
 
 def tune_stage(frame: pd.DataFrame, params: CoupledParams, *, vehicle: str,
-               progress: Callable[..., Any] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+               progress: Callable[..., Any] | None = None, rigid_body_mass: np.ndarray | None = None
+               ) -> tuple[dict[str, Any], dict[str, Any]]:
     """The tune stage's work: :func:`tune` on the rows of :func:`tuning_block` (``frame``), with one
     :class:`SearchCache` for the run. Returns ``(doc, trace)``: the document of hyperparameters.json (settings,
     block, ``hyperparameters[model][output]``) and each search's :class:`SearchResult` as a dict."""
     block = tuning_block(params)
-    hyper, trace = tune(frame, params, n_jobs=params.n_jobs, split=block, progress=progress, cache=SearchCache())
+    hyper, trace = tune(frame, params, n_jobs=params.n_jobs, split=block, progress=progress, cache=SearchCache(),
+                        rigid_body_mass=rigid_body_mass)
     doc = {"vehicle": vehicle, "search": params.search, "seed": params.seed, "inputs": params.inputs,
            "outputs": params.outputs, "tuning": params.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
            "max_samples": params.max_samples, "fold_evals": params.fold_evals, "hyperparameters": hyper}
@@ -470,6 +508,12 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
     estimator = result["estimator"]
     if hasattr(estimator, "coefficients"):
         card["coefficients"] = estimator.coefficients()
+    if hasattr(estimator, "selected_terms_"):  # fossen: the backward elimination's rounds
+        card["term_selection"] = {
+            "selected": list(estimator.selected_terms_), "dropped_no_excitation": list(estimator.dropped_terms_),
+            "rounds": [{**r, "score": r["score"] if np.isfinite(r["score"]) else None} for r in estimator.selection_],
+            "ols_fallback": bool(estimator.ols_fallback_),
+            "mean_fallback_outputs": [params.outputs[j] for j in estimator.mean_fallback_outputs_]}
     if getattr(estimator, "refine", False):  # coupled.explicit_refine
         cost = estimator.refine_cost_
         card["refinement"] = {"refined": bool(estimator.refined_),
@@ -493,7 +537,8 @@ def train_stage(train_test: pd.DataFrame, test: pd.DataFrame, tuning_keys: pd.Da
                 hyper: dict[str, dict[str, Any]], params: CoupledParams, *, vehicle: str, data_lineage: Any,
                 failures: dict[str, dict[str, str]],
                 on_model: Callable[[str, dict[str, Any] | None, dict[str, Any] | None], None] | None = None,
-                progress: Callable[..., Any] | None = None) -> dict[str, Any]:
+                progress: Callable[..., Any] | None = None, rigid_body_mass: np.ndarray | None = None
+                ) -> dict[str, Any]:
     """The train stage's work: :func:`evaluate_models` with the tuned ``hyper``, the nested folds' searches through
     one :class:`SearchCache` for the run. A model that fails is recorded in ``failures`` and the others go on;
     ``on_model(model, result, card)`` as each model finishes (its :func:`model_card`), ``(model, None, None)`` as
@@ -507,7 +552,7 @@ def train_stage(train_test: pd.DataFrame, test: pd.DataFrame, tuning_keys: pd.Da
 
     results = evaluate_models(train_test, test, hyper, params, tuning_keys=tuning_keys[["trial", "t_ns"]],
                               n_jobs=params.n_jobs, failures=failures, on_model=finished, progress=progress,
-                              cache=SearchCache())
+                              cache=SearchCache(), rigid_body_mass=rigid_body_mass)
     if not results:
         raise ModelError("every coupled model failed: " + "; ".join(f"{m}: {e['reason']}"
                                                                    for m, e in failures.items()))

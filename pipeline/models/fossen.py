@@ -1,0 +1,425 @@
+"""The standard 3-DOF Fossen maneuvering model (surge, sway, yaw) of a port-starboard symmetric vehicle, fitted by
+the project's weighted total least squares, its damping terms selected by free-run error on held-out blocks.
+
+    (M_RB + M_A) nudot + C_RB(nu) nu + C_A(nu) nu + D(nu) nu = tau                    (Fossen 2011, sec. 6.3-6.4)
+
+- ``M_RB``: the rigid body's 3x3 mass matrix over (u, v, r), from the vehicle config (``rigid_body_mass``); None:
+  zero, and the "added-mass" coefficients are then the whole inertia (``X_udot`` = -(m - X_udot), ...).
+- ``M_A`` = [[-X_udot, 0, 0], [0, -Y_vdot, -Y_rdot], [0, -Y_rdot, -N_rdot]] (symmetric: N_vdot = Y_rdot), identified.
+- ``C(nu) nu`` from M = M_RB + M_A in the skew-symmetric form: with ``a = M nu``, ``[-r a_v, r a_u, u a_v - v a_u]``
+  (the Munk moment ``(X_udot - Y_vdot) u v`` included).
+- ``D(nu) nu``: X: -X_u u - X_|u|u |u|u; Y: -Y_v v - Y_r r - Y_|v|v |v|v - Y_|r|r |r|r - Y_|r|v |r|v - Y_|v|r |v|r;
+  N the same with N. Every term is odd in the velocities, so a vehicle that surges (or sways) both ways is inside
+  the family (Gertler-Hagen's X equation is even in u).
+
+Coefficients are SNAME hydrodynamic derivatives (negative for added mass and dissipative damping).
+
+Fit: each row of the three equations, ``A(nu, nudot) theta = tau - M_RB nudot - C_RB(nu) nu``, stacked and fitted
+jointly (they share M_A) by WTLS: the right-hand side is a column like the others, the nine signals' noise SDs
+(``noise_std``, :data:`pipeline.models.explicit.NOISE_SIGNALS`; estimated when None) propagated to every column,
+right-hand side included, by the rows' Jacobian (central differences), and the null vector found by
+:func:`pipeline.models.explicit.null_vector` (mixed LS-TLS for exact columns, Cholesky whitening); two passes of
+equation weights, 1/RMS(right-hand side) then 1/RMS(residual), as McFarland-Whitcomb's fit. A mass matrix that is
+not positive definite falls back to OLS for the model (``ols_fallback_``); still not: ModelError.
+
+Term selection (``select=True``): backward elimination of damping terms by free-run error on held-out blocks. The
+rows are cut into ``selection_folds`` contiguous blocks; a term set's score is the mean over the blocks of the
+free-run error of the model fitted on the other blocks: windows of ``selection_horizon_s`` inside the held-out
+block's contiguous runs, each started from the measured velocity and integrated by RK4 with tau held per step,
+squared velocity error over each DOF's SD, averaged. Each round removes the term whose removal gives the lowest
+score if that score is at most ``(1 + selection_tolerance)`` times the current one, and stops otherwise. Why free
+runs: a one-step (acceleration) error hardly sees a small damping term, which a free run integrates; why held-out
+blocks: on the fitted rows every added term lowers the error. The tolerance prefers the smaller model where
+scores tie within noise.
+
+Guard (``mean_fallback_outputs_``): an output whose one-step R² on the held-out blocks (the selected terms) is
+below 0 is predicted by its training mean: never worse there than the mean predictor.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+from pipeline.errors import ModelError
+from pipeline.models.explicit import NOISE_SIGNALS, contiguous_runs, estimate_noise_std, null_vector, ols
+from pipeline.rk4 import rk4_step
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Fossen3DOF", "ADDED_MASS_TERMS", "DAMPING_TERMS"]
+
+#: identified added mass (SNAME), in the order of theta's first four entries
+ADDED_MASS_TERMS = ("X_udot", "Y_vdot", "Y_rdot", "N_rdot")
+#: damping terms: name -> (equation, regressor); regressor names as in :func:`_damping_columns`
+DAMPING_TERMS = {
+    "X_u": (0, "u"), "X_|u|u": (0, "|u|u"),
+    "Y_v": (1, "v"), "Y_r": (1, "r"), "Y_|v|v": (1, "|v|v"), "Y_|r|r": (1, "|r|r"), "Y_|r|v": (1, "|r|v"),
+    "Y_|v|r": (1, "|v|r"),
+    "N_v": (2, "v"), "N_r": (2, "r"), "N_|v|v": (2, "|v|v"), "N_|r|r": (2, "|r|r"), "N_|r|v": (2, "|r|v"),
+    "N_|v|r": (2, "|v|r"),
+}
+_PARAMS = (*ADDED_MASS_TERMS, *DAMPING_TERMS)
+_ZERO_COLUMN = 1e-12  # a column with RMS below this fraction of the largest is degenerate (no excitation)
+_ABS_SLACK = 1e-10  # free-run error (in SD^2) below which two scores tie whatever their ratio
+
+
+class _Stats(NamedTuple):
+    """A set of rows, per equation: the R factor of Z's QR (R^T R = Z^T Z, without squaring Z's condition), Z's noise
+    covariance sum, and the row count."""
+
+    r: np.ndarray
+    noise: np.ndarray
+    n: int
+
+
+def _regressors(nu: np.ndarray) -> dict[str, np.ndarray]:
+    u, v, r = nu.T
+    return {"u": u, "v": v, "r": r, "|u|u": np.abs(u) * u, "|v|v": np.abs(v) * v, "|r|r": np.abs(r) * r,
+            "|r|v": np.abs(r) * v, "|v|r": np.abs(v) * r}
+
+
+def _coriolis(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
+    """C(nu) nu of the 3x3 mass matrix ``M`` (skew-symmetric form): ``[-r a_v, r a_u, u a_v - v a_u]``, a = M nu."""
+    u, v, r = nu.T
+    a_u = nu @ M[0]
+    a_v = nu @ M[1]
+    return np.column_stack([-r * a_v, r * a_u, u * a_v - v * a_u])
+
+
+def _added_mass(theta_a: np.ndarray) -> np.ndarray:
+    """M_A from the LHS parameters (-X_udot, -Y_vdot, -Y_rdot, -N_rdot)."""
+    a11, a22, a23, a33 = theta_a
+    return np.array([[a11, 0.0, 0.0], [0.0, a22, a23], [0.0, a23, a33]])
+
+
+def _rows(nu: np.ndarray, nudot: np.ndarray, tau: np.ndarray, m_rb: np.ndarray) -> np.ndarray:
+    """(n, 3, 19): every parameter's regressor per equation (LHS parameters: added mass, then damping), then the
+    right-hand side ``tau - M_RB nudot - C_RB(nu) nu`` as the last column."""
+    n = len(nu)
+    Z = np.zeros((n, 3, len(_PARAMS) + 1))
+    for k in range(4):  # added mass: its nudot terms and its share of C(nu) nu (linear in M)
+        e = np.zeros(4)
+        e[k] = 1.0
+        MA = _added_mass(e)
+        Z[:, :, k] = nudot @ MA.T + _coriolis(MA, nu)
+    reg = _regressors(nu)
+    for j, (eq, name) in enumerate(DAMPING_TERMS.values()):
+        Z[:, eq, 4 + j] = reg[name]
+    Z[:, :, -1] = tau - nudot @ m_rb.T - _coriolis(m_rb, nu)
+    return Z
+
+
+class Fossen3DOF(RegressorMixin, BaseEstimator):
+    """Fossen's 3-DOF model (surge, sway, yaw; port-starboard symmetric) by WTLS with term selection.
+
+    ``X = [u v r tau_u tau_v tau_r]``, ``y = [udot vdot rdot]``, rows in time order (as the explicit models).
+    ``rigid_body_mass``: 3x3 M_RB over (u, v, r) (None: zero; the added mass is then the whole inertia).
+    ``terms``: the damping terms offered (None: every one of :data:`DAMPING_TERMS`). ``noise_std``: the nine
+    signals' SDs (None or NaN entries: estimated). ``dt_s``: sample interval for the free runs (None: estimated).
+    Fitted: ``coef_`` (LHS parameters), ``mass_matrix_``, ``selected_terms_``, ``selection_`` (the elimination's
+    rounds), ``dropped_terms_``, ``ols_fallback_``, ``mean_fallback_outputs_``, ``heldout_r2_``.
+    """
+
+    def __init__(self, rigid_body_mass: Sequence[Sequence[float]] | None = None, terms: Sequence[str] | None = None,
+                 noise_std: Sequence[float] | None = None, dt_s: float | None = None, select: bool = True,
+                 selection_folds: int = 4, selection_horizon_s: float = 5.0, selection_tolerance: float = 0.01,
+                 guard: bool = True) -> None:
+        self.rigid_body_mass = rigid_body_mass
+        self.terms = terms
+        self.noise_std = noise_std
+        self.dt_s = dt_s
+        self.select = select
+        self.selection_folds = selection_folds
+        self.selection_horizon_s = selection_horizon_s
+        self.selection_tolerance = selection_tolerance
+        self.guard = guard
+
+    # -- fitting ---------------------------------------------------------------------------------------
+    def _m_rb(self) -> np.ndarray:
+        if self.rigid_body_mass is None:
+            return np.zeros((3, 3))
+        m = np.asarray(self.rigid_body_mass, dtype=float)
+        if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+            raise ValueError(f"rigid_body_mass must be a finite 3x3 matrix over (u, v, r), got shape {m.shape}")
+        return m
+
+    def _sigma(self, X: np.ndarray, y: np.ndarray) -> np.ndarray:
+        estimated = estimate_noise_std(X, y)
+        if self.noise_std is None:
+            return estimated
+        s = np.asarray(self.noise_std, dtype=float).ravel()
+        if s.size != len(NOISE_SIGNALS) or np.any(s < 0):
+            raise ValueError(f"noise_std needs {len(NOISE_SIGNALS)} values >= 0 {NOISE_SIGNALS}, got {s.tolist()}")
+        return np.where(np.isnan(s), estimated, s)
+
+    def _stats(self, nu: np.ndarray, nudot: np.ndarray, tau: np.ndarray, sigma: np.ndarray, m_rb: np.ndarray,
+               masks: Sequence[np.ndarray]) -> list[_Stats]:
+        """Per row mask: each equation's R factor of Z and noise covariance sum of Z's columns, the latter
+        ``sum_k sigma_k^2 J_k^T J_k`` with ``J_k = dZ/ds_k`` of the nine signals by central differences (Z is
+        quadratic in nu except at the kinks of |.|, linear in nudot and tau). Every fit below works on these
+        (P+1)x(P+1) matrices, so a term set's fit costs nothing that grows with the rows."""
+        Z = _rows(nu, nudot, tau, m_rb)
+        grams = [np.stack([np.linalg.qr(Z[m][:, e], mode="r") for e in range(3)]) for m in masks]
+        noise = [np.zeros((3, Z.shape[2], Z.shape[2])) for _ in masks]
+        signals = np.column_stack([nu, tau, nudot])
+        for k in range(9):
+            if sigma[k] == 0:
+                continue
+            h = 1e-6 * max(float(np.sqrt(np.mean(signals[:, k] ** 2))), 1e-9)
+            plus, minus = signals.copy(), signals.copy()
+            plus[:, k] += h
+            minus[:, k] -= h
+            J = (_rows(plus[:, :3], plus[:, 6:], plus[:, 3:6], m_rb)
+                 - _rows(minus[:, :3], minus[:, 6:], minus[:, 3:6], m_rb)) / (2 * h)
+            for acc, m in zip(noise, masks, strict=True):
+                acc += sigma[k] ** 2 * np.einsum("nep,neq->epq", J[m], J[m])
+        return [_Stats(g, c, int(np.count_nonzero(m))) for g, c, m in zip(grams, noise, masks, strict=True)]
+
+    @staticmethod
+    def _solve(stats: _Stats, cols: list[int], solver: str) -> np.ndarray:
+        """LHS parameters of the columns ``cols`` (the right-hand side is the last column), the three equations
+        stacked with two passes of weights: 1/RMS(right-hand side), then 1/RMS(residual). WTLS gets the
+        equations' weighted R factors stacked, B (B^T B = (P+1) Z^T Z / rows: the same null vector and column RMS
+        as the stacked rows themselves), and the rows' noise covariance."""
+        p1 = stats.r.shape[-1]
+        idx = [*cols, p1 - 1]
+        ix = np.ix_(idx, idx)
+        n_rows = 3 * stats.n
+        R = stats.r[:, :, idx]
+        w = 1.0 / np.maximum(np.linalg.norm(R[:, :, -1], axis=1) / np.sqrt(stats.n), 1e-300)
+        theta = np.zeros(len(cols))
+        for _ in range(2):
+            B = np.sqrt(p1 / stats.n) * (w[:, None, None] * R).reshape(-1, len(idx))
+            if solver == "ols":
+                theta = ols(B[:, :-1], B[:, -1])
+            else:
+                cov = np.einsum("e,epq->pq", w * w, stats.noise)[ix] / n_rows
+                x = null_vector(B, cov)
+                if abs(x[-1]) < 1e-12:
+                    raise ModelError("Fossen3DOF: non-generic WTLS problem (no right-hand-side component)")
+                theta = -x[:-1] / x[-1]
+            x = np.append(theta, -1.0)
+            r = np.linalg.norm(R @ x, axis=1) / np.sqrt(stats.n)
+            w = 1.0 / np.maximum(r, 1e-9 * r.max() + 1e-300)
+        return theta
+
+    def _fit_terms(self, stats: _Stats, terms: Sequence[str], m_rb: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Full parameter vector (unused terms 0) and whether OLS replaced a non-physical WTLS solution."""
+        cols = [*range(4), *(4 + list(DAMPING_TERMS).index(t) for t in terms)]
+        theta = np.zeros(len(_PARAMS))
+        theta[cols] = self._solve(stats, cols, "wtls")
+        if self._physical(theta, m_rb):
+            return theta, False
+        theta[cols] = self._solve(stats, cols, "ols")
+        if not self._physical(theta, m_rb):
+            raise ModelError(f"Fossen3DOF: identified mass matrix M_RB + M_A is not positive definite (WTLS and OLS); "
+                             f"terms {list(terms)}")
+        return theta, True
+
+    @staticmethod
+    def _physical(theta: np.ndarray, m_rb: np.ndarray) -> bool:
+        M = m_rb + _added_mass(theta[:4])
+        return bool(np.all(np.isfinite(M)) and np.linalg.eigvalsh(0.5 * (M + M.T)).min() > 0)
+
+    def fit(self, X, y, groups=None):
+        """Fit on time-ordered rows; ``groups`` (optional, one id per row) marks contiguous runs."""
+        X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64)
+        if X.shape[1] != 6 or y.ndim != 2 or y.shape[1] != 3:
+            raise ValueError("Fossen3DOF expects X = [u v r tau_u tau_v tau_r] (6 columns) and y = [udot vdot rdot] "
+                             f"(3 columns), got {X.shape[1]} and {1 if y.ndim == 1 else y.shape[1]}")
+        if self.selection_folds < 2 or not self.selection_horizon_s > 0 or self.selection_tolerance < 0:
+            raise ValueError("selection_folds >= 2, selection_horizon_s > 0 and selection_tolerance >= 0 needed")
+        unknown = [t for t in (self.terms or ()) if t not in DAMPING_TERMS]
+        if unknown:
+            raise ValueError(f"unknown damping term(s) {unknown}; known {list(DAMPING_TERMS)}")
+        m_rb = self._m_rb()
+        nu, tau = X[:, :3], X[:, 3:]
+        sigma = self._sigma(X, y)
+        terms = list(DAMPING_TERMS) if self.terms is None else [t for t in DAMPING_TERMS if t in self.terms]
+        dt = float(self.dt_s) if self.dt_s is not None else _estimate_dt(nu, y)
+        if not dt > 0:
+            raise ValueError(f"dt_s must be > 0, got {self.dt_s!r}")
+        self.dt_s_ = dt
+        folds = self._folds(nu, y, groups, dt)
+        everything, *fold_stats = self._stats(nu, y, tau, sigma, m_rb,
+                                              [np.ones(len(X), dtype=bool), *(train for train, _ in folds)])
+        rms = np.sqrt(np.sum(everything.r ** 2, axis=(0, 1))[:-1] / (3 * everything.n))
+        dead = rms <= _ZERO_COLUMN * rms.max()
+        self.dropped_terms_ = [t for t in terms if dead[4 + list(DAMPING_TERMS).index(t)]]
+        for t in self.dropped_terms_:
+            log.warning("Fossen3DOF: term %s has no excitation in the fit data (regressor identically zero); dropped",
+                        t)
+        terms = [t for t in terms if t not in self.dropped_terms_]
+        if dead[:4].any():
+            raise ModelError(f"Fossen3DOF: no acceleration excitation for "
+                             f"{[ADDED_MASS_TERMS[k] for k in np.flatnonzero(dead[:4])]}: the mass matrix cannot be "
+                             "identified")
+        folds = [(train, starts, st) for (train, starts), st in zip(folds, fold_stats, strict=True)]
+        self.selection_: list[dict[str, object]] = []
+        if self.select and folds:
+            terms = self._eliminate(nu, tau, folds, terms, m_rb, dt)
+        self.selected_terms_ = terms
+        self.coef_, self.ols_fallback_ = self._fit_terms(everything, terms, m_rb)
+        if self.ols_fallback_:
+            log.warning("Fossen3DOF: WTLS gave a mass matrix that is not positive definite; OLS used")
+        self.noise_std_ = sigma
+        self._set_mass(m_rb)
+        self.mean_ = y.mean(axis=0)
+        self.heldout_r2_ = self._heldout_r2(X, y, folds, terms, m_rb) if folds else None
+        bad = [] if self.heldout_r2_ is None or not self.guard else \
+            [j for j in range(3) if self.heldout_r2_[j] < 0]
+        self.mean_fallback_outputs_ = bad
+        if bad:
+            log.warning("Fossen3DOF: output(s) %s score held-out R2 %s < 0: predicted by their training mean", bad,
+                        [round(float(self.heldout_r2_[j]), 3) for j in bad])
+        log.debug("Fossen3DOF: terms %s, coefficients %s", terms, self.coefficients())
+        return self
+
+    def _set_mass(self, m_rb: np.ndarray) -> None:
+        self.mass_matrix_ = m_rb + _added_mass(self.coef_[:4])
+        self.mass_matrix_inv_ = np.linalg.inv(self.mass_matrix_)
+
+    # -- selection ---------------------------------------------------------------------------------------
+    def _folds(self, nu: np.ndarray, nudot: np.ndarray, groups, dt: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per held-out block: (training row mask, free-run window starts inside the block's contiguous runs)."""
+        n = len(nu)
+        L = max(2, int(round(self.selection_horizon_s / dt)))
+        runs = contiguous_runs(nu, nudot, dt, groups)
+        edges = np.linspace(0, n, self.selection_folds + 1).round().astype(int)
+        out = []
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            starts = [s for ra, rb in runs for s in range(max(ra, a), min(rb, b) - L, L)]
+            if starts:
+                train = np.ones(n, dtype=bool)
+                train[a:b] = False
+                out.append((train, np.array(starts, dtype=int)))
+        if len(out) < 2:
+            log.warning("Fossen3DOF: fewer than 2 held-out blocks hold a %d-step window: no term selection", L)
+            return []
+        return out
+
+    def _free_run_error(self, theta: np.ndarray, m_rb: np.ndarray, nu: np.ndarray, tau: np.ndarray,
+                        starts: np.ndarray, dt: float) -> float:
+        L = max(2, int(round(self.selection_horizon_s / dt)))
+        idx = starts[:, None] + np.arange(L + 1)[None, :]
+        M = m_rb + _added_mass(theta[:4])
+        f = _dynamics(theta, M, np.linalg.inv(M))
+        sd = np.maximum(nu.std(axis=0), 1e-9)
+        bound = 10.0 * np.abs(nu).max(axis=0) + 1e-9
+        x = nu[starts].copy()
+        err = 0.0
+        with np.errstate(all="ignore"):
+            for i in range(L):
+                x = np.clip(rk4_step(f, x, tau[idx[:, i]], dt), -bound, bound)
+                x = np.where(np.isfinite(x), x, bound)
+                err += float(np.sum(((x - nu[idx[:, i + 1]]) / sd) ** 2))
+        return err / (L * len(starts) * 3)
+
+    def _score(self, nu, tau, folds, terms, m_rb, dt) -> float:
+        errs = []
+        for _, starts, stats in folds:
+            try:
+                theta, _ = self._fit_terms(stats, terms, m_rb)
+            except (ModelError, np.linalg.LinAlgError):
+                return float("inf")
+            errs.append(self._free_run_error(theta, m_rb, nu, tau, starts, dt))
+        return float(np.mean(errs))
+
+    def _eliminate(self, nu, tau, folds, terms, m_rb, dt) -> list[str]:
+        current = list(terms)
+        score = self._score(nu, tau, folds, current, m_rb, dt)
+        self.selection_.append({"removed": None, "score": score, "terms": list(current)})
+        while current:
+            trial = {t: self._score(nu, tau, folds, [c for c in current if c != t], m_rb, dt) for t in current}
+            best = min(current, key=lambda t: (trial[t], current.index(t)))
+            # _ABS_SLACK: on noise-free data every score is rounding, and a zero term must still go
+            if not trial[best] <= score * (1.0 + self.selection_tolerance) + _ABS_SLACK:
+                break
+            current.remove(best)
+            score = trial[best]
+            self.selection_.append({"removed": best, "score": score, "terms": list(current)})
+            log.info("Fossen3DOF: %s removed (held-out free-run error %.4g)", best, score)
+        return current
+
+    def _heldout_r2(self, X, y, folds, terms, m_rb) -> np.ndarray:
+        """One-step R² per output of the blocks' held-out rows, each predicted by the fit on the other blocks."""
+        pred = np.full_like(y, np.nan)
+        for train, _, stats in folds:
+            try:
+                theta, _ = self._fit_terms(stats, terms, m_rb)
+            except (ModelError, np.linalg.LinAlgError):
+                continue
+            M = m_rb + _added_mass(theta[:4])
+            pred[~train] = _dynamics(theta, M, np.linalg.inv(M))(X[~train, :3], X[~train, 3:])
+        ok = np.all(np.isfinite(pred), axis=1)
+        if not ok.any():
+            return np.full(3, -np.inf)
+        yt, pt = y[ok], pred[ok]
+        return 1.0 - ((yt - pt) ** 2).sum(0) / np.maximum(((yt - yt.mean(0)) ** 2).sum(0), 1e-300)
+
+    # -- prediction ------------------------------------------------------------------------------------
+    def fast_predictor(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """``predict`` without scikit-learn's per-call checks (rollouts, a gray box's base); None before ``fit``."""
+        if getattr(self, "coef_", None) is None:
+            return None
+        f = _dynamics(self.coef_, self.mass_matrix_, self.mass_matrix_inv_)
+        fallback, mean = list(self.mean_fallback_outputs_), self.mean_
+
+        def predict(X: np.ndarray) -> np.ndarray:
+            X = np.asarray(X, dtype=float)
+            out = f(X[:, :3], X[:, 3:6])
+            if fallback:
+                out[:, fallback] = mean[fallback]
+            return out
+
+        return predict
+
+    def predict(self, X):
+        check_is_fitted(self, "coef_")
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        return self.fast_predictor()(X)
+
+    def coefficients(self) -> dict[str, float]:
+        """SNAME derivatives: added mass (``N_vdot`` = ``Y_rdot``) and damping; a term not selected is 0."""
+        check_is_fitted(self, "coef_")
+        out = {name: -float(v) for name, v in zip(_PARAMS, self.coef_, strict=True)}
+        out["N_vdot"] = out["Y_rdot"]
+        return out
+
+
+def _dynamics(theta: np.ndarray, M: np.ndarray, M_inv: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``nudot(nu, tau) = M^-1 (tau - C(nu) nu - D(nu) nu)`` of the LHS parameters ``theta`` and ``M``."""
+    damping = [(eq, name, float(c)) for (eq, name), c in zip(DAMPING_TERMS.values(), theta[4:], strict=True) if c]
+
+    def f(nu: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        rhs = tau - _coriolis(M, nu)
+        if damping:
+            reg = _regressors(nu)
+            for eq, name, c in damping:
+                rhs[:, eq] -= c * reg[name]
+        return rhs @ M_inv.T
+
+    return f
+
+
+def _estimate_dt(nu: np.ndarray, nudot: np.ndarray) -> float:
+    """The sample interval from the data: median over rows and DOFs of ``dnu / mean(nudot)`` where the trapezoid
+    mean of the acceleration is in its DOF's upper quartile (a run's join is an outlier the median ignores)."""
+    d = np.diff(nu, axis=0)
+    a = 0.5 * (nudot[1:] + nudot[:-1])
+    ratios = []
+    for k in range(3):
+        big = np.abs(a[:, k]) >= np.quantile(np.abs(a[:, k]), 0.75)
+        big &= np.abs(a[:, k]) > 0
+        ratios.append(d[big, k] / a[big, k])
+    r = np.concatenate(ratios)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        raise ModelError("Fossen3DOF: cannot estimate the sample interval (no acceleration); give dt_s")
+    return float(np.median(r))
