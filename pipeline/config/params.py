@@ -87,6 +87,10 @@ class DifferentiateParams(Frozen):
         "(the logged thrust, then Coriolis and a damping fitted on the previous pass); each DOF keeps the pass of "
         "highest likelihood. 0: the kinematic (white-jerk) smoother alone, for a vehicle without a usable force "
         "model.")
+    mount_yaw_sd_deg: float = Field(
+        2.0, ge=0, le=30, description="kalman: how well the velocity sensor's configured mount yaw is known (SD, "
+        "deg): the prior the trial's misalignment estimate is combined with; the combined estimate is undone and "
+        "its SD widens u's and v's bands (pipeline.estimation.dvl_alignment). 0: the configured mount is exact.")
     rate_bias: Literal["estimate", "none"] = Field(
         "estimate", description="kalman: estimate: per rate signal (FOG, gyros), a constant bias (its own plus the "
         "Earth's rate) from the logged attitude, subtracted before the smoother and its variance added to the "

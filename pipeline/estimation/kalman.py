@@ -47,7 +47,7 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
-from pipeline.estimation.dvl_alignment import estimate_misalignment, turned
+from pipeline.estimation.dvl_alignment import estimate_misalignment, turned, widen_for_misalignment
 from pipeline.estimation.forced import excitation_report, force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
 from pipeline.estimation.noise import NoiseEstimate
@@ -135,14 +135,15 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     misalignment = None
     if model is not None and "u" in meas and "v" in meas and not source.differentiated:
         misalignment = estimate_misalignment(grid, meas["u"], meas["v"], results["u"], results["v"],
-                                             inputs["u"], inputs["v"])
-        if misalignment.identifiable:  # smooth again from the measurements turned back
+                                             inputs["u"], inputs["v"]).with_prior(params.mount_yaw_sd_deg)
+        if misalignment.applied:  # smooth again from the measurements turned back
             log.info("velocity sensor: yaw misalignment %.2f deg (SD %.2f) found and undone",
-                     misalignment.estimate_deg, misalignment.sd_deg)
-            meas["u"], meas["v"] = turned(meas["u"], meas["v"], np.radians(misalignment.estimate_deg))
+                     misalignment.posterior_deg, misalignment.posterior_sd_deg)
+            meas["u"], meas["v"] = turned(meas["u"], meas["v"], np.radians(misalignment.posterior_deg))
             results, inputs, passes = smooth_passes(grid, meas, model, passes=params.model_passes,
                                                     process_noise=params.process_noise, gate=params.gate_sigmas,
                                                     dofs=DOFS)
+        widen_for_misalignment(results["u"], results["v"], misalignment)
     accelerometer = None
     if vehicle.sensors.accelerometer is not None:
         if source.differentiated:

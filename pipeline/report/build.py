@@ -230,9 +230,13 @@ def _model_tables(rep: dict[str, Any]) -> list[str]:
                for d, v in sorted(((rep.get("accelerometer") or {}).get("bias_mps2") or {}).items())]
     mis = rep.get("velocity_misalignment")
     if mis:
-        errors.append({"sensor error": "velocity sensor yaw misalignment", "estimate": mis.get("estimate_deg"),
-                       "SD": mis.get("sd_deg"), "unit": "deg", "subtracted": mis.get("identifiable"),
-                       "note": mis.get("reason") or ""})
+        errors.append({"sensor error": "velocity sensor yaw misalignment (trial alone)",
+                       "estimate": mis.get("estimate_deg"), "SD": mis.get("sd_deg"), "unit": "deg",
+                       "subtracted": False, "note": mis.get("reason") or ""})
+        errors.append({"sensor error": "velocity sensor yaw misalignment (with the mount's prior)",
+                       "estimate": mis.get("posterior_deg"), "SD": mis.get("posterior_sd_deg"), "unit": "deg",
+                       "subtracted": mis.get("applied"), "note": "undone" if mis.get("applied") else
+                       "kept as configured; its error widens u's and v's bands"})
     if errors:
         parts.append(H.table(errors, caption="Sensor errors estimated from the trial"))
     excitation = [{"DOF": d, "band the velocity sensor resolves [Hz]": v.get("resolved_band_hz"),

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.estimation.dvl_alignment import estimate_misalignment, turned
+from pipeline.estimation.dvl_alignment import Misalignment, estimate_misalignment, turned, widen_for_misalignment
 from pipeline.estimation.forced import ForceModel, smooth_passes
-from pipeline.estimation.smoother import Measurements
+from pipeline.estimation.smoother import Measurements, Smoothed
 from pipeline.vocabulary import DOFS
 
 H_NS = 50_000_000
@@ -71,3 +71,35 @@ def test_without_the_model_or_with_a_noisy_sensor_it_is_not_claimed() -> None:
     best, inputs, _ = smooth_passes(grid, meas, model, passes=3, process_noise={}, gate=5.0, dofs=DOFS)
     found = estimate_misalignment(grid, meas["u"], meas["v"], best["u"], best["v"], inputs["u"], inputs["v"])
     assert not found.identifiable and found.reason
+
+
+def test_the_prior_on_the_mount_is_combined_by_precisions_and_undone_only_beyond_its_sd() -> None:
+    trial = Misalignment(estimate_deg=3.0, sd_deg=1.5, identifiable=False, reason="wide")
+    post = trial.with_prior(2.0)                       # weight 4 / (4 + 2.25) = 0.64
+    assert post.posterior_deg == pytest.approx(1.92) and post.posterior_sd_deg == pytest.approx(1.2)
+    assert post.applied                                # 1.92 > 1.2
+    weak = Misalignment(estimate_deg=0.5, sd_deg=1.0, identifiable=False).with_prior(2.0)
+    assert weak.posterior_deg == pytest.approx(0.4) and not weak.applied   # 0.4 < sqrt(0.8)
+    assert Misalignment(None, None, False, "no model").with_prior(2.0).posterior_sd_deg == 2.0
+    exact = trial.with_prior(0.0)
+    assert exact.posterior_deg == 0.0 and exact.posterior_sd_deg == 0.0 and not exact.applied
+
+
+def test_the_mount_error_left_widens_u_and_v_by_the_other_velocity() -> None:
+    n = 5
+
+    def result(x: float, xdot: float) -> Smoothed:
+        return Smoothed(x=np.full(n, x), xdot=np.full(n, xdot), q=1.0, loglik=0.0, used=n, gated=0,
+                        x_sd=np.full(n, 0.01), xdot_sd=np.full(n, 0.002))
+
+    u, v = result(1.2, 0.05), result(-0.3, 0.02)
+    kept = Misalignment(0.5, 1.0, False).with_prior(2.0)          # not undone: RMS of the posterior is left
+    widen_for_misalignment(u, v, kept)
+    rms = np.radians(np.hypot(kept.posterior_deg, kept.posterior_sd_deg))
+    np.testing.assert_allclose(u.x_sd, np.hypot(0.01, rms * 0.3))
+    np.testing.assert_allclose(v.x_sd, np.hypot(0.01, rms * 1.2))
+    np.testing.assert_allclose(u.xdot_sd, np.hypot(0.002, rms * 0.02))
+    np.testing.assert_allclose(v.xdot_sd, np.hypot(0.002, rms * 0.05))
+    u2, v2 = result(1.2, 0.05), result(-0.3, 0.02)
+    widen_for_misalignment(u2, v2, Misalignment(None, None, False, "no model").with_prior(2.0))
+    assert (u2.x_sd == 0.01).all() and (v2.xdot_sd == 0.002).all()   # no likelihood: nothing claimed
