@@ -2,8 +2,9 @@
 version's scores into the candidate's run (:func:`write_baseline`, ``data/evaluation/baseline.json``) before the
 stages run, and the report shows, per output and model, the current score, the candidate's and which is better.
 
-The scores compared are those the two runs share a meaning for: each coupled model's R² on the holdout (Table
-III's final check; retraining keeps the holdout fixed) and each damping model's CV test MAE per DOF.
+The scores compared are those the two runs share a meaning for: each coupled model's R² on the holdout (the
+train stage's metrics.json, Table III's final check; retraining keeps the holdout fixed; a model whose train R²
+is below 0 there loses) and each damping model's CV test MAE per DOF.
 """
 
 from __future__ import annotations
@@ -37,13 +38,15 @@ def scores(root: Path) -> list[dict[str, Any]]:
     root = Path(root)
     out: list[dict[str, Any]] = []
     t3 = _load(root / layout.EVALUATION / "coupled" / "table3.json")
-    for model, entry in sorted(t3.items()) if isinstance(t3, dict) else []:
-        final = entry.get("final") if isinstance(entry, dict) else None
-        for output, f in sorted(final.items()) if isinstance(final, dict) else []:
-            r2 = verdicts.number((f or {}).get("r2"))
+    t3 = t3 if isinstance(t3, dict) else {}
+    coupled = _load(root / layout.EVALUATION / "coupled" / "metrics.json")  # what retraining scores too
+    for model, per_output in sorted(coupled.items()) if isinstance(coupled, dict) else []:
+        for output, f in sorted(per_output.items()) if isinstance(per_output, dict) else []:
+            r2 = verdicts.number(f.get("final_r2")) if isinstance(f, dict) else None
             if r2 is not None:
                 out.append({"output": output, "model": model, "score": r2, "metric": "R² on the holdout",
-                            "higher_is_better": True, "failed": verdicts.coupled_train_failed(entry, output)})
+                            "higher_is_better": True,
+                            "failed": verdicts.coupled_train_failed(t3.get(model), output)})
     dec = _load(root / layout.EVALUATION / "decoupled" / "metrics.json")
     results = dec.get("results") if isinstance(dec, dict) else None
     for dof, per_model in sorted(results.items()) if isinstance(results, dict) else []:
