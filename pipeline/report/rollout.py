@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pipeline.report.names import signal_label
 from pipeline.report.verdicts import band_verdict, label
-from pipeline.units import axis_label
 from pipeline.vocabulary import VELOCITY_COLUMNS
 
 if TYPE_CHECKING:
@@ -63,7 +63,7 @@ def plot_free_runs(runs: Sequence[FreeRun], target: Any, title: str = "") -> Any
                 last = np.flatnonzero(np.isfinite(run.predicted[:, j]) & (run.t_s <= run.diverged_at_s))
                 if last.size:
                     ax.plot(run.t_s[last[-1]], run.predicted[last[-1], j], "x", ms=9, color=line.get_color())
-        ax.set_ylabel(axis_label(VELOCITY_COLUMNS[d]))
+        ax.set_ylabel(signal_label(VELOCITY_COLUMNS[d]))
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7, ncol=3, loc="upper right")
     axes[-1, 0].set_xlabel("time [s]")
