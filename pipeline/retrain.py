@@ -13,7 +13,8 @@ One run of :func:`retrain`:
    per-trial tables (every stage writes by atomic replace, so the store's files are never modified through the
    links; when the vehicle or params changed since the store was built, the per-trial tables are recomputed),
    the new logs copied into ``data/raw``, then the DAG (ingest of the new logs only, per-trial stages for the
-   trials without output, features, tune, train, decoupled, simulate, report);
+   trials without output, features, tune, train, decoupled, simulate, report), with the current version's
+   scores in ``data/evaluation/baseline.json`` so that its report compares the two model by model;
 5. scores the candidate on the FIXED holdout (chosen at the first run, recorded in the registry with the
    hashes of its logs; every candidate gets it as ``features.test_trials``), compares with the current model's
    score on the same holdout, promotes only if strictly better;
@@ -40,6 +41,7 @@ from pipeline.config import Params, config_hash, load_params, load_vehicle, pars
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import PipelineError
 from pipeline.registry import LOCK_FILE, LockBusy, exclusive_lock
+from pipeline.report import compare
 from pipeline.tableio import file_sha256
 
 log = logging.getLogger(__name__)
@@ -279,6 +281,8 @@ def _retrain_locked(options: RetrainOptions, root: Path) -> RetrainOutcome:
     holdout = list(data["holdout"]["trials"])
     params = _params_with_holdout(params, holdout)
     (work / "params.yaml").write_text(yaml.safe_dump(params.model_dump(mode="json"), sort_keys=False))
+    if data["current"] and (root / "models" / data["current"]).is_dir():  # the report compares, model by model
+        compare.write_baseline(work, root / "models" / data["current"], data["current"])
 
     # Build: ingest only what is new (all raw if the config changed), per-trial work only where missing.
     ingest_logs = sorted(new_raw) if same_config else sorted(p for p in raw.iterdir() if not p.name.startswith("."))

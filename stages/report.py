@@ -20,6 +20,7 @@ from pipeline import layout
 from pipeline.config import Params, Vehicle
 from pipeline.report import verdicts
 from pipeline.report.build import build
+from pipeline.report.freeruns import simulation_doc
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
 
@@ -50,17 +51,19 @@ def headline(coupled: Any, decoupled: Any, simulation: Any, table3: Any = None) 
     {"test_mae_mean"}}}}}``; ``simulation``: ``{trial: {"free_run": [{model, status, metrics: {dof: {mae}}}]}}``.
     Diverged free runs are left out (their error covers only the part before they diverged), and so is a model
     that failed (``pipeline.report.verdicts``: train R² below 0 on that output (``table3``: Table III's JSON), a
-    free run worse than the mean on that DOF): the report's summary picks with the same functions."""
+    free run that diverged, in the whole trial or in a bridging window, or is worse than the mean on that DOF):
+    the report's summary picks with the same functions."""
     out: dict[str, Any] = {}
+    marks = verdicts.simulation_marks(simulation)
     finals = {m: {o: sc.get("final_r2") for o, sc in per_output.items() if isinstance(sc, dict)}
               for m, per_output in (coupled or {}).items() if isinstance(per_output, dict)}
-    best = verdicts.best_coupled(finals, table3)
+    best = verdicts.best_coupled(finals, table3, marks)
     if best:
         out["coupled_final_r2"] = {o: {"best": round(r2, 6), "model": m} for o, (m, r2) in sorted(best.items())}
     damping: dict[str, Any] = {}
     results = decoupled.get("results", {}) if isinstance(decoupled, dict) else {}
     for dof, per_model in (results if isinstance(results, dict) else {}).items():
-        chosen = verdicts.best_damping(per_model) if isinstance(per_model, dict) else None
+        chosen = verdicts.best_damping(per_model, dof, marks) if isinstance(per_model, dict) else None
         if chosen is not None:
             model, mae = chosen
             row: dict[str, Any] = {"best_mae": round(mae, 6), "model": model}
@@ -80,9 +83,9 @@ def headline(coupled: Any, decoupled: Any, simulation: Any, table3: Any = None) 
         for run_ in runs if isinstance(runs, list) else []:
             if not isinstance(run_, dict) or run_.get("status") != "ok":
                 continue
-            worse = verdicts.worse_dofs(run_)
             for dof, m in (run_.get("metrics") or {}).items():
-                mae = _number(m.get("mae")) if isinstance(m, dict) and dof not in worse else None
+                failed = verdicts.failures(marks, str(run_.get("model")), dof)
+                mae = _number(m.get("mae")) if isinstance(m, dict) and not failed else None
                 if mae is not None and (dof not in per_dof or mae < per_dof[dof][0]):
                     per_dof[dof] = (mae, str(run_.get("model")))
         for dof, value in per_dof.items():
@@ -108,7 +111,7 @@ def run(root: Path, vehicle: Vehicle, params: Params) -> StageResult:
     outputs.append(write_json(report.metrics, out / "metrics.json"))
     outputs.append(write_json(headline(_load(root / layout.EVALUATION / "coupled" / "metrics.json"),
                                        _load(root / layout.EVALUATION / "decoupled" / "metrics.json"),
-                                       _load(root / layout.SIMULATION / "metrics.json"),
+                                       simulation_doc(root),
                                        _load(root / layout.EVALUATION / "coupled" / "table3.json")),
                               out / "headline.json"))
     for name, rows in sorted(report.plots.items()):

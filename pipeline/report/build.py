@@ -19,8 +19,9 @@ import pandas as pd
 
 from pipeline import __version__, layout
 from pipeline.config import Params, Vehicle, config_hash
-from pipeline.report import coverage, figures, studies
+from pipeline.report import compare, coverage, figures, freeruns, studies, summary, verdicts
 from pipeline.report import html as H
+from pipeline.report.names import signal_label
 from pipeline.report.plots import model_plots
 
 log = logging.getLogger(__name__)
@@ -160,7 +161,8 @@ def _signals_section(root: Path, trials: list[str], metrics: dict[str, Any],
             parts.append(H.image(png, f"signals and validity of {trial}"))
         segs = frame["segment"] if "segment" in frame.columns else None
         nseg = int(segs[segs >= 0].nunique()) if segs is not None else 0
-        parts.append(H.table([{"signal": s, "valid fraction": f} for s, f in fractions.items()])
+        parts.append(H.table([{"signal": signal_label(s) if s != "segment" else "in a usable segment",
+                               "valid fraction": f} for s, f in fractions.items()])
                      + f"<p class='muted'>{len(frame)} grid samples, {nseg} usable segment(s)</p>")
     plots["valid_fraction"] = valid_rows
     return "".join(parts) or "<p class='warn'>No synced trial found (data/synced/).</p>"
@@ -343,6 +345,29 @@ def _flat_params(obj: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def _evidence(root: Path, trials: list[str], metrics: dict[str, Any]) -> summary.Evidence:
+    """The size of the evidence: synced trials, their minutes, the usable share (the smoother's, or sync's
+    segments), weighted by grid samples; the unseen trials as the tune stage recorded them."""
+    minutes, weighted, samples = 0.0, 0.0, 0
+    for trial in trials:
+        path = layout.synced_path(root, trial)
+        if not path.exists():
+            continue
+        t_ns = pd.read_parquet(path, columns=["t_ns"])["t_ns"].to_numpy()
+        if len(t_ns) > 1:
+            minutes += (int(t_ns[-1]) - int(t_ns[0])) / 60e9
+        sig = metrics.get("signals", {}).get(trial, {})
+        est = metrics.get("estimation", {}).get(trial, {})
+        usable = est.get("usable_fraction", sig.get("usable_fraction"))
+        if usable is not None:
+            weighted += usable * len(t_ns)
+            samples += len(t_ns)
+    doc, _ = coverage.read(root)
+    return summary.Evidence(trials=len(metrics.get("signals", {})), minutes=minutes,
+                            usable=weighted / samples if samples else None,
+                            test_trials=list((doc or {}).get("test_trials") or sorted(freeruns.simulation_doc(root))))
+
+
 def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
     """The report of the run in ``root``: HTML, metrics (for ``dvc metrics``), plot data, figures."""
     root = Path(root)
@@ -359,8 +384,9 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
     ingest = _ingest_section(root, trials, metrics, plots, figs)
     signals = _signals_section(root, trials, metrics, plots, figs)
     estimation = _estimation_section(root, trials, metrics, figs)
-    parts = {"coupled": studies.coupled(root, figs), "decoupled": studies.decoupled(root, figs),
-             "simulation": studies.simulation(root, figs)}
+    marks = verdicts.simulation_marks(freeruns.simulation_doc(root))
+    parts = {"coupled": studies.coupled(root, figs, marks), "decoupled": studies.decoupled(root, figs, marks),
+             "simulation": freeruns.section(root, figs, marks)}
     failed = parts["coupled"].failed + parts["decoupled"].failed
     quarantine = _quarantine_section(root, metrics, failed)
     extrapolation, extrapolation_note, used = coverage.section(root)
@@ -373,9 +399,9 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
         bodies[name] = (parts[name].html + rest) if parts[name].html else (
             rest or f"<p class='muted'>No readable file under {H.esc(base)}/.</p>")
     sections = [
-        ("summary", "Summary", extrapolation_note + studies.headline(
+        ("summary", "Summary", extrapolation_note + summary.headline(
             parts["coupled"], parts["decoupled"], parts["simulation"], metrics["ingest"]["quarantined"], len(failed),
-            parts["coupled"].protocol)),
+            parts["coupled"].protocol, _evidence(root, trials, metrics)) + compare.section(root)),
         ("quarantine", "Quarantine and failures", quarantine),
         ("ingest", "Ingest and sensor rates", ingest),
         ("signals", "Signals and validity", signals),

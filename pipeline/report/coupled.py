@@ -1,16 +1,21 @@
 """The coupled study's tables and figure (paper 000): Table II (chosen hyperparameters, stages.tune), Table III (CV
-and final-check R² per model and output) and the Fig. 4-like box plot of the fold test R² (stages.train)."""
+and final-check R² per model and output) and the Fig. 4-like box plot of the fold test R² (stages.train; the
+report draws it again with the report's verdicts: failed models red, an axis clipped at R² −1 with the model cut
+off named)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
+from pipeline.report.verdicts import coupled_train_failed, label
 from pipeline.units import axis_label
 
 MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
                 "gertler_hagen": "Gertler-Hagen", "mcfarland_whitcomb": "McFarland-Whitcomb",
-                "graybox": "Gray-box (MW + WDSE)", "graybox_gh": "Gray-box (GH + WDSE)"}
+                "fossen": "Fossen", "graybox": "Gray-box (MW + WDSE)", "graybox_gh": "Gray-box (GH + WDSE)",
+                "graybox_fossen": "Gray-box (Fossen + WDSE)"}  # the Markdown tables' (ASCII hyphens)
 
 
 def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], inputs: Sequence[str]) -> str:
@@ -55,26 +60,86 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
     return "\n".join(lines) + "\n", doc
 
 
-def fold_boxplot(results: dict[str, Any], outputs: Sequence[str], target: Any) -> None:
-    """Fig. 4-like box plots of the fold test R² per model, one panel per output (PNG, Agg)."""
+#: Fig. 4's lowest R² on scale: below it a box says nothing the others need, and would squash them
+R2_FLOOR = -1.0
+
+
+def fold_scores(folds: dict[str, Any], outputs: Sequence[str]) -> dict[str, dict[str, list[float]]]:
+    """``{model: {output: [fold test R², ...]}}`` from per-fold records (``fold_scores.json`` / a result's
+    ``folds``: ``[{"test": {output: {"r2": ...}}}, ...]``); non-finite scores dropped."""
+    out: dict[str, dict[str, list[float]]] = {}
+    for model, records in folds.items():
+        for o in outputs:
+            values = [((f.get("test") or {}).get(o) or {}).get("r2") for f in records or [] if isinstance(f, dict)]
+            values = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
+            if values:
+                out.setdefault(model, {})[o] = values
+    return out
+
+
+def fold_figure(scores: dict[str, dict[str, list[float]]], outputs: Sequence[str],
+                failed: dict[tuple[str, str], str] | None = None, floor: float = R2_FLOOR) -> tuple[Any, list[str]]:
+    """Fig. 4: box plots of the fold test R² per model, one panel per output (matplotlib figure, Agg). A model in
+    ``failed`` (``(model, output) -> why``) is drawn red and named with its verdict; the axis never goes below
+    ``floor`` (or the lowest score above it), and each model cut off there is annotated on the panel ("Gertler–Hagen:
+    fold R² down to −27, off scale"). Returns the figure and those annotations."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.tableio import atomic_path
-
-    fig, axes = plt.subplots(1, len(outputs), figsize=(4.2 * len(outputs), 4.0), squeeze=False)
-    models = list(results)
+    failed = failed or {}
+    fig, axes = plt.subplots(1, len(outputs), figsize=(4.2 * len(outputs), 4.4), squeeze=False)
+    models = [m for m in scores if any(scores[m].get(o) for o in outputs)]
+    off_scale: list[str] = []
     for ax, out in zip(axes[0], outputs, strict=True):
-        data = [[f["test"][out]["r2"] for f in results[m]["folds"]] for m in models]
-        ax.boxplot(data, whis=(0, 100))
-        ax.set_xticks(range(1, len(models) + 1), [MODEL_LABELS.get(m, m) for m in models], rotation=35,
-                      ha="right", fontsize=8)
+        shown = [m for m in models if scores[m].get(out)]
+        data = [scores[m][out] for m in shown]
+        if not data:
+            ax.set_visible(False)
+            continue
+        low = min(min(d) for d in data)
+        bottom = max(low, floor)
+        top = max(1.0, max(max(d) for d in data))
+        pad = 0.05 * (top - bottom or 1.0)
+        boxes = ax.boxplot(data, whis=(0, 100), patch_artist=True)
+        cut = []
+        for i, (m, d) in enumerate(zip(shown, data, strict=True)):
+            bad = (m, out) in failed
+            boxes["boxes"][i].set_facecolor("#f4c7c3" if bad else "#dbe7f3")
+            boxes["boxes"][i].set_edgecolor("#a40000" if bad else "#1f4e79")
+            if min(d) < bottom - 1e-12:
+                note = f"{label(m)}: fold R² down to {min(d):.3g}, off scale"
+                cut.append(note)
+                off_scale.append(f"{note} ({axis_label(out)})")
+                ax.annotate("", xy=(i + 1, bottom - pad * 0.6), xytext=(i + 1, bottom + 2.5 * pad),
+                            arrowprops={"arrowstyle": "->", "color": "#a40000"})
+        names = [label(m) + ("\n(failed: train R² < 0)" if (m, out) in failed else "") for m in shown]
+        ax.set_xticks(range(1, len(shown) + 1), names, rotation=35, ha="right", fontsize=8)
+        for tick, m in zip(ax.get_xticklabels(), shown, strict=True):
+            if (m, out) in failed:
+                tick.set_color("#a40000")
+        ax.set_ylim(bottom - pad, top + pad)
+        if cut:
+            ax.text(0.02, 0.02, "\n".join(cut), transform=ax.transAxes, fontsize=7, color="#a40000", va="bottom")
         ax.set_title(axis_label(out))
         ax.set_ylabel("fold test R² [-]")
         ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
+    return fig, off_scale
+
+
+def fold_boxplot(results: dict[str, Any], outputs: Sequence[str], target: Any) -> None:
+    """Fig. 4 as the train stage writes it (PNG): :func:`fold_figure` with the models whose mean CV train R² is
+    below 0 marked failed."""
+    import matplotlib.pyplot as plt
+
+    from pipeline.tableio import atomic_path
+
+    scores = fold_scores({m: r["folds"] for m, r in results.items()}, outputs)
+    failed = {(m, o): "train R² < 0" for m, r in results.items() for o in outputs
+              if coupled_train_failed({"cv": r.get("summary")}, o)}
+    fig, _ = fold_figure(scores, outputs, failed)
     with atomic_path(target) as tmp:
         fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
     plt.close(fig)

@@ -9,6 +9,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from pipeline.report.names import signal_label
+from pipeline.vocabulary import DOFS, force_column
+
 log = logging.getLogger(__name__)
 
 MAX_POINTS = 4000  # per signal line; longer trials are decimated for the picture only
@@ -66,7 +69,7 @@ def signal_validity(frame: pd.DataFrame, trial: str, max_signals: int = 16) -> b
         if segment is not None:
             for a, b in _runs(segment >= 0):
                 ax.axvspan(t[a], t[min(b, len(t) - 1)], color="#2ca02c", alpha=0.06, lw=0)
-        ax.set_ylabel(name, rotation=0, ha="right", va="center", fontsize=7)
+        ax.set_ylabel(signal_label(name).replace(" [", "\n["), rotation=0, ha="right", va="center", fontsize=7)
         ax.tick_params(labelsize=7)
     axes[-1, 0].set_xlabel("time since start [s]")
     axes[0, 0].set_title(f"{trial}: synced signals (red: invalid, green: usable segments)", fontsize=9)
@@ -113,7 +116,6 @@ def estimated_velocities(kin: pd.DataFrame, trial: str, window_s: float = 120.0)
     keep = t_all <= window_s
     t = t_all[keep]
     fig, axes = plt.subplots(len(dofs), 1, figsize=(10, 2.0 * len(dofs) + 0.6), sharex=True, squeeze=False)
-    unit_label = {"mps": "m/s", "radps": "rad/s"}
     for ax, (d, u) in zip(axes[:, 0], dofs, strict=True):
         est = kin[f"{d}_{u}"].to_numpy(float)[keep]
         sd = kin[f"{d}_smooth_std_{u}"].to_numpy(float)[keep]
@@ -124,7 +126,7 @@ def estimated_velocities(kin: pd.DataFrame, trial: str, window_s: float = 120.0)
             for a, b in _runs(~np.isfinite(meas)):
                 ax.axvspan(t[a], t[min(b, len(t) - 1)], color="#ff7f0e", alpha=0.2, lw=0)
         ax.plot(t, est, lw=0.9, color="#1f4e79", label="estimate")
-        ax.set_ylabel(f"{d} [{unit_label[u]}]", fontsize=8)
+        ax.set_ylabel(signal_label(f"{d}_{u}").replace(" [", "\n["), fontsize=8)
         ax.tick_params(labelsize=7)
     axes[0, 0].legend(fontsize=7, loc="upper right", ncol=3)
     axes[-1, 0].set_xlabel("time since the first usable sample [s]")
@@ -151,7 +153,9 @@ def learning_curves(curves: dict[str, dict[str, dict[str, Any]]], units: dict[st
                 ax.plot(sizes, c["train_mae_mean"], "--", color=color, lw=0.9)
         ax.set_yscale("log")
         ax.set_xlabel("training samples [rows]", fontsize=8)
-        ax.set_ylabel(f"MAE of d_{dof} [{units.get(dof, '?')}]", fontsize=8)
+        column = force_column(dof, "d") if dof in DOFS else f"d_{dof}"
+        ax.set_ylabel(f"MAE of the {signal_label(column)}" if dof in DOFS else f"MAE of d_{dof} [{units.get(dof)}]",
+                      fontsize=8)
         ax.set_title(f"DOF {dof}", fontsize=9)
         ax.grid(alpha=0.3, which="both")
         ax.tick_params(labelsize=7)

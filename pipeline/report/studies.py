@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline import layout
+from pipeline.report import coupled as report_coupled
 from pipeline.report import figures, verdicts
 from pipeline.report import html as H
 
@@ -40,13 +41,15 @@ class Part:
     failed: list[dict[str, Any]] = field(default_factory=list)
     protocol: str = ""
     verdicts: list[str] = field(default_factory=list)  # "model on output (why)": failed, left out of "best"
+    bands: list[str] = field(default_factory=list)  # "model: 2σ band over-confident on v (...)": marked only
+    outputs: list[str] = field(default_factory=list)  # the coupled study's outputs
 
 
 def label(model: str) -> str:
     return verdicts.label(model)
 
 
-def _read(root: Path, rel: str, used: set[str]) -> Any:
+def read(root: Path, rel: str, used: set[str]) -> Any:
     path = root / rel
     if not path.is_file():
         return None
@@ -59,12 +62,12 @@ def _read(root: Path, rel: str, used: set[str]) -> Any:
     return doc
 
 
-def _href(rel: str) -> str:
+def href(rel: str) -> str:
     """A run-relative path as seen from reports/report.html."""
     return "../" + rel
 
 
-def _png(root: Path, rel: str, used: set[str], figs: dict[str, bytes], key: str) -> bytes | None:
+def png(root: Path, rel: str, used: set[str], figs: dict[str, bytes], key: str) -> bytes | None:
     path = root / rel
     if not path.is_file():
         return None
@@ -152,7 +155,23 @@ def _table2(doc: dict[str, Any], outputs: Sequence[str], inputs: Sequence[str]) 
                                  "rows, a fit on n rows uses C·(C_rows/n)^coupled.c_rate)")
 
 
-def _table3(doc: dict[str, Any], outputs: Sequence[str]) -> tuple[str, list[dict[str, Any]]]:
+def coupled_verdict(entry: Any, marks: verdicts.Marks | None, model: str, output: str | None = None) -> str:
+    """A coupled model's verdict on ``output`` (every output when None): its train R², its free runs."""
+    cv = entry.get("cv") if isinstance(entry, dict) else None
+    outs = [output] if output else list(cv) if isinstance(cv, dict) else []
+    train = any(verdicts.coupled_train_failed(entry, o) for o in outs)
+    dof = verdicts.OUTPUT_DOF.get(output, output) if output else None
+    return verdicts.verdict(train, marks, verdicts.COUPLED_PREFIX + model, dof)
+
+
+def coupled_failed(entry: Any, marks: verdicts.Marks | None, model: str, output: str) -> bool:
+    """Is a coupled model failed on ``output`` (train R² below 0, or a free run that failed on its DOF)?"""
+    return verdicts.coupled_train_failed(entry, output) or bool(
+        verdicts.failures(marks, verdicts.COUPLED_PREFIX + model, verdicts.OUTPUT_DOF.get(output, output)))
+
+
+def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks | None = None
+            ) -> tuple[str, list[dict[str, Any]]]:
     rows, failed = [], []
     for model in sorted(doc, key=lambda m: (list(LABELS).index(m) if m in LABELS else 99, m)):
         entry = doc[model]
@@ -173,19 +192,21 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str]) -> tuple[str, list[dict
                          "CV train R² (mean ± sd)": H.mean_sd(c.get("train_r2", {}).get("mean"),
                                                               c.get("train_r2", {}).get("sd")),
                          "final check R² (unseen trial)": f.get("r2"), "final check MAE": f.get("mae"),
-                         "verdict": verdicts.TRAIN_FAILED if verdicts.coupled_train_failed(entry, out) else "ok"})
+                         "verdict": coupled_verdict(entry, marks, model, out)})
     html = H.table(rows, caption="Table III — cross-validation and final check (paper 000): blocked k-fold CV on "
                                  "the train_test block (mean ± sd over folds), then the model fitted on all of it "
                                  "scored on the unseen test trial(s); verdict “failed: train R² < 0”: worse than "
-                                 "the mean on its own training rows, left out of “best”")
+                                 "the mean on its own training rows; a free run that diverged or is worse than the "
+                                 "mean on the output's DOF is named too; either leaves the model out of “best”")
     return html, failed
 
 
-def _best_per_output(doc: dict[str, Any], outputs: Sequence[str]) -> dict[str, tuple[str, float]]:
+def _best_per_output(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks | None = None
+                     ) -> dict[str, tuple[str, float]]:
     """Per output, the best final R² among the models not failed on it (verdicts.best_coupled)."""
     finals = {m: {o: (e["final"].get(o) or {}).get("r2") for o in outputs if isinstance(e["final"].get(o), dict)}
               for m, e in doc.items() if isinstance(e, dict) and isinstance(e.get("final"), dict)}
-    best = verdicts.best_coupled(finals, doc)
+    best = verdicts.best_coupled(finals, doc, marks)
     return {o: best[o] for o in outputs if o in best}
 
 
@@ -219,13 +240,36 @@ def ranking_note(best: dict[str, tuple[str, float]], hyper_doc: dict[str, Any] |
             "See docs/models.md, “On realistic data”.</p>")
 
 
-def coupled(root: Path, figs: dict[str, bytes]) -> Part:
+def fold_figure(root: Path, t3: Any, outputs: Sequence[str], used: set[str], figs: dict[str, bytes],
+                marks: verdicts.Marks | None) -> str:
+    """Fig. 4 drawn again from fold_scores.json with the report's verdicts (failed models red, an axis clipped at
+    R² −1 with each model cut off named); the train stage's PNG where there are no fold scores."""
+    folds = read(root, f"{COUPLED}/fold_scores.json", used)
+    scores = report_coupled.fold_scores(folds, outputs) if isinstance(folds, dict) else {}
+    caption = "Fig. 4 — test R² per CV fold (paper 000): one box per model and output; higher is better"
+    if not scores:
+        data = png(root, f"{COUPLED}/fold_test_r2.png", used, figs, "coupled_fold_test_r2.png")
+        return H.image(data, "fold test R² per model", caption) if data else ""
+    t3 = t3 if isinstance(t3, dict) else {}
+    failed = {(m, o): coupled_verdict(t3.get(m), marks, m, o) for m in scores for o in outputs
+              if coupled_failed(t3.get(m), marks, m, o)}
+    fig, off_scale = report_coupled.fold_figure(scores, outputs, failed)
+    data = figures.png_bytes(fig)
+    figs["coupled_fold_test_r2.png"] = data
+    used.add(f"{COUPLED}/fold_test_r2.png")  # drawn again here, with the verdicts
+    marked = sorted({f"{label(m)} on {OUTPUT_LABELS.get(o, o)}" for m, o in failed})
+    caption += ("; red: failed (" + "; ".join(marked) + ")" if marked else "")
+    caption += ("; off scale (axis clipped at R² −1): " + "; ".join(off_scale) if off_scale else "")
+    return H.image(data, "fold test R² per model", caption)
+
+
+def coupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = None) -> Part:
     part = Part()
     used = part.used
-    hyper_doc = _read(root, f"{layout.MODELS}/coupled/hyperparameters.json", used)
-    t2 = _read(root, f"{COUPLED}/table2.json", used)
-    t3 = _read(root, f"{COUPLED}/table3.json", used)
-    timings = _read(root, f"{COUPLED}/timings.json", used)
+    hyper_doc = read(root, f"{layout.MODELS}/coupled/hyperparameters.json", used)
+    t2 = read(root, f"{COUPLED}/table2.json", used)
+    t3 = read(root, f"{COUPLED}/table3.json", used)
+    timings = read(root, f"{COUPLED}/timings.json", used)
     if t2 is None and t3 is None and hyper_doc is None:
         return part
     outputs = list((hyper_doc or {}).get("outputs") or [])
@@ -233,18 +277,19 @@ def coupled(root: Path, figs: dict[str, bytes]) -> Part:
         found = [o for e in (t3 or {}).values() if isinstance(e, dict) for o in e.get("final", {})]
         outputs = list(dict.fromkeys(o for o in OUTPUT_LABELS if o in found)) or sorted(set(found))
     part.protocol = protocol_line(hyper_doc)
+    part.outputs = list(outputs)
     parts = [f"<p class='box'>{H.esc(part.protocol)}</p>"]
     if isinstance(t2, dict) and t2:
         parts.append(_table2(t2, outputs, list((hyper_doc or {}).get("inputs") or [])))
-    trace = _read(root, f"{COUPLED}/search_trace.json", used)
+    trace = read(root, f"{COUPLED}/search_trace.json", used)
     if isinstance(trace, dict):
         parts.append(search_notes(trace, outputs))
     used.add(f"{COUPLED}/table2.md")
     failed: list[dict[str, Any]] = []
     if isinstance(t3, dict):
-        html, failed = _table3(t3, outputs)
+        html, failed = _table3(t3, outputs, marks)
         parts.append(html)
-        best = _best_per_output(t3, outputs)
+        best = _best_per_output(t3, outputs, marks)
         parts.append(ranking_note(best, hyper_doc))
         part.headline = [{"output": OUTPUT_LABELS.get(o, o), "best model": label(m),
                           "R² on the unseen trial": r2} for o, (m, r2) in best.items()]
@@ -253,39 +298,38 @@ def coupled(root: Path, figs: dict[str, bytes]) -> Part:
     if failed:
         part.failed = [{"study": "coupled", **f} for f in failed]
         parts.append("<p class='warn'>Failed, not in Table III (see Quarantine and failures).</p>")
-    png = _png(root, f"{COUPLED}/fold_test_r2.png", used, figs, "coupled_fold_test_r2.png")
-    if png:
-        parts.append(H.image(png, "fold test R² per model", "Fig. 4 — test R² per CV fold (paper 000): one box per "
-                                                               "model and output; higher is better"))
+    parts.append(fold_figure(root, t3, outputs, used, figs, marks))
     if isinstance(timings, dict) and timings:
         rows = []
         for model, t in timings.items():
             fits = [v for v in (t or {}).get("fit_time_s", []) if isinstance(v, (int, float))]
             if fits:
                 rows.append({"model": label(model), "folds": len(fits), "mean fit time [s]": sum(fits) / len(fits),
-                             "longest fit [s]": max(fits)})
+                             "longest fit [s]": max(fits),
+                             "verdict": coupled_verdict((t3 or {}).get(model) if isinstance(t3, dict) else None,
+                                                        marks, model)})
         parts.append(H.table(rows, caption="Fit time per CV fold (wall clock on this machine)"))
     rels = [f"{layout.MODELS}/coupled/hyperparameters.json"] + [
         f"{COUPLED}/{n}" for n in ("table2.json", "table3.json", "fold_scores.json", "search_trace.json",
                                    "metrics.json", "timings.json")]
     used.update(r for r in rels if (root / r).is_file())
-    parts.append(H.links([(_href(r), Path(r).name) for r in rels if (root / r).is_file()]))
+    parts.append(H.links([(href(r), Path(r).name) for r in rels if (root / r).is_file()]))
     part.html = "".join(parts)
     return part
 
 
 # --------------------------------------------------------------------------------------- paper 001 (decoupled)
 
-def decoupled(root: Path, figs: dict[str, bytes]) -> Part:
+def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = None) -> Part:
     part = Part()
     used = part.used
-    doc = _read(root, f"{DECOUPLED}/metrics.json", used)
-    timings = _read(root, f"{DECOUPLED}/timings.json", used) or {}
+    doc = read(root, f"{DECOUPLED}/metrics.json", used)
+    timings = read(root, f"{DECOUPLED}/timings.json", used) or {}
     results = (doc or {}).get("results") if isinstance(doc, dict) else None
     if not isinstance(results, dict):
         return Part()
-    rows, failed, curves = [], [], {}
-    for dof in sorted(results, key=_dof_key):
+    rows, failed, curves, marked = [], [], {}, []
+    for dof in sorted(results, key=dof_key):
         per_model = results[dof]
         unit = DAMPING_UNIT.get(dof, "")
         for model in sorted(per_model, key=lambda m: (DAMPING_ORDER.index(m) if m in DAMPING_ORDER else 9, m)):
@@ -304,191 +348,57 @@ def decoupled(root: Path, figs: dict[str, bytes]) -> Part:
                          "CV test R² (mean ± sd)": H.mean_sd(cv.get("test_r2_mean"), cv.get("test_r2_sd")),
                          "CV train MAE": cv.get("train_mae_mean"),
                          "fit time [ms]": 1e3 * t["fit_time_s"] if isinstance(t.get("fit_time_s"), float) else None,
-                         "verdict": verdicts.TRAIN_FAILED if verdicts.damping_train_failed(r) else "ok"})
+                         "verdict": verdicts.verdict(verdicts.damping_train_failed(r), marks, model, dof)})
+            bad = verdicts.damping_train_failed(r) or verdicts.failures(marks, model, dof)
+            if bad:
+                marked.append(f"{label(model)} on {dof}")
             if isinstance(r.get("learning_curve"), dict):
-                curves.setdefault(dof, {})[label(model)] = r["learning_curve"]
+                curves.setdefault(dof, {})[label(model) + (" (failed)" if bad else "")] = r["learning_curve"]
             if verdicts.damping_train_failed(r):
                 part.verdicts.append(f"{label(model)} on {dof} (train R² {r['cv']['train_r2_mean']:.3g})")
-        best = verdicts.best_damping(per_model)  # least squares, the reference, competes too
+        best = verdicts.best_damping(per_model, dof, marks)  # least squares, the reference, competes too
         ls = verdicts.number(((per_model.get("ls") or {}).get("cv") or {}).get("test_mae_mean")) if isinstance(
             per_model.get("ls"), dict) else None
         if best is not None:
             part.headline.append({"dof": dof, "model": best[0], "mae": best[1], "ls": ls, "unit": unit})
     parts = [H.table(rows, caption="Table I — the damping study (paper 001): per DOF, each model's search result "
-                                   "and its blocked-CV scores on the train_test rows; MAE of the damping d_i(ν_i)")]
+                                   "and its blocked-CV scores on the train_test rows; MAE of the damping d_i(ν_i); "
+                                   "verdict: train R² below 0, a free run that failed on the DOF (left out of "
+                                   "“best”) or a 2σ band outside 90–98 % coverage")]
     if failed:
         part.failed = [{"study": "decoupled", "model": f"{f['DOF']}/{f['model']}", "reason": f["reason"]}
                        for f in failed]
         parts.append("<p class='warn'>Failed, not in Table I (see Quarantine and failures).</p>")
-    png = figures.learning_curves(curves, DAMPING_UNIT)
-    if png:
-        figs["decoupled_learning_curves.png"] = png
-        parts.append(H.image(png, "learning curves", "Fig. 2 — learning curves (paper 001): validation (solid) and "
-                                                     "training (dashed) MAE of the damping vs training samples"))
+    curve_png = figures.learning_curves(curves, DAMPING_UNIT)
+    if curve_png:
+        figs["decoupled_learning_curves.png"] = curve_png
+        parts.append(H.image(curve_png, "learning curves",
+                             "Fig. 2 — learning curves (paper 001): validation (solid) and training (dashed) MAE of "
+                             "the damping vs training samples" + ("; “(failed)”: " + ", ".join(marked) if marked
+                                                                  else "")))
         used.add(f"{DECOUPLED}/learning_curves.png")  # the report draws it again, with units
     else:
-        data = _png(root, f"{DECOUPLED}/learning_curves.png", used, figs, "decoupled_learning_curves.png")
+        data = png(root, f"{DECOUPLED}/learning_curves.png", used, figs, "decoupled_learning_curves.png")
         if data:
             parts.append(H.image(data, "learning curves", "Fig. 2 — learning curves (paper 001)"))
-    data = _png(root, f"{DECOUPLED}/damping.png", used, figs, "decoupled_damping.png")
+    data = png(root, f"{DECOUPLED}/damping.png", used, figs, "decoupled_damping.png")
     if data:
         parts.append(H.image(data, "damping curves", "Fig. 3 — damping curves (paper 001): each model's d_i(ν_i) "
                                                      "over the measured range [N or N·m vs m/s or rad/s], GP with "
-                                                     "its 2σ band, the training data in grey"))
-    data = _png(root, f"{DECOUPLED}/timings.png", used, figs, "decoupled_timings.png")
+                                                     "its 2σ band, the training data in grey"
+                             + (f"; failed: {', '.join(marked)}" if marked else "")
+                             + "".join(f"; {label(m)}: {n}" for m in sorted(marks or {})
+                                       for n in verdicts.notes(marks, m, kind="band")
+                                       if m in {k for per in results.values() for k in per})))
+    data = png(root, f"{DECOUPLED}/timings.png", used, figs, "decoupled_timings.png")
     if data:
         parts.append(H.image(data, "timings", "Timings (paper 001): fit and predict time per CV fold [s], log scale"))
     rels = [f"{DECOUPLED}/{n}" for n in ("metrics.json", "curves.json", "timings.json", "table.md")]
     used.update(r for r in rels if (root / r).is_file())
-    parts.append(H.links([(_href(r), Path(r).name) for r in rels if (root / r).is_file()]))
+    parts.append(H.links([(href(r), Path(r).name) for r in rels if (root / r).is_file()]))
     part.html = "".join(parts)
     return part
 
 
-# ------------------------------------------------------------------------------------------------- free runs
-
-def _free_run_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    rows = []
-    for run in runs:
-        metrics = run.get("metrics") or {}
-        row: dict[str, Any] = {"model": label(run.get("model")), "status": verdicts.free_run_status(run),
-                               "diverged at [s]": run.get("diverged_at_s")}
-        for dof in sorted(metrics, key=_dof_key):
-            m, unit = metrics[dof], VELOCITY_UNIT.get(dof, "")
-            row[f"{dof} R²"] = (m or {}).get("r2")
-            row[f"{dof} MAE [{unit}]"] = (m or {}).get("mae")
-        cover = run.get("band_coverage")
-        row["2σ band coverage"] = ("; ".join(f"{d}: {cover[d]:.0%}" for d in sorted(cover, key=_dof_key)
-                                             if isinstance(cover[d], float))
-                                   if isinstance(cover, dict) else "—")
-        rows.append(row)
-    return rows
-
-
-def _horizon_rows(doc: dict[str, Any]) -> list[dict[str, Any]]:
-    rows = []
-    for model, per_h in doc.items():
-        if not isinstance(per_h, dict):
-            continue
-        for h in sorted(per_h, key=lambda k: float(k) if k.replace(".", "", 1).isdigit() else 0.0):
-            e = per_h[h] or {}
-            row: dict[str, Any] = {"model": label(model), "horizon [s]": h, "windows": e.get("n_windows"),
-                                   "diverged": e.get("n_diverged")}
-            for dof, v in (e.get("mae_end") or {}).items():
-                row[f"{dof} MAE at end [{VELOCITY_UNIT.get(dof, '')}]"] = v
-            rows.append(row)
-    return rows
-
-
-def _bridging_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    hold = {r.get("window_s"): r.get("mean_error_m") for r in rows if r.get("model") == "hold_last"}
-    out = []
-    for r in rows:
-        base = hold.get(r.get("window_s"))
-        mean = r.get("mean_error_m")
-        ratio = mean / base if isinstance(mean, (int, float)) and isinstance(base, (int, float)) and base else None
-        out.append({"outage [s]": r.get("window_s"), "model": label(r.get("model")), "windows": r.get("n_windows"),
-                    "diverged": r.get("n_diverged"), "mean error [m]": mean, "median [m]": r.get("median_error_m"),
-                    "max [m]": r.get("max_error_m"), "distance travelled [m]": r.get("mean_distance_m"),
-                    "vs hold-last": None if ratio is None else f"{ratio:.2f}×"})
-    return out
-
-
-def simulation(root: Path, figs: dict[str, bytes]) -> Part:
-    part = Part()
-    used = part.used
-    base = root / layout.SIMULATION
-    if not base.is_dir():
-        return part
-    parts = []
-    for trial_dir in sorted(p for p in base.iterdir() if p.is_dir() and (p / "free_run.json").is_file()):
-        trial = trial_dir.name
-        rel = f"{layout.SIMULATION}/{trial}"
-        runs = _read(root, f"{rel}/free_run.json", used)
-        parts.append(f"<h3>{H.esc(trial)} (unseen trial)</h3>")
-        if isinstance(runs, list):
-            parts.append(H.table(_free_run_rows([r for r in runs if isinstance(r, dict)]),
-                                 caption=f"Free runs on {trial}: each model rolled out from the measured initial "
-                                         "velocity over the whole trial; R² and MAE of the velocity; coverage: "
-                                         "share of measured samples inside the model's 2σ band"))
-        banded = [label(r.get("model")) for r in runs or [] if isinstance(r, dict) and r.get("band_coverage")]
-        part.verdicts += [f"{label(r.get('model'))} free run on {trial}: {verdicts.free_run_status(r)}"
-                          for r in runs or [] if isinstance(r, dict) and verdicts.free_run_status(r) != "ok"]
-        data = _png(root, f"{rel}/free_run.png", used, figs, f"simulation_{trial}_free_run.png")
-        if data:
-            band = (f"the shaded band is the 2σ band of {', '.join(map(str, banded))} (posterior samples)"
-                    if banded else "no model of this run has a band")
-            parts.append(H.image(data, f"free runs of {trial}", f"Fig. 4 — free runs (paper 001) on {trial}: "
-                                                                f"measured (black) vs predicted velocity "
-                                                                f"[m/s, rad/s] over time [s]; {band}; × marks "
-                                                                "where a model diverged"))
-        horizons = _read(root, f"{rel}/horizons.json", used)
-        if isinstance(horizons, dict) and horizons:
-            parts.append(H.table(_horizon_rows(horizons), caption="Rollouts from every window start over fixed "
-                                                                 "horizons: velocity MAE at the horizon's end"))
-        bridging = _read(root, f"{rel}/bridging.json", used)
-        used.add(f"{rel}/bridging.md")
-        if isinstance(bridging, list) and bridging:
-            rows = _bridging_rows([r for r in bridging if isinstance(r, dict)])
-            parts.append(H.table(rows, caption="DVL-outage bridging: dead reckoning with each damping model's "
-                                               "velocity vs holding the last DVL velocity; position error at "
-                                               "the end of the outage"))
-            for r in rows:
-                if r["model"] != label("hold_last") and isinstance(r["mean error [m]"], (int, float)):
-                    part.headline.append({"trial": trial, **r})
-        data = _png(root, f"{rel}/bridging.png", used, figs, f"simulation_{trial}_bridging.png")
-        if data:
-            parts.append(H.image(data, "bridging error", "Bridging: mean position error at the end of the outage "
-                                                         "[m, log scale] vs outage length [s]"))
-        rels = [f"{rel}/{n}" for n in ("free_run.json", "horizons.json", "bridging.json")]
-        parts.append(H.links([(_href(r), Path(r).name) for r in rels if (root / r).is_file()]))
-    if (base / "metrics.json").is_file():
-        used.add(f"{layout.SIMULATION}/metrics.json")
-        parts.append(H.links([(_href(f"{layout.SIMULATION}/metrics.json"), "metrics.json")]))
-    part.html = "".join(parts)
-    return part
-
-
-# -------------------------------------------------------------------------------------------------- headline
-
-def _dof_key(dof: str) -> tuple[int, str]:
+def dof_key(dof: str) -> tuple[int, str]:
     return ("uvwpqr".find(dof) if len(dof) == 1 and dof in "uvwpqr" else 9, dof)
-
-
-def headline(coupled_part: Part, decoupled_part: Part, sim_part: Part, quarantined: int, failed: int,
-             protocol: str = "") -> str:
-    """The box at the top: best model per output, damping MAE vs LS, bridging vs hold-last (among the models that
-    did not diverge), what was left out, and the tuning protocol behind Tables II and III."""
-    parts = [f"<p>{H.esc(protocol)}</p>"] if protocol else []
-    if coupled_part.headline:
-        parts.append(H.table(coupled_part.headline, caption="Best coupled model per output: R² on the unseen "
-                                                            "trial (Table III's final check)"))
-    if decoupled_part.headline:
-        parts.append(H.table([{"DOF": h["dof"], "best damping model": label(h["model"]),
-                               "CV test MAE": f"{h['mae']:.4g} {h['unit']}",
-                               "LS (reference)": "—" if h["ls"] is None else f"{h['ls']:.4g} {h['unit']}",
-                               "vs LS": f"{h['mae'] / h['ls']:.2f}×" if h["ls"] else "—"}
-                              for h in sorted(decoupled_part.headline, key=lambda h: _dof_key(h["dof"]))],
-                             caption="Damping models (paper 001): per DOF the lowest CV test MAE among all models, "
-                                     "least squares (the reference) included, and LS's beside it"))
-    failures = coupled_part.verdicts + decoupled_part.verdicts + sim_part.verdicts
-    if failures:
-        parts.append(f"<p class='warn'><b>Failed, left out of “best”:</b> {H.esc('; '.join(failures))}.</p>")
-    if sim_part.headline:
-        best_b: dict[tuple[str, Any], dict[str, Any]] = {}
-        for h in sim_part.headline:
-            if h.get("diverged"):
-                continue  # its mean is over the windows it survived
-            key = (h["trial"], h["outage [s]"])
-            if key not in best_b or h["mean error [m]"] < best_b[key]["mean error [m]"]:
-                best_b[key] = h
-        parts.append(H.table([{"trial": t, "outage [s]": w, "best model": h["model"],
-                               "mean error [m]": h["mean error [m]"], "vs hold-last": h["vs hold-last"]}
-                              for (t, w), h in best_b.items()],
-                             caption="DVL-outage bridging: the best model's position error against holding the "
-                                     "last velocity"))
-    left = (f"{quarantined} input(s) quarantined, {failed} model(s) failed to fit"
-            if quarantined or failed else "Nothing was quarantined and every model fitted.")
-    cls = "warn" if quarantined or failed else "muted"
-    parts.append(f"<p class='{cls}'>{H.esc(left)} (see <a href='#quarantine'>Quarantine and failures</a>).</p>")
-    return "<div class='box'>" + "".join(parts) + "</div>"
