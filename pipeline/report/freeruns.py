@@ -99,7 +99,7 @@ def _bridging_rows(rows: list[dict[str, Any]], marks: verdicts.Marks) -> list[di
                     "max [m]": r.get("max_error_m"), "distance travelled [m]": r.get("mean_distance_m"),
                     "vs hold-last": None if ratio is None else f"{ratio:.2f}×",
                     "verdict": "reference" if model == "hold_last" else verdicts.verdict(False, marks, model),
-                    "failed": bool(verdicts.failures(marks, model)) or bool(r.get("n_diverged"))})
+                    "failed": bool(verdicts.disqualified(marks, model)) or bool(r.get("n_diverged"))})
     return out
 
 

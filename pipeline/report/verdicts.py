@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-#: ``{simulated model key: {DOF or ALL: [(kind, why)]}}``; kind "failed" (left out of "best") or "band"
+#: ``{simulated model key: {DOF or ALL: [(kind, why)]}}``; kind "failed" or "band" (both left out of "best")
 Marks = dict[str, dict[str, list[tuple[str, str]]]]
 
 # paper 000's labels (pipeline.report.coupled.MODEL_LABELS, repeated so the report imports no model code)
@@ -78,7 +78,7 @@ def best_coupled(final_r2: dict[str, dict[str, Any]], table3: Any, marks: Marks 
     for model in sorted(final_r2):
         for output, value in final_r2[model].items():
             r2 = number(value)
-            if r2 is None or coupled_train_failed(t3.get(model), output) or failures(
+            if r2 is None or coupled_train_failed(t3.get(model), output) or disqualified(
                     marks, COUPLED_PREFIX + model, OUTPUT_DOF.get(output, output)):
                 continue
             if output not in best or (r2, model) > (best[output][1], best[output][0]):
@@ -91,7 +91,7 @@ def best_damping(per_model: dict[str, Any], dof: str = "", marks: Marks | None =
     fit, on their training rows, or in a free run on ``dof``: ``marks``, :func:`simulation_marks`)."""
     maes = {m: number(((r.get("cv") or {}) if isinstance(r, dict) else {}).get("test_mae_mean"))
             for m, r in per_model.items() if isinstance(r, dict) and "failed" not in r and not damping_train_failed(r)
-            and not failures(marks, m, dof)}
+            and not disqualified(marks, m, dof)}
     maes = {m: v for m, v in maes.items() if v is not None}
     if not maes:
         return None
@@ -176,6 +176,12 @@ def notes(marks: Marks | None, model: str, dof: str | None = None, kind: str | N
 def failures(marks: Marks | None, model: str, dof: str | None = None) -> list[str]:
     """Why ``model`` failed in a free run on ``dof`` (any DOF when None); [] when it did not."""
     return notes(marks, model, dof, "failed")
+
+
+def disqualified(marks: Marks | None, model: str, dof: str | None = None) -> list[str]:
+    """Why ``model`` is left out of "best" on ``dof``: a failed free run, or a band outside its coverage (a model
+    that says it is surer than it is does not get recommended)."""
+    return failures(marks, model, dof) + notes(marks, model, dof, "band")
 
 
 def verdict(train_failed: bool, marks: Marks | None, model: str, dof: str | None = None) -> str:
