@@ -294,7 +294,6 @@ def check_headline_against_metrics(root: Path) -> int:
     """Every number of the headline box equals (as shown, 4 significant digits) the score in reports/metrics.json
     it comes from, and each "best" is the best there. Returns how many numbers were checked."""
     from pipeline.report import studies, verdicts
-
     from stages.report import simulation_doc
 
     text = (root / "reports/report.html").read_text()
