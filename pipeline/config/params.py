@@ -171,6 +171,18 @@ class CoupledParams(Frozen):
         "over the block searched (its whole span of motion), so a search's cost does not grow with the trials' "
         "length; the final models are fitted on every train_test row. null: every row (a search's cost then grows "
         "as rows squared: hours on two 480-s trials). docs/models.md, 'A bounded search by default'.")
+    screen_samples: int | None = Field(
+        None, ge=10, description="Successive halving over rows (fast search): each search screens its candidates "
+        "on this many of its max_samples rows (evenly spaced in time), then scores its `survivors` best and the warm "
+        "start on all of them. null (or >= max_samples): no row screen. Off by default: on the demo a search's cost "
+        "is libsvm's iterations at large C, not its rows (docs/models.md, 'Successive halving').")
+    screen_folds: int | None = Field(
+        2, ge=1, description="Successive halving over folds (fast search): each search screens its max_evals "
+        "candidates on this many of its tuning_folds folds (spread over the block), then completes the other folds "
+        "for its `survivors` best and the warm start, and keeps the best of those by the mean over all folds. null "
+        "(or >= tuning_folds): every candidate on every fold. docs/models.md, 'Successive halving'.")
+    survivors: int = Field(6, ge=1, description="Successive halving: the screen's best candidates scored on every "
+                           "row and fold (the warm start besides).")
     c_rate: float = Field(
         0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
         "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "
