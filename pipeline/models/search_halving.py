@@ -34,7 +34,6 @@ from pipeline.models.search import (
     _cv_fits,
     _expand,
     _iteration_cap,
-    _kept_note,
     _names,
     _smoothest_within,
     _to_params,
@@ -159,9 +158,13 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
         result.warm_start_score = warm_entry["score"]
         if chosen is warm_entry:
             result.warm_start_kept = True
-            result.note = (f"scored on all {len(X)} rows and {n_folds} folds, the warm start beat the "
-                           f"{len(final) - 1} best candidates of the screen; on the screen: "
-                           + (screen.note or _kept_note(screen.trace, screen.warm_start_score or 0.0, n_folds)))
+            others = [e["score"] for e in final if e is not warm_entry]
+            screen_warm = screen.warm_start_score if screen.warm_start_score is not None else float("nan")
+            result.note = (f"on all {n_folds} folds and {len(X)} rows the warm start (tuning R2 "
+                           f"{warm_entry['score']:.4f}) beat the screen's {len(others)} best candidates (best of "
+                           f"them {max(others, default=float('nan')):.4f}); on the screen ({len(idx)} rows, folds "
+                           f"{result.halving['screen_folds']}) it scored {screen_warm:.4f}, the screen's best "
+                           f"{screen.best_score:.4f}")
             log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
     cost = cost_summary(trace, max_iter)
     own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)

@@ -117,6 +117,8 @@ def test_halving_is_deterministic_and_a_short_block_is_the_fast_search_itself():
         return d
 
     assert stable(search("rbf_svr", X, y, "fast", **kw)) == stable(search("rbf_svr", X, y, "fast", **kw))
+    folds = {"screen_folds": 2, "survivors": 3, "max_evals": 6, "n_folds": 5}
+    assert stable(search("rbf_svr", X, y, "fast", **folds)) == stable(search("rbf_svr", X, y, "fast", **folds))
     short = halving_search("rbf_svr", X[:100], y[:100], **kw)
     plain = fast_search("rbf_svr", X[:100], y[:100], max_evals=6, n_folds=3)
     assert short.halving == {} and stable(short) == stable(plain)
@@ -171,3 +173,19 @@ def test_a_fold_screen_keeps_the_best_over_all_folds_and_reuses_its_fits(monkeyp
     assert not res.halving["screen_choice_kept"]
     ys = float(np.std(y))
     assert abs(math.log(res.best_params["C"] / ys / 3.0)) < abs(math.log(screen_best["C"] / ys / 3.0))
+
+
+def test_a_warm_start_that_wins_on_all_folds_is_reported_kept(monkeypatch, caplog):
+    _bowl_fits(monkeypatch)
+    X, y = _two_of_six(500)
+    X = X[:, :1]
+    ys = float(np.std(y))
+    warm = {"gamma": KNOWN_BEST["gamma"], "C": KNOWN_BEST["C"] * ys, "epsilon": KNOWN_BEST["epsilon"] * ys}
+    with caplog.at_level("WARNING", logger="pipeline.models.search_halving"):
+        res = halving_search("rbf_svr", X, y, screen_folds=2, survivors=3, max_evals=12, n_folds=5,
+                             warm_start=warm)
+    # the top of the bowl: no candidate beats it over all folds, though the screen's tilt preferred another
+    assert res.warm_start_kept and res.best_params["C"] == pytest.approx(warm["C"], rel=1e-5)
+    assert res.warm_start_score == res.best_score
+    assert "on all 5 folds" in res.note and "the screen's best" in res.note
+    assert sum("kept its warm start" in r.getMessage() for r in caplog.records) == 1
