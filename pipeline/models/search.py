@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
-           "fast_search", "local_search", "search", "SearchResult", "SearchSettings"]
+           "fast_search", "local_search", "search", "with_C_rows", "SearchResult", "SearchSettings"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -63,7 +63,6 @@ EPSILON_BOUNDS = (1e-3, 0.5)  # x y_scale (fast search)
 #: slowest candidate of the demo's searches (940 per row), so a runaway fit is stopped and reported while the
 #: demo's choices stay as they were; a tighter cap (300) moved r_dot's choices to lower tuning scores
 ITER_PER_ROW: float | None = 1000.0
-HALVING_KEYS = ("screen_rows", "screen_folds", "survivors", "c_rate")  # search(): the halving's own keywords
 SLOW_FIELDS = ("params", "score", "cpu_s", "n_iter", "capped")  # a slowest candidate's fields in the trace
 
 
@@ -105,8 +104,8 @@ class SearchSettings:
     seed: int = 0
     smooth_tolerance: float = 0.0
     one_se: bool = False
-    screen_rows: int | None = None  # successive halving: rows and folds of the screen (None: all), survivors,
-    screen_folds: int | None = None  # C's rate (search_halving)
+    screen_rows: int | None = None  # successive halving (search_halving.search): rows and folds of the screen
+    screen_folds: int | None = None  # (None: all), survivors, C's rate
     survivors: int = 6
     c_rate: float = 0.5
 
@@ -560,30 +559,26 @@ def _smoothest_within(trace: list[dict[str, Any]], best: float, tolerance: float
 def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
     """Dispatch to :func:`fast_search`, :func:`grid_search` (``method="paper_grid"``) or :func:`local_search`
     (``"local"``) with the keywords ``kw`` of that function; one it does not take is refused (TypeError naming
-    it). ``"fast"`` with ``screen_rows`` or ``screen_folds`` (and ``survivors``, ``c_rate``): successive halving,
-    :func:`pipeline.models.search_halving.halving_search`. The best parameters carry ``C_rows``: the mean
-    training rows of the search's folds, the rows its C was
-    chosen on (see :func:`pipeline.models.svr.scaled_C`)."""
+    it). The best parameters carry ``C_rows``: the mean training rows of the search's folds, the rows its C was
+    chosen on (see :func:`pipeline.models.svr.scaled_C`). Successive halving: :mod:`pipeline.models.search_halving`
+    (its ``search`` takes the halving's keywords too)."""
     methods = {"fast": fast_search, "paper_grid": grid_search, "local": local_search}
     if method not in methods:
         raise ModelError(f"unknown search method {method!r}; expected 'fast', 'paper_grid' or 'local'")
     takes = [n for n, a in inspect.signature(methods[method]).parameters.items()
              if a.kind is inspect.Parameter.KEYWORD_ONLY and n not in ("keep_trace", "report_kept")]
-    if method == "fast":
-        takes += list(HALVING_KEYS)
     unknown = sorted(set(kw) - set(takes))
     if unknown:
         raise TypeError(f"search(method={method!r}) does not use {unknown}; it takes {takes}")
     if method == "paper_grid":
         res = grid_search(model, X, y, keep_trace=False, **kw)
-    elif method == "fast" and (kw.get("screen_rows") is not None or kw.get("screen_folds") is not None):
-        from pipeline.models.search_halving import halving_search  # it builds on this module: imported here
-
-        res = halving_search(model, X, y, **kw)
-    elif method == "fast":
-        res = fast_search(model, X, y, **{k: v for k, v in kw.items() if k not in HALVING_KEYS})
     else:
         res = methods[method](model, X, y, **kw)
-    train_rows = [len(train) for train, _ in blocked_folds(len(X), res.n_folds)]
+    return with_C_rows(res, len(X))
+
+
+def with_C_rows(res: SearchResult, n_rows: int) -> SearchResult:
+    """``res`` with ``C_rows`` in its best parameters: the mean training rows of its folds on ``n_rows`` rows."""
+    train_rows = [len(train) for train, _ in blocked_folds(n_rows, res.n_folds)]
     res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
     return res

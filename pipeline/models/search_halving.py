@@ -39,12 +39,26 @@ from pipeline.models.search import (
     _to_params,
     cost_summary,
     fast_search,
+    with_C_rows,
 )
+from pipeline.models.search import search as plain_search
 from pipeline.models.svr import scaled_C
 
 log = logging.getLogger(__name__)
 
-__all__ = ["fold_subset", "halving_search", "screen_index"]
+__all__ = ["HALVING_KEYS", "fold_subset", "halving_search", "screen_index", "search"]
+
+HALVING_KEYS = ("screen_rows", "screen_folds", "survivors", "c_rate")  # search(): the halving's own keywords
+
+
+def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
+    """:func:`pipeline.models.search.search`, or with ``method="fast"`` and ``screen_rows`` or ``screen_folds``
+    given, :func:`halving_search` (its best parameters with ``C_rows`` as well). The halving's keywords
+    (:data:`HALVING_KEYS`) are taken here; the others go to the search as they are."""
+    halving = {k: kw.pop(k) for k in HALVING_KEYS if k in kw}
+    if method != "fast" or (halving.get("screen_rows") is None and halving.get("screen_folds") is None):
+        return plain_search(model, X, y, method, **kw)
+    return with_C_rows(halving_search(model, X, y, **halving, **kw), len(X))
 
 
 def screen_index(n_rows: int, screen_rows: int) -> np.ndarray:

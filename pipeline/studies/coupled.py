@@ -38,8 +38,8 @@ from pipeline.evaluate import (
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.graybox import GrayBox
-from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr, search
-from pipeline.models.search_halving import fold_subset
+from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr
+from pipeline.models.search_halving import fold_subset, search
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.rollout import grid_step_s
 from pipeline.vocabulary import NOISE_STD_COLUMNS

@@ -13,8 +13,8 @@ import pipeline.models.search_halving as halving_mod
 from pipeline.config.params import CoupledParams
 from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
-from pipeline.models.search import cv_score, fast_search, search
-from pipeline.models.search_halving import fold_subset, halving_search
+from pipeline.models.search import cv_score, fast_search
+from pipeline.models.search_halving import fold_subset, halving_search, search
 from pipeline.sim.synthetic import synthetic_frame
 from pipeline.studies.coupled import tune
 
