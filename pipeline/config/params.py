@@ -177,6 +177,18 @@ class CoupledParams(Frozen):
         "over the block searched (its whole span of motion), so a search's cost does not grow with the trials' "
         "length; the final models are fitted on every train_test row. null: every row (a search's cost then grows "
         "as rows squared: hours on two 480-s trials). docs/models.md, 'A bounded search by default'.")
+    screen_samples: int | None = Field(
+        None, ge=10, description="Successive halving over rows (fast search): each search screens its candidates "
+        "on this many of its max_samples rows (evenly spaced in time), then scores its `survivors` best and the warm "
+        "start on all of them. null (or >= max_samples): no row screen. Off by default: on the demo a search's cost "
+        "is libsvm's iterations at large C, not its rows (docs/models.md, 'Successive halving').")
+    screen_folds: int | None = Field(
+        2, ge=1, description="Successive halving over folds (fast search): each search screens its max_evals "
+        "candidates on this many of its tuning_folds folds (spread over the block), then completes the other folds "
+        "for its `survivors` best and the warm start, and keeps the best of those by the mean over all folds. null "
+        "(or >= tuning_folds): every candidate on every fold. docs/models.md, 'Successive halving'.")
+    survivors: int = Field(6, ge=1, description="Successive halving: the screen's best candidates scored on every "
+                           "row and fold (the warm start besides).")
     c_rate: float = Field(
         0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
         "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "
@@ -200,7 +212,7 @@ class CoupledParams(Frozen):
     fold_evals: int | None = Field(
         8, ge=1, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
         "by a local search of at most this many candidates started from the tune stage's optimum (steps of x2), "
-        "not a whole search. null: a whole search per fold (folds + 1 times the tune stage). docs/models.md.")
+        "each scored on the halving screen's folds (screen_folds), not a whole search. null: a whole search per fold (folds + 1 times the tune stage). docs/models.md.")
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")

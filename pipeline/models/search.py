@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
-           "fast_search", "local_search", "search", "SearchResult", "SearchSettings"]
+           "fast_search", "local_search", "search", "with_C_rows", "SearchResult", "SearchSettings"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -84,6 +84,7 @@ class SearchResult:
     budget_exhausted: bool = False  # the budget ran out before the local steps converged (all below min_step)
     n_rows: int = 0  # the rows the search scored its candidates on (its folds' training and test rows)
     cost: dict[str, Any] = field(default_factory=dict)  # CPU, the iteration cap and the slowest candidates
+    halving: dict[str, Any] = field(default_factory=dict)  # successive halving: each rung's rows (search_halving)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -103,6 +104,10 @@ class SearchSettings:
     seed: int = 0
     smooth_tolerance: float = 0.0
     one_se: bool = False
+    screen_rows: int | None = None  # successive halving (search_halving.search): rows and folds of the screen
+    screen_folds: int | None = None  # (None: all), survivors, C's rate
+    survivors: int = 6
+    c_rate: float = 0.5
 
     def keywords(self) -> dict[str, Any]:
         """The keywords of :func:`search` for this method."""
@@ -111,6 +116,9 @@ class SearchSettings:
         if self.method == "fast":
             kw.update(max_evals=self.max_evals, seed=self.seed, smooth_tolerance=self.smooth_tolerance,
                       one_se=self.one_se)
+            if self.screen_rows is not None or self.screen_folds is not None:
+                kw.update(screen_rows=self.screen_rows, screen_folds=self.screen_folds, survivors=self.survivors,
+                          c_rate=self.c_rate)
         return kw
 
 
@@ -353,7 +361,8 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
                 iter_per_row: float | None = ITER_PER_ROW,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
-                local: str = "model", model_share: float = 0.6, progress: Progress | None = None) -> SearchResult:
+                local: str = "model", model_share: float = 0.6, progress: Progress | None = None,
+                report_kept: bool = True, fold_subset: list[int] | None = None) -> SearchResult:
     """GP-seeded adaptive pattern search on log scale (see module docstring).
 
     Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. Phases, each
@@ -377,12 +386,17 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     Breiman et al. 1984, Hastie et al. 2009 §7.10), or ``smooth_tolerance`` if that is larger.
 
     ``progress(done, total, desc)`` (optional) is called after each new candidate (``total``: the budget).
+    ``report_kept=False``: no warning for a kept warm start (a halving screen's: its last rung decides).
+    ``fold_subset``: score the candidates on these of the ``n_folds`` folds only (a halving screen's; each trace
+    entry then holds its folds' R², ``fold_r2``, for the next rung).
     """
     X, y = _check_xy(X, y)
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
     folds = blocked_folds(len(X), n_folds)
     max_iter = _iteration_cap(iter_per_row, folds)
+    if fold_subset is not None:
+        folds = [folds[i] for i in fold_subset]
     names = _names(model, X.shape[1])
     if max_fits is not None:
         max_evals = max(1, max_fits // n_folds)
@@ -403,8 +417,10 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
         key = tuple(np.round(v, 6))
         if key not in cache:
             params = _to_params(model, names, np.exp(v))
-            entry = _candidate_entry(params, _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter),
-                                     max_iter, phase=phase)
+            fits = _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)
+            entry = _candidate_entry(params, fits, max_iter, phase=phase)
+            if fold_subset is not None:
+                entry["fold_r2"] = [r2 for r2, _, _ in fits]
             cache[key] = entry["score"]
             trace.append(entry)
             if progress is not None:
@@ -433,14 +449,15 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
             x, best = model_steps(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
     x, best, converged = pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          len(cache) * n_folds, n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
+                          len(cache) * len(folds), n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
                           budget_exhausted=not converged, n_rows=len(X))
     if warm_key is not None:
         result.warm_start_score = float(cache[warm_key])
         if tuple(np.round(x, 6)) == warm_key:
             result.warm_start_kept = True
             result.note = _kept_note(trace, cache[warm_key], n_folds)
-            log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
+            if report_kept:
+                log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
     tolerance = smooth_tolerance
     if one_se:  # the one-standard-error rule: the best candidate's fold scores say how sure its lead is
         tolerance = max(tolerance, next(t["se"] for t in trace if t["score"] == best))
@@ -457,15 +474,18 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
 def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, Any], n_folds: int = 3,
                  n_jobs: int | None = 1, n_velocity: int = 3, max_evals: int = 8,
                  iter_per_row: float | None = ITER_PER_ROW, initial_step: float = math.log(2.0),
-                 min_step: float = math.log(1.25)) -> SearchResult:
+                 min_step: float = math.log(1.25), fold_subset: list[int] | None = None) -> SearchResult:
     """A small search around ``start`` (another search's optimum, e.g. the tune stage's on the rows these are cut
     from): ``start`` scored, then the pattern search of :func:`fast_search` from it, steps of ``initial_step``
     (x2), no restarts, at most ``max_evals`` candidates in all. The nested CV's folds use it, so a fold re-tunes
     on its own training rows at a fraction of a whole search's cost. ``warm_start_kept``/``note`` say whether
-    ``start`` stayed the best; ``budget_exhausted`` whether the budget ran out before the steps converged."""
+    ``start`` stayed the best; ``budget_exhausted`` whether the budget ran out before the steps converged.
+    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does)."""
     X, y = _check_xy(X, y)
     folds = blocked_folds(len(X), n_folds)
     max_iter = _iteration_cap(iter_per_row, folds)
+    if fold_subset is not None:
+        folds = [folds[i] for i in fold_subset]
     names = _names(model, X.shape[1])
     lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
     t0, cpu0 = time.perf_counter(), time.process_time()
@@ -486,7 +506,7 @@ def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, A
     x, best, converged = pattern_search(evaluate, x0, start_score, lo, hi, np.random.default_rng(0),
                                         max(1, max_evals), cache, initial_step, min_step, restarts=False)
     result = SearchResult(model, "local", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          len(cache) * n_folds, n_folds, time.perf_counter() - t0, trace=trace,
+                          len(cache) * len(folds), n_folds, time.perf_counter() - t0, trace=trace,
                           warm_start_score=float(start_score), budget_exhausted=not converged, n_rows=len(X))
     if tuple(np.round(x, 6)) == tuple(np.round(x0, 6)):
         result.warm_start_kept = True
@@ -540,12 +560,13 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
     """Dispatch to :func:`fast_search`, :func:`grid_search` (``method="paper_grid"``) or :func:`local_search`
     (``"local"``) with the keywords ``kw`` of that function; one it does not take is refused (TypeError naming
     it). The best parameters carry ``C_rows``: the mean training rows of the search's folds, the rows its C was
-    chosen on (see :func:`pipeline.models.svr.scaled_C`)."""
+    chosen on (see :func:`pipeline.models.svr.scaled_C`). Successive halving: :mod:`pipeline.models.search_halving`
+    (its ``search`` takes the halving's keywords too)."""
     methods = {"fast": fast_search, "paper_grid": grid_search, "local": local_search}
     if method not in methods:
         raise ModelError(f"unknown search method {method!r}; expected 'fast', 'paper_grid' or 'local'")
     takes = [n for n, a in inspect.signature(methods[method]).parameters.items()
-             if a.kind is inspect.Parameter.KEYWORD_ONLY and n != "keep_trace"]
+             if a.kind is inspect.Parameter.KEYWORD_ONLY and n not in ("keep_trace", "report_kept")]
     unknown = sorted(set(kw) - set(takes))
     if unknown:
         raise TypeError(f"search(method={method!r}) does not use {unknown}; it takes {takes}")
@@ -553,6 +574,11 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
         res = grid_search(model, X, y, keep_trace=False, **kw)
     else:
         res = methods[method](model, X, y, **kw)
-    train_rows = [len(train) for train, _ in blocked_folds(len(X), res.n_folds)]
+    return with_C_rows(res, len(X))
+
+
+def with_C_rows(res: SearchResult, n_rows: int) -> SearchResult:
+    """``res`` with ``C_rows`` in its best parameters: the mean training rows of its folds on ``n_rows`` rows."""
+    train_rows = [len(train) for train, _ in blocked_folds(n_rows, res.n_folds)]
     res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
     return res

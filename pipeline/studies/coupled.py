@@ -41,7 +41,8 @@ from pipeline.evaluate import (
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.fossen import Fossen3DOF
 from pipeline.models.graybox import GrayBox
-from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr, search
+from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr
+from pipeline.models.search_halving import fold_subset, search
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.rollout import grid_step_s
 from pipeline.vocabulary import NOISE_STD_COLUMNS
@@ -208,7 +209,9 @@ def search_settings(params: CoupledParams, n_jobs: int | None = 1) -> SearchSett
     """The settings of every search of the study: ``params.search``'s method with its keys of ``params``."""
     return SearchSettings(method=params.search, n_folds=params.tuning_folds, n_jobs=n_jobs,
                           n_velocity=params.n_velocity_inputs(), max_evals=params.max_evals, seed=params.seed,
-                          smooth_tolerance=params.smooth_tolerance, one_se=params.selection == "one_se")
+                          smooth_tolerance=params.smooth_tolerance, one_se=params.selection == "one_se",
+                          screen_rows=params.screen_samples, screen_folds=params.screen_folds,
+                          survivors=params.survivors, c_rate=params.c_rate)
 
 
 def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
@@ -289,7 +292,10 @@ def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: di
     """One model's hyperparameters re-tuned on ``frame`` (a CV fold's training rows) by a local search per output
     (:func:`pipeline.models.search.local_search`, at most ``params.fold_evals`` candidates) from ``start``
     (output -> the tune stage's hyperparameters). A gray-box model's residual is the one :func:`tune` forms: its
-    base fitted on ``frame`` weighted by ``noise_std``. Returns ``(hyper, trace)`` as :func:`tune` for ``model``."""
+    base fitted on ``frame`` weighted by ``noise_std``. Returns ``(hyper, trace)`` as :func:`tune` for ``model``.
+    It scores its candidates on the halving screen's folds (``params.screen_folds`` of the ``tuning_folds``, all
+    when null): a few steps from an optimum chosen on all folds need no more than a screen does
+    (docs/models.md, 'Successive halving')."""
     data = _subsample(frame, params.max_samples)
     X = data[params.inputs].to_numpy(float)
     Y = data[params.outputs].to_numpy(float)
@@ -300,11 +306,14 @@ def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: di
         base.fit(frame[EXPLICIT_INPUTS].to_numpy(float), frame[params.outputs].to_numpy(float))
         Y = Y - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
         svr = "wdse_svr"
+    subset = None
+    if params.screen_folds is not None and params.screen_folds < params.tuning_folds:
+        subset = fold_subset(params.tuning_folds, params.screen_folds)
     hyper: dict[str, dict[str, Any]] = {}
     trace: dict[str, Any] = {}
     for k, out in enumerate(params.outputs):
         res = search(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds, n_jobs=1,
-                     n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals)
+                     n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset)
         hyper[out], trace[out] = res.best_params, res.to_dict()
     return hyper, trace
 
@@ -482,7 +491,9 @@ def tune_stage(frame: pd.DataFrame, params: CoupledParams, *, vehicle: str,
                         rigid_body_mass=rigid_body_mass)
     doc = {"vehicle": vehicle, "search": params.search, "seed": params.seed, "inputs": params.inputs,
            "outputs": params.outputs, "tuning": params.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
-           "max_samples": params.max_samples, "fold_evals": params.fold_evals, "hyperparameters": hyper}
+           "max_samples": params.max_samples, "screen_samples": params.screen_samples,
+           "screen_folds": params.screen_folds, "survivors": params.survivors,
+           "fold_evals": params.fold_evals, "hyperparameters": hyper}
     return doc, trace
 
 
