@@ -212,7 +212,8 @@ class CoupledParams(Frozen):
     fold_evals: int | None = Field(
         8, ge=1, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
         "by a local search of at most this many candidates started from the tune stage's optimum (steps of x2), "
-        "each scored on the halving screen's folds (screen_folds), not a whole search. null: a whole search per fold (folds + 1 times the tune stage). docs/models.md.")
+        "each scored on the halving screen's folds (screen_folds), not a whole search. null: a whole search per "
+        "fold (folds + 1 times the tune stage). docs/models.md.")
     smooth_tolerance: float = Field(
         0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")
