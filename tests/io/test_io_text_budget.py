@@ -17,7 +17,7 @@ from pipeline.errors import IngestError
 from pipeline.io import textlines
 from pipeline.io.inspect import inspect_log
 from pipeline.io.mcap_records import decompress
-from pipeline.io.text import TEXT_MAX_BYTES, TEXT_MAX_LINES, open_text
+from pipeline.io.text import TEXT_MAX_BYTES, TEXT_MAX_LINES, inflate_cut, open_text
 from pipeline.io.textlines import scan_lines
 
 _WIDE = b"0" * 122 + b",0,0\n"  # 128-byte lines: the byte budget is met before the line budget
@@ -90,6 +90,9 @@ def test_a_cut_gzip_bomb_is_refused_without_inflating_it_whole(tmp_path: Path) -
     reader = open_text(path, max_bytes=64 << 20)
     err, _cpu, peak = _refusal(lambda: reader.read({"nav.csv.gz": ["u"]}))
     assert "more than 67108864 bytes" in str(err) and err.file == str(path)
+    assert peak < 100 << 20, f"{peak} bytes inflated for a 64 MiB budget"
+    err, _cpu, peak = _refusal(lambda: inflate_cut(path, 64 << 20))  # the salvage itself, should it come first
+    assert "inflates to more than 67108864 bytes" in str(err) and err.file == str(path)
     assert peak < 100 << 20, f"{peak} bytes inflated for a 64 MiB budget"
 
 
