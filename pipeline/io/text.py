@@ -25,8 +25,8 @@ logged as a warning with their line numbers.
 
 A file is counted (a block of bytes at a time) before anything parses it, and refused with an IngestError naming
 the file and the limit beyond :data:`TEXT_MAX_BYTES` of text (inflated, for a ``.gz``: a 5-MB ``.csv.gz`` can
-hold gigabytes of rows) or :data:`TEXT_MAX_LINES` lines; ``TextLogReader(path, max_bytes=..., max_lines=...)``
-sets other limits.
+hold gigabytes of rows), :data:`TEXT_MAX_LINES` lines or a line of :data:`TEXT_MAX_LINE_BYTES`;
+``open_text(path, max_bytes=..., max_lines=...)`` sets other limits.
 """
 
 from __future__ import annotations
@@ -71,6 +71,7 @@ _HEAD_LINE_CHARS = 1 << 20  # a sniffed line longer than this is cut there
 # per time stamp: ~100 bytes a row). A lab's trial at 1 kHz for an hour is ~3.6 M lines, ~300 MB.
 TEXT_MAX_BYTES = 1 << 30
 TEXT_MAX_LINES = 10_000_000
+TEXT_MAX_LINE_BYTES = 16 << 20  # one line (a row of a log is bytes to kilobytes; pandas buffers a line whole)
 
 
 @dataclass
@@ -310,7 +311,8 @@ class TextLogReader:
 
         def scan() -> LineScan:
             with self._binary(name) as handle:
-                return scan_lines(handle, skip=skip, max_bytes=self.max_bytes, max_lines=self.max_lines)
+                return scan_lines(handle, skip=skip, max_bytes=self.max_bytes, max_lines=self.max_lines,
+                                  max_line_bytes=TEXT_MAX_LINE_BYTES)
 
         try:
             found = self._tolerating_cut(name, scan)
@@ -318,10 +320,11 @@ class TextLogReader:
             raise IngestError(f"cannot read: {err}", file=path) from err
         if found.over is not None:
             inflated = " (inflated)" if is_gzip(path) else ""
-            limit = f"{self.max_bytes} bytes of text{inflated}" if found.over == "bytes" else \
-                f"{self.max_lines} lines"
-            raise IngestError(f"text file holds more than {limit}, the limit per text file (stopped counting at "
-                              f"{found.size} bytes, {found.lines} lines); split the log", file=path)
+            limit = {"bytes": f"more than {self.max_bytes} bytes of text{inflated}",
+                     "lines": f"more than {self.max_lines} lines",
+                     "line": f"a line longer than {TEXT_MAX_LINE_BYTES} bytes"}[found.over]
+            raise IngestError(f"text file holds {limit}, the limit per text file (stopped counting at "
+                              f"{found.size} bytes, line {found.lines + 1}); split the log", file=path)
         self._scans[name, skip] = found
         return found
 

@@ -17,7 +17,7 @@ from pipeline.errors import IngestError
 from pipeline.io import textlines
 from pipeline.io.inspect import inspect_log
 from pipeline.io.mcap_records import decompress
-from pipeline.io.text import TEXT_MAX_BYTES, TEXT_MAX_LINES, inflate_cut, open_text
+from pipeline.io.text import TEXT_MAX_BYTES, TEXT_MAX_LINE_BYTES, TEXT_MAX_LINES, inflate_cut, open_text
 from pipeline.io.textlines import scan_lines
 
 _WIDE = b"0" * 122 + b",0,0\n"  # 128-byte lines: the byte budget is met before the line budget
@@ -114,6 +114,28 @@ def test_lines_are_counted_as_the_reader_counts_them(monkeypatch: pytest.MonkeyP
     assert (blank.lines, blank.data_lines, blank.any_content) == (3, 0, False)
     assert scan_lines(io.BytesIO(text), skip=0, max_bytes=20, max_lines=99).over == "bytes"
     assert scan_lines(io.BytesIO(text), skip=0, max_bytes=99, max_lines=10).over == "lines"
+
+
+def test_a_line_longer_than_the_limit_is_refused_before_pandas_buffers_it(tmp_path: Path) -> None:
+    """One 40-MiB line (no line end) in a 40-kB .gz: pandas would buffer it whole to read the header."""
+    path = tmp_path / "nav.csv.gz"
+    path.write_bytes(gzip.compress(b"t,u" + b",0" * (20 << 20), compresslevel=9))
+    err, _cpu, peak = _refusal(lambda: open_text(path).read({"nav.csv.gz": ["u"]}))
+    assert f"a line longer than {TEXT_MAX_LINE_BYTES} bytes" in str(err) and err.file == str(path)
+    assert "line 1)" in str(err) and peak < 64 << 20
+
+
+@pytest.mark.parametrize("block", [1, 7, 64])
+def test_the_longest_line_is_found_across_blocks(monkeypatch: pytest.MonkeyPatch, block: int) -> None:
+    monkeypatch.setattr(textlines, "_BLOCK", block)
+    monkeypatch.setattr(textlines, "_HEAD_BLOCK", block)
+
+    def over(text: bytes) -> str | None:
+        return scan_lines(io.BytesIO(text), skip=0, max_bytes=999, max_lines=9, max_line_bytes=100).over
+
+    assert over(b"a\n" + b"b" * 100 + b"\nc") is None
+    assert over(b"a\n" + b"b" * 101 + b"\nc") == "line"
+    assert over(b"a\n" + b"b" * 101) == "line"
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4"])
