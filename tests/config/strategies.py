@@ -36,10 +36,15 @@ INF, NAN = math.inf, math.nan
 EXTREMES = [0, -1, 1, 0.0, -0.0, 1e-300, -1e-300, 5e-324, 1e300, -1e300, 1.7976931348623157e308, INF, -INF, NAN,
             2**31, 2**32, 2**53 + 1, 2**63, 2**64, 2**70, -(2**63) - 1, 1e9, 1e6, 0.99999, 1.00001]
 FACTORS = [0.0, -1.0, 1e-300, 1e-9, 0.5, 2.0, 1e9, 1e300, INF, NAN]
-STRINGS = ["", " ", "auto", "none", "/", "/proc", "/dev/zero", "/dev/null", "../../etc/passwd", "\x00", "TODO",
-           "1e9", "nan", "ü" * 3, "a" * 5000, "*", "{x}", "${vehicle}", "trial01", "u_mps", "ls",
-           "rot13", "base64", "hex", "zlib", "bz2", "uu", "quopri", "utf-16", "utf-32-be", "latin-1", "idna",
-           "unicode_escape"]
+CODECS = ["rot13", "base64", "hex", "zlib", "bz2", "uu", "quopri", "utf-16", "utf-32-be", "latin-1", "idna",
+          "unicode_escape", "utf-8-sig", "mbcs", "undefined"]
+PATHS = ["/", "/proc", "/dev/zero", "/dev/null", "/proc/self/mem", "../../etc/passwd", ".", "nonexistent.csv"]
+STRINGS = ["", " ", "auto", "none", "\x00", "TODO", "1e9", "nan", "ü" * 3, "a" * 5000, "*", "{x}", "${vehicle}",
+           "trial01", "u_mps", "ls", *PATHS, *CODECS[:4]]
+# Strings that mean something for a key of this name: the values a user would mistype or a hostile file would give
+KEYED_STRINGS = {"encoding": CODECS, "table": PATHS, "message_definitions": PATHS, "file": [*PATHS, "*", "**/*"],
+                 "delimiter": ["", "  ", "\n", "\r", "\"", "ab", "\x00", ",,"],
+                 "time_unit": ["ns", "s", "min", "h", "", "S"], "time_column": ["", " ", "\x00"]}
 
 
 def _paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
@@ -68,10 +73,14 @@ def _numbers(old: Any) -> st.SearchStrategy[Any]:
     return st.one_of(extremes, st.floats(allow_nan=True, allow_infinity=True))
 
 
-def values(old: Any) -> st.SearchStrategy[Any]:
-    """A replacement for ``old``: numbers at and beyond bounds, wrong types, empty / huge lists, odd strings."""
-    scalar = st.one_of(_numbers(old), st.sampled_from(STRINGS), st.booleans(), st.none())
-    typed = st.sampled_from(STRINGS) if isinstance(old, str) else _numbers(old)  # mostly of the old value's kind
+def values(old: Any, key: Any = None) -> st.SearchStrategy[Any]:
+    """A replacement for ``old`` (at ``key``): numbers at and beyond bounds, wrong types, empty / huge lists, odd
+    strings (those that mean something for ``key`` first)."""
+    strings = st.sampled_from(STRINGS)
+    if key in KEYED_STRINGS:
+        strings = st.one_of(st.sampled_from(KEYED_STRINGS[key]), st.sampled_from(KEYED_STRINGS[key]), strings)
+    scalar = st.one_of(_numbers(old), strings, st.booleans(), st.none())
+    typed = strings if isinstance(old, str) or key in KEYED_STRINGS else _numbers(old)  # mostly of old's kind
     return st.one_of(
         typed, typed, typed, scalar,
         st.lists(scalar, max_size=8),
@@ -86,8 +95,10 @@ def edited(draw: st.DrawFn, base: dict[str, Any]) -> tuple[dict[str, Any], list[
     doc = copy.deepcopy(base)
     what: list[str] = []
     for _ in range(draw(st.integers(1, 3))):
-        paths = _paths(doc)
-        path = draw(st.sampled_from(paths))
+        groups: dict[tuple[Any, ...], list[tuple[Any, ...]]] = {}
+        for p in _paths(doc):  # a key of every shape as likely as another: a 6x6 matrix is one shape, not 36
+            groups.setdefault(tuple("*" if isinstance(k, int) else k for k in p), []).append(p)
+        path = draw(st.sampled_from(sorted(groups[draw(st.sampled_from(sorted(groups, key=str)))])))
         parent = _get(doc, path[:-1])
         key = path[-1]
         op = draw(st.sampled_from(["set", "set", "set", "set", "drop", "unknown"]))
@@ -102,7 +113,8 @@ def edited(draw: st.DrawFn, base: dict[str, Any]) -> tuple[dict[str, Any], list[
             parent[draw(st.sampled_from(["typo", "rate", "Rate_hz", "seed_", "x"]))] = 1
             what.append(f"unknown key beside {dotted}")
         else:
-            parent[key] = draw(values(parent[key]))
+            name = key if isinstance(key, str) else path[-2] if len(path) > 1 else None
+            parent[key] = draw(values(parent[key], name))
             what.append(f"{dotted} = {_short(parent[key])}")
     return doc, what
 
