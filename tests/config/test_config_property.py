@@ -5,10 +5,13 @@ from inside a library), never a load that takes seconds. Bounded: a fixed number
 
 from __future__ import annotations
 
+import copy
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 
 from tests.config.strategies import PARAMS, VEHICLE, edited, outcome, write
@@ -44,3 +47,18 @@ def test_the_campaign_bases_load() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         assert outcome("params", write(Path(tmp) / "params.yaml", PARAMS)) == ("loaded", "")
         assert outcome("vehicle", write(Path(tmp) / "vehicle.yaml", VEHICLE)) == ("loaded", "")
+
+
+@pytest.mark.parametrize(("key", "value"), [("inertia", 1.7976931348623157e308), ("inertia", -1.7976931348623157e308),
+                                            ("added_mass", 1.7976931348623157e308)])
+def test_a_matrix_at_the_float_maximum_is_refused_without_a_numpy_warning(tmp_path: Path, key: str,
+                                                                         value: float) -> None:
+    """Found by the campaign: (M + Mᵀ) / 2 overflowed, and numpy printed 'overflow encountered in add' from
+    library code before the refusal."""
+    doc = copy.deepcopy(VEHICLE)
+    matrix = doc["rigid_body"]["inertia_kgm2"] if key == "inertia" else doc["added_mass"]
+    matrix[0][0] = matrix[0][1] = matrix[1][0] = value
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert outcome("vehicle", write(tmp_path / "vehicle.yaml", doc)) == (
+            "refused", "rigid_body.inertia_kgm2" if key == "inertia" else "added_mass")
