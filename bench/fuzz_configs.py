@@ -3,7 +3,8 @@
     python bench/fuzz_configs.py                          # 1,000 params + 1,000 vehicle configs, seed 0
     python bench/fuzz_configs.py --examples 5000 --seed 7 --json /tmp/configs.json
 
-The strategies are those of the in-suite campaign (``tests/config/strategies.py``): a real config with one to
+The edits are those of the in-suite campaign (``tests/config/strategies.py``), drawn here from a seeded
+``random.Random`` per config (uniform; Hypothesis, in the suite, favours some values): a real config with one to
 three edits (numbers at and beyond their bounds, wrong types, empty and huge lists, special files, dropped and
 unknown keys). Each config is written to a YAML file and loaded (``load_params`` / ``load_vehicle`` and the
 cross-checks); outcomes: ``loaded``; ``refused`` (a ConfigError naming the file and a key); ``unnamed`` (a
@@ -30,25 +31,18 @@ OUTCOMES = ["loaded", "refused", "unnamed", "uncaught", "slow"]
 
 
 def campaign(kind: str, examples: int, seed: int, time_limit_s: float, tmp: Path) -> list[dict[str, Any]]:
-    """``examples`` generated configs of ``kind`` (params / vehicle), each loaded; their outcomes."""
-    from hypothesis import HealthCheck, given, settings
-    from hypothesis import seed as hseed
+    """``examples`` generated configs of ``kind`` (params / vehicle), each loaded; their outcomes. Config ``i`` is
+    drawn from ``random.Random(f"{seed}:{kind}:{i}")``: uniform over key shapes and values, replayable alone."""
+    import random
 
-    from tests.config.strategies import PARAMS, VEHICLE, edited, outcome, write
+    from tests.config.strategies import PARAMS, VEHICLE, outcome, random_edit, write
 
     records: list[dict[str, Any]] = []
-
-    @hseed(seed)
-    @settings(max_examples=examples, database=None, deadline=None,
-              suppress_health_check=list(HealthCheck))
-    @given(edited(PARAMS if kind == "params" else VEHICLE))
-    def run(case: tuple[dict[str, Any], list[str]]) -> None:
-        doc, what = case
+    for i in range(examples):
+        doc, what = random_edit(PARAMS if kind == "params" else VEHICLE, random.Random(f"{seed}:{kind}:{i}"))
         path = write(tmp / f"{kind}.yaml", doc)
         result, detail = outcome(kind, path, time_limit_s=time_limit_s)
-        records.append({"kind": kind, "edits": what, "outcome": result, "detail": detail})
-
-    run()
+        records.append({"kind": kind, "case": i, "edits": what, "outcome": result, "detail": detail})
     return records
 
 
@@ -74,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {kind} | " + " | ".join(str(row[o]) for o in OUTCOMES) + " |")
     bad = [r for r in records if r["outcome"] not in ("loaded", "refused")]
     for r in bad:
-        print(f"\n{r['kind']} {r['outcome']}: {r['edits']}\n    {r['detail']}")
+        print(f"\n{r['kind']} {r['case']} {r['outcome']}: {r['edits']}\n    {r['detail']}")
     if args.json:
         args.json.write_text(json.dumps(records, indent=1, default=str))
     return 1 if bad else 0

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import copy
 import math
+import random
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -65,43 +67,58 @@ def _get(doc: Any, path: tuple[Any, ...]) -> Any:
     return doc
 
 
-def _numbers(old: Any) -> st.SearchStrategy[Any]:
-    extremes = st.sampled_from(EXTREMES)
-    if isinstance(old, (int, float)) and not isinstance(old, bool):
-        return st.one_of(extremes, st.sampled_from(FACTORS).map(lambda f: old * f),
-                         st.floats(allow_nan=True, allow_infinity=True), st.integers(-(2**80), 2**80))
-    return st.one_of(extremes, st.floats(allow_nan=True, allow_infinity=True))
+Pick = Callable[[Sequence[Any]], Any]  # one element of a sequence: Hypothesis' draw, or random.Random.choice
 
 
-def values(old: Any, key: Any = None) -> st.SearchStrategy[Any]:
-    """A replacement for ``old`` (at ``key``): numbers at and beyond bounds, wrong types, empty / huge lists, odd
-    strings (those that mean something for ``key`` first)."""
-    strings = st.sampled_from(STRINGS)
-    if key in KEYED_STRINGS:
-        strings = st.one_of(st.sampled_from(KEYED_STRINGS[key]), st.sampled_from(KEYED_STRINGS[key]), strings)
-    scalar = st.one_of(_numbers(old), strings, st.booleans(), st.none())
-    typed = strings if isinstance(old, str) or key in KEYED_STRINGS else _numbers(old)  # mostly of old's kind
-    return st.one_of(
-        typed, typed, typed, scalar,
-        st.lists(scalar, max_size=8),
-        st.sampled_from([[], {}, [[]], [1.0] * 10_000, list(range(2000)), {"x": 1}, [NAN, NAN, NAN]]),
-        st.dictionaries(st.sampled_from(["default", "x", "trial01", "u_mps", "", "0"]), scalar, max_size=3),
-    )
+def _number(old: Any, pick: Pick) -> Any:
+    """At and beyond bounds: an extreme, the old value scaled by an extreme factor, or a float of any exponent."""
+    how = pick(["extreme", "extreme", "scaled", "any"] if _is_number(old) else ["extreme", "any"])
+    if how == "extreme":
+        return pick(EXTREMES)
+    if how == "scaled":
+        return old * pick(FACTORS)
+    return pick([-1.0, 1.0]) * pick([1.0, 1.5, 3.7, 9.99]) * 10.0 ** pick(range(-320, 309, 7))
 
 
-@st.composite
-def edited(draw: st.DrawFn, base: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
-    """``base`` with one to three edits, and what was edited (dotted keys)."""
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def new_value(old: Any, key: Any, pick: Pick) -> Any:
+    """A replacement for ``old`` (at ``key``): mostly of its kind (numbers at and beyond bounds; strings that mean
+    something for ``key``, odd ones), else a wrong type, an empty / huge list, a mapping."""
+    strings = [*KEYED_STRINGS.get(key, []), *STRINGS]
+
+    def scalar() -> Any:
+        kind = pick(["number", "string", "bool", "none"])
+        return _number(old, pick) if kind == "number" else pick(strings) if kind == "string" else \
+            pick([True, False]) if kind == "bool" else None
+
+    kind = pick(["typed", "typed", "typed", "scalar", "list", "container", "mapping"])
+    if kind == "typed":
+        return pick(strings) if isinstance(old, str) or key in KEYED_STRINGS else _number(old, pick)
+    if kind == "scalar":
+        return scalar()
+    if kind == "list":
+        return [scalar() for _ in range(pick(range(9)))]
+    if kind == "container":
+        return copy.deepcopy(pick([[], {}, [[]], [1.0] * 10_000, list(range(2000)), {"x": 1}, [NAN, NAN, NAN]]))
+    return {pick(["default", "x", "trial01", "u_mps", "", "0"]): scalar() for _ in range(pick(range(4)))}
+
+
+def edit(base: dict[str, Any], pick: Pick) -> tuple[dict[str, Any], list[str]]:
+    """``base`` with one to three edits, and what was edited (dotted keys). Every key shape is as likely as any
+    other (a 6x6 matrix is one shape, not 36 keys): set (4 in 6), dropped, or an unknown key beside it."""
     doc = copy.deepcopy(base)
     what: list[str] = []
-    for _ in range(draw(st.integers(1, 3))):
+    for _ in range(pick([1, 2, 3])):
         groups: dict[tuple[Any, ...], list[tuple[Any, ...]]] = {}
-        for p in _paths(doc):  # a key of every shape as likely as another: a 6x6 matrix is one shape, not 36
+        for p in _paths(doc):
             groups.setdefault(tuple("*" if isinstance(k, int) else k for k in p), []).append(p)
-        path = draw(st.sampled_from(sorted(groups[draw(st.sampled_from(sorted(groups, key=str)))])))
+        path = pick(sorted(groups[pick(sorted(groups, key=str))]))
         parent = _get(doc, path[:-1])
         key = path[-1]
-        op = draw(st.sampled_from(["set", "set", "set", "set", "drop", "unknown"]))
+        op = pick(["set", "set", "set", "set", "drop", "unknown"])
         dotted = ".".join(map(str, path))
         if op == "drop":
             if isinstance(parent, list):
@@ -110,13 +127,24 @@ def edited(draw: st.DrawFn, base: dict[str, Any]) -> tuple[dict[str, Any], list[
                 del parent[key]
             what.append(f"drop {dotted}")
         elif op == "unknown" and isinstance(parent, dict):
-            parent[draw(st.sampled_from(["typo", "rate", "Rate_hz", "seed_", "x"]))] = 1
+            parent[pick(["typo", "rate", "Rate_hz", "seed_", "x"])] = 1
             what.append(f"unknown key beside {dotted}")
         else:
             name = key if isinstance(key, str) else path[-2] if len(path) > 1 else None
-            parent[key] = draw(values(parent[key], name))
+            parent[key] = new_value(parent[key], name, pick)
             what.append(f"{dotted} = {_short(parent[key])}")
     return doc, what
+
+
+@st.composite
+def edited(draw: st.DrawFn, base: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """Hypothesis' strategy of :func:`edit` (each pick a draw: shrinkable, replayable)."""
+    return edit(base, lambda seq: draw(st.sampled_from(seq)))
+
+
+def random_edit(base: dict[str, Any], rng: random.Random) -> tuple[dict[str, Any], list[str]]:
+    """:func:`edit` with picks from ``rng`` (uniform: the long campaign's generator)."""
+    return edit(base, rng.choice)
 
 
 def _short(value: Any) -> str:
