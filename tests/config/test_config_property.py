@@ -14,6 +14,8 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 
+from pipeline.config import load_params
+from pipeline.errors import ConfigError
 from tests.config.strategies import PARAMS, VEHICLE, edited, outcome, write
 
 CAMPAIGN = settings(max_examples=300, derandomize=True, database=None, deadline=None,
@@ -62,3 +64,32 @@ def test_a_matrix_at_the_float_maximum_is_refused_without_a_numpy_warning(tmp_pa
         warnings.simplefilter("error")
         assert outcome("vehicle", write(tmp_path / "vehicle.yaml", doc)) == (
             "refused", "rigid_body.inertia_kgm2" if key == "inertia" else "added_mass")
+
+
+@pytest.mark.parametrize(("section", "key", "value", "says"), [
+    ("sync", "rate_hz", 1e-300, "greater than or equal to 0.001"),  # a period beyond int64 nanoseconds
+    ("coupled", "n_jobs", 1_500_000_000, "1 to 1024"),
+    ("coupled", "n_jobs", 2**70, "1 to 1024"),
+    ("coupled", "max_evals", 2**63, "less than or equal to 10000"),
+    ("coupled", "max_samples", 2**64, "less than or equal to 1000000"),
+    ("coupled", "tuning_folds", 3_700_000_000, "less than or equal to 100"),
+    ("decoupled", "max_samples", 2**64, "less than or equal to 10000000"),
+    ("decoupled", "gp_max_samples", 10**9, "less than or equal to 20000"),
+    ("differentiate", "savgol_window_s", 2.0**63, "up to 3600"),
+    ("differentiate", "sigma_s", 1e58, "up to 3600"),
+])
+def test_params_the_campaign_found_unbounded_are_refused(tmp_path: Path, section: str, key: str, value: Any,
+                                                         says: str) -> None:
+    """Found loading by bench/fuzz_configs.py (seed 3601): counts and widths beyond memory, time or int64."""
+    doc = copy.deepcopy(PARAMS)
+    doc[section][key] = value
+    path = write(tmp_path / "params.yaml", doc)
+    with pytest.raises(ConfigError) as info:
+        load_params(path)
+    assert info.value.file == str(path) and info.value.field == f"{section}.{key}" and says in str(info.value)
+
+
+def test_a_csv_skip_rows_beyond_the_line_budget_is_refused(tmp_path: Path) -> None:
+    doc = copy.deepcopy(VEHICLE)
+    doc["streams"]["tank"]["csv"]["skip_rows"] = 2**64  # pandas: OverflowError at ingest
+    assert outcome("vehicle", write(tmp_path / "vehicle.yaml", doc)) == ("refused", "streams.tank.csv.skip_rows")
