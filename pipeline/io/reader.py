@@ -141,8 +141,8 @@ class RawReader:
         for _ in range(_RESTARTS):
             try:
                 return run()
-            except Restart:  # damage found while reading: the reader now reads that file by its salvage path
-                continue
+            except Restart:  # damage found while reading: the reader now reads that file by its salvage path,
+                self.catalog()  # listed again by it (read() does this itself; log_times did not, and looped)
         return run()
 
     def _read(self, requests: dict[str, list[str]]) -> ReadResult:

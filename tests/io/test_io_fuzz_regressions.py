@@ -559,3 +559,24 @@ def test_inspect_of_a_log_whose_damage_shows_only_while_reading_says_so(tmp_path
                     assert inspect_log(path)["topics"]
             except IngestError as err:  # a clean refusal is an answer too
                 assert target.name in str(err)
+
+
+def test_log_times_of_a_ros2_mcap_bag_damaged_inside_a_chunk_takes_the_salvage_path(tmp_path: Path) -> None:
+    """ros2-mcap:295 of seed 3601: a message record overrunning its chunk switched the bag to its salvage path
+    with a Restart, but log_times read again by the chunk index (not listed again), met the same damage 64 times
+    and let the Restart escape `auvid inspect`."""
+    bag = write_rosbag2(tmp_path / "bag", MSGS, storage="mcap")
+    target = next(bag.glob("*.mcap"))
+    data = bytearray(target.read_bytes())
+    body = [b for op, _, b in _records(data) if op == 0x06][0]
+    clen = struct.unpack_from("<I", data, body + 28)[0]
+    start = body + 32 + clen + 8  # the chunk's records (uncompressed: rosbags writes them so)
+    length = struct.unpack_from("<Q", data, start - 8)[0]
+    message = next(rec for op, rec, _ in _records(data[start:start + length], 0) if op == 0x05)
+    struct.pack_into("<Q", data, start + message + 1, length)  # a message longer than its chunk
+    target.write_bytes(bytes(data))
+    with open_log(bag) as reader:
+        topics = sorted(reader.topics())
+        times = reader.log_times(topics)  # before: pipeline.io.errors.Restart
+        assert sum(len(t) for t in times.values()) < len(MSGS)
+        assert reader.salvage is not None
