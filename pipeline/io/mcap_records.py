@@ -36,6 +36,8 @@ class Walk:
     damage: Damaged | None = None
     kept: int = 0
     seen: Seen = field(default_factory=Seen)  # chunks and messages met twice, dropped
+    private: int = 0  # records with a private opcode (0x80-0xff), skipped as the spec says; no ROS writer makes them
+    private_at: int = -1
 
 
 # The most a chunk can inflate: LZ4 frames at most ~255x, zstd ~32768x (a 3-byte RLE block header per 128 KiB).

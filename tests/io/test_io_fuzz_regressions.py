@@ -580,3 +580,15 @@ def test_log_times_of_a_ros2_mcap_bag_damaged_inside_a_chunk_takes_the_salvage_p
         times = reader.log_times(topics)  # before: pipeline.io.errors.Restart
         assert sum(len(t) for t in times.values()) < len(MSGS)
         assert reader.salvage is not None
+
+
+def test_a_message_whose_opcode_turned_private_is_reported(tmp_path: Path) -> None:
+    """mcap-unchunked:318 of seed 3602: a bit flip made a Message (0x05) a private record (0x85), which the spec
+    says to skip; in a file without a summary the message was lost without a word."""
+    path = write_mcap(tmp_path / "t.mcap", MSGS, chunked=False, summary=False, indexes=False)
+    data = bytearray(path.read_bytes())
+    data[next(rec for op, rec, _ in _records(data) if op == 0x05)] = 0x85
+    path.write_bytes(bytes(data))
+    result = _read(path)
+    assert sum(d.read for d in result.topics.values()) == len(MSGS) - 1
+    assert result.salvage is not None and "1 record(s) with a private opcode" in result.salvage.reason
