@@ -5,6 +5,11 @@
     python bench/fuzz_ingest.py --formats mcap-zstd,csv-gz --cases 500
     python bench/fuzz_ingest.py --replay mcap-zstd:17    # one case in-process, with its traceback
     python bench/fuzz_ingest.py --replay mcap-zstd:17 --keep /tmp/case   # and keep the mutated log
+    python bench/fuzz_ingest.py --cases 10000 --seed 3601 --inspect --cpu-s 10 --mem-mib 2048 --timeout 60
+                                                         # issue 36's campaign: `auvid inspect` too, CPU-limited
+
+Seeds used so far: 0, 1, 2, 3 (issue 17), the issue-36 campaign's 10,000 cases (before its fixes), and 3601..
+(issue 36's rerun, docs/benchmarks.md).
 
 Seeds: the synthetic trial of ``tests/io/helpers.py`` (a custom DVL type, an Imu, a JointState) written as MCAP
 (zstd, lz4, none, unchunked, no summary), ROS 1 (none, bz2, lz4, unindexed), ROS 2 (sqlite3, file-compressed
@@ -257,9 +262,27 @@ def _site(err: BaseException) -> dict[str, str]:
     return {"site": site, "detail": f"{type(err).__name__}: {str(err)[:160]}"}
 
 
+def classify_inspect(path: Path) -> dict[str, Any]:
+    """``auvid inspect --json PATH`` in this process (its output thrown away): exit 0 is ``ok``; 2 or 3 (a usage
+    error or a clean one-line failure) is ``error``; an exception out of the CLI is ``uncaught`` / ``memory``."""
+    from pipeline.cli import main as auvid
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+    try:
+        code = auvid(["inspect", str(path), "--json"])
+    except MemoryError as err:
+        return {"outcome": "memory", **_site(err)}
+    except Exception as err:  # noqa: BLE001 - what the campaign looks for
+        return {"outcome": "uncaught", **_site(err)}
+    return {"outcome": "ok" if code == 0 else "error", "detail": f"exit {code}"}
+
+
 def run_forked(fmt: str, path: Path, baseline: dict[str, int], intact_report: Any, timeout_s: float,
-               mem_limit: int) -> dict[str, Any]:
-    """:func:`classify` in a forked child under an address-space limit and a timeout."""
+               mem_limit: int, cpu_s: int = 0, job: str = "read") -> dict[str, Any]:
+    """:func:`classify` (``job`` read) or :func:`classify_inspect` (``job`` inspect) in a forked child under an
+    address-space limit, a CPU-time limit (``cpu_s``, 0: none; SIGXCPU is a ``hang``) and a wall-clock timeout."""
     rfd, wfd = os.pipe()
     pid = os.fork()
     if pid == 0:  # child
@@ -267,7 +290,9 @@ def run_forked(fmt: str, path: Path, baseline: dict[str, int], intact_report: An
         code = 0
         try:
             resource.setrlimit(resource.RLIMIT_AS, (mem_limit, mem_limit))
-            out = classify(fmt, path, baseline, intact_report)
+            if cpu_s:
+                resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 5))
+            out = classify(fmt, path, baseline, intact_report) if job == "read" else classify_inspect(path)
             with os.fdopen(wfd, "w") as fh:
                 fh.write(json.dumps(out))
         except BaseException:  # noqa: BLE001 - never return into the parent's code
@@ -290,6 +315,8 @@ def run_forked(fmt: str, path: Path, baseline: dict[str, int], intact_report: An
     _, status = os.waitpid(pid, 0)
     if chunks:
         return json.loads(b"".join(chunks))
+    if os.WIFSIGNALED(status) and os.WTERMSIG(status) in (signal.SIGXCPU, signal.SIGKILL) and cpu_s:
+        return {"outcome": "hang", "detail": f"over {cpu_s} s of CPU"}
     how = f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit {os.WEXITSTATUS(status)}"
     return {"outcome": "crash", "detail": how}
 
@@ -332,6 +359,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--formats", default=",".join(FORMATS))
     ap.add_argument("--timeout", type=float, default=10.0, help="seconds per case")
     ap.add_argument("--mem-mib", type=int, default=1024, help="address space a case may add to the parent's")
+    ap.add_argument("--cpu-s", type=int, default=0, help="CPU seconds a case may use (0: no limit but --timeout)")
+    ap.add_argument("--inspect", action="store_true", help="also run `auvid inspect --json` on every case, in a "
+                    "child of its own under the same limits")
     ap.add_argument("--replay", help="FORMAT:INDEX: run one case in-process and show its traceback")
     ap.add_argument("--keep", type=Path, help="with --replay: copy the mutated log here")
     ap.add_argument("--json", type=Path, help="write every case's outcome here")
@@ -363,6 +393,7 @@ def main(argv: list[str] | None = None) -> int:
         per_format = {fmt: args.cases // len(formats) + (i < args.cases % len(formats))
                       for i, fmt in enumerate(formats)}
         table: dict[str, Counter[str]] = {fmt: Counter() for fmt in formats}
+        inspected: dict[str, Counter[str]] = {fmt: Counter() for fmt in formats}
         sites: dict[str, list[str]] = defaultdict(list)
         records = []
         t0 = time.monotonic()
@@ -370,24 +401,36 @@ def main(argv: list[str] | None = None) -> int:
             log_path, target, baseline, intact_report = prepared[fmt]
             for index in range(per_format[fmt]):
                 path, what = apply_case(fmt, index, args.seed, log_path, target, work)
-                out = run_forked(fmt, path, baseline, intact_report, args.timeout, mem_limit)
+                out = run_forked(fmt, path, baseline, intact_report, args.timeout, mem_limit, args.cpu_s)
                 table[fmt][out["outcome"]] += 1
                 records.append({"case": f"{fmt}:{index}", "mutation": what, **out})
-                if out["outcome"] not in ("ok", "reported", "error"):
-                    sites[out.get("site") or f"{out['outcome']}: {out.get('detail', '')[:80]}"].append(
-                        f"{fmt}:{index}")
-                    if args.verbose:
-                        print(f"{fmt}:{index} {what}: {out}")
+                outs = [("", out)]
+                if args.inspect:
+                    seen = run_forked(fmt, path, baseline, intact_report, args.timeout, mem_limit, args.cpu_s,
+                                      job="inspect")
+                    inspected[fmt][seen["outcome"]] += 1
+                    records[-1]["inspect"] = seen
+                    outs.append(("inspect: ", seen))
+                for label, got in outs:
+                    if got["outcome"] not in ("ok", "reported", "error"):
+                        sites[label + (got.get("site") or f"{got['outcome']}: {got.get('detail', '')[:80]}")].append(
+                            f"{fmt}:{index}")
+                        if args.verbose:
+                            print(f"{fmt}:{index} {what}: {label}{got}")
         elapsed = time.monotonic() - t0
 
     shown = [o for o in OUTCOMES if any(table[f][o] for f in formats)] or OUTCOMES[:1]
+    cpu = f", {args.cpu_s} s of CPU" if args.cpu_s else ""
     print(f"seed {args.seed}, {sum(per_format.values())} cases, {elapsed:.0f} s, "
-          f"limit {args.timeout:g} s and +{args.mem_mib} MiB address space per case\n")
-    print("| format | " + " | ".join(shown) + " |")
-    print("| --- | " + " | ".join("---:" for _ in shown) + " |")
+          f"limit {args.timeout:g} s wall{cpu} and +{args.mem_mib} MiB address space per case\n")
+    seen_shown = [o for o in OUTCOMES if any(inspected[f][o] for f in formats)] if args.inspect else []
+    print("| format | " + " | ".join([*shown, *(f"inspect {o}" for o in seen_shown)]) + " |")
+    print("| --- | " + " | ".join("---:" for _ in [*shown, *seen_shown]) + " |")
     for fmt in [*formats, "all"]:
         row = sum(table.values(), Counter()) if fmt == "all" else table[fmt]
-        print(f"| {fmt} | " + " | ".join(str(row[o]) for o in shown) + " |")
+        irow = sum(inspected.values(), Counter()) if fmt == "all" else inspected[fmt]
+        print(f"| {fmt} | " + " | ".join([*(str(row[o]) for o in shown), *(str(irow[o]) for o in seen_shown)])
+              + " |")
     if sites:
         print("\nnot clean (site: count, first case):")
         for site, cases in sorted(sites.items(), key=lambda kv: -len(kv[1])):

@@ -86,15 +86,21 @@ def _tolerance(matrix: np.ndarray) -> float:
 
 def check_symmetric(matrix: np.ndarray, what: str) -> None:
     """Symmetric to the tolerance :mod:`pipeline.physics` uses (1e-9 relative)."""
-    gap = float(np.abs(matrix - matrix.T).max())
-    if gap > _tolerance(matrix):
-        i, j = np.unravel_index(int(np.argmax(np.abs(matrix - matrix.T))), matrix.shape)
+    with np.errstate(over="ignore", invalid="ignore"):  # entries near 1.8e308 of opposite signs: an infinite gap
+        gaps = np.abs(matrix - matrix.T)
+    if float(gaps.max()) > _tolerance(matrix):
+        i, j = np.unravel_index(int(np.argmax(gaps)), matrix.shape)
         raise ValueError(f"{what} must be symmetric; [{i}][{j}] = {matrix[i, j]:g} but [{j}][{i}] = "
                          f"{matrix[j, i]:g}")
 
 
+def _symmetric_part(matrix: np.ndarray) -> np.ndarray:
+    """(M + Mᵀ) / 2 without overflow: entries near the float maximum (1.8e308) stay finite."""
+    return 0.5 * matrix + 0.5 * matrix.T
+
+
 def smallest_eigenvalue(matrix: np.ndarray) -> float:
-    return float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T)).min())
+    return float(np.linalg.eigvalsh(_symmetric_part(matrix)).min())
 
 
 def check_positive_definite(matrix: np.ndarray, what: str) -> None:
@@ -113,7 +119,7 @@ def check_positive_semidefinite(matrix: np.ndarray, what: str, hint: str = "") -
 
 def check_conditioned(matrix: np.ndarray, what: str) -> None:
     """Checked before definiteness: the smallest eigenvalue of an ill-conditioned matrix is round-off."""
-    eig = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    eig = np.linalg.eigvalsh(_symmetric_part(matrix))
     size = np.abs(eig)
     if not np.all(np.isfinite(eig)) or size.max() > MAX_MASS_CONDITION * size.min():
         raise ValueError(f"{what} has eigenvalues from {eig.min():.3g} to {eig.max():.3g}: a condition number "

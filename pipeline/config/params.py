@@ -22,6 +22,10 @@ COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mc
 #: the coupled models whose inputs are nu and tau (not ``coupled.inputs``)
 EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb", "fossen")
 DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
+#: Bounds the config campaign (bench/fuzz_configs.py) found missing: a filter width beyond an hour, or more joblib
+#: workers than any machine has, is a typo or a hostile file, not a setting.
+MAX_WIDTH_S = 3600.0
+MAX_WORKERS = 1024
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 #: A length of time a run can mean: up to a day (longer is a unit mistake, and overflows int64 nanoseconds on the
@@ -65,8 +69,8 @@ class IngestParams(Frozen):
 
 
 class SyncParams(Frozen):
-    rate_hz: float = Field(20.0, gt=0, le=1000.0, description="The grid's rate (Hz): vehicle motion needs tens of "
-                           "Hz; faster sensors are interpolated onto it.")
+    rate_hz: float = Field(20.0, ge=0.001, le=1000.0, description="The grid's rate (Hz, 0.001 to 1000): vehicle "
+                           "motion needs tens of Hz; faster sensors are interpolated onto it.")
     max_gap_s: dict[str, Annotated[float, Field(ge=0, le=86_400.0)]] = Field(
         default_factory=lambda: {"default": 0.5},
         description="Largest gap between samples bridged by interpolation, per signal ('default' for the rest).")
@@ -131,8 +135,9 @@ class DifferentiateParams(Frozen):
     @field_validator("sigma_s", "savgol_window_s")
     @classmethod
     def _positive_width(cls, width: float | str) -> float | str:
-        if width != "auto" and not width > 0:
-            raise ValueError(f"a filter width must be 'auto' or a positive number of seconds, not {width}")
+        if width != "auto" and not 0 < width <= MAX_WIDTH_S:
+            raise ValueError(f"a filter width must be 'auto' or a positive number of seconds up to {MAX_WIDTH_S:g} "
+                             f"(an hour), not {width}")
         return width
 
 
@@ -170,10 +175,11 @@ class CoupledParams(Frozen):
         "docs/models.md); graybox_gh is the same on Gertler-Hagen. fossen: Fossen's 3-DOF model (M_RB from the "
         "vehicle, added mass, linear + |nu|nu damping, terms selected by held-out free-run error); graybox_fossen: "
         "the gray box on it.", min_length=1)
-    folds: int = Field(5, ge=2)
+    folds: int = Field(5, ge=2, le=100)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(
-        600, ge=10, description="The rows each search scores its candidates on: this many, evenly spaced in time "
+        600, ge=10, le=1_000_000, description="The rows each search scores its candidates on: this many, evenly "
+        "spaced in time "
         "over the block searched (its whole span of motion), so a search's cost does not grow with the trials' "
         "length; the final models are fitted on every train_test row. null: every row (a search's cost then grows "
         "as rows squared: hours on two 480-s trials). docs/models.md, 'A bounded search by default'.")
@@ -206,9 +212,9 @@ class CoupledParams(Frozen):
         "final model on the whole train_test block (the tune stage). split: the papers' protocol, on the tuning "
         "split (the first tuning_fraction of each trial) once, then fixed; on realistic trials that block is too "
         "short to rank hyperparameters the way the whole training set needs them (docs/models.md).")
-    tuning_folds: int = Field(5, ge=2, description="Blocked CV folds inside each search's data (search score): "
+    tuning_folds: int = Field(5, ge=2, le=100, description="Blocked CV folds inside each search's data (search score): "
                               "each candidate is scored on this many test blocks (docs/models.md).")
-    max_evals: int = Field(30, ge=1, description="Fast search: most candidates per model and output.")
+    max_evals: int = Field(30, ge=1, le=10_000, description="Fast search: most candidates per model and output.")
     fold_evals: int | None = Field(
         8, ge=1, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
         "by a local search of at most this many candidates started from the tune stage's optimum (steps of x2), "
@@ -225,8 +231,9 @@ class CoupledParams(Frozen):
     @field_validator("n_jobs")
     @classmethod
     def _workers(cls, n_jobs: int) -> int:
-        if n_jobs == 0 or n_jobs < -1:
-            raise ValueError(f"n_jobs must be a number of workers (1, 2, ...) or -1 for all cores, not {n_jobs}")
+        if n_jobs == 0 or n_jobs < -1 or n_jobs > MAX_WORKERS:
+            raise ValueError(f"n_jobs must be a number of workers (1 to {MAX_WORKERS}) or -1 for all cores, not "
+                             f"{n_jobs}")
         return n_jobs
 
     @field_validator("models")
@@ -263,16 +270,18 @@ class CoupledParams(Frozen):
 class DecoupledParams(Frozen):
     dofs: list[str] = Field(default_factory=lambda: ["u", "v", "r"])
     models: list[str] = Field(default_factory=lambda: ["ls", "mlp", "krr", "svr", "gp"])
-    folds: int = Field(5, ge=2)
+    folds: int = Field(5, ge=2, le=100)
     search: Literal["paper_grid", "fast"] = "fast"
     gp_max_samples: int = Field(
-        500, ge=50, description="GP training points, chosen evenly in velocity (a fit costs O(n^3); bench/gp.py).")
+        500, ge=50, le=20_000, description="GP training points, chosen evenly in velocity (a fit costs O(n^3); "
+        "bench/gp.py).")
     gp_warp: Literal["signed_square", "none"] = Field(
         "signed_square", description="GP inputs: (nu, nu|nu|) with a length scale each (default), or nu alone (the "
         "paper's RBF, whose band misses the truth around nu = 0; docs/models.md).")
     seed: Seed = 0
     max_samples: int | None = Field(
-        3000, ge=50, description="Each split thinned to this many rows by an even time stride (None: all rows).")
+        3000, ge=50, le=10_000_000, description="Each split thinned to this many rows by an even time stride (None: "
+        "all rows).")
     curve_points: int = Field(5, ge=2, le=50, description="Training sizes on each learning curve.")
     trials: dict[str, list[str]] = Field(
         default_factory=dict, description="Per DOF, the trials its damping is learned from (paper 001: experiments "

@@ -92,7 +92,7 @@ class CsvOptions(Frozen):
         "absolute", description="absolute: since the Unix epoch; relative: since epoch_s.")
     epoch_s: float = Field(0.0, description="Start of a relative time column, Unix seconds.")
     delimiter: str | None = Field(None, description="None: detect comma, tab, semicolon or whitespace.")
-    skip_rows: int = Field(0, ge=0, description="Preamble lines before the header (or the data).")
+    skip_rows: int = Field(0, ge=0, le=10_000_000, description="Preamble lines before the header (or the data).")
     header: bool = Field(True, description="False: the file has no header; give `columns`.")
     columns: list[str] | None = Field(None, description="Column names when the file has no header.")
     encoding: str = "utf-8"

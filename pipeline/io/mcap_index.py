@@ -153,8 +153,8 @@ def _index_walk(path: Path) -> IndexedFile | None:
                 if stop != size - 8:
                     return None  # a footer before the end (a damaged opcode): the record walk reports it
                 break
-            elif op not in _SKIPPABLE and op < 0x80:
-                return None  # messages outside chunks, or a record this walk does not know
+            elif op not in _SKIPPABLE:
+                return None  # messages outside chunks, a record this walk does not know, or a private one
             pos = stop
     finally:
         os.close(fd)

@@ -145,6 +145,9 @@ def _walk_records(
             return
         elif op == 0 or op > 0x0F and op < 0x80:
             raise Damaged(f"unknown record opcode 0x{op:02x}", origin + pos)
+        elif op >= 0x80:  # skipped, and counted: a flipped bit turns a message (0x05) into one (0x85)
+            out.private += 1
+            out.private_at = origin + pos if out.private_at < 0 else out.private_at
         pos = stop
 
 
@@ -210,6 +213,10 @@ def _partial_chunk(
 def salvage_info(path: Path, result: Walk) -> SalvageInfo:
     """The report of a walk that found damage, duplicates, or was asked to salvage."""
     dmg, dups = result.damage, result.seen.describe()
+    if result.private:
+        dups = "; ".join(r for r in (dups, f"{result.private} record(s) with a private opcode (0x80-0xff) skipped, "
+                                     f"the first at byte {result.private_at}: no ROS writer makes them (a damaged "
+                                     "opcode?)") if r)
     reason = "; ".join(r for r in (dmg.reason if dmg else "", dups) if r) or "no damage found"
     if dups:
         log.warning("%s: %s", path, dups)
@@ -239,7 +246,7 @@ class McapReader(RawReader):
                 if on_message is not None:
                     raise
             else:
-                if result.seen.count:
+                if result.seen.count or result.private:
                     self.salvage = salvage_info(self.path, result)
                 return result
         result = walk(self.path, on_message, wanted, tolerant=True)

@@ -4,6 +4,7 @@ the check that its claimed size can be true."""
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 
 from pipeline.io.dedup import Seen
@@ -35,6 +36,8 @@ class Walk:
     damage: Damaged | None = None
     kept: int = 0
     seen: Seen = field(default_factory=Seen)  # chunks and messages met twice, dropped
+    private: int = 0  # records with a private opcode (0x80-0xff), skipped as the spec says; no ROS writer makes them
+    private_at: int = -1
 
 
 # The most a chunk can inflate: LZ4 frames at most ~255x, zstd ~32768x (a 3-byte RLE block header per 128 KiB).
@@ -61,19 +64,27 @@ def implausible_chunk(compression: str, rlen: int, usize: int) -> str | None:
 
 
 def decompress(compression: str, data: bytes, size: int, *, partial: bool) -> bytes:
-    """A chunk's records, inflated (``partial``: as much as a cut stream gives, for salvage)."""
+    """A chunk's records, inflated (``partial``: as much as a cut stream gives, for salvage, never more than the
+    ``size`` the chunk claims: a cut stream has no end to check the claim against)."""
     if compression == "":
         return data
+    if partial and size <= 0:
+        return b""
     if compression == "zstd":
         import zstandard
 
         if partial:
-            return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+            parts: list[bytes] = []
+            with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data)) as reader:
+                while size > 0 and (piece := reader.read(min(size, 1 << 20))):
+                    parts.append(piece)
+                    size -= len(piece)
+            return b"".join(parts)
         return zstandard.ZstdDecompressor().decompress(data, max_output_size=max(size, 1))
     if compression == "lz4":
         import lz4.frame
 
         if partial:
-            return lz4.frame.LZ4FrameDecompressor().decompress(data)
+            return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size)
         return lz4.frame.decompress(data)
     raise Damaged(f"unknown chunk compression {compression!r}", 0)

@@ -10,10 +10,10 @@ the number the storage says it holds.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from pipeline.io.msgdefs import UserTypes
 
 log = logging.getLogger(__name__)
 
+_T = TypeVar("_T")
 _RESTARTS = 64  # each restart moves one more file (of a split bag) to its salvage path
 
 
@@ -93,6 +94,9 @@ class RawReader:
     def log_times(self, topics: list[str]) -> dict[str, np.ndarray]:
         """The log time of every message of ``topics``, in storage order; nothing is decoded (works for types
         without a definition)."""
+        return self._restarting(lambda: self._log_times(topics))
+
+    def _log_times(self, topics: list[str]) -> dict[str, np.ndarray]:
         parts: dict[str, list[np.ndarray]] = {t: [] for t in topics}
         for batch in (self._batches(list(topics)) if topics else ()):
             for topic, rows in batch.rows.items():
@@ -103,6 +107,9 @@ class RawReader:
     def first_message(self, topic: str) -> Any:
         """The topic's first message, deserialized (rosbags objects), or None if it holds none or cannot be
         decoded."""
+        return self._restarting(lambda: self._first_message(topic))
+
+    def _first_message(self, topic: str) -> Any:
         if self.undecodable(topic) is not None:
             return None
         assert self._types is not None
@@ -126,12 +133,17 @@ class RawReader:
         return None
 
     def read(self, requests: dict[str, list[str]]) -> ReadResult:
+        return self._restarting(lambda: self._read(requests))
+
+    def _restarting(self, run: Callable[[], _T]) -> _T:
+        """``run()``, again each time it raises :class:`Restart` (every pass over the batches can meet damage:
+        ``read``, and `auvid inspect`'s ``log_times`` and ``first_message``)."""
         for _ in range(_RESTARTS):
             try:
-                return self._read(requests)
-            except Restart:  # damage found while reading: the reader now reads that file by its salvage path
-                continue
-        return self._read(requests)
+                return run()
+            except Restart:  # damage found while reading: the reader now reads that file by its salvage path,
+                self.catalog()  # listed again by it (read() does this itself; log_times did not, and looped)
+        return run()
 
     def _read(self, requests: dict[str, list[str]]) -> ReadResult:
         from pipeline.io import fields

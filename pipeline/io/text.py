@@ -22,6 +22,11 @@ Every data line is classified by :mod:`pipeline.io.textlines` (blank, all-NaN, r
 :attr:`CsvTopicData.line_counts`; a dropped line keeps its sample slot and a split line takes one, so a time
 rebuilt from the row index (``time: {rate_hz: ...}``) is not shifted by either. Dropped and split lines are
 logged as a warning with their line numbers.
+
+A file is counted (a block of bytes at a time) before anything parses it, and refused with an IngestError naming
+the file and the limit beyond :data:`TEXT_MAX_BYTES` of text (inflated, for a ``.gz``: a 5-MB ``.csv.gz`` can
+hold gigabytes of rows), :data:`TEXT_MAX_LINES` lines or a line of :data:`TEXT_MAX_LINE_BYTES`;
+``open_text(path, max_bytes=..., max_lines=...)`` sets other limits.
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ if TYPE_CHECKING:  # pandas parses the text where a file is read: `auvid inspect
 
     from pipeline.config.sources import CsvOptions  # (pydantic: the options come validated)
 from pipeline.io.base import ReadResult, SalvageInfo, TopicData, TopicInfo
-from pipeline.io.textlines import LinePlan, field_counts, plan_lines
+from pipeline.io.textlines import LinePlan, LineScan, field_counts, plan_lines, scan_lines
 from pipeline.units import TIME_UNITS_NS
 
 log = logging.getLogger(__name__)
@@ -61,6 +66,12 @@ _MAX_REPORTED_LINES = 50
 _INT64_MAX = (1 << 63) - 1
 _DECIMAL = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
 _T = TypeVar("_T")
+_HEAD_LINE_CHARS = 1 << 20  # a sniffed line longer than this is cut there
+# The most text one file may hold, inflated: what pandas parses into memory (a float per value, a Python string
+# per time stamp: ~100 bytes a row). A lab's trial at 1 kHz for an hour is ~3.6 M lines, ~300 MB.
+TEXT_MAX_BYTES = 1 << 30
+TEXT_MAX_LINES = 10_000_000
+TEXT_MAX_LINE_BYTES = 16 << 20  # one line (a row of a log is bytes to kilobytes; pandas buffers a line whole)
 
 
 @dataclass
@@ -89,16 +100,17 @@ def is_gzip(path: str | Path) -> bool:
 _PIECE = 1 << 20
 
 
-def inflate_cut(path: str | Path) -> tuple[bytes, SalvageInfo]:
+def inflate_cut(path: str | Path, max_bytes: int = TEXT_MAX_BYTES) -> tuple[bytes, SalvageInfo]:
     """The complete lines of a gzip file cut short, and the salvage report.
 
     Streams the file through ``zlib.decompressobj`` (member after member) and keeps the text up to the last line
     end that inflated before the cut; the partial last line is dropped. A stream that is corrupt rather than
     cut (a deflate error, a CRC-32 or size that does not match) is an :class:`IngestError`: where corrupt bytes
-    start cannot be told, so nothing is kept.
+    start cannot be told, so nothing is kept; so is one that inflates past ``max_bytes``.
     """
     path = Path(path)
     parts: list[bytes] = []
+    size = 0
     with open(path, "rb") as fh:
         inflater, pos, member = zlib.decompressobj(wbits=31), 0, 0
         while True:
@@ -107,10 +119,14 @@ def inflate_cut(path: str | Path) -> tuple[bytes, SalvageInfo]:
                 break
             while piece:
                 try:
-                    parts.append(inflater.decompress(piece))
+                    parts.append(inflater.decompress(piece, max_bytes + 1 - size))
                 except zlib.error as err:
                     raise IngestError(f"gzip stream does not decompress (member at byte {member}): {err}",
                                       file=path) from err
+                size += len(parts[-1])
+                if size > max_bytes:
+                    raise IngestError(f"gzip stream inflates to more than {max_bytes} bytes of text, the limit "
+                                      "per text file", file=path)
                 if not inflater.eof:
                     pos += len(piece)
                     break
@@ -146,9 +162,10 @@ def looks_like_text_dir(path: str | Path) -> bool:
     return bool(files) and not any(p.suffix in {".db3", ".mcap", ".bag"} for p in path.iterdir())
 
 
-def open_text(path: str | Path) -> TextLogReader:
-    """Open a directory of delimited text files (a CSV trial) or a single text file."""
-    return TextLogReader(path)
+def open_text(path: str | Path, *, max_bytes: int = TEXT_MAX_BYTES, max_lines: int = TEXT_MAX_LINES) -> TextLogReader:
+    """Open a directory of delimited text files (a CSV trial) or a single text file (at most ``max_bytes`` and
+    ``max_lines`` per file)."""
+    return TextLogReader(path, max_bytes=max_bytes, max_lines=max_lines)
 
 
 def _text_files(directory: Path) -> list[Path]:
@@ -161,8 +178,10 @@ class TextLogReader:
 
     format = "csv"
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, max_bytes: int = TEXT_MAX_BYTES,
+                 max_lines: int = TEXT_MAX_LINES) -> None:
         self.path = Path(path)
+        self.max_bytes, self.max_lines = max_bytes, max_lines
         if not self.path.exists():
             raise FileNotFoundError(self.path)
         if self.path.is_dir():
@@ -175,6 +194,7 @@ class TextLogReader:
             raise IngestError("no delimited text files (.csv, .tsv, .txt, .dat, .gz) in directory", file=self.path)
         self._options: dict[str, CsvOptions] = {}
         self._cut: dict[str, tuple[bytes, SalvageInfo]] = {}  # gzip files cut short: their complete lines
+        self._scans: dict[tuple[str, int], LineScan] = {}  # (file, lines skipped) -> its count, within budget
 
     # -- LogReader protocol -------------------------------------------------------------------------------
     def __enter__(self) -> TextLogReader:
@@ -204,17 +224,11 @@ class TextLogReader:
 
     def is_empty(self, name: str) -> bool:
         """Whether a file holds no line with anything but white space (no header, no data): an empty stream."""
-        def scan() -> bool:
-            with self._binary(name) as handle:
-                return not any(line.strip() for line in handle)
-
-        try:
-            return self._tolerating_cut(name, scan)
-        except (OSError, EOFError, zlib.error) as err:
-            raise IngestError(f"cannot read: {err}", file=self._file(name)) from err
+        return not self._scan(name, 0).any_content
 
     def fields(self, topic: str) -> list[str]:
         """Column names of a file (stripped of surrounding spaces)."""
+        self._scan(topic, 0)
         return list(self._header(topic)[1])
 
     def read(self, requests: dict[str, list[str]],
@@ -263,7 +277,7 @@ class TextLogReader:
             path = self._file(name)
             if name in self._cut or not is_gzip(path):
                 raise
-        self._cut[name] = inflate_cut(path)
+        self._cut[name] = inflate_cut(path, self.max_bytes)
         return run()
 
     def _text_head(self, name: str, n_lines: int) -> list[str]:
@@ -274,10 +288,8 @@ class TextLogReader:
         def head() -> list[str]:
             lines: list[str] = []
             with io.TextIOWrapper(self._binary(name), encoding=encoding, errors="strict", newline="") as handle:
-                for line in handle:
+                while len(lines) < n_lines and (line := handle.readline(_HEAD_LINE_CHARS)):
                     lines.append(line.rstrip("\r\n"))
-                    if len(lines) >= n_lines:
-                        break
             return lines
 
         try:
@@ -286,22 +298,35 @@ class TextLogReader:
             raise IngestError(f"cannot read as {encoding} text: {err}{_bom_hint(err, encoding)}", file=path) from err
 
     def _count_data_lines(self, name: str) -> int:
-        path = self._file(name)
         opts = self._opts(name)
         skip = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0)
+        count = self._scan(name, 0).data_after(skip)
+        return count if count is not None else self._scan(name, skip).data_lines
 
-        def count() -> int:
-            n = 0
+    def _scan(self, name: str, skip: int) -> LineScan:
+        """The file's lines counted in blocks; an IngestError naming the limit when it holds more than the budget."""
+        if (name, skip) in self._scans:
+            return self._scans[name, skip]
+        path = self._file(name)
+
+        def scan() -> LineScan:
             with self._binary(name) as handle:
-                for i, line in enumerate(handle):
-                    if i >= skip and line.strip():
-                        n += 1
-            return n
+                return scan_lines(handle, skip=skip, max_bytes=self.max_bytes, max_lines=self.max_lines,
+                                  max_line_bytes=TEXT_MAX_LINE_BYTES)
 
         try:
-            return self._tolerating_cut(name, count)
+            found = self._tolerating_cut(name, scan)
         except (OSError, EOFError, zlib.error) as err:  # zlib.error: a corrupt deflate stream in a .gz
             raise IngestError(f"cannot read: {err}", file=path) from err
+        if found.over is not None:
+            inflated = " (inflated)" if is_gzip(path) else ""
+            limit = {"bytes": f"more than {self.max_bytes} bytes of text{inflated}",
+                     "lines": f"more than {self.max_lines} lines",
+                     "line": f"a line longer than {TEXT_MAX_LINE_BYTES} bytes"}[found.over]
+            raise IngestError(f"text file holds {limit}, the limit per text file (stopped counting at "
+                              f"{found.size} bytes, line {found.lines + 1}); split the log", file=path)
+        self._scans[name, skip] = found
+        return found
 
     def _delimiter(self, name: str) -> str:
         opts = self._opts(name)
@@ -356,6 +381,7 @@ class TextLogReader:
 
         path = self._file(name)
         opts = self._opts(name)
+        self._scan(name, 0)  # within the budget before pandas parses it
         raw, stripped = self._header(name)
         by_name = dict(zip(stripped, raw, strict=True))
         wanted = list(dict.fromkeys([*(c.strip() for c in columns), *([opts.time_column.strip()] if opts else [])]))

@@ -42,7 +42,7 @@ class McapStorage:
             log.warning("%s is damaged (%s); reading it by the salvage path", path, dmg)
             w = walk(path, None, None, tolerant=True)
             w.damage = dmg
-        if w.damage is not None or w.seen.count:
+        if w.damage is not None or w.seen.count or w.private:
             info = salvage_info(path, w)
             info.reason = f"{path.name}: {info.reason}"
             self.salvage = info
