@@ -8,6 +8,7 @@ import numpy as np
 
 from pipeline.models.fossen import DAMPING_TERMS, _added_mass, _coriolis, _regressors
 from pipeline.rk4 import rk4_step
+from tests.models.test_explicit_eiv import forces as explicit_forces
 
 DT_S = 0.05
 M_RB = np.array([[100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 20.0]])
@@ -39,20 +40,9 @@ def plant(truth_theta: np.ndarray):
 
 
 def forces(n: int, rng: np.random.Generator, amp=(80.0, 60.0, 8.0), bias=(0.0, 0.15, -0.1)) -> np.ndarray:
-    """Random steps held 2-10 s through a 1-s lag, plus a slow sine, per DOF (N, N, N·m): the surge goes both ways;
-    the small sway and yaw biases make the excitation asymmetric."""
-    t = np.arange(n) * DT_S
-    tau = np.zeros((n, 3))
-    for i in range(3):
-        level, hold, state = 0.0, 0.0, 0.0
-        phase, freq = rng.uniform(0, 2 * np.pi), rng.uniform(0.02, 0.1)
-        for k in range(n):
-            if hold <= 0:
-                level, hold = rng.uniform(-1, 1), rng.uniform(2, 10)
-            hold -= DT_S
-            state += (level - state) * DT_S
-            tau[k, i] = amp[i] * (bias[i] + 0.8 * state + 0.2 * np.sin(2 * np.pi * freq * t[k] + phase))
-    return tau
+    """The explicit models' test forces (random steps through a 1-s lag plus a slow sine, per DOF), larger, with
+    the surge going both ways and small sway and yaw biases that make the excitation asymmetric."""
+    return explicit_forces(n, rng, amp=amp, bias=bias)
 
 
 @functools.cache
