@@ -17,6 +17,7 @@ from typing import Any
 
 import pandas as pd
 import pyarrow as pa
+from threadpoolctl import threadpool_limits
 
 from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
@@ -45,7 +46,8 @@ def differentiate(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateP
     """The kinematics table of the contract and the stage's report (noise per signal, the smoother or the filter
     widths, how much of the trial is usable). ``streams``: the trial's native streams (stem -> table), for the
     smoother and ``auto`` widths; without them the synced grid's samples stand in."""
-    return method_function(params.method)(synced, vehicle, params, streams)
+    with threadpool_limits(1, user_api="blas"):  # banded solves and 3x3 blocks: BLAS threads only spin
+        return method_function(params.method)(synced, vehicle, params, streams)
 
 
 def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,

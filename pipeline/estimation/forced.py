@@ -186,7 +186,8 @@ def _covered(grid_ns: np.ndarray, meas: dict[str, Measurements], max_gap_s: floa
 
 
 def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: ForceModel | None, *, passes: int,
-                  process_noise: dict[str, float], gate: float, dofs: tuple[str, ...]
+                  process_noise: dict[str, float], gate: float, dofs: tuple[str, ...],
+                  fixed: dict[str, Smoothed] | None = None
                   ) -> tuple[dict[str, Smoothed], dict[str, np.ndarray | None], dict]:
     """Per measured DOF, the smoothed result (SDs filled) of the model chosen, the known input it used (None: the
     kinematic smoother) and a report of the passes.
@@ -199,6 +200,8 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
     say) is absorbed by the input-error term, which raises the likelihood but not the derivative's quality. The
     passes stop after ``passes`` or when no DOF gains (from pass 2 on: pass 1, without the damping, may lose
     where pass 2 wins); from pass 3 on, only the DOFs the previous pass improved are smoothed again.
+    ``fixed``: other DOFs' results, not smoothed again, whose nu and nu_dot enter the model as they are (the
+    velocity sensor's DOFs smoothed again after its misalignment is undone).
     """
     best: dict[str, Smoothed] = {}
     for dof, m in meas.items():
@@ -214,7 +217,8 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
     if model is not None and passes > 0:
         pass0_kept = {dof: best[dof].kept for dof in best}
         kept = {dof: m.subset(best[dof].kept) for dof, m in meas.items()}
-        index = {dof: dofs.index(dof) for dof in best}
+        context = dict(fixed or {})
+        index = {dof: dofs.index(dof) for dof in [*best, *context]}
         if model.noise_var is not None:
             noise_var = {dof: model.noise_var[:, index[dof]] for dof in best}
         rows = _covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
@@ -225,7 +229,7 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
             else:
                 nu = np.zeros((grid_ns.size, len(dofs)))
                 nudot = np.zeros_like(nu)
-                for dof, res in best.items():
+                for dof, res in {**context, **best}.items():
                     nu[:, index[dof]], nudot[:, index[dof]] = res.x, res.xdot
                 a = model.acceleration(nu, fit_damping(model, nu, nudot, rows, sorted(index.values())))
             step = {dof: smooth_with_input(grid_ns, kept[dof], a[:, index[dof]], q=process_noise.get(dof),

@@ -98,6 +98,7 @@ def _passes_report(passes: dict, results: dict[str, Smoothed]) -> dict[str, Any]
     kept (0: the kinematic smoother)."""
     return {"force_model": passes["force_model"],
             "passes": passes["passes"],
+            "passes_after_misalignment": passes.get("after_misalignment"),
             "chosen_pass": {dof: passes["chosen"][dof] for dof in results if dof in passes["chosen"]}}
 
 
@@ -140,9 +141,14 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
             log.info("velocity sensor: yaw misalignment %.2f deg (SD %.2f) found and undone",
                      misalignment.posterior_deg, misalignment.posterior_sd_deg)
             meas["u"], meas["v"] = turned(meas["u"], meas["v"], np.radians(misalignment.posterior_deg))
-            results, inputs, passes = smooth_passes(grid, meas, model, passes=params.model_passes,
-                                                    process_noise=params.process_noise, gate=params.gate_sigmas,
-                                                    dofs=DOFS)
+            others = {d: r for d, r in results.items() if d not in ("u", "v")}
+            again, again_inputs, again_passes = smooth_passes(
+                grid, {d: meas[d] for d in ("u", "v")}, model, passes=params.model_passes,
+                process_noise=params.process_noise, gate=params.gate_sigmas, dofs=DOFS, fixed=others)
+            results.update(again)
+            inputs.update(again_inputs)
+            passes["chosen"].update(again_passes["chosen"])
+            passes["after_misalignment"] = again_passes["passes"]
         widen_for_misalignment(results["u"], results["v"], misalignment)
     accelerometer = None
     if vehicle.sensors.accelerometer is not None:
