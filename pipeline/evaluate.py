@@ -24,7 +24,7 @@ from pipeline.errors import ModelError, PipelineError
 log = logging.getLogger(__name__)
 
 __all__ = ["SPLITS", "split_blocks", "blocked_folds", "check_no_leakage", "regression_scores",
-           "cross_validate_blocked", "summarize_folds", "score_holdout", "MODEL_FAILURES", "model_failure"]
+           "cross_validate_blocked", "fit_fold", "summarize_folds", "score_holdout", "MODEL_FAILURES", "model_failure"]
 
 #: What one model's fit or evaluation may raise without stopping a study: the pipeline's own errors and numerical
 #: errors from numpy / scipy / scikit-learn (LinAlgError is a ValueError). Never KeyboardInterrupt or MemoryError.
@@ -98,8 +98,10 @@ def regression_scores(y_true: np.ndarray, y_pred: np.ndarray, outputs: Sequence[
             for k, name in enumerate(names)}
 
 
-def _fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray,
-              outputs: Sequence[str] | None) -> dict[str, Any]:
+def fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray,
+             outputs: Sequence[str] | None) -> dict[str, Any]:
+    """A clone of ``estimator`` fitted on the ``train`` rows: its scores on them and on the ``test`` rows, times,
+    sizes and the test block's span."""
     est = clone(estimator)
     t0 = time.perf_counter()
     est.fit(X[train], y[train])
@@ -133,7 +135,7 @@ def cross_validate_blocked(estimator: Any, X: np.ndarray, y: np.ndarray, *, n_fo
         keys = keys.reset_index(drop=True)
         for train, test in folds:
             check_no_leakage(keys.iloc[train], keys.iloc[test], tuning_keys, group=group, time_col=time_col)
-    jobs = (delayed(_fit_fold)(estimator, X, y, tr, te, outputs) for tr, te in folds)
+    jobs = (delayed(fit_fold)(estimator, X, y, tr, te, outputs) for tr, te in folds)
     if progress is None:
         results = Parallel(n_jobs=n_jobs)(jobs)
     else:  # the same work, results taken as they come (in order) to move the bar

@@ -43,6 +43,7 @@ ENV_SCHEDULER = "AUVID_SCHEDULER"
 ENV_JOBS = "AUVID_JOBS"
 ENV_POOL_MIN_BYTES = "AUVID_POOL_MIN_BYTES"
 ENV_POOL_START = "AUVID_POOL_START"
+ENV_TASK_TRACE = "AUVID_TASK_TRACE"
 CONNECT_TIMEOUT_S = 10.0
 LOCAL = "local"
 
@@ -83,6 +84,14 @@ def n_jobs() -> int:
             raise ConfigError(f"{ENV_JOBS} must be an integer, found {env!r}") from None
         return max(1, value)
     return usable_cpus()
+
+
+def workers(requested: int | str | None) -> int:
+    """The ``n_jobs`` to pass on for a params value: ``"auto"``, None or -1 -> :func:`n_jobs` (every usable core,
+    ``AUVID_JOBS``, or -1 on a Dask cluster); a number of workers as it is (one on a cluster too: serial)."""
+    if requested in (None, "auto", -1):
+        return n_jobs()
+    return int(requested)
 
 
 def usable_cpus() -> int:
@@ -395,3 +404,48 @@ def _terminate_workers(pool: Any) -> None:
     for process in list((getattr(pool, "_processes", None) or {}).values()):
         if process.is_alive():
             process.terminate()
+
+
+class timed_task:  # noqa: N801  (used as a function: ``imap(timed_task(fn, "tune"), items)``)
+    """``fn`` wrapped to run under one BLAS / OpenMP thread (the workers are the parallelism, and the same thread
+    count inline and in a worker gives the same bits) and to return ``{"result", "start", "wall_s", "cpu_s",
+    "pid"}``: :func:`task_result` unwraps it and records the timing. Picklable when ``fn`` is."""
+
+    def __init__(self, fn: Callable[[Any], Any], stage: str) -> None:
+        self.fn = fn
+        self.stage = stage
+
+    def __call__(self, item: Any) -> dict[str, Any]:
+        import time
+
+        from threadpoolctl import threadpool_limits
+
+        start, cpu0 = time.time(), time.process_time()
+        t0 = time.perf_counter()
+        with threadpool_limits(1):
+            result = self.fn(item)
+        return {"result": result, "start": start, "wall_s": time.perf_counter() - t0,
+                "cpu_s": time.process_time() - cpu0, "pid": os.getpid()}
+
+
+def task_result(timed: dict[str, Any], stage: str, name: str, deps: Iterable[str] = ()) -> Any:
+    """The result of a :class:`timed_task`, its timing recorded under ``stage`` / ``name`` (:func:`record_task`)."""
+    record_task(stage, name, start=timed["start"], wall_s=timed["wall_s"], cpu_s=timed["cpu_s"], pid=timed["pid"],
+                deps=deps)
+    return timed["result"]
+
+
+def record_task(stage: str, name: str, *, start: float, wall_s: float, cpu_s: float, pid: int | None = None,
+                deps: Iterable[str] = ()) -> None:
+    """Append one task's timing to the file named by ``AUVID_TASK_TRACE`` (JSON lines; nothing when unset): the
+    scaling benchmark's record of a run (``bench/span.py``). ``deps``: the names of the tasks it waited for, besides
+    the stage's start."""
+    path = os.environ.get(ENV_TASK_TRACE, "").strip()
+    if not path:
+        return
+    import json
+
+    line = json.dumps({"stage": stage, "task": name, "start": start, "wall_s": wall_s, "cpu_s": cpu_s, "pid": pid,
+                       "deps": list(deps)})
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(line + "\n")

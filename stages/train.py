@@ -54,9 +54,12 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     files = sorted(features_dir(root).glob(f"vehicle={quote(vehicle.name, safe='')}/trial=*/part-0.parquet"))
     data_lineage = lineage(files, root)
     out_models, out_eval = root / MODELS / "coupled", root / EVALUATION / "coupled"
-    outputs: list[Path] = []
+    saved: dict[str, list[Path]] = {}
     results: dict[str, Any] = {}
     failed: dict[str, dict[str, str]] = {}
+
+    def in_order(by_model: dict[str, Any]) -> dict[str, Any]:  # models finish in any order on several workers
+        return {m: by_model[m] for m in cp.models if m in by_model}
 
     def finished(model: str, res: dict[str, Any] | None, card: dict[str, Any] | None) -> None:
         """Write this model's joblib + card (or drop a stale one if it failed) and the tables so far."""
@@ -68,11 +71,13 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
                     stale.unlink()
         else:
             results[model] = res
-            outputs.extend(save_model(res["estimator"], target, card))
-        write_tables(results, failed, cp.outputs, out_eval)
+            saved[model] = save_model(res["estimator"], target, card)
+        write_tables(in_order(results), in_order(failed), cp.outputs, out_eval)
 
     train_stage(tt, te, tuning_keys, hyper, cp, vehicle=vehicle.name, data_lineage=data_lineage, failures=failed,
                 on_model=finished, progress=progress, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
+    results, failed = in_order(results), in_order(failed)
+    outputs = [path for paths in in_order(saved).values() for path in paths]
     outputs += write_tables(results, failed, cp.outputs, out_eval)
     fold_boxplot(results, cp.outputs, out_eval / "fold_test_r2.png")
     outputs.append(out_eval / "fold_test_r2.png")

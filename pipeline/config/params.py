@@ -226,11 +226,17 @@ class CoupledParams(Frozen):
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")
-    n_jobs: int = Field(1, description="joblib workers for CV folds and search candidates (-1: all cores).")
+    n_jobs: int | Literal["auto"] = Field(
+        "auto", description="Workers for the study's independent tasks: the tune stage's search chains (per output, "
+        "per gray box and output) and the train stage's CV folds and final fits (per model). auto (or -1): every "
+        "usable core (AUVID_JOBS where set; every worker of a Dask cluster under --scheduler); 1: serial. The "
+        "outputs are the same bytes whatever the number (docs/user-guide.md, 'Parallel runs').")
 
     @field_validator("n_jobs")
     @classmethod
-    def _workers(cls, n_jobs: int) -> int:
+    def _workers(cls, n_jobs: int | str) -> int | str:
+        if n_jobs == "auto":
+            return n_jobs
         if n_jobs == 0 or n_jobs < -1 or n_jobs > MAX_WORKERS:
             raise ValueError(f"n_jobs must be a number of workers (1 to {MAX_WORKERS}) or -1 for all cores, not "
                              f"{n_jobs}")

@@ -13,9 +13,6 @@ tau_r]``, all outputs at once, TLS), ``fossen`` (the same inputs; Fossen's 3-DOF
 
 from __future__ import annotations
 
-import copy
-import hashlib
-import json
 import logging
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
@@ -31,20 +28,21 @@ from pipeline.config.vehicle import THRUST_COLUMN
 from pipeline.errors import ModelError
 from pipeline.evaluate import (
     MODEL_FAILURES,
+    blocked_folds,
     check_no_leakage,
-    cross_validate_blocked,
     model_failure,
-    score_holdout,
     split_blocks,
     summarize_folds,
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.fossen import Fossen3DOF
 from pipeline.models.graybox import GrayBox
-from pipeline.models.search import SVR_MODELS, SearchResult, SearchSettings, make_svr
+from pipeline.models.search import SVR_MODELS, SearchSettings, make_svr
 from pipeline.models.search_halving import fold_subset, search
 from pipeline.models.svr import PerOutputRegressor
+from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
+from pipeline.studies.tasks import SearchCache, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
 
 log = logging.getLogger(__name__)
@@ -150,61 +148,6 @@ def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:
     return frame.iloc[idx]
 
 
-def _part(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
-    """A progress callback for one part of a longer job: the part's own done/total, ``label`` first in desc."""
-    if progress is None:
-        return None
-    return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
-
-
-class SearchCache:
-    """The searches of one stage run by their inputs, the newest ``kept``: :meth:`search` runs each once.
-
-    Nested tuning searches each CV fold once per model, and a model's fast search runs the simpler kernels' chain
-    first: in one fold the WDSE's chain repeats the RBF and 2-weights searches that the RBF and 2-weights models of
-    that fold ran, on the same rows with the same settings. A search is deterministic in its inputs, so the repeat
-    gives the result the first gave (a copy of it; its log lines are not given twice). ``progress`` is not an input.
-
-    A stage's function creates one and passes it down. The estimators of the CV folds hold it (:class:`NestedTuned`):
-    ``clone``'s deep copy keeps this same cache, a pickled copy (a joblib worker's) starts empty.
-    """
-
-    def __init__(self, kept: int = 64) -> None:
-        self.kept = kept
-        self._results: dict[str, SearchResult] = {}
-
-    def __deepcopy__(self, memo: dict[int, Any]) -> SearchCache:
-        return self
-
-    def __reduce__(self) -> tuple[type[SearchCache], tuple[int]]:
-        return SearchCache, (self.kept,)
-
-    def search(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
-               warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None) -> SearchResult:
-        """:func:`~pipeline.models.search.search` with ``settings`` (and a simpler kernel's optimum as
-        ``warm_start``: fast search only), or the result of the same search run before."""
-        kw = settings.keywords()
-        if warm_start is not None:
-            kw["warm_start"] = warm_start
-        # the layout too: a strided column (a residual's) sums in another order than a contiguous copy of it, and a
-        # search's choices can turn on the last bit
-        layout = [(np.asarray(v).shape, np.asarray(v).strides, str(np.asarray(v).dtype)) for v in (X, y)]
-        h = hashlib.sha256(json.dumps([model, settings.method, layout, kw], sort_keys=True, default=repr).encode())
-        for values in (X, y):
-            h.update(np.ascontiguousarray(values, dtype=float).tobytes())
-        key = h.hexdigest()
-        result = self._results.get(key)
-        if result is None:
-            result = search(model, X, y, settings.method, progress=progress, **kw)
-            self._results[key] = result
-            while len(self._results) > self.kept:
-                del self._results[next(iter(self._results))]
-        else:
-            log.debug("%s search on %d rows: the same inputs as an earlier search of this run, its result", model,
-                      len(X))
-        return copy.deepcopy(result)
-
-
 def search_settings(params: CoupledParams, n_jobs: int | None = 1) -> SearchSettings:
     """The settings of every search of the study: ``params.search``'s method with its keys of ``params``."""
     return SearchSettings(method=params.search, n_folds=params.tuning_folds, n_jobs=n_jobs,
@@ -241,48 +184,42 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         _check_columns(tuning, EXPLICIT_INPUTS, f"tune ({', '.join(graybox)})")
     data = _subsample(tuning, params.max_samples)
     X = data[params.inputs].to_numpy(float)
-    settings = search_settings(params, n_jobs)
+    settings = search_settings(params, 1)
     cache = cache if cache is not None else SearchCache()
-    hyper: dict[str, dict[str, dict[str, Any]]] = {}
-    trace: dict[str, Any] = {}
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum. The
     # chain runs even where the simpler kernels are not asked for (their results serve as warm starts only): a
     # lone WDSE search of 8 hyperparameters from the GP seed lands far from the chain's optimum
     # (docs/benchmarks.md)
     wanted = [m for m in SVR_MODELS if m in params.models]
     order = SVR_MODELS[:SVR_MODELS.index(wanted[-1]) + 1] if wanted and params.search == "fast" else wanted
-    n_searches, k_search = (len(order) + len(graybox)) * len(params.outputs), 0
-    for model in order:
-        hyper[model], trace[model] = {}, {}
-        simpler = next((m for m in reversed(order[:order.index(model)]) if m in hyper), None)
-        for out in params.outputs:
-            warm = hyper[simpler][out] if simpler and settings.method == "fast" else None
-            k_search += 1
-            res = cache.search(model, X, data[out].to_numpy(float), settings, warm_start=warm,
-                               progress=_part(progress, f"{model}/{out} ({k_search}/{n_searches})"))
-            log.info("tuned %s / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
-            hyper[model][out] = res.best_params
-            trace[model][out] = res.to_dict()
-    for model in set(order) - set(wanted):  # warm starts only
-        log.info("%s searched as the warm start of a richer kernel only", model)
-        del hyper[model], trace[model]
+    # independent chains (tasks.tune_chains): per output the SVRs' chain, per gray box and output its residual's
+    chains = [{"owner": None, "output": out, "label": out, "models": order, "X": X,
+               "y": data[out].to_numpy(float), "cache": cache} for out in params.outputs] if order else []
     for model in graybox:
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(tuning),
                          tuning, rigid_body_mass)
         base.fit(tuning[EXPLICIT_INPUTS].to_numpy(float), tuning[params.outputs].to_numpy(float))
         resid = data[params.outputs].to_numpy(float) - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
-        hyper[model], trace[model] = {}, {}
-        for k, out in enumerate(params.outputs):
-            warm = None
-            if settings.method == "fast":  # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs above
-                for simpler in SVR_MODELS[:-1]:
-                    warm = cache.search(simpler, X, resid[:, k], settings, warm_start=warm).best_params
-            k_search += 1  # progress: the residual's WDSE search (its warm-start chain reports nothing)
-            res = cache.search("wdse_svr", X, resid[:, k], settings, warm_start=warm,
-                               progress=_part(progress, f"{model}/{out} ({k_search}/{n_searches})"))
-            log.info("tuned %s residual / %s: R2 %.4f with %d fits", model, out, res.best_score, res.n_fits)
-            hyper[model][out] = res.best_params
-            trace[model][out] = res.to_dict()
+        # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs (the SVRs' optima are no warm start:
+        # the target differs)
+        kernels = list(SVR_MODELS) if settings.method == "fast" else ["wdse_svr"]
+        chains += [{"owner": model, "output": out, "label": f"{model}/{out}", "models": kernels, "X": X,
+                    "y": resid[:, k], "cache": cache} for k, out in enumerate(params.outputs)]
+    done = tune_chains(chains, settings, workers(n_jobs), progress)
+    hyper: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in [*order, *graybox]}
+    trace: dict[str, Any] = {m: {} for m in [*order, *graybox]}
+    for chain, results in zip(chains, done, strict=True):
+        owner, out = chain["owner"], chain["output"]
+        for model, res in zip(chain["models"], results, strict=True):
+            if owner is not None and model != chain["models"][-1]:
+                continue  # a gray box's residual keeps its WDSE; the simpler kernels were its warm starts
+            name = owner or model
+            log.info("tuned %s / %s: R2 %.4f with %d fits", name, out, res.best_score, res.n_fits)
+            hyper[name][out] = res.best_params
+            trace[name][out] = res.to_dict()
+    for model in set(order) - set(wanted):  # warm starts only
+        log.info("%s searched as the warm start of a richer kernel only", model)
+        del hyper[model], trace[model]
     return hyper, trace
 
 
@@ -387,41 +324,58 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
         check_no_leakage(train_test[["trial", "t_ns"]], test[["trial", "t_ns"]], tuning_keys)
     y = train_test[params.outputs].to_numpy(float)
     results: dict[str, Any] = {}
-    per_model = params.folds + 1  # the CV folds, then the final fit
-    total = per_model * len(params.models)
-    for k, model in enumerate(params.models):
-        base = k * per_model
-
-        def tick(done: int, _total: Any = None, desc: str | None = None, base: int = base, model: str = model
-                 ) -> None:
-            if progress is not None:
-                progress(base + done, total, f"{model} {desc or ''}".rstrip())
-
+    specs: list[dict[str, Any]] = []
+    for model in params.models:
         try:
-            results[model] = _evaluate_model(model, train_test, test, y, keys, hyper, params, tuning_keys, n_jobs,
-                                             cache, progress=tick if progress is not None else None,
-                                             rigid_body_mass=rigid_body_mass)
+            specs += _model_tasks(model, train_test, test, y, keys, hyper, params, tuning_keys, cache,
+                                  rigid_body_mass)
         except MODEL_FAILURES as err:
-            entry = model_failure(model, err)
-            if failures is None:
-                raise ModelError(f"model {model!r} failed ({entry['error']}): {entry['reason']}") from err
-            log.error("model %s failed, the others go on: %s: %s", model, entry["error"], entry["reason"])
-            failures[model] = entry
-            tick(per_model, desc="failed")
-            if on_model is not None:
-                on_model(model, None)
-            continue
+            _failed(model, model_failure(model, err), failures, on_model)
+    # every model's folds and final fit are independent tasks (pipeline.studies.tasks); a model is done, and
+    # written, when its last task is
+    remaining = {m: sum(s["model"] == m for s in specs) for m in params.models}
+    done: dict[int, dict[str, Any]] = {}
+
+    def task_done(index: int, res: dict[str, Any]) -> None:
+        model = specs[index]["model"]
+        done[index] = res
+        remaining[model] -= 1
+        if remaining[model]:
+            return
+        mine = [done[i] for i, s in enumerate(specs) if s["model"] == model]
+        failed = next((r["failed"] for r in mine if "failed" in r), None)
+        if failed is not None:
+            _failed(model, failed, failures, on_model)
+            return
+        folds = [r["fold"] for r in mine if "fold" in r]
+        final = mine[-1]
+        results[model] = {"folds": folds, "summary": summarize_folds(folds), "final": final["final"],
+                          "estimator": final["estimator"]}
         log.info("%s: CV test R2 %s", model, {o: round(s["test_r2"]["mean"], 4)
                                              for o, s in results[model]["summary"].items()})
         if on_model is not None:
             on_model(model, results[model])
-    return results
+
+    train_tasks(specs, workers(n_jobs), progress=progress, on_task=task_done)
+    return {m: results[m] for m in params.models if m in results}
 
 
-def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np.ndarray, keys: pd.DataFrame,
-                    hyper: dict[str, dict[str, Any]], params: CoupledParams, tuning_keys: pd.DataFrame | None,
-                    n_jobs: int | None, cache: SearchCache, progress: Callable[..., Any] | None = None,
-                    rigid_body_mass: np.ndarray | None = None) -> dict[str, Any]:
+def _failed(model: str, entry: dict[str, str], failures: dict[str, dict[str, str]] | None,
+            on_model: Callable[[str, dict[str, Any] | None], None] | None) -> None:
+    """A model's failure: raised as a ModelError without ``failures``; else logged, recorded, ``on_model``."""
+    if failures is None:
+        raise ModelError(f"model {model!r} failed ({entry['error']}): {entry['reason']}")
+    log.error("model %s failed, the others go on: %s: %s", model, entry["error"], entry["reason"])
+    failures[model] = entry
+    if on_model is not None:
+        on_model(model, None)
+
+
+def _model_tasks(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np.ndarray, keys: pd.DataFrame,
+                 hyper: dict[str, dict[str, Any]], params: CoupledParams, tuning_keys: pd.DataFrame | None,
+                 cache: SearchCache, rigid_body_mass: np.ndarray | None) -> list[dict[str, Any]]:
+    """One model's tasks (:func:`pipeline.studies.tasks.train_tasks`): its blocked CV folds (each passed by the
+    leakage guard first), then its final fit on the whole train_test block with the check on ``test``."""
     est = build_model(model, hyper.get(model), params, train=train_test, rigid_body_mass=rigid_body_mass)
     cols = model_inputs(model, params)
     _check_columns(train_test, cols, model)
@@ -431,16 +385,17 @@ def _evaluate_model(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y:
     nested = params.tuning == "nested" and model not in EXPLICIT_MODELS
     cv_est = NestedTuned(model, params, noise_std_from(train_test), cache, hyper.get(model),
                          rigid_body_mass) if nested else est
-    folds = cross_validate_blocked(cv_est, X, y, n_folds=params.folds, keys=keys, tuning_keys=tuning_keys,
-                                   outputs=params.outputs, n_jobs=n_jobs, progress=progress)
-    final_est = est.fit(X, y)
-    if progress is not None:
-        progress(params.folds + 1, None, "final fit")
-    final = None
-    if len(test):
-        final = score_holdout(final_est, test[cols].to_numpy(float), test[params.outputs].to_numpy(float),
-                              params.outputs)
-    return {"folds": folds, "summary": summarize_folds(folds), "final": final, "estimator": final_est}
+    folds = blocked_folds(len(X), params.folds)
+    rows = keys.reset_index(drop=True)
+    for train, held in folds:
+        check_no_leakage(rows.iloc[train], rows.iloc[held], tuning_keys)
+    common = {"model": model, "X": X, "y": y, "outputs": params.outputs}
+    tasks = [{**common, "kind": "fold", "fold": k, "estimator": cv_est, "train": train, "test": held}
+             for k, (train, held) in enumerate(folds)]
+    tasks.append({**common, "kind": "final", "estimator": est,
+                  "X_test": test[cols].to_numpy(float) if len(test) else None,
+                  "y_test": test[params.outputs].to_numpy(float) if len(test) else None})
+    return tasks
 
 
 def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,

@@ -128,7 +128,7 @@ def test_smooth_tolerance_picks_the_widest_kernel_among_near_ties():
 def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch):
     """coupled.tuning = nested: every CV fold's hyperparameters come from a search over exactly that fold's
     training rows (never a row of its test block), and the final model's from the whole train_test block."""
-    from pipeline.studies import coupled
+    from pipeline.studies import coupled, tasks
 
     frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
@@ -207,21 +207,21 @@ def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
     the WDSE's fast-search chain (RBF, then 2-weights, then WDSE) repeats the searches the RBF and 2-weights models
     of that fold ran on the same rows. Each runs once; the scores are those of running every search (a cache that
     keeps none)."""
-    from pipeline.studies import coupled
+    from pipeline.studies import coupled, tasks
 
     frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
     params = CoupledParams(models=["rbf_svr", "two_weights_svr", "wdse_svr"], outputs=["udot_mps2"], max_evals=3,
                            folds=2, tuning="nested", fold_evals=None)
     ran: list[str] = []
-    real_search = coupled.search
+    real_search = tasks.search
 
     def counted(model, X, y, method="fast", **kw):
         ran.append(model)
         return real_search(model, X, y, method, **kw)
 
-    monkeypatch.setattr(coupled, "search", counted)
-    memo = coupled.run_study(frame, params)
+    monkeypatch.setattr(tasks, "search", counted)
+    memo = coupled.run_study(frame, params, n_jobs=1)  # one process: the folds share the run's cache
     # the tune stage's call (one chain), then per fold the three kernels' chains: 3 + 2 x 3, not 3 + 2 x (1 + 2 + 3)
     assert sorted(ran) == sorted(["rbf_svr", "two_weights_svr", "wdse_svr"] * (1 + params.folds))
 

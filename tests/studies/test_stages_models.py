@@ -207,7 +207,7 @@ def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehic
     residuals, so the hyperparameters were searched on a target the model never learns)."""
     import shutil
 
-    import pipeline.studies.coupled as coupled
+    import pipeline.studies.tasks as tasks
     from pipeline.studies.coupled import build_model, model_inputs, noise_std_from
     from pipeline.vocabulary import NOISE_STD_COLUMNS
 
@@ -215,13 +215,14 @@ def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehic
     shutil.copytree(root / "data/features", tmp_path / "data/features")
     params = study_params(models=["graybox"], search="fast")
     seen: list[np.ndarray] = []
-    real = coupled.search
+    real = tasks.search
 
     def recording(model, X, y, *a, **kw):
         seen.append(np.array(y))
         return real(model, X, y, *a, **kw)
 
-    monkeypatch.setattr(coupled, "search", recording)
+    monkeypatch.setattr(tasks, "search", recording)
+    monkeypatch.setenv("AUVID_JOBS", "1")  # the searches in this process, where they are recorded
     tune_stage.run(tmp_path, vehicle, params)
     cp = params.coupled
     tt = store.load(tmp_path, split="train_test")

@@ -1,0 +1,161 @@
+"""The coupled study's independent units of work, run through one executor (:func:`pipeline.parallel.imap`).
+
+* tune: one task per output for the SVRs' warm-start chain (RBF -> 2-weights -> WDSE, each search started from the
+  simpler kernel's optimum), and one per gray box and output for its residual's chain. Chains do not depend on each
+  other, so the stage's critical path is one chain, not eighteen searches.
+* train: one task per model and CV fold, and one per model's final fit (with its check on the test trials).
+
+Every task runs under one BLAS thread, inline or in a worker, and takes contiguous copies of its arrays: the same
+task gives the same bits serially, in a forked pool or on a Dask worker (``tests/studies/test_parallel_study.py``).
+Each task's wall and CPU time go to :func:`pipeline.parallel.record_task` (``bench/span.py`` reads them).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import logging
+import pickle
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from pipeline.evaluate import MODEL_FAILURES, fit_fold, model_failure, score_holdout
+from pipeline.models.search import SearchResult, SearchSettings
+from pipeline.models.search_halving import search
+from pipeline.parallel import imap, task_result, timed_task
+
+log = logging.getLogger(__name__)
+
+
+def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs: int,
+                progress: Callable[..., Any] | None = None) -> list[list[Any]]:
+    """Run each chain (``{"label", "models": [kernel, ...], "X", "y", "cache"}``; other keys are carried) of
+    warm-started searches, each through the chain's :class:`SearchCache` (a worker's copy starts empty); returns, per
+    chain in order, its searches' :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers
+    (1: inline, with each search's candidates on ``progress``; more, or -1 on a Dask cluster: ``progress`` moves as
+    each chain ends)."""
+    settings = replace(settings, n_jobs=1)  # one level of parallelism: the chains
+    items = [{**c, "X": np.ascontiguousarray(c["X"], dtype=float), "y": np.ascontiguousarray(c["y"], dtype=float),
+              "settings": settings} for c in chains]
+    if jobs == 1:
+        for k, item in enumerate(items):
+            item["progress"] = _labelled(progress, f"{item['label']} ({k + 1}/{len(items)})")
+    results: list[Any] = [None] * len(items)
+    for done, (index, timed) in enumerate(imap(timed_task(_run_chain, "tune"), items, jobs=jobs), start=1):
+        results[index] = task_result(timed, "tune", items[index]["label"])
+        if progress is not None and jobs > 1:
+            progress(done, len(items), f"{items[index]['label']} ({done}/{len(items)} chains)")
+    return results
+
+
+def _labelled(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
+    if progress is None:
+        return None
+    return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
+
+
+def _run_chain(item: dict[str, Any]) -> list[Any]:
+    cache = item.get("cache") or SearchCache()
+    warm, out = None, []
+    for model in item["models"]:
+        res = cache.search(model, item["X"], item["y"], item["settings"], warm_start=warm,
+                           progress=item.get("progress"))
+        warm = res.best_params if item["settings"].method == "fast" else None
+        out.append(res)
+    return out
+
+
+def _copy(obj: Any) -> Any:
+    return pickle.loads(pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+class SearchCache:
+    """The searches of one stage run by their inputs, the newest ``kept``: :meth:`search` runs each once.
+
+    Nested tuning searches each CV fold once per model, and a model's fast search runs the simpler kernels' chain
+    first: in one fold the WDSE's chain repeats the RBF and 2-weights searches that the RBF and 2-weights models of
+    that fold ran, on the same rows with the same settings. A search is deterministic in its inputs, so the repeat
+    gives the result the first gave (a copy of it; its log lines are not given twice). ``progress`` is not an input.
+
+    A stage's function creates one and passes it down. The estimators of the CV folds hold it (:class:`NestedTuned`):
+    ``clone``'s deep copy keeps this same cache, a pickled copy (a joblib worker's) starts empty.
+    """
+
+    def __init__(self, kept: int = 64) -> None:
+        self.kept = kept
+        self._results: dict[str, SearchResult] = {}
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> SearchCache:
+        return self
+
+    def __reduce__(self) -> tuple[type[SearchCache], tuple[int]]:
+        return SearchCache, (self.kept,)
+
+    def search(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
+               warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None) -> SearchResult:
+        """:func:`~pipeline.models.search.search` with ``settings`` (and a simpler kernel's optimum as
+        ``warm_start``: fast search only), or the result of the same search run before."""
+        kw = settings.keywords()
+        if warm_start is not None:
+            kw["warm_start"] = warm_start
+        # the layout too: a strided column (a residual's) sums in another order than a contiguous copy of it, and a
+        # search's choices can turn on the last bit
+        layout = [(np.asarray(v).shape, np.asarray(v).strides, str(np.asarray(v).dtype)) for v in (X, y)]
+        h = hashlib.sha256(json.dumps([model, settings.method, layout, kw], sort_keys=True, default=repr).encode())
+        for values in (X, y):
+            h.update(np.ascontiguousarray(values, dtype=float).tobytes())
+        key = h.hexdigest()
+        result = self._results.get(key)
+        if result is None:
+            result = search(model, X, y, settings.method, progress=progress, **kw)
+            self._results[key] = result
+            while len(self._results) > self.kept:
+                del self._results[next(iter(self._results))]
+        else:
+            log.debug("%s search on %d rows: the same inputs as an earlier search of this run, its result", model,
+                      len(X))
+        return copy.deepcopy(result)
+
+
+def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
+                progress: Callable[..., Any] | None = None,
+                on_task: Callable[[int, dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """Run the train stage's tasks: each ``{"model", "kind": "fold" | "final", "estimator", "X", "y", ...}``
+    (a fold: ``train`` / ``test`` row indices and ``fold``; the final fit: ``X_test`` / ``y_test`` or None).
+    Returns per task in order ``{"fold": scores}`` / ``{"estimator", "final"}``, or ``{"failed": entry}`` when
+    the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
+    ``on_task(index, result)`` as each task ends (completion order)."""
+    results: list[Any] = [None] * len(jobs_spec)
+    for done, (index, timed) in enumerate(imap(timed_task(_run_train_task, "train"), list(jobs_spec), jobs=jobs),
+                                          start=1):
+        spec = jobs_spec[index]
+        what = f"fold {spec['fold'] + 1}" if spec["kind"] == "fold" else "final fit"
+        results[index] = res = task_result(timed, "train", f"{spec['model']} {what}")
+        if progress is not None:
+            progress(done, len(jobs_spec), f"{spec['model']} {what}")
+        if on_task is not None:
+            on_task(index, res)
+    return results
+
+
+def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
+    X, y = np.ascontiguousarray(spec["X"], dtype=float), np.ascontiguousarray(spec["y"], dtype=float)
+    try:
+        if spec["kind"] == "fold":
+            return {"fold": {**fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"]),
+                             "fold": spec["fold"]}}
+        # the final model is fitted on, and returned as, an unpickled copy, as in a worker: its file is then the same
+        # bytes wherever it ran (a pickle refers back to an object met before, and which strings are one object
+        # differs between a graph built here and one unpickled)
+        est = _copy(spec["estimator"]).fit(X, y)
+        final = None
+        if spec["X_test"] is not None:
+            final = score_holdout(est, np.ascontiguousarray(spec["X_test"], dtype=float),
+                                  np.ascontiguousarray(spec["y_test"], dtype=float), spec["outputs"])
+        return {"estimator": _copy(est), "final": final}
+    except MODEL_FAILURES as err:
+        return {"failed": model_failure(spec["model"], err)}
