@@ -18,6 +18,9 @@ R estimated from the stamps when they allow it). The checks:
 - ``steps_back``: a stamp earlier than the one before it (ingest sorts by time; the order of the rows may be
   the true one).
 
+:func:`check_rebuild` compares a time rebuilt at ``rate_hz`` with the stamps it replaces, end to end, within their
+rounding (ingest refuses a text table's rebuild that drifts further; ``auvid inspect --vehicle`` warns).
+
 :func:`time_stats` gives the span, mean rate, largest gap and steps back of a stamp array (the ingest report's
 per-topic figures, and ``auvid inspect``'s).
 
