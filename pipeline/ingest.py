@@ -1,4 +1,5 @@
-"""Ingest: one log (MCAP, ROS 1 bag, ROS 2 bag, or a directory of CSV files) -> one table per configured stream.
+"""Ingest: one log (MCAP, ROS 1 bag, ROS 2 bag, a text table or a directory of them) -> one table per configured
+stream.
 
 :func:`ingest_log` is the pure-ish core the stage shell calls; it reads, it never writes. For each stream of the
 vehicle config it returns a pyarrow Table (``t_ns`` int64 from the configured clock plus the stream's offset,
@@ -12,7 +13,10 @@ The vehicle's per-trial overrides (``trials``) for the log's trial are applied f
 (:meth:`~pipeline.config.Vehicle.for_trial`); the report lists them under ``trial_overrides``.
 
 A stream with ``time: {rate_hz: R}`` gets ``t_ns = first + k / R`` (k the row or message index, the first
-stamp from its clock) plus its offset, instead of its own stamps.
+stamp from its clock) plus its offset, instead of its own stamps. On a text table the rebuilt times must span
+what the time column spans, first row to last, within the stamps' rounding; a rate that drifts further is an
+IngestError naming the file and the rate the stamps imply (``field`` ``time.rate_hz``, ``topic`` the stream's
+configured ``file``: every log refused so is a config error).
 
 Validation happens before anything is decoded: every configured topic (or CSV file and column) must exist, a
 ``header`` clock needs a message type with a header; the :class:`~pipeline.errors.IngestError` lists what is
@@ -42,7 +46,7 @@ from pipeline.config.hashing import config_hash
 from pipeline.errors import ConfigError, IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo, ascending
 from pipeline.io.msgdefs import UserTypes, load_user_types
-from pipeline.stamps import check_stamps, fmt_rate, time_stats, uniform_times
+from pipeline.stamps import check_rebuild, check_stamps, fmt_rate, time_stats, uniform_times
 from pipeline.tableio import file_sha256
 from pipeline.units import conversion
 
@@ -57,7 +61,7 @@ log = logging.getLogger(__name__)
 QUAT_COMPONENTS = ("w", "x", "y", "z")
 Checksum = Literal["sha256", "none"]  # params ingest.checksum
 CHECKSUMS = get_args(Checksum)
-_LOG_SUFFIXES = (".mcap", ".bag", ".db3", ".csv", ".tsv", ".txt", ".dat", ".gz", ".zst", ".zstd", ".active")
+_LOG_SUFFIXES = (".mcap", ".bag", ".db3", ".csv", ".tsv", ".txt", ".dat", ".log", ".gz", ".zst", ".zstd", ".active")
 
 
 @dataclass(frozen=True)
@@ -135,7 +139,10 @@ def _resolve_csv_file(name: str, pattern: str, available: list[str], path: Path,
     if not matches and optional:
         return None
     if not matches:
-        raise IngestError(f"stream {name!r}: no CSV file matches {pattern!r}; available: {available}",
+        from pipeline.io.detect import TEXT_TRIAL
+
+        raise IngestError(f"stream {name!r}: no CSV file matches {pattern!r}; available: {available} ({TEXT_TRIAL}: "
+                          "`file` names the file, inside the directory or the one file itself)",
                           file=path, topic=pattern)
     raise IngestError(f"stream {name!r}: pattern {pattern!r} matches several files {matches}; make it unique",
                       file=path, topic=pattern)
@@ -276,7 +283,8 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
             else:
                 out.quarantine.append({**where, "reason": missing})
             continue
-        table, stamps, checked = _build_table(path, name, stream, data)
+        shown = f"{source_file}/{source}" if is_csv and reader.path.is_dir() else source_file
+        table, stamps, checked = _build_table(path, name, stream, data, shown)
         out.tables[name] = table
         stream_report = {"topic" if not is_csv else "file": source, "clock": stream.clock,
                          "offset_s": stream.offset_s, **time_stats(stamps)}
@@ -381,9 +389,14 @@ def _arrow(values: np.ndarray, arrow_type: pa.DataType, dtype: type[np.generic])
     return pa.Array.from_buffers(arrow_type, len(values), [None, pa.py_buffer(values)])
 
 
-def _build_table(path: Path, name: str, stream: StreamSource,
-                 data: TopicData) -> tuple[pa.Table, np.ndarray, np.ndarray]:
-    """The stream's table, its t_ns in storage order, and the stamps to check (t_ns before the offset)."""
+def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData,
+                 shown: str) -> tuple[pa.Table, np.ndarray, np.ndarray]:
+    """The stream's table, its t_ns in storage order, and the stamps to check (t_ns before the offset).
+
+    A time rebuilt from a text table's rows must span what its own time column spans, within the stamps'
+    rounding (:func:`~pipeline.stamps.check_rebuild`): else an IngestError naming the file (``shown``) and the
+    rate the stamps imply. Topics are not checked: their rebuild is the remedy for stamps that carry no time.
+    """
     import pyarrow as pa
 
     if stream.clock == "header":
@@ -396,6 +409,10 @@ def _build_table(path: Path, name: str, stream: StreamSource,
     if stream.time is not None and base.size:
         rows = getattr(data, "rows", None)
         rows = np.arange(base.size, dtype=np.int64) if rows is None else np.asarray(rows, dtype=np.int64)
+        drift = check_rebuild(base, rows, stream.time.rate_hz) if stream.clock == "column" else None
+        if drift is not None and not drift.ok:
+            raise IngestError(f"stream {name!r}: {drift.message(shown)}; {drift.remedy()}", file=path,
+                              topic=stream.file, field="time.rate_hz")
         try:
             base = uniform_times(int(base[0]), rows, stream.time.rate_hz)
         except ValueError as err:

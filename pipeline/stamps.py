@@ -18,6 +18,9 @@ R estimated from the stamps when they allow it). The checks:
 - ``steps_back``: a stamp earlier than the one before it (ingest sorts by time; the order of the rows may be
   the true one).
 
+:func:`check_rebuild` compares a time rebuilt at ``rate_hz`` with the stamps it replaces, end to end, within their
+rounding (ingest refuses a text table's rebuild that drifts further; ``auvid inspect --vehicle`` warns).
+
 :func:`time_stats` gives the span, mean rate, largest gap and steps back of a stamp array (the ingest report's
 per-topic figures, and ``auvid inspect``'s).
 
@@ -203,6 +206,79 @@ def uniform_times(first_ns: int, rows: np.ndarray, rate_hz: float) -> np.ndarray
         raise ValueError(f"row {int(k.max() - k[0])} at {rate_hz:g} Hz from the first stamp is beyond int64 "
                          "nanoseconds (year 2262)")
     return np.int64(first_ns) + steps.astype(np.int64)
+
+
+@dataclass(frozen=True)
+class RebuildCheck:
+    """A time rebuilt at ``rate_hz`` against the stream's own stamps, end to end (:func:`check_rebuild`).
+
+    ``rows``: row intervals from the first to the last sample; ``stamps_s`` / ``rebuilt_s``: how far the stamps
+    and the rebuilt times advance over them; ``allowed_s``: what the stamps' rounding allows at the two ends;
+    ``stamps_rate_hz``: the rate the stamps imply; ``suggested``: that rate with the fewest digits (3 or more)
+    whose rebuild stays within half of ``allowed_s``.
+    """
+
+    rate_hz: float
+    rows: int
+    stamps_s: float
+    rebuilt_s: float
+    allowed_s: float
+    stamps_rate_hz: float
+    suggested: str
+
+    @property
+    def drift_s(self) -> float:
+        return self.rebuilt_s - self.stamps_s
+
+    @property
+    def ok(self) -> bool:
+        return abs(self.drift_s) <= self.allowed_s
+
+    def message(self, where: str) -> str:
+        """What is wrong, naming ``where`` (the file) and the rate the stamps imply."""
+        return (f"time: {{rate_hz: {self.rate_hz:g}}} but the stamps of {where} advance {self.stamps_s:.6g} s over "
+                f"{self.rows} rows: {self.suggested} Hz; rebuilt at {self.rate_hz:g} Hz they would span "
+                f"{self.rebuilt_s:.6g} s, {abs(self.drift_s):.3g} s off where the stamps' rounding allows "
+                f"{self.allowed_s:.3g} s")
+
+    def remedy(self) -> str:
+        return (f"set rate_hz: {self.suggested} (the rows are uniformly sampled), or remove `time:` to keep the "
+                "stamps (a gap in the rows makes any rate wrong)")
+
+
+#: positive intervals at each end whose median is the stamps' resolution there (:func:`check_rebuild`)
+END_STEPS = 5
+
+
+def check_rebuild(stamps_ns: np.ndarray, rows: np.ndarray, rate_hz: float) -> RebuildCheck | None:
+    """Do times rebuilt at ``rate_hz`` from the row slots ``rows`` span what the stamps span, first to last row?
+
+    The stamps may be rounded (3 significant digits: 1 s steps past 100 s), so they may differ from a right
+    rebuild by their resolution at each end: the median of the first and of the last :data:`END_STEPS` positive
+    intervals (a step at least; a sample interval where the stamps resolve every sample). None where the stamps
+    carry no time to check against (fewer than two steps forward: zero or constant stamps).
+    """
+    t = np.asarray(stamps_ns, dtype=np.int64)
+    k = np.asarray(rows, dtype=np.int64)
+    if t.size < 2 or k.size != t.size:
+        return None
+    diffs = np.diff(t)
+    forward = np.flatnonzero(diffs > 0)
+    span_ns = int(t[-1]) - int(t[0])
+    n_rows = int(k[-1] - k[0])
+    if forward.size < 2 or span_ns <= 0 or n_rows <= 0:
+        return None
+    allowed_ns = float(np.median(diffs[forward[:END_STEPS]])) + float(np.median(diffs[forward[-END_STEPS:]]))
+    rebuilt_ns = float(np.rint(n_rows * (NS_PER_S / rate_hz)))
+    implied = n_rows * NS_PER_S / span_ns
+    suggested = f"{implied:.12g}"
+    for digits in range(3, 13):
+        text = f"{implied:.{digits}g}"
+        if abs(n_rows * NS_PER_S / float(text) - span_ns) <= allowed_ns / 2:
+            suggested = text
+            break
+    return RebuildCheck(rate_hz=rate_hz, rows=n_rows, stamps_s=span_ns / NS_PER_S, rebuilt_s=rebuilt_ns / NS_PER_S,
+                        allowed_s=allowed_ns / NS_PER_S, stamps_rate_hz=implied, suggested=suggested)
 
 
 def time_stats(t_ns: np.ndarray) -> dict[str, Any]:

@@ -28,12 +28,24 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             raise
         print(json.dumps(fields, indent=2) if args.json else format_fields(fields))
         return EXIT_OK
-    info = inspect_log(args.log, definitions=definitions, csv_options=csv_options)
+    info = inspect_log(args.log, definitions=definitions, csv_options=csv_options, time_rates=_time_rates(args))
     if args.json:
         print(json.dumps(info, indent=2, sort_keys=True, default=str))
     else:
         print(format_inspect(info))
     return EXIT_OK
+
+
+def _time_rates(args: argparse.Namespace) -> dict[str, float]:
+    """Per text file pattern, the vehicle config's ``time: {rate_hz}`` (for this log's trial, overrides applied):
+    inspect rebuilds those files' times as ingest does."""
+    if getattr(args, "vehicle", None) is None:
+        return {}
+    from pipeline.config import load_vehicle
+    from pipeline.ingest import trial_id
+
+    vehicle = load_vehicle(args.vehicle).for_trial(trial_id(args.log))
+    return {s.file: s.time.rate_hz for s in vehicle.streams.values() if s.file is not None and s.time is not None}
 
 
 def _check_directory(path: Path) -> None:

@@ -1,4 +1,9 @@
-"""``open_log(path)``: choose the reader by content (magic bytes), never by extension."""
+"""``open_log(path)``: choose the reader by content (magic bytes), never by extension.
+
+Text has no magic bytes: a file none of the binary formats claims is a text table (one trial, named after the
+file) when its name says text (:data:`TEXT_FILE_SUFFIXES`) and its first bytes are text (no NUL byte unless
+after a UTF-16 / UTF-32 byte-order mark; or gzip). A directory of text files is one trial too.
+"""
 
 from __future__ import annotations
 
@@ -16,14 +21,20 @@ from pipeline.io.sqlite_format import MAGIC as SQLITE_MAGIC
 
 log = logging.getLogger(__name__)
 
+TEXT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".csv.gz", ".tsv.gz", ".txt.gz")
+#: the names a loose text table may have (what the text reader reads in a directory)
+TEXT_FILE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".log", ".gz")
+TEXT_TRIAL = (f"a text trial is one file ({', '.join(TEXT_FILE_SUFFIXES)}) or one directory of such files")
 EXPECTED = (f"expected one of the magic bytes {MCAP_MAGIC!r} (MCAP), {ROS1_MAGIC!r} (ROS 1 bag), "
             f"{SQLITE_MAGIC!r} (ROS 2 sqlite3), {ZSTD_MAGIC!r} (zstd-compressed ROS 2 storage), "
-            "or a directory (ROS 2 bag or CSV files)")
-TEXT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".csv.gz", ".tsv.gz", ".txt.gz")
+            f"a directory (ROS 2 bag), or text: {TEXT_TRIAL}")
+_GZIP_MAGIC = b"\x1f\x8b"
+_BOMS = (b"\xff\xfe", b"\xfe\xff", b"\x00\x00\xfe\xff")  # UTF-16 LE / BE (UTF-32 LE starts as 16 LE), 32 BE
+_TEXT_HEAD = 4096
 
 
 def sniff(path: Path) -> str:
-    """The kind of log at ``path``: mcap, ros1, ros2-dir, ros2-file, csv-dir; IngestError if none."""
+    """The kind of log at ``path``: mcap, ros1, ros2-dir, ros2-file, csv-dir, csv-file; IngestError if none."""
     if not path.exists():
         raise IngestError(f"no such file or directory; {EXPECTED}", file=path)
     if path.is_dir():
@@ -34,7 +45,7 @@ def sniff(path: Path) -> str:
         found = sorted(p.name for p in path.iterdir())[:20]
         raise IngestError(f"directory holds nothing readable (found {found}); {EXPECTED}", file=path)
     with open(path, "rb") as fh:
-        head = fh.read(16)
+        head = fh.read(_TEXT_HEAD)
     if not head:
         raise IngestError(f"empty file (0 bytes); {EXPECTED}", file=path)
     if head.startswith(MCAP_MAGIC):
@@ -43,6 +54,11 @@ def sniff(path: Path) -> str:
         return "ros1"
     if head.startswith(SQLITE_MAGIC) or head.startswith(ZSTD_MAGIC):
         return "ros2-file"
+    if path.name.lower().endswith(TEXT_FILE_SUFFIXES):
+        if head.startswith(_GZIP_MAGIC) or b"\x00" not in head or head.startswith(_BOMS):
+            return "csv-file"
+        raise IngestError(f"named as text but the file holds binary data (a NUL byte at {head.index(0)}, no "
+                          f"byte-order mark); it starts with {head[:16]!r}; {EXPECTED}", file=path)
     raise IngestError(f"unknown format: the file starts with {head[:16]!r}; {EXPECTED}", file=path)
 
 
@@ -54,7 +70,7 @@ def open_log(path: str | Path, definitions: UserTypes | None = None) -> LogReade
     """
     path = Path(path)
     kind = sniff(path)
-    if kind == "csv-dir":
+    if kind in ("csv-dir", "csv-file"):
         from pipeline.io.text import open_text
 
         return open_text(path)

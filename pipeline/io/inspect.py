@@ -22,14 +22,14 @@ import fnmatch
 import logging
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from pipeline.config.sources import CsvOptions
 from pipeline.errors import IngestError
 from pipeline.io.msgdefs import UserTypes
-from pipeline.stamps import check_stamps, time_stats
+from pipeline.stamps import check_rebuild, check_stamps, fmt_rate, time_stats, uniform_times
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +37,7 @@ STORAGE = {"mcap": "mcap", "ros1": "ros1 bag", "ros2-sqlite3": "sqlite3 (ROS 2 b
            "ros2-mcap": "mcap (ROS 2 bag)", "csv": "text"}
 # Warnings after which a header stamp is not a usable clock (log time is): the remedy is `clock: log`.
 UNUSABLE_HEADER = ("zero", "constant", "far_from_log")
+_V = TypeVar("_V")
 
 
 def _iso(ns: int | None) -> str | None:
@@ -86,17 +87,21 @@ def _timing(t_ns: np.ndarray) -> dict[str, Any]:
 
 
 def inspect_log(path: str | Path, *, definitions: UserTypes | None = None,
-                csv_options: dict[str, CsvOptions] | None = None) -> dict[str, Any]:
+                csv_options: dict[str, CsvOptions] | None = None,
+                time_rates: dict[str, float] | None = None) -> dict[str, Any]:
     """Format, storage, size and per topic: type, count, serialization, span, rate, largest gap, stamp checks.
 
     ``definitions``: the user's message definitions (types the log does not embed); ``csv_options``: parsing
-    options per text file name or glob (from the vehicle config), used instead of the sniffed ones.
+    options per text file name or glob (from the vehicle config), used instead of the sniffed ones;
+    ``time_rates``: per text file name or glob, the config's ``time: {rate_hz}``: the file's times are rebuilt as
+    ingest rebuilds them (span, rate and stamp checks of the rebuilt times), and a rebuild that drifts from the
+    time column beyond its rounding is a ``rate_mismatch`` warning naming the rate the stamps imply.
     """
     path = Path(path)
     with open_any(path, definitions) as reader:
         fmt = reader.format
         if fmt == "csv":
-            topics = _text_topics(reader, csv_options or {})
+            topics = _text_topics(reader, csv_options or {}, time_rates or {})
         else:
             topics = _binary_topics(reader)
         salvage = getattr(reader, "salvage", None)
@@ -148,13 +153,31 @@ def _binary_topics(reader: Any) -> dict[str, Any]:
     return topics
 
 
-def _options_for(name: str, csv_options: dict[str, CsvOptions]) -> CsvOptions | None:
+def _options_for(name: str, csv_options: dict[str, _V]) -> _V | None:
     if name in csv_options:
         return csv_options[name]
     return next((o for pattern, o in csv_options.items() if fnmatch.fnmatch(name, pattern)), None)
 
 
-def _text_topics(reader: Any, csv_options: dict[str, CsvOptions]) -> dict[str, Any]:
+def _rebuilt(shown: str, data: Any, opts: CsvOptions, rate_hz: float) -> tuple[np.ndarray, dict[str, Any]]:
+    """A text file's times rebuilt at ``rate_hz`` as ingest rebuilds them, with their stamp checks, and a
+    ``rate_mismatch`` warning where the time column says otherwise (ingest refuses that file)."""
+    stamps = np.asarray(data.log_ns, dtype=np.int64)
+    rows = np.arange(stamps.size, dtype=np.int64) if data.rows is None else np.asarray(data.rows, dtype=np.int64)
+    t_ns = uniform_times(int(stamps[0]), rows, rate_hz) if stamps.size else stamps
+    entry = _stamp_entry(t_ns, clock="column", log_ns=None, label=f"times rebuilt at {fmt_rate(rate_hz)} Hz from "
+                         f"the first stamp of time column {opts.time_column!r}")
+    entry["time_rate_hz"] = rate_hz
+    drift = check_rebuild(stamps, rows, rate_hz)
+    if drift is not None:
+        entry["stamps_rate_hz"] = drift.stamps_rate_hz
+        if not drift.ok:
+            entry["stamp_warnings"].append({"check": "rate_mismatch", "message": drift.message(shown),
+                                            "remedy": drift.remedy(), "count": 1, "examples": []})
+    return t_ns, entry
+
+
+def _text_topics(reader: Any, csv_options: dict[str, CsvOptions], time_rates: dict[str, float]) -> dict[str, Any]:
     from pipeline.io.csvsniff import sniff_csv
 
     base = reader.path if reader.path.is_dir() else reader.path.parent
@@ -191,13 +214,18 @@ def _text_topics(reader: Any, csv_options: dict[str, CsvOptions]) -> dict[str, A
         reader.configure({name: opts})
         columns = reader.fields(name)
         data = reader.read({name: []}).topics[name]
-        t_ns = np.asarray(data.log_ns, dtype=np.int64)
+        rate_hz = _options_for(name, time_rates) if given is not None else None
+        if rate_hz is not None:
+            t_ns, stamps = _rebuilt(name, data, opts, rate_hz)
+        else:
+            t_ns = np.asarray(data.log_ns, dtype=np.int64)
+            stamps = _stamp_entry(t_ns, clock="column", log_ns=None,
+                                  label=f"stamps of time column {opts.time_column!r}")
         entry.update(columns=columns, count=int(data.read), time_column=opts.time_column,
                      csv=opts.model_dump(exclude_defaults=True), **_timing(t_ns))
         if getattr(data, "dropped_count", 0):
             entry["rows_dropped"] = int(data.dropped_count)
-        entry.update(_stamp_entry(t_ns, clock="column", log_ns=None,
-                                  label=f"stamps of time column {opts.time_column!r}"))
+        entry.update(stamps)
         entry["suggested_clock"] = "column"
         topics[name] = entry
     return topics

@@ -1,4 +1,4 @@
-"""Delimited text logs: a CSV trial is a directory of text files, each file one stream ("topic").
+"""Delimited text logs: a text trial is one file or a directory of text files, each file one stream ("topic").
 
 What a lab exports varies, so the reader copes with: comma, tab, semicolon or whitespace separators (detected
 from the first lines unless given), preamble lines before the header (``skip_rows``), files without a header

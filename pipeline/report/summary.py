@@ -28,6 +28,9 @@ class Evidence:
 
 
 def _fit(r2: float) -> str:
+    """A word for the best model's R² on the unseen trial; below 0 it says so (worse than predicting the mean)."""
+    if r2 < 0:
+        return "worse than the mean there: no model to trust on this output"
     return ("good" if r2 >= 0.9 else "fair" if r2 >= 0.7 else "weak" if r2 >= 0.3 else "poor")
 
 
