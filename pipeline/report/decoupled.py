@@ -30,13 +30,16 @@ def table_markdown(study: StudyResult) -> str:
             scales = "/".join(f"{v:.3g}" for v in r.estimator.length_scale_)
             params = f"l-s: {scales} (standardized), n-l: {r.estimator.noise_std_:.3g}"
         c, half = r.cv, f"{r.interval['half_width']:.3g}" if r.interval else "–"
+        if r.interval.get("scale") == "target_sd":  # a row's interval is +- q times its target's own SD
+            half = f"{r.interval['half_width_sd']:.2f} SD (≈ {r.interval['half_width']:.3g})"
         lines.append(f"| {r.dof} | {r.model} | {params or 'N/A'} | {r.search_mae:.3f} | "
                      f"{c['test_mae_mean']:.3f} ({c['test_mae_sd']:.3f}) | {c['test_r2_mean']:.3f} "
                      f"({c['test_r2_sd']:.3f}) | {c['train_mae_mean']:.3f} | {half} | "
                      f"{_share(r.test.get('interval_coverage'))} | {_share(r.test.get('band_coverage'))} |")
     tested = sorted({t for r in study.results for t in r.test.get("trials", [])})
     lines.append("\n90 % interval: the prediction ± the conformal quantile of the blocked CV's out-of-fold "
-                 "|residuals|; GP 2σ: its predictive SD with the learned noise and each target's own SD. "
+                 "|residuals| (in units of each target's own SD where the store has it); GP 2σ: its predictive "
+                 "SD with the learned noise and each target's own SD. "
                  + (f"Unseen: the share of the test trial(s) {', '.join(tested)} inside (85–95 % and 90–98 % "
                     "expected)." if tested else "No test trial in the store: coverage not measured."))
     for f in study.failed:

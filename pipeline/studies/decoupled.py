@@ -7,8 +7,9 @@ on the tuning split). The *train_test* split is then scored by unshuffled k-fold
 mean and SD), learning curves (``learning_curve`` with the same KFold), and fit / predict times per fold (Fig. 3).
 The final model of each (DOF, model) is fitted on the whole train_test split.
 
-Prediction intervals (:func:`conformal_half_width`): each model's 90 % interval is its prediction +- a half-width
-``q`` per DOF, the conformal quantile of the absolute out-of-fold residuals of that same unshuffled k-fold CV.
+Prediction intervals (:func:`oof_interval`): each model's 90 % interval is its prediction +- ``q`` times the
+target's own SD (the smoother's ``d_std_*`` column; +- ``q`` where the store has none), ``q`` per DOF the conformal
+quantile of the normalized out-of-fold residuals of that same unshuffled k-fold CV.
 Blocks, not shuffled folds: the targets' errors are correlated in time, and a shuffled fold's neighbours in the
 training rows make its residuals too small. The GP also learns from each target's own SD (the smoother's
 ``d_std_*`` column, where the store has it) and gives a 2-sigma band of the target (``include_noise``). With
@@ -221,15 +222,20 @@ def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: i
     curve = {"train_sizes": [int(s) for s in sizes],
              "train_mae_mean": (-train.mean(axis=1)).tolist(), "train_mae_sd": train.std(axis=1).tolist(),
              "test_mae_mean": (-test.mean(axis=1)).tolist(), "test_mae_sd": test.std(axis=1).tolist()}
-    interval = oof_interval(res["estimator"], res["indices"]["test"], X, y, sd if params else None)
+    interval = oof_interval(res["estimator"], res["indices"]["test"], X, y, sd)
     return metrics, curve, float(res["fit_time"].mean()), float(res["score_time"].mean()), interval
 
 
 def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.ndarray], X: np.ndarray,
                  y: np.ndarray, sd: np.ndarray | None) -> dict[str, Any]:
-    """The :data:`INTERVAL_LEVEL` interval's half-width from the out-of-fold residuals of the blocked folds
-    (each fold's rows predicted by the model fitted without them); for a GP (``return_std``) also the share of
-    out-of-fold targets inside its 2-sigma band (``cv_band_coverage``)."""
+    """The :data:`INTERVAL_LEVEL` interval from the out-of-fold residuals of the blocked folds (each fold's rows
+    predicted by the model fitted without them); for a GP also the share of out-of-fold targets inside its 2-sigma
+    band (``cv_band_coverage``).
+
+    With the targets' own SDs ``sd`` the score is normalized: ``q`` (``half_width_sd``) is the conformal quantile
+    of ``|residual| / sd`` and a row's interval is ``+- q sd``, so it widens where the target is noisier (a faster
+    trial); ``half_width`` is then ``q`` times the training rows' RMS SD, the typical width. Without ``sd``: one
+    half-width, the quantile of ``|residual|``."""
     resid, inside = [], []
     for est, rows in zip(estimators, test_folds, strict=True):
         if isinstance(est, DampingGP):
@@ -240,8 +246,14 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
             mean = est.predict(X[rows])
         resid.append(np.abs(y[rows] - np.ravel(mean)))
     r = np.concatenate(resid)
-    out: dict[str, Any] = {"level": INTERVAL_LEVEL, "half_width": conformal_half_width(r), "rows": int(r.size),
+    out: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size),
                            "method": "split conformal on the blocked CV's out-of-fold residuals"}
+    if sd is None:
+        out.update(scale="none", half_width=conformal_half_width(r))
+    else:
+        scale = _sd_floor(np.concatenate([sd[rows] for rows in test_folds]))
+        q = conformal_half_width(r / scale)
+        out.update(scale="target_sd", half_width_sd=q, half_width=q * float(np.sqrt(np.mean(sd**2))))
     if inside:
         out["cv_band_coverage"] = float(np.concatenate(inside).mean())
     return out
@@ -263,8 +275,21 @@ def unseen_scores(result: ModelResult, X: np.ndarray, y: np.ndarray, sd: np.ndar
     err = np.abs(y - mean)
     out["mae"] = float(err.mean())
     if "half_width" in result.interval:
-        out["interval_coverage"] = float(np.mean(err <= result.interval["half_width"]))
+        out["interval_coverage"] = float(np.mean(err <= interval_half_width(result.interval, sd)))
     return out
+
+
+def _sd_floor(sd: np.ndarray) -> np.ndarray:
+    """SDs kept away from 0 (a thousandth of their median), so a normalized score stays finite."""
+    return np.maximum(sd, 1e-3 * float(np.median(sd)) + 1e-300)
+
+
+def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None) -> np.ndarray | float:
+    """The half-width of each row's interval: ``half_width_sd * sd`` for a normalized interval where the rows'
+    SDs are known, else the typical ``half_width``."""
+    if interval.get("scale") == "target_sd" and sd is not None:
+        return interval["half_width_sd"] * _sd_floor(sd)
+    return float(interval["half_width"])
 
 
 def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[str] = ("u", "v", "r"),
