@@ -3,13 +3,14 @@
 Reads the ``tuning`` split (hyperparameter search only) and the ``train_test`` split (unshuffled k-fold CV,
 learning curves, timings, final fit); ``decoupled.trials`` names, per DOF, the trials that excite it alone (paper
 001's protocol; ``pipeline.sim.Controls(excite="surge")`` makes such trials), otherwise every trial is used.
-Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card
-``<dof>_<model>.card.json`` (:mod:`pipeline.models.card`: lineage, hyperparameters, scores, versions, the pickle's
-sha256), and ``metrics.json`` (deterministic),
-``timings.json`` (wall-clock, varies run to run), ``curves.json``, ``table.md``, ``learning_curves.png``,
-``timings.png``, ``damping.png``. Each (DOF, model) is written as soon as it finishes (its joblib and card, and
-the tables so far); one that fails is logged, named in ``metrics.json`` and ``table.md`` and in the result's
-quarantine list (exit code 1), and the others go on.
+Writes per (DOF, model) ``<dof>_<model>.joblib`` and its card ``<dof>_<model>.card.json``
+(:mod:`pipeline.models.card`: lineage, hyperparameters, scores, versions, the pickle's sha256), and ``metrics.json``
+(deterministic), ``timings.json`` (wall-clock, varies run to run), ``curves.json``, ``table.md``,
+``learning_curves.png``, ``timings.png``, ``damping.png``. Each card and ``metrics.json`` hold the model's 90 %
+prediction interval (``interval``: split conformal on the blocked CV's out-of-fold residuals) and, where the store
+has a test split, its coverage there (``test``; the GP's 2-sigma band too; nothing is chosen on it). Each (DOF,
+model) is written as soon as it finishes (its joblib and card, and the tables so far); one that fails is logged,
+named in ``metrics.json`` and ``table.md`` and in the result's quarantine list (exit code 1), and the others go on.
 """
 
 from __future__ import annotations
@@ -47,9 +48,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     for directory in (models_dir(root), evaluation_dir(root)):
         remove_stale_temps(directory)
     p = params.decoupled
-    columns = stage_columns(p)
+    columns = stage_columns(p, store.dataset(root).schema.names)
     tuning = store.load(root, vehicle=vehicle.name, split="tuning", columns=columns)
     train_test = store.load(root, vehicle=vehicle.name, split="train_test", columns=columns)
+    # the unseen trials: only the intervals' coverage is measured on them, nothing is chosen
+    test = store.load(root, vehicle=vehicle.name, split="test", columns=columns)
     if train_test.empty or tuning.empty:
         raise ModelError(f"the feature store has {len(tuning)} tuning and {len(train_test)} train_test rows for "
                          f"vehicle {vehicle.name!r}; both are needed", file=layout.features_dir(root))
@@ -83,7 +86,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
             name = f"{result.dof}/{result.model}" if result is not None else f"{failure['dof']}/{failure['model']}"
             progress(len(done.results) + len(done.failed), n_units, name)
 
-    study, curves = decoupled_stage(tuning, train_test, p, lineage=lineage, on_result=finished)
+    study, curves = decoupled_stage(tuning, train_test, p, lineage=lineage, on_result=finished,
+                                    test=None if test.empty else test)
     outputs += write_tables(study, lineage, ev)
     outputs.append(write_json(curves, ev / "curves.json"))
     outputs.append(plot_learning_curves(study, ev / "learning_curves.png"))

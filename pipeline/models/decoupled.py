@@ -10,7 +10,10 @@ Every model is a scikit-learn estimator. Two are written here and pass ``paramet
   Its linear algebra runs on one BLAS thread: at these sizes (n <= 2000) a second thread gains little, and on
   a loaded machine OpenBLAS's spinning threads made fits 15-30x slower (bench/gp.py).
   ``predict(X, return_std=True)`` returns the std of the *latent* function (the white noise excluded), which is
-  the band that should cover the true damping; :meth:`DampingGP.sample_functions` draws posterior functions.
+  the band that should cover the true damping; with ``include_noise=True`` the std of a new observed target:
+  latent + learned white noise + the target's own SD (``fit(X, y, sample_sd=...)`` takes the smoother's SD of each
+  target as a fixed part of its noise, so a 2-sigma band on the target is a prediction interval);
+  :meth:`DampingGP.sample_functions` draws posterior functions.
   The damping target's errors are correlated in time (smoothed derivatives: lag-1 autocorrelation 0.5-0.9 at the
   study's row spacing), which a WhiteKernel treats as independent, so the band came out too narrow (2-sigma
   coverage of the simulator's truth 0.3-0.7). With ``decorrelate`` (default) the rows, taken to be in time
@@ -194,9 +197,11 @@ def _sq_distances(Za: np.ndarray, Zb: np.ndarray) -> np.ndarray:
     return (Za.T[:, :, None] - Zb.T[:, None, :]) ** 2
 
 
-def _neg_log_marginal_likelihood(theta: np.ndarray, d2: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
-    """-log p(y | theta) and its gradient for ``c exp(-sum_j d2_j / (2 l_j^2)) + s2 I``, ``theta = log [c, l_1 ..
-    l_p, s2]`` (one length scale per feature, ``d2`` from :func:`_sq_distances`).
+def _neg_log_marginal_likelihood(theta: np.ndarray, d2: np.ndarray, y: np.ndarray, known: np.ndarray | None = None
+                                  ) -> tuple[float, np.ndarray]:
+    """-log p(y | theta) and its gradient for ``c exp(-sum_j d2_j / (2 l_j^2)) + s2 I + diag(known)``, ``theta =
+    log [c, l_1 .. l_p, s2]`` (one length scale per feature, ``d2`` from :func:`_sq_distances`; ``known``: each
+    row's own noise variance, fixed, or None).
 
     The analytic gradient of this one kernel; scikit-learn's generic kernel gradients cost ~10x more per
     evaluation (``bench/gp.py``)."""
@@ -204,7 +209,7 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, d2: np.ndarray, y: np.ndarra
     scaled = d2 / ls[:, None, None] ** 2
     k_rbf = np.exp(-0.5 * scaled.sum(axis=0))
     K = c * k_rbf
-    K[np.diag_indices_from(K)] += s2
+    K[np.diag_indices_from(K)] += s2 if known is None else s2 + known
     try:
         L = cholesky(K, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
@@ -218,9 +223,10 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, d2: np.ndarray, y: np.ndarra
 
 
 def _fit_hyperparameters(Z: np.ndarray, y: np.ndarray, length_scale: float, noise_level: float, n_restarts: int,
-                         random_state: int) -> np.ndarray:
+                         random_state: int, known: np.ndarray | None = None) -> np.ndarray:
     """``[c, l_1 .. l_p, s2]`` by maximum marginal likelihood (L-BFGS-B in log space, the bounds of :data:`_BOUNDS`),
-    restarts included, as scikit-learn's ``GaussianProcessRegressor`` does for ``C * RBF + WhiteKernel``."""
+    restarts included, as scikit-learn's ``GaussianProcessRegressor`` does for ``C * RBF + WhiteKernel`` (plus the
+    rows' own noise variances ``known``, fixed)."""
     d2 = _sq_distances(Z, Z)
     p = Z.shape[1]
     bounds = np.log(np.array([_BOUNDS[0], *[_BOUNDS[1]] * p, _BOUNDS[2]]))
@@ -229,12 +235,25 @@ def _fit_hyperparameters(Z: np.ndarray, y: np.ndarray, length_scale: float, nois
     starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(n_restarts)]
     best = None
     for theta0 in starts:
-        res = minimize(_neg_log_marginal_likelihood, np.clip(theta0, bounds[:, 0], bounds[:, 1]), args=(d2, y),
-                       jac=True, method="L-BFGS-B", bounds=bounds)
+        res = minimize(_neg_log_marginal_likelihood, np.clip(theta0, bounds[:, 0], bounds[:, 1]),
+                       args=(d2, y, known), jac=True, method="L-BFGS-B", bounds=bounds)
         if best is None or res.fun < best.fun:
             best = res
     assert best is not None
     return np.exp(best.x)
+
+
+def _check_sd(sample_sd: Any, n: int) -> np.ndarray | None:
+    """``sample_sd`` as a finite, non-negative ``(n,)`` array (or None); a ValueError that says what is wrong."""
+    if sample_sd is None:
+        return None
+    sd = np.asarray(sample_sd, dtype=float).ravel()
+    if sd.shape != (n,):
+        raise ValueError(f"sample_sd has {sd.size} values for {n} rows")
+    if not np.all(np.isfinite(sd)) or np.any(sd < 0):
+        raise ValueError(f"sample_sd must be finite and >= 0; {int(np.sum(~(np.isfinite(sd) & (sd >= 0))))} rows "
+                         "are not")
+    return sd
 
 
 class DampingGP(RegressorMixin, BaseEstimator):
@@ -250,7 +269,10 @@ class DampingGP(RegressorMixin, BaseEstimator):
     At most ``max_samples`` training points are used, chosen evenly in the first input column
     (:func:`even_subsample`). ``length_scale_`` (one per GP input, standardized units) and ``noise_std_`` (target
     units) are the learned hyperparameters; ``predict(X, return_std=True)`` gives the latent function's std (noise
-    excluded), or with ``include_noise=True`` the std of a new observation.
+    excluded), or with ``include_noise=True`` the std of a new observation. ``fit(..., sample_sd=sd)``: the
+    noise of row i is ``noise_std_**2 + sd_i**2`` (``sd`` fixed, e.g. the smoother's SD of the damping target);
+    ``target_sd_`` is the RMS of the training rows' ``sd`` (0 without), the own-SD term of a prediction whose
+    ``sample_sd`` is not given.
 
     ``decorrelate``: rows are in time order and their errors correlated; a pilot fit's residuals give the
     decorrelation lag (:func:`decorrelation`, ``acf_threshold``), the rows are thinned to that stride (keeping at
@@ -273,23 +295,26 @@ class DampingGP(RegressorMixin, BaseEstimator):
         self.random_state = random_state
         self.warp = warp
 
-    def fit(self, X: Any, y: Any) -> DampingGP:
+    def fit(self, X: Any, y: Any, sample_sd: Any = None) -> DampingGP:
+        """Fit on ``X``, ``y`` in time order; ``sample_sd`` (optional, ``(n,)``, target units): each target's own
+        SD (the smoother's ``d_std_*`` column), a fixed part of its noise beside the learned white noise."""
         if self.warp not in WARPS:
             raise ValueError(f"DampingGP warp {self.warp!r}: expected one of {WARPS}")
         with threadpool_limits(1, user_api="blas"):
-            return self._fit(X, y)
+            return self._fit(X, y, sample_sd)
 
-    def _fit(self, X: Any, y: Any) -> DampingGP:
+    def _fit(self, X: Any, y: Any, sample_sd: Any) -> DampingGP:
         X, y = validate_data(self, X, y, y_numeric=True)
+        sd = _check_sd(sample_sd, len(y))
         self.stride_, self.variance_factor_ = 1, 1.0
         if not self.decorrelate or len(y) < 2 * self.min_samples:
-            return self._fit_rows(X, y)
-        self._fit_rows(X, y)  # pilot: its residuals measure how far apart rows must be to be independent
+            return self._fit_rows(X, y, sd)
+        self._fit_rows(X, y, sd)  # pilot: its residuals measure how far apart rows must be to be independent
         lag, _ = decorrelation(y - self.predict(X), self.acf_threshold)
         self.stride_ = max(1, min(lag, len(y) // self.min_samples))
-        Xs, ys = X[self.stride_ // 2:: self.stride_], y[self.stride_ // 2:: self.stride_]
-        self._fit_rows(Xs, ys)
-        _, self.variance_factor_ = decorrelation(ys - self.predict(Xs), self.acf_threshold)
+        rows = slice(self.stride_ // 2, None, self.stride_)
+        self._fit_rows(X[rows], y[rows], None if sd is None else sd[rows])
+        _, self.variance_factor_ = decorrelation(y[rows] - self.predict(X[rows]), self.acf_threshold)
         return self
 
     def _inputs(self, X: np.ndarray) -> np.ndarray:
@@ -302,7 +327,7 @@ class DampingGP(RegressorMixin, BaseEstimator):
         ls = self.theta_[1:-1]
         return self.theta_[0] * np.exp(-0.5 * (_sq_distances(Za, Zb) / ls[:, None, None] ** 2).sum(axis=0))
 
-    def _fit_rows(self, X: np.ndarray, y: np.ndarray) -> DampingGP:
+    def _fit_rows(self, X: np.ndarray, y: np.ndarray, sd: np.ndarray | None) -> DampingGP:
         idx = even_subsample(X[:, 0], self.max_samples, self.n_bins)
         X, y = X[idx], y[idx]
         F = X if self.warp == "none" else np.hstack([X, X * np.abs(X)])
@@ -310,15 +335,17 @@ class DampingGP(RegressorMixin, BaseEstimator):
         self.f_scale_[self.f_scale_ == 0] = 1.0
         self.y_mean_, self.y_scale_ = float(y.mean()), float(y.std()) or 1.0
         Z, t = self._inputs(X), (y - self.y_mean_) / self.y_scale_
+        known = None if sd is None else (sd[idx] / self.y_scale_) ** 2
         self.theta_ = _fit_hyperparameters(Z, t, self.length_scale, self.noise_level, self.n_restarts_optimizer,
-                                           self.random_state)
+                                           self.random_state, known)
         K = self._signal(Z, Z)
-        K[np.diag_indices_from(K)] += self.theta_[-1]
+        K[np.diag_indices_from(K)] += self.theta_[-1] if known is None else self.theta_[-1] + known
         self.L_ = cholesky(K, lower=True, check_finite=False)
         self.alpha_ = cho_solve((self.L_, True), t, check_finite=False)
         self.Z_train_ = Z
         self.length_scale_ = self.theta_[1:-1].copy()
         self.noise_std_ = float(np.sqrt(self.theta_[-1])) * self.y_scale_
+        self.target_sd_ = 0.0 if sd is None else float(np.sqrt(np.mean(sd[idx] ** 2)))
         self.n_train_ = int(len(idx))
         return self
 
@@ -339,12 +366,17 @@ class DampingGP(RegressorMixin, BaseEstimator):
             cov = np.clip(self.theta_[0] - np.einsum("ij,ij->j", v, v), 0, None)
         return mean * self.y_scale_ + self.y_mean_, cov * self.y_scale_**2 * getattr(self, "variance_factor_", 1.0)
 
-    def predict(self, X: Any, return_std: bool = False, include_noise: bool = False) -> Any:
+    def predict(self, X: Any, return_std: bool = False, include_noise: bool = False, sample_sd: Any = None) -> Any:
+        """The mean; with ``return_std`` also the latent SD, or with ``include_noise`` the SD of a new observed
+        target: latent + learned white noise + the target's own SD (``sample_sd`` per row where known, else the
+        RMS of the training targets' SDs, ``target_sd_``)."""
         mean, var = self._latent(X, full_cov=False)
         if not return_std:
             return mean
         if include_noise:
-            var = var + self.noise_std_**2
+            sd = _check_sd(sample_sd, len(mean))
+            own = getattr(self, "target_sd_", 0.0) ** 2 if sd is None else sd**2
+            var = var + self.noise_std_**2 + own
         return mean, np.sqrt(var)
 
     def sample_functions(self, X: Any, n_samples: int, random_state: int = 0) -> np.ndarray:
@@ -416,6 +448,7 @@ def describe(name: str, estimator: BaseEstimator) -> dict[str, Any]:
         return {"d_l": float(np.ravel(estimator.coef_)[0]), "d_q": float(np.ravel(estimator.coef_)[1])}
     if name == "gp":
         return {"length_scale": [float(v) for v in estimator.length_scale_], "noise_std": estimator.noise_std_,
+                "target_sd": getattr(estimator, "target_sd_", 0.0),
                 "n_train": estimator.n_train_, "kernel": estimator.kernel_description(), "warp": estimator.warp,
                 "stride": getattr(estimator, "stride_", 1),
                 "variance_factor": getattr(estimator, "variance_factor_", 1.0)}

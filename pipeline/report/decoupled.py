@@ -14,19 +14,34 @@ from pipeline.studies.decoupled import StudyResult, dof_columns, dof_data
 from pipeline.units import axis_label
 
 
+def _share(value: Any) -> str:
+    return "–" if value is None else f"{value:.0%}"
+
+
 def table_markdown(study: StudyResult) -> str:
-    """Table I of the paper (search result) next to the CV scores on the train_test split."""
-    lines = ["| DOF | model | best params | search MAE | CV test MAE (sd) | CV test R² (sd) | CV train MAE |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
+    """Table I of the paper (search result) next to the CV scores on the train_test split, each model's 90 %
+    prediction interval (± half-width) and its coverage on the unseen test trial(s) (the GP's 2σ band too)."""
+    lines = ["| DOF | model | best params | search MAE | CV test MAE (sd) | CV test R² (sd) | CV train MAE | "
+             "90 % interval ± | unseen: inside 90 % | unseen: inside GP 2σ |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for r in study.results:
         params = ", ".join(f"{k}: {v:g}" if isinstance(v, float) else f"{k}: {v}" for k, v in r.best_params.items())
         if r.model == "gp" and r.estimator is not None:
             scales = "/".join(f"{v:.3g}" for v in r.estimator.length_scale_)
             params = f"l-s: {scales} (standardized), n-l: {r.estimator.noise_std_:.3g}"
-        c = r.cv
+        c, half = r.cv, f"{r.interval['half_width']:.3g}" if r.interval else "–"
+        if r.interval.get("scale") == "target_sd":  # a row's interval is +- q times its target's own SD
+            half = f"{r.interval['half_width_sd']:.2f} SD (≈ {r.interval['half_width']:.3g})"
         lines.append(f"| {r.dof} | {r.model} | {params or 'N/A'} | {r.search_mae:.3f} | "
                      f"{c['test_mae_mean']:.3f} ({c['test_mae_sd']:.3f}) | {c['test_r2_mean']:.3f} "
-                     f"({c['test_r2_sd']:.3f}) | {c['train_mae_mean']:.3f} |")
+                     f"({c['test_r2_sd']:.3f}) | {c['train_mae_mean']:.3f} | {half} | "
+                     f"{_share(r.test.get('interval_coverage'))} | {_share(r.test.get('band_coverage'))} |")
+    tested = sorted({t for r in study.results for t in r.test.get("trials", [])})
+    lines.append("\n90 % interval: the prediction ± the conformal quantile of the blocked CV's out-of-fold "
+                 "|residuals| (in units of each target's own SD where the store has it); GP 2σ: its predictive "
+                 "SD with the learned noise and each target's own SD. "
+                 + (f"Unseen: the share of the test trial(s) {', '.join(tested)} inside (85–95 % and 90–98 % "
+                    "expected)." if tested else "No test trial in the store: coverage not measured."))
     for f in study.failed:
         lines.append(f"\nFailed, not in the table: {f['dof']}/{f['model']} ({f['error']}: {f['reason']})")
     return "\n".join(lines) + "\n"

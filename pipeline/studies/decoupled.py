@@ -5,7 +5,16 @@ Protocol (DESIGN.md, "Models and evaluation"): hyperparameters are searched on t
 learns its kernel by marginal likelihood instead, and LS has nothing to tune (their "search score" is the same CV
 on the tuning split). The *train_test* split is then scored by unshuffled k-fold CV (MAE and R^2, train and test,
 mean and SD), learning curves (``learning_curve`` with the same KFold), and fit / predict times per fold (Fig. 3).
-The final model of each (DOF, model) is fitted on the whole train_test split. :func:`decoupled_stage` is the work of
+The final model of each (DOF, model) is fitted on the whole train_test split.
+
+Prediction intervals (:func:`oof_interval`): each model's 90 % interval is its prediction +- ``q`` times the
+target's own SD (the smoother's ``d_std_*`` column; +- ``q`` where the store has none), ``q`` per DOF the conformal
+quantile of the normalized out-of-fold residuals of that same unshuffled k-fold CV.
+Blocks, not shuffled folds: the targets' errors are correlated in time, and a shuffled fold's neighbours in the
+training rows make its residuals too small. The GP also learns from each target's own SD (the smoother's
+``d_std_*`` column, where the store has it) and gives a 2-sigma band of the target (``include_noise``). With
+``test`` rows (the store's test split) each interval's and band's coverage on the unseen trial(s) is measured
+(:func:`unseen_scores`); docs/models.md, "Decoupled models' intervals". :func:`decoupled_stage` is the work of
 the stage shell ``stages/decoupled.py``, which reads and writes; the table and figures are in
 :mod:`pipeline.report.decoupled`.
 
@@ -40,12 +49,16 @@ from pipeline.config import Vehicle, config_hash
 from pipeline.config.params import DecoupledParams
 from pipeline.errors import ConfigError, ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
-from pipeline.models.decoupled import describe, make_estimator, paper_names, param_grid
-from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS
+from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
+from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS, force_column
 
 log = logging.getLogger(__name__)
 
 SCORING = {"mae": "neg_mean_absolute_error", "r2": "r2"}
+#: The prediction intervals' nominal coverage.
+INTERVAL_LEVEL = 0.9
+#: Models whose ``fit`` takes the targets' own SDs (``sample_sd``).
+TAKES_SD = ("gp",)
 
 
 def dof_columns(dof: str) -> tuple[str, str]:
@@ -55,8 +68,21 @@ def dof_columns(dof: str) -> tuple[str, str]:
     return VELOCITY_COLUMNS[dof], DAMPING_COLUMNS[dof]
 
 
+def sd_column(dof: str) -> str:
+    """The damping target's own SD (the derive stage's, kalman method only): ``d_std_v_N``."""
+    return force_column(dof, "d_std")
+
+
 def dof_data(df: pd.DataFrame, dof: str, max_samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``X (n, 1)`` and ``y (n,)`` of a DOF, finite rows only, in table order, thinned by an even stride."""
+    X, y, _ = dof_samples(df, dof, max_samples)
+    return X, y
+
+
+def dof_samples(df: pd.DataFrame, dof: str, max_samples: int | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`dof_data` and the targets' own SDs of those rows (None where the table has no :func:`sd_column`;
+    a row's non-finite SD becomes the median of the others, with a warning)."""
     x_col, y_col = dof_columns(dof)
     missing = [c for c in (x_col, y_col) if c not in df.columns]
     if missing:
@@ -66,7 +92,29 @@ def dof_data(df: pd.DataFrame, dof: str, max_samples: int | None = None) -> tupl
     ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
     if max_samples is not None and ok.size > max_samples:
         ok = ok[np.linspace(0, ok.size - 1, max_samples).round().astype(int)]
-    return x[ok, None], y[ok]
+    sd = df[sd_column(dof)].to_numpy(dtype=float)[ok] if sd_column(dof) in df.columns else None
+    if sd is not None:
+        bad = ~(np.isfinite(sd) & (sd >= 0))
+        if bad.all():
+            sd = None
+        elif bad.any():
+            log.warning("%s: %d of %d rows have no finite SD; they take the median SD", sd_column(dof),
+                        int(bad.sum()), bad.size)
+            sd[bad] = float(np.median(sd[~bad]))
+    return x[ok, None], y[ok], sd
+
+
+def conformal_half_width(abs_residuals: np.ndarray, level: float = INTERVAL_LEVEL) -> float:
+    """The split-conformal half-width: the ``ceil((n + 1) level)``-th smallest of ``n`` absolute out-of-fold
+    residuals (the largest where ``n`` is too small for ``level``, with a warning)."""
+    r = np.sort(np.asarray(abs_residuals, dtype=float))
+    if r.size == 0:
+        raise ModelError("no out-of-fold residuals to calibrate an interval with")
+    k = int(np.ceil((r.size + 1) * level))
+    if k > r.size:
+        log.warning("%d residuals are too few for a %.0f %% conformal interval; the largest is used", r.size,
+                    100 * level)
+    return float(r[min(k, r.size) - 1])
 
 
 @dataclass
@@ -82,11 +130,16 @@ class ModelResult:
     fit_time_s: float
     predict_time_s: float
     estimator: BaseEstimator | None = field(default=None, repr=False)
+    #: the prediction interval (:func:`evaluate`): level, half_width, method, rows; the GP's CV band coverage
+    interval: dict[str, Any] = field(default_factory=dict)
+    #: on the unseen test rows (:func:`unseen_scores`); {} without test rows
+    test: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"dof": self.dof, "model": self.model, "best_params": self.best_params,
                 "search_mae": self.search_mae, "cv": self.cv, "learning_curve": self.learning_curve,
-                "learned": describe(self.model, self.estimator) if self.estimator is not None else {}}
+                "learned": describe(self.model, self.estimator) if self.estimator is not None else {},
+                "interval": self.interval, "test": self.test}
 
 
 @dataclass
@@ -123,8 +176,13 @@ def _quiet() -> Iterator[None]:
         yield
 
 
+def _fit_params(name: str, sd: np.ndarray | None) -> dict[str, Any] | None:
+    """The targets' SDs as a fit parameter of the models that take them (:data:`TAKES_SD`), else None."""
+    return {"sample_sd": sd} if sd is not None and name in TAKES_SD else None
+
+
 def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, list[Any]] = "fast", folds: int = 5,
-         seed: int = 0, gp_max_samples: int = 500, gp_warp: str = "signed_square"
+         seed: int = 0, gp_max_samples: int = 500, gp_warp: str = "signed_square", sd: np.ndarray | None = None
          ) -> tuple[BaseEstimator, dict[str, Any], float]:
     """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE)``."""
     estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples, gp_warp=gp_warp)
@@ -134,21 +192,27 @@ def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, lis
         raise ModelError(f"{len(y)} tuning samples are too few for {folds}-fold CV of {name!r}")
     with _quiet():
         if not grid:
-            scores = cross_validate(estimator, X, y, cv=cv, scoring="neg_mean_absolute_error")["test_score"]
+            scores = cross_validate(estimator, X, y, cv=cv, scoring="neg_mean_absolute_error",
+                                    params=_fit_params(name, sd))["test_score"]
             return estimator, {}, float(-scores.mean())
         gs = GridSearchCV(estimator, grid, scoring="neg_mean_absolute_error", cv=cv, refit=False, n_jobs=1)
         gs.fit(X, y)
     return clone(estimator).set_params(**gs.best_params_), paper_names(name, gs.best_params_), float(-gs.best_score_)
 
 
-def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: int = 5,
-             curve_points: int = 5) -> tuple[dict[str, float], dict[str, list[float]], float, float]:
-    """Unshuffled k-fold CV (MAE, R^2, train and test, mean and SD), learning curve, mean fit / predict time."""
+def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: int = 5, curve_points: int = 5,
+             sd: np.ndarray | None = None, name: str = ""
+             ) -> tuple[dict[str, float], dict[str, list[float]], float, float, dict[str, Any]]:
+    """Unshuffled k-fold CV (MAE, R^2, train and test, mean and SD), learning curve, mean fit / predict time, and
+    the prediction interval from the same folds' out-of-fold residuals (:func:`oof_interval`). ``sd``: the
+    targets' own SDs, passed to the models that take them (``name`` in :data:`TAKES_SD`)."""
     cv = KFold(n_splits=folds, shuffle=False)
+    params = _fit_params(name, sd)
     with _quiet():
-        res = cross_validate(estimator, X, y, cv=cv, scoring=SCORING, return_train_score=True)
+        res = cross_validate(estimator, X, y, cv=cv, scoring=SCORING, return_train_score=True, params=params,
+                             return_estimator=True, return_indices=True)
         sizes, train, test = learning_curve(estimator, X, y, cv=cv, train_sizes=np.linspace(0.1, 1.0, curve_points),
-                                            scoring="neg_mean_absolute_error", shuffle=False)
+                                            scoring="neg_mean_absolute_error", shuffle=False, params=params)
     metrics: dict[str, float] = {}
     for split in ("train", "test"):
         for key in SCORING:
@@ -158,7 +222,74 @@ def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: i
     curve = {"train_sizes": [int(s) for s in sizes],
              "train_mae_mean": (-train.mean(axis=1)).tolist(), "train_mae_sd": train.std(axis=1).tolist(),
              "test_mae_mean": (-test.mean(axis=1)).tolist(), "test_mae_sd": test.std(axis=1).tolist()}
-    return metrics, curve, float(res["fit_time"].mean()), float(res["score_time"].mean())
+    interval = oof_interval(res["estimator"], res["indices"]["test"], X, y, sd)
+    return metrics, curve, float(res["fit_time"].mean()), float(res["score_time"].mean()), interval
+
+
+def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.ndarray], X: np.ndarray,
+                 y: np.ndarray, sd: np.ndarray | None) -> dict[str, Any]:
+    """The :data:`INTERVAL_LEVEL` interval from the out-of-fold residuals of the blocked folds (each fold's rows
+    predicted by the model fitted without them); for a GP also the share of out-of-fold targets inside its 2-sigma
+    band (``cv_band_coverage``).
+
+    With the targets' own SDs ``sd`` the score is normalized: ``q`` (``half_width_sd``) is the conformal quantile
+    of ``|residual| / sd`` and a row's interval is ``+- q sd``, so it widens where the target is noisier (a faster
+    trial); ``half_width`` is then ``q`` times the training rows' RMS SD, the typical width. Without ``sd``: one
+    half-width, the quantile of ``|residual|``."""
+    resid, inside = [], []
+    for est, rows in zip(estimators, test_folds, strict=True):
+        if isinstance(est, DampingGP):
+            mean, std = est.predict(X[rows], return_std=True, include_noise=True,
+                                    sample_sd=None if sd is None else sd[rows])
+            inside.append(np.abs(y[rows] - mean) <= 2 * std)
+        else:
+            mean = est.predict(X[rows])
+        resid.append(np.abs(y[rows] - np.ravel(mean)))
+    r = np.concatenate(resid)
+    out: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size),
+                           "method": "split conformal on the blocked CV's out-of-fold residuals"}
+    if sd is None:
+        out.update(scale="none", half_width=conformal_half_width(r))
+    else:
+        scale = _sd_floor(np.concatenate([sd[rows] for rows in test_folds]))
+        q = conformal_half_width(r / scale)
+        out.update(scale="target_sd", half_width_sd=q, half_width=q * float(np.sqrt(np.mean(sd**2))))
+    if inside:
+        out["cv_band_coverage"] = float(np.concatenate(inside).mean())
+    return out
+
+
+def unseen_scores(result: ModelResult, X: np.ndarray, y: np.ndarray, sd: np.ndarray | None,
+                trials: Sequence[str]) -> dict[str, Any]:
+    """The final model on unseen rows: MAE, the share inside its interval (``interval_coverage``) and, for a GP,
+    inside its 2-sigma band of the target (``band_coverage``, with the rows' own SDs where known)."""
+    est = result.estimator
+    out: dict[str, Any] = {"trials": sorted(trials), "rows": int(y.size)}
+    if est is None or y.size == 0:
+        return out
+    if isinstance(est, DampingGP):
+        mean, std = est.predict(X, return_std=True, include_noise=True, sample_sd=sd)
+        out["band_coverage"] = float(np.mean(np.abs(y - mean) <= 2 * std))
+    else:
+        mean = np.ravel(est.predict(X))
+    err = np.abs(y - mean)
+    out["mae"] = float(err.mean())
+    if "half_width" in result.interval:
+        out["interval_coverage"] = float(np.mean(err <= interval_half_width(result.interval, sd)))
+    return out
+
+
+def _sd_floor(sd: np.ndarray) -> np.ndarray:
+    """SDs kept away from 0 (a thousandth of their median), so a normalized score stays finite."""
+    return np.maximum(sd, 1e-3 * float(np.median(sd)) + 1e-300)
+
+
+def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None) -> np.ndarray | float:
+    """The half-width of each row's interval: ``half_width_sd * sd`` for a normalized interval where the rows'
+    SDs are known, else the typical ``half_width``."""
+    if interval.get("scale") == "target_sd" and sd is not None:
+        return interval["half_width_sd"] * _sd_floor(sd)
+    return float(interval["half_width"])
 
 
 def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[str] = ("u", "v", "r"),
@@ -166,7 +297,8 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
               search: str | dict[str, dict[str, list[Any]]] = "fast", gp_max_samples: int = 500,
               max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0,
               dof_trials: Mapping[str, Sequence[str]] | None = None, gp_warp: str = "signed_square",
-              on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None) -> StudyResult:
+              on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None,
+              test: pd.DataFrame | None = None) -> StudyResult:
     """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names.
 
     A (DOF, model) that fails (:data:`pipeline.evaluate.MODEL_FAILURES`, e.g. too few samples of a DOF) is logged
@@ -175,16 +307,21 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
 
     ``dof_trials`` (optional): per DOF, the trials (``trial`` column) its models learn from; as in paper 001, where
     each DOF's damping comes from experiments exciting that DOF alone. DOFs not named use every trial.
+
+    ``test`` (optional): unseen rows (every row of the store's test split, all its trials, for every DOF), on which
+    each final model's interval and band coverage are measured (:attr:`ModelResult.test`); nothing is chosen on
+    them.
     """
     with threadpool_limits(1, user_api="blas"):  # small problems: parallelism belongs to models, not BLAS
         return _run_study(tuning, train_test, dofs, models, folds, search, gp_max_samples, max_samples, curve_points,
-                          seed, dof_trials, gp_warp, on_result)
+                          seed, dof_trials, gp_warp, on_result, test)
 
 
 def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[str], models: Sequence[str], folds: int,
                search: str | dict[str, dict[str, list[Any]]], gp_max_samples: int, max_samples: int | None,
                curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str,
-               on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None) -> StudyResult:
+               on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None,
+               test: pd.DataFrame | None = None) -> StudyResult:
     study = StudyResult([])
     known = set(tuning["trial"]) | set(train_test["trial"]) if dof_trials else set()
     for dof, names in (dof_trials or {}).items():  # a misspelt name would shrink the DOF's data without a word
@@ -207,10 +344,14 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
             for name in models:
                 failed(name, dof, err)
             continue
+        unseen = None if test is None or test.empty else dof_samples(test, dof)
+        trials = sorted(set(test["trial"])) if unseen is not None and "trial" in test else []
         for name in models:
             try:
                 result = _study_one(dof, name, *rows, folds=folds, search=search, seed=seed,
                                     gp_max_samples=gp_max_samples, gp_warp=gp_warp, curve_points=curve_points)
+                if unseen is not None:
+                    result.test = unseen_scores(result, *unseen, trials)
             except MODEL_FAILURES as err:
                 failed(name, dof, err)
                 continue
@@ -222,32 +363,35 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
 
 def _dof_rows(tuning: pd.DataFrame, train_test: pd.DataFrame, dof: str, folds: int, max_samples: int | None,
               dof_trials: Mapping[str, Sequence[str]] | None) -> tuple[np.ndarray, ...]:
-    """``(X_tune, y_tune, X, y)`` of a DOF (its own trials if ``dof_trials`` names them)."""
+    """``(X_tune, y_tune, sd_tune, X, y, sd)`` of a DOF (its own trials if ``dof_trials`` names them; ``sd``: the
+    targets' own SDs or None, :func:`dof_samples`)."""
     tune_rows, tt_rows = tuning, train_test
     if dof_trials and dof_trials.get(dof):
         wanted = set(dof_trials[dof])
         tune_rows = tuning[tuning["trial"].isin(wanted)]
         tt_rows = train_test[train_test["trial"].isin(wanted)]
-    X_tune, y_tune = dof_data(tune_rows, dof, max_samples)
-    X, y = dof_data(tt_rows, dof, max_samples)
+    X_tune, y_tune, sd_tune = dof_samples(tune_rows, dof, max_samples)
+    X, y, sd = dof_samples(tt_rows, dof, max_samples)
     if len(y) < 2 * folds:
         raise ModelError(f"{len(y)} train_test samples are too few for {folds}-fold CV", field=dof)
-    return X_tune, y_tune, X, y
+    return X_tune, y_tune, sd_tune, X, y, sd
 
 
-def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, X: np.ndarray, y: np.ndarray, *,
-               folds: int, search: str | dict[str, dict[str, list[Any]]], seed: int, gp_max_samples: int,
-               gp_warp: str, curve_points: int) -> ModelResult:
+def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, sd_tune: np.ndarray | None,
+               X: np.ndarray, y: np.ndarray, sd: np.ndarray | None, *, folds: int,
+               search: str | dict[str, dict[str, list[Any]]], seed: int, gp_max_samples: int, gp_warp: str,
+               curve_points: int) -> ModelResult:
     model_search = search.get(name, "fast") if isinstance(search, dict) else search
     t0 = time.perf_counter()
     est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
-                            gp_max_samples=gp_max_samples, gp_warp=gp_warp)
-    cv, curve, fit_s, pred_s = evaluate(est, X, y, folds=folds, curve_points=curve_points)
+                            gp_max_samples=gp_max_samples, gp_warp=gp_warp, sd=sd_tune)
+    cv, curve, fit_s, pred_s, interval = evaluate(est, X, y, folds=folds, curve_points=curve_points, sd=sd,
+                                                  name=name)
     with _quiet():
-        final = clone(est).fit(X, y)
-    log.info("%s/%s: search MAE %.3f, CV test MAE %.3f (%.1f s)", dof, name, score, cv["test_mae_mean"],
-             time.perf_counter() - t0)
-    return ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final)
+        final = clone(est).fit(X, y, **(_fit_params(name, sd) or {}))
+    log.info("%s/%s: search MAE %.3f, CV test MAE %.3f, %.0f %% interval +-%.3g (%.1f s)", dof, name, score,
+             cv["test_mae_mean"], 100 * interval["level"], interval["half_width"], time.perf_counter() - t0)
+    return ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final, interval)
 
 
 def damping_curves(study: StudyResult, ranges: dict[str, tuple[float, float]], n_points: int = 101
@@ -270,9 +414,11 @@ def damping_curves(study: StudyResult, ranges: dict[str, tuple[float, float]], n
 
 # -- the stage -----------------------------------------------------------------------------------------------
 
-def stage_columns(params: DecoupledParams) -> list[str]:
-    """The feature-store columns the decoupled stage reads."""
-    return ["t_ns", "segment", "split"] + [c for d in params.dofs for c in dof_columns(d)]
+def stage_columns(params: DecoupledParams, available: Sequence[str] | None = None) -> list[str]:
+    """The feature-store columns the decoupled stage reads: with ``available`` (the store's columns), also the
+    damping targets' SDs it has (:func:`sd_column`)."""
+    sds = [sd_column(d) for d in params.dofs if available is not None and sd_column(d) in available]
+    return ["t_ns", "segment", "split"] + [c for d in params.dofs for c in dof_columns(d)] + sds
 
 
 def run_lineage(vehicle: Vehicle, params: DecoupledParams, tuning: pd.DataFrame, train_test: pd.DataFrame
@@ -293,16 +439,18 @@ def model_card(result: ModelResult, lineage: dict[str, Any]) -> dict[str, Any]:
     x_col, y_col = dof_columns(result.dof)
     return {"kind": "decoupled_damping", "dof": result.dof, "model": result.model, "inputs": [x_col],
             "output": y_col, "hyperparameters": result.best_params, "learned": describe(result.model, result.estimator),
-            "search_mae": result.search_mae, "scores": result.cv, "lineage": lineage, "versions": versions()}
+            "search_mae": result.search_mae, "scores": result.cv, "interval": result.interval, "test": result.test,
+            "lineage": lineage, "versions": versions()}
 
 
 def decoupled_stage(tuning: pd.DataFrame, train_test: pd.DataFrame, params: DecoupledParams, *,
-                    lineage: dict[str, Any],
+                    lineage: dict[str, Any], test: pd.DataFrame | None = None,
                     on_result: Callable[[ModelResult | None, dict[str, str] | None, dict[str, Any] | None], None]
                     | None = None) -> tuple[StudyResult, dict[str, Any]]:
     """The decoupled stage's work: :func:`run_study` with ``params``, then each final model's damping curve over the
     train_test velocities (:func:`damping_curves`). ``on_result(result, None, card)`` as each (DOF, model) finishes
     (its :func:`model_card`), ``on_result(None, failure, None)`` as one fails, so the stage writes it at once.
+    ``test``: the store's test split, for the intervals' coverage on unseen trials (:func:`run_study`).
     Returns ``(study, curves)``; a ModelError when every model failed."""
 
     def finished(result: ModelResult | None, failure: dict[str, str] | None) -> None:
@@ -312,7 +460,7 @@ def decoupled_stage(tuning: pd.DataFrame, train_test: pd.DataFrame, params: Deco
     p = params
     study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
                       gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
-                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished)
+                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished, test=test)
     if not study.results:
         raise ModelError("every decoupled model failed: " + "; ".join(
             f"{f['dof']}/{f['model']}: {f['reason']}" for f in study.failed))

@@ -42,9 +42,14 @@ def test_outputs_exist(built: tuple[Path, Vehicle]) -> None:
             card = json.loads((root / f"data/models/decoupled/{dof}_{model}.card.json").read_text())
             assert (root / f"data/models/decoupled/{dof}_{model}.joblib").exists()
             assert card["dof"] == dof and card["model"] == model and card["lineage"]["trials"] == ["a"]
+            # the 90 % interval and its coverage on the unseen trial travel with the model
+            assert card["interval"]["level"] == 0.9 and card["interval"]["half_width"] > 0
+            assert card["test"]["trials"] == ["test"] and 0 <= card["test"]["interval_coverage"] <= 1
+            assert ("band_coverage" in card["test"]) == (model == "gp")
     for name in EVALUATION:
         assert (root / "data/evaluation/decoupled" / name).stat().st_size > 0, name
-    assert (root / "data/evaluation/decoupled/table.md").read_text().count("\n") == 2 + 6
+    table = (root / "data/evaluation/decoupled/table.md").read_text()
+    assert sum(line.startswith("|") for line in table.splitlines()) == 2 + 6 and "test trial(s) test" in table
     for name in SIMULATION:
         assert (root / "data/simulation/test" / name).stat().st_size > 0, name
     metrics = json.loads((root / "data/simulation/metrics.json").read_text())["test"]
