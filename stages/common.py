@@ -208,7 +208,7 @@ def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: 
     through joblib, in the active backend (local processes or a Dask cluster), reporting one progress unit per
     trial as each finishes. Locally, a fan-out (ingest's too) whose input is below
     ``pipeline.parallel.POOL_MIN_BYTES`` runs serially: a process pool would cost more than it gives."""
-    from pipeline.parallel import n_jobs, pmap, pool_pays
+    from pipeline.parallel import n_jobs, pmap, pool_pays, task_result, timed_task
 
     root = Path(root)
     module = load_stage(name)
@@ -230,9 +230,9 @@ def run_stage(name: str, root: Path, vehicle: Vehicle, params: Params, *, logs: 
         if progress is not None and trials:
             progress(0, len(trials))
             on_done = lambda done, total, i: progress(done, total, trials[i])  # noqa: E731
-        results = pmap(_run_trial, [(name, root, vehicle, params, t) for t in trials], work_bytes=work,
-                       on_done=on_done)
-        return merge_results(name, results)
+        timed = pmap(timed_task(_run_trial, name), [(name, root, vehicle, params, t) for t in trials],
+                     work_bytes=work, on_done=on_done)
+        return merge_results(name, [task_result(r, name, t) for r, t in zip(timed, trials, strict=True)])
     return call_stage(name, root, vehicle, params, **kwargs)
 
 
@@ -295,7 +295,7 @@ def _run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] 
                 on_stage: Callable[[str, StageResult | None, float], None] | None) -> list[StageResult]:
     import time
 
-    from pipeline.parallel import release_workers
+    from pipeline.parallel import record_task, release_workers
 
     ordered = [s for s in STAGE_ORDER if s in set(stages)]
     require_stages(ordered)
@@ -304,7 +304,7 @@ def _run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] 
     for i, name in enumerate(ordered):
         if on_stage is not None:
             on_stage(name, None, 0.0)
-        start = time.perf_counter()
+        start, started, cpu0 = time.perf_counter(), time.time(), time.process_time()
         progress = progress_factory(name) if progress_factory is not None else None
         try:
             result = run_stage(name, root, vehicle, params, logs=logs, progress=progress)
@@ -314,6 +314,9 @@ def _run_stages(root: Path, vehicle: Vehicle, params: Params, stages: list[str] 
                 close()
             if i == last_fan_out:  # the pool's workers, kept from stage to stage, are not needed any more
                 release_workers()
+        # the stage as a whole, after the one before it (its tasks are recorded under its name)
+        record_task("run", name, start=started, wall_s=time.perf_counter() - start,
+                    cpu_s=time.process_time() - cpu0, deps=[ordered[i - 1]] if i else [])
         results.append(result)
         if on_stage is not None:
             on_stage(name, result, time.perf_counter() - start)

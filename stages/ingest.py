@@ -28,7 +28,7 @@ from pipeline import layout
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import Checksum, ingest_log, trial_id, user_types
-from pipeline.parallel import imap, usable_cpus
+from pipeline.parallel import imap, task_result, timed_task, usable_cpus
 from pipeline.tableio import remove_stale_temps, write_json, write_parquet
 from stages.common import StageResult, stage_main
 
@@ -161,10 +161,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
     salvage, checksum = params.ingest.salvage, params.ingest.checksum
     # n_jobs > 1: the logs go to worker processes (forked: they start with this process's imports), the
     # outcomes come back in log order as each is ready
-    outcomes = imap(_ingest_job, [(root, vehicle, p, t, salvage, checksum) for p, t in jobs], jobs=n_jobs,
-                    in_order=True)
+    outcomes = imap(timed_task(_ingest_job, NAME), [(root, vehicle, p, t, salvage, checksum) for p, t in jobs],
+                    jobs=n_jobs, in_order=True)
     salvaged: list[dict[str, Any]] = []
-    for _, outcome in outcomes:
+    for index, timed in outcomes:
+        outcome = task_result(timed, NAME, jobs[index][1])
         trial = outcome["trial"]
         if "quarantine" in outcome:
             entry = outcome["quarantine"]
