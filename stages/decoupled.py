@@ -58,7 +58,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
                          f"vehicle {vehicle.name!r}; both are needed", file=layout.features_dir(root))
     lineage = run_lineage(vehicle, p, tuning, train_test)
     ev = evaluation_dir(root)
-    outputs: list[Path] = []
+    saved: dict[tuple[str, str], tuple[Path, ...]] = {}
     done = StudyResult([])
 
     n_units = len(p.dofs) * len(p.models)
@@ -72,7 +72,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
             done.results.append(result)
             target = models_dir(root) / f"{result.dof}_{result.model}.joblib"
             # the card records the pickle's sha256: the simulate stage loads the model only through it
-            outputs.extend(save_model(result.estimator, target, card))
+            saved[result.dof, result.model] = save_model(result.estimator, target, card)
         elif failure is not None:
             done.failed.append(failure)
             stem = models_dir(root) / f"{failure['dof']}_{failure['model']}"
@@ -88,6 +88,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
 
     study, curves = decoupled_stage(tuning, train_test, p, lineage=lineage, on_result=finished,
                                     test=None if test.empty else test)
+    # in the study's order: the (DOF, model) units finish in any order on several workers
+    outputs = [path for r in study.results for path in saved[r.dof, r.model]]
     outputs += write_tables(study, lineage, ev)
     outputs.append(write_json(curves, ev / "curves.json"))
     outputs.append(plot_learning_curves(study, ev / "learning_curves.png"))

@@ -235,12 +235,7 @@ class CoupledParams(Frozen):
     @field_validator("n_jobs")
     @classmethod
     def _workers(cls, n_jobs: int | str) -> int | str:
-        if n_jobs == "auto":
-            return n_jobs
-        if n_jobs == 0 or n_jobs < -1 or n_jobs > MAX_WORKERS:
-            raise ValueError(f"n_jobs must be a number of workers (1 to {MAX_WORKERS}) or -1 for all cores, not "
-                             f"{n_jobs}")
-        return n_jobs
+        return _n_jobs(n_jobs)
 
     @field_validator("models")
     @classmethod
@@ -273,6 +268,15 @@ class CoupledParams(Frozen):
         return len(self.inputs) - len(self.actuators())
 
 
+def _n_jobs(n_jobs: int | str) -> int | str:
+    if n_jobs == "auto":
+        return n_jobs
+    if n_jobs == 0 or n_jobs < -1 or n_jobs > MAX_WORKERS:  # type: ignore[operator]
+        raise ValueError(f"n_jobs must be a number of workers (1 to {MAX_WORKERS}), -1 or auto for all cores, not "
+                         f"{n_jobs}")
+    return n_jobs
+
+
 class DecoupledParams(Frozen):
     dofs: list[str] = Field(default_factory=lambda: ["u", "v", "r"])
     models: list[str] = Field(default_factory=lambda: ["ls", "mlp", "krr", "svr", "gp"])
@@ -292,6 +296,15 @@ class DecoupledParams(Frozen):
     trials: dict[str, list[str]] = Field(
         default_factory=dict, description="Per DOF, the trials its damping is learned from (paper 001: experiments "
         "that excite that DOF alone, e.g. pipeline.sim Controls(excite='surge')); DOFs not named use every trial.")
+    n_jobs: int | Literal["auto"] = Field(
+        "auto", description="Workers for the study's (DOF, model) units, each a search, a CV and a final fit. auto "
+        "(or -1): every usable core (AUVID_JOBS where set; every worker of a Dask cluster under --scheduler); 1: "
+        "serial. The outputs are the same bytes whatever the number (docs/user-guide.md, 'Parallel runs').")
+
+    @field_validator("n_jobs")
+    @classmethod
+    def _workers(cls, n_jobs: int | str) -> int | str:
+        return _n_jobs(n_jobs)
 
     @field_validator("dofs")
     @classmethod

@@ -27,6 +27,7 @@ keeps at most ``gp_max_samples`` points evenly spread in velocity (see ``bench/g
 from __future__ import annotations
 
 import logging
+import pickle
 import platform
 import time
 import warnings
@@ -50,6 +51,7 @@ from pipeline.config.params import DecoupledParams
 from pipeline.errors import ConfigError, ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
+from pipeline.parallel import imap, task_result, timed_task, workers
 from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS, force_column
 
 log = logging.getLogger(__name__)
@@ -298,7 +300,7 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
               max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0,
               dof_trials: Mapping[str, Sequence[str]] | None = None, gp_warp: str = "signed_square",
               on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None,
-              test: pd.DataFrame | None = None) -> StudyResult:
+              test: pd.DataFrame | None = None, n_jobs: int | str | None = 1) -> StudyResult:
     """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names.
 
     A (DOF, model) that fails (:data:`pipeline.evaluate.MODEL_FAILURES`, e.g. too few samples of a DOF) is logged
@@ -311,17 +313,20 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
     ``test`` (optional): unseen rows (every row of the store's test split, all its trials, for every DOF), on which
     each final model's interval and band coverage are measured (:attr:`ModelResult.test`); nothing is chosen on
     them.
+
+    ``n_jobs``: workers for the (DOF, model) units (``"auto"``: every usable core; results in the same order and
+    the same bytes whatever the number).
     """
     with threadpool_limits(1, user_api="blas"):  # small problems: parallelism belongs to models, not BLAS
         return _run_study(tuning, train_test, dofs, models, folds, search, gp_max_samples, max_samples, curve_points,
-                          seed, dof_trials, gp_warp, on_result, test)
+                          seed, dof_trials, gp_warp, on_result, test, n_jobs)
 
 
 def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[str], models: Sequence[str], folds: int,
                search: str | dict[str, dict[str, list[Any]]], gp_max_samples: int, max_samples: int | None,
                curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str,
                on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None,
-               test: pd.DataFrame | None = None) -> StudyResult:
+               test: pd.DataFrame | None = None, n_jobs: int | str | None = 1) -> StudyResult:
     study = StudyResult([])
     known = set(tuning["trial"]) | set(train_test["trial"]) if dof_trials else set()
     for dof, names in (dof_trials or {}).items():  # a misspelt name would shrink the DOF's data without a word
@@ -337,6 +342,7 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
         if on_result is not None:
             on_result(None, entry)
 
+    units: list[dict[str, Any]] = []
     for dof in dofs:
         try:
             rows = _dof_rows(tuning, train_test, dof, folds, max_samples, dof_trials)
@@ -346,19 +352,46 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
             continue
         unseen = None if test is None or test.empty else dof_samples(test, dof)
         trials = sorted(set(test["trial"])) if unseen is not None and "trial" in test else []
-        for name in models:
-            try:
-                result = _study_one(dof, name, *rows, folds=folds, search=search, seed=seed,
-                                    gp_max_samples=gp_max_samples, gp_warp=gp_warp, curve_points=curve_points)
-                if unseen is not None:
-                    result.test = unseen_scores(result, *unseen, trials)
-            except MODEL_FAILURES as err:
-                failed(name, dof, err)
-                continue
-            study.results.append(result)
+        units += [{"dof": dof, "name": name, "rows": rows, "unseen": unseen, "trials": trials,
+                   "kw": {"folds": folds, "search": search, "seed": seed, "gp_max_samples": gp_max_samples,
+                          "gp_warp": gp_warp, "curve_points": curve_points}} for name in models]
+    # every (DOF, model) is an independent task (search, CV, final fit) for the run's workers; results are kept in
+    # DOF-then-model order whatever order they finish in
+    finished: dict[int, ModelResult] = {}
+    for index, timed in imap(timed_task(_unit, "decoupled"), units, jobs=workers(n_jobs)):
+        unit = units[index]
+        out = task_result(timed, "decoupled", f"{unit['dof']}/{unit['name']}")
+        if "failed" in out:
+            entry = out["failed"]
+            log.error("%s/%s failed, the others go on: %s: %s", unit["dof"], unit["name"], entry["error"],
+                      entry["reason"])
+            study.failed.append(entry)
             if on_result is not None:
-                on_result(result, None)
+                on_result(None, entry)
+            continue
+        finished[index] = out["result"]
+        if on_result is not None:
+            on_result(out["result"], None)
+    study.results = [finished[i] for i in sorted(finished)]
+    rank = {**{d: i for i, d in enumerate(dofs)}, **{m: i for i, m in enumerate(models)}}
+    study.failed.sort(key=lambda f: (rank.get(f.get("dof"), -1), rank.get(f.get("model"), -1)))
     return study
+
+
+def _unit(unit: dict[str, Any]) -> dict[str, Any]:
+    """One (DOF, model): :func:`_study_one` and its scores on the unseen rows, or ``{"failed": entry}``. It works on
+    an unpickled copy of ``unit`` and returns the final model as an unpickled copy, wherever it runs: a pickle
+    refers back to an object met before, so the model's file is the same bytes only if its objects share the same
+    way in a worker and here (as :mod:`pipeline.studies.tasks` does for the coupled study)."""
+    unit = pickle.loads(pickle.dumps(unit, protocol=pickle.HIGHEST_PROTOCOL))
+    try:
+        result = _study_one(unit["dof"], unit["name"], *unit["rows"], **unit["kw"])
+        if unit["unseen"] is not None:
+            result.test = unseen_scores(result, *unit["unseen"], unit["trials"])
+    except MODEL_FAILURES as err:
+        return {"failed": model_failure(unit["name"], err, dof=unit["dof"])}
+    result.estimator = pickle.loads(pickle.dumps(result.estimator, protocol=pickle.HIGHEST_PROTOCOL))
+    return {"result": result}
 
 
 def _dof_rows(tuning: pd.DataFrame, train_test: pd.DataFrame, dof: str, folds: int, max_samples: int | None,
@@ -460,7 +493,8 @@ def decoupled_stage(tuning: pd.DataFrame, train_test: pd.DataFrame, params: Deco
     p = params
     study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
                       gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
-                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished, test=test)
+                      seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished, test=test,
+                      n_jobs=p.n_jobs)
     if not study.results:
         raise ModelError("every decoupled model failed: " + "; ".join(
             f"{f['dof']}/{f['model']}: {f['reason']}" for f in study.failed))

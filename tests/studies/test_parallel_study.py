@@ -1,6 +1,7 @@
-"""The coupled study's tasks (tune's search chains, train's folds and final fits) give the same bytes whatever runs
-them: serially (``AUVID_JOBS=1``), in the forked process pool (the default: every usable core) and on a Dask
-cluster. Every file the tune and train stages write is compared, except the ones that record time."""
+"""The studies' tasks (tune's search chains, train's folds and final fits, the decoupled study's (DOF, model) units)
+give the same bytes whatever runs them: serially (``AUVID_JOBS=1``), in the forked process pool (the default: every
+usable core) and on a Dask cluster. Every file the tune, train and decoupled stages write is compared, except the
+ones that record time."""
 
 from __future__ import annotations
 
@@ -12,18 +13,20 @@ import pytest
 
 from pipeline import parallel
 from pipeline.config import Params
+from stages import decoupled as decoupled_stage
 from stages import train as train_stage
 from stages import tune as tune_stage
 from tests.studies.helpers import coupled_store
 
 TRIALS = {"s1": 21, "s2": 22, "s3": 23}
-TIMED = {"search_trace.json", "timings.json"}  # wall / CPU seconds
+TIMED = {"search_trace.json", "timings.json", "timings.png"}  # wall / CPU seconds
 
 
 def _params() -> Params:
     return Params(features={"test_trials": ["s3"]},
                   coupled={"folds": 3, "max_evals": 4, "max_samples": 150,
-                           "models": ["rbf_svr", "wdse_svr", "mcfarland_whitcomb", "graybox"]})
+                           "models": ["rbf_svr", "wdse_svr", "mcfarland_whitcomb", "graybox"]},
+                  decoupled={"folds": 3, "max_samples": 300, "gp_max_samples": 60, "curve_points": 2})
 
 
 @pytest.fixture(scope="module")
@@ -41,6 +44,7 @@ def _run(store_root: Path, root: Path, scheduler: object = None) -> dict[str, by
     with parallel.backend(scheduler):
         tune_stage.run(root, vehicle, params)
         train_stage.run(root, vehicle, params)
+        decoupled_stage.run(root, vehicle, params)
     data = root / "data"
     return {p.relative_to(data).as_posix(): p.read_bytes() for p in sorted(data.rglob("*"))
             if p.is_file() and "features" not in p.parts and p.name not in TIMED}
@@ -58,12 +62,15 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
         calls.append((len(items), jobs))
         return real(fn, items, jobs=jobs, **kw)
 
+    import pipeline.studies.decoupled as decoupled
     import pipeline.studies.tasks as tasks
 
     monkeypatch.setattr(tasks, "imap", spy)
+    monkeypatch.setattr(decoupled, "imap", spy)
     serial = _run(store_root, tmp_path / "serial")
-    # tune: 3 SVR chains + 3 gray-box residual chains; train: 4 models x (3 folds + the final fit)
-    assert calls == [(6, 1), (16, 1)]
+    # tune: 3 SVR chains + 3 gray-box residual chains; train: 4 models x (3 folds + the final fit); decoupled: 3
+    # DOFs x 5 models
+    assert calls == [(6, 1), (16, 1), (15, 1)]
 
     calls.clear()
     monkeypatch.setenv(parallel.ENV_JOBS, "2")
@@ -76,16 +83,17 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
 
     monkeypatch.setattr(parallel, "_forked_map", fork_spy)
     pooled = _run(store_root, tmp_path / "pool")
-    assert calls == [(6, 2), (16, 2)] and forked == [6, 16]  # both stages went through the pool
+    assert calls == [(6, 2), (16, 2), (15, 2)] and forked == [6, 16, 15]  # every stage went through the pool
 
     calls.clear()
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         on_dask = _run(store_root, tmp_path / "dask", scheduler=cluster)
-    assert calls == [(6, -1), (16, -1)]
+    assert calls == [(6, -1), (16, -1), (15, -1)]
 
     assert any(name.endswith("wdse_svr.joblib") for name in serial)
+    assert any(name.endswith("u_gp.joblib") for name in serial)
     metrics = json.loads(serial["evaluation/coupled/metrics.json"])
     assert set(metrics) == {"rbf_svr", "wdse_svr", "mcfarland_whitcomb", "graybox"}
     for other in (pooled, on_dask):
