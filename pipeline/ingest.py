@@ -97,7 +97,8 @@ def trial_id(path: str | Path) -> str:
 
 
 def column_plans(stream: StreamSource) -> list[ColumnPlan]:
-    """Output columns of a stream: one per signal, four per quaternion signal (``<field>.w`` -> ``<name>_w``)."""
+    """Output columns of a stream: one per signal, four per quaternion signal (``<field>.w`` -> ``<name>_w``).
+    Each maps the raw value x to ``factor * x + offset``: the unit conversion of ``sign * scale * x``."""
     plans = []
     for name, source in stream.signals.items():
         conv = conversion(name, source.unit)
@@ -105,8 +106,9 @@ def column_plans(stream: StreamSource) -> list[ColumnPlan]:
             for comp in QUAT_COMPONENTS:
                 plans.append(ColumnPlan(f"{name}_{comp}", name, f"{source.field}.{comp}", source.unit,
                                         conv.factor, conv.offset))
-        else:
-            plans.append(ColumnPlan(name, name, source.field, source.unit, conv.factor, conv.offset))
+        else:  # unit(sign * scale * raw): the signal's sign and scale come before its unit conversion
+            plans.append(ColumnPlan(name, name, source.field, source.unit,
+                                    conv.factor * source.sign * source.scale, conv.offset))
     return plans
 
 

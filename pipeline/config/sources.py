@@ -62,6 +62,7 @@ stamps, steps back; :mod:`pipeline.stamps`) and names these options as the remed
 from __future__ import annotations
 
 import codecs
+import math
 from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -79,10 +80,33 @@ MESSAGE_DEFINITIONS_DOC = (
 
 
 class SignalSource(Frozen):
+    """One signal: a field of the stream's messages (a CSV column), with its unit; ``sign`` and ``scale`` map a
+    sensor's own convention onto the pipeline's, applied once at ingest before the unit: the signal is
+    ``unit(sign * scale * raw)``. ArduSub's ``rel_alt`` (m, positive up) as a depth (positive down) is
+    ``depth_m: {field: ..., sign: -1}``; a pressure sensor's depth in counts of 1 mm is
+    ``{scale: 0.001, unit: m}``."""
+
     field: str = Field(description="Field path into the message (velocity.x, velocity[2], "
                        "velocity[name=th1]) or the CSV column name.")
-    unit: str | None = Field(None, description="Unit of the raw value; None: already in the unit the "
-                             "signal name's suffix states.")
+    unit: str | None = Field(None, description="Unit of sign * scale * raw value; None: already in the unit "
+                             "the signal name's suffix states.")
+    sign: Literal[1, -1] = Field(1, description=(
+        "-1 flips the signal (a sensor whose axis points the other way: rel_alt is up, depth is down)."))
+    scale: float = Field(1.0, description=(
+        "Factor on the raw value, before `unit` converts it (counts to the unit); finite, non-zero; "
+        "for a flip give `sign: -1`."))
+
+    @field_validator("scale")
+    @classmethod
+    def _scale_usable(cls, scale: float) -> float:
+        if not math.isfinite(scale) or scale == 0.0:
+            raise ValueError(f"scale must be a finite, non-zero number; found {scale!r}")
+        return scale
+
+    @property
+    def factor(self) -> float:
+        """sign * scale: what multiplies the raw value before the unit conversion."""
+        return float(self.sign) * self.scale
 
 
 class CsvOptions(Frozen):
@@ -191,8 +215,13 @@ class StreamSource(Frozen):
 
 
 def _check_units(signals: dict[str, SignalSource]) -> dict[str, SignalSource]:
-    """Each signal's name ends with a known unit suffix and its ``unit`` converts to it."""
+    """Each signal's name ends with a known unit suffix and its ``unit`` converts to it; a quaternion takes no
+    ``sign`` or ``scale`` (-q is the same rotation; a scaled one is none)."""
     for name, source in signals.items():
+        if name.endswith("_quat") and source.factor != 1.0:
+            key = "sign" if source.sign != 1 else "scale"
+            raise checks.KeyedError(f"{name}.{key}", f"signal {name!r} is a quaternion: `sign` and `scale` do not "
+                                    "apply (-q is the same rotation); map its axes with sensors.attitude.convention")
         try:
             conversion(name, source.unit)
         except ConfigError as err:
