@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 import numpy as np
 
 from pipeline.config.hashing import config_hash
+from pipeline.config.mixing import mix_pwm
 from pipeline.errors import ConfigError, IngestError
 from pipeline.io.base import ReadResult, TopicData, TopicInfo, ascending
 from pipeline.io.msgdefs import UserTypes, load_user_types
@@ -97,7 +98,8 @@ def trial_id(path: str | Path) -> str:
 
 
 def column_plans(stream: StreamSource) -> list[ColumnPlan]:
-    """Output columns of a stream: one per signal, four per quaternion signal (``<field>.w`` -> ``<name>_w``)."""
+    """Output columns of a stream: one per signal, four per quaternion signal (``<field>.w`` -> ``<name>_w``).
+    Each maps the raw value x to ``factor * x + offset``: the unit conversion of ``sign * scale * x``."""
     plans = []
     for name, source in stream.signals.items():
         conv = conversion(name, source.unit)
@@ -105,8 +107,9 @@ def column_plans(stream: StreamSource) -> list[ColumnPlan]:
             for comp in QUAT_COMPONENTS:
                 plans.append(ColumnPlan(f"{name}_{comp}", name, f"{source.field}.{comp}", source.unit,
                                         conv.factor, conv.offset))
-        else:
-            plans.append(ColumnPlan(name, name, source.field, source.unit, conv.factor, conv.offset))
+        else:  # unit(sign * scale * raw): the signal's sign and scale come before its unit conversion
+            plans.append(ColumnPlan(name, name, source.field, source.unit,
+                                    conv.factor * source.sign * source.scale, conv.offset))
     return plans
 
 
@@ -434,6 +437,10 @@ def _build_table(path: Path, name: str, stream: StreamSource, data: TopicData,
             raw = np.asarray(data.columns[key], dtype=np.float64)
         values = raw if (plan.factor == 1.0 and plan.offset == 0.0) else raw * plan.factor + plan.offset
         arrays[plan.column] = _arrow(values if order is None else values[order], pa.float64(), np.float64)
+    if stream.mixing is not None:  # motor PWMs mixed from the pilot's inputs (already in time order)
+        inputs = {s: arrays[s].to_numpy(zero_copy_only=False) for s in stream.mixing.inputs.values()}
+        for out, values in mix_pwm(stream.mixing, inputs, len(t_ns)).items():
+            arrays[out] = _arrow(values, pa.float64(), np.float64)
     # Every column is REQUIRED (not null): a stream has no nulls (a missing value is NaN), and a Parquet column
     # that may hold nulls stores a definition level per value, a sizeable share of the write's CPU.
     schema = pa.schema([pa.field(name, arr.type, nullable=False) for name, arr in arrays.items()])

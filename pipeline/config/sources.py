@@ -62,12 +62,15 @@ stamps, steps back; :mod:`pipeline.stamps`) and names these options as the remed
 from __future__ import annotations
 
 import codecs
+import math
 from typing import Literal
 
+import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from pipeline.config import checks
 from pipeline.config.base import Frozen
+from pipeline.config.mixing import AXES, factors
 from pipeline.errors import ConfigError
 from pipeline.units import conversion
 
@@ -79,10 +82,33 @@ MESSAGE_DEFINITIONS_DOC = (
 
 
 class SignalSource(Frozen):
+    """One signal: a field of the stream's messages (a CSV column), with its unit; ``sign`` and ``scale`` map a
+    sensor's own convention onto the pipeline's, applied once at ingest before the unit: the signal is
+    ``unit(sign * scale * raw)``. ArduSub's ``rel_alt`` (m, positive up) as a depth (positive down) is
+    ``depth_m: {field: ..., sign: -1}``; a pressure sensor's depth in counts of 1 mm is
+    ``{scale: 0.001, unit: m}``."""
+
     field: str = Field(description="Field path into the message (velocity.x, velocity[2], "
                        "velocity[name=th1]) or the CSV column name.")
-    unit: str | None = Field(None, description="Unit of the raw value; None: already in the unit the "
-                             "signal name's suffix states.")
+    unit: str | None = Field(None, description="Unit of sign * scale * raw value; None: already in the unit "
+                             "the signal name's suffix states.")
+    sign: Literal[1, -1] = Field(1, description=(
+        "-1 flips the signal (a sensor whose axis points the other way: rel_alt is up, depth is down)."))
+    scale: float = Field(1.0, description=(
+        "Factor on the raw value, before `unit` converts it (counts to the unit); finite, non-zero; "
+        "for a flip give `sign: -1`."))
+
+    @field_validator("scale")
+    @classmethod
+    def _scale_usable(cls, scale: float) -> float:
+        if not math.isfinite(scale) or scale == 0.0:
+            raise ValueError(f"scale must be a finite, non-zero number; found {scale!r}")
+        return scale
+
+    @property
+    def factor(self) -> float:
+        """sign * scale: what multiplies the raw value before the unit conversion."""
+        return float(self.sign) * self.scale
 
 
 class CsvOptions(Frozen):
@@ -149,6 +175,54 @@ class TimeOptions(Frozen):
         return rate_hz
 
 
+Axis = Literal["roll", "pitch", "yaw", "throttle", "forward", "lateral"]
+
+
+class Mixing(Frozen):
+    """Motor PWMs mixed from the pilot's inputs (see the module notes); the outputs become signals of the stream."""
+
+    frame: Literal["ardusub_vectored"] | None = Field(None, description=(
+        "A named frame: ardusub_vectored (the BlueROV2's 6 thrusters, ArduSub FRAME_CONFIG 1). Or give `matrix`."))
+    matrix: list[list[float]] | None = Field(None, description=(
+        "One row per motor, columns roll, pitch, yaw, throttle, forward, lateral (ArduSub's factor order)."))
+    inputs: dict[Axis, str] = Field(min_length=1, description=(
+        "Pilot axis -> the stream's signal of its PWM (a pulse width `<name>_s`, `unit: us`); an axis left out "
+        "is neutral. ArduSub's default channels: 1 pitch, 2 roll, 3 throttle, 4 yaw, 5 forward, 6 lateral."))
+    outputs: list[str] = Field(min_length=1, description=(
+        "Names of the motor PWM signals, one per matrix row (`<name>_s`): what thrusters' `pwm_signal` names."))
+    directions: list[Literal[1, -1]] | None = Field(None, description=(
+        "Per motor, 1 or -1 (ArduSub's MOT_n_DIRECTION); default all 1."))
+    neutral_us: float = Field(1500.0, gt=0, description="PWM of a neutral input and a stopped motor (us).")
+    range_us: float = Field(400.0, gt=0, description="PWM from neutral to a full input or output (us).")
+
+    @model_validator(mode="after")
+    def _shape(self) -> Mixing:
+        if (self.frame is None) == (self.matrix is None):
+            raise ValueError("give either `frame` (a named frame) or `matrix` (one row of 6 factors per motor)")
+        rows = self.factors()
+        if rows.ndim != 2 or rows.shape[1] != len(AXES):
+            raise checks.KeyedError("matrix", f"a mixing matrix has one row of {len(AXES)} factors {list(AXES)} per "
+                                    f"motor; found rows of {sorted({len(r) for r in self.matrix or []})}")
+        if len(self.outputs) != rows.shape[0]:
+            raise checks.KeyedError("outputs", f"{len(self.outputs)} outputs for a frame of {rows.shape[0]} motors "
+                                    f"({self.frame or 'matrix'}): name one PWM signal per motor")
+        if self.directions is not None and len(self.directions) != rows.shape[0]:
+            raise checks.KeyedError("directions", f"{len(self.directions)} directions for {rows.shape[0]} motors")
+        for key, names in (("inputs", list(self.inputs.values())), ("outputs", self.outputs)):
+            for j, name in enumerate(names):
+                if not name.endswith("_s"):
+                    where = f"{key}.{list(self.inputs)[j]}" if key == "inputs" else f"{key}.{j}"
+                    raise checks.KeyedError(where, f"{name!r}: a pulse width, its name must end with _s")
+        dupes = sorted({n for n in self.outputs if self.outputs.count(n) > 1})
+        if dupes:
+            raise checks.KeyedError("outputs", f"each motor needs its own output signal; repeated: {dupes}")
+        return self
+
+    def factors(self) -> np.ndarray:
+        """The mixing matrix, motors x :data:`AXES`."""
+        return factors(self)  # type: ignore[arg-type]
+
+
 class StreamSource(Frozen):
     topic: str | None = Field(None, description="Topic in a ROS log / MCAP file.")
     file: str | None = Field(None, description="CSV file name (or glob) inside the trial directory.")
@@ -165,6 +239,24 @@ class StreamSource(Frozen):
         "stream's signals invalid (NaN), with a warning and an entry in the ingest report's absent_streams. "
         "False: a trial without it is quarantined."))
     signals: dict[str, SignalSource] = Field(min_length=1)
+    mixing: Mixing | None = Field(None, description=(
+        "Motor PWMs mixed at ingest from this stream's pilot-input signals (RC override channels) by a frame's "
+        "mixing matrix; its outputs become signals of the stream. Where the motor outputs are logged "
+        "(/mavros/rc/out), map those instead."))
+
+    @model_validator(mode="after")
+    def _mixing_on_own_signals(self) -> StreamSource:
+        if self.mixing is None:
+            return self
+        for axis, name in self.mixing.inputs.items():
+            if name not in self.signals:
+                raise checks.KeyedError(f"mixing.inputs.{axis}", f"{name!r} is not a signal of this stream; "
+                                        f"signals: {sorted(self.signals)}")
+        for j, name in enumerate(self.mixing.outputs):
+            if name in self.signals:
+                raise checks.KeyedError(f"mixing.outputs.{j}", f"{name!r} is already a signal of this stream: "
+                                        "name the mixed motor PWM apart from the logged signals")
+        return self
 
     @model_validator(mode="after")
     def _one_source(self) -> StreamSource:
@@ -191,8 +283,13 @@ class StreamSource(Frozen):
 
 
 def _check_units(signals: dict[str, SignalSource]) -> dict[str, SignalSource]:
-    """Each signal's name ends with a known unit suffix and its ``unit`` converts to it."""
+    """Each signal's name ends with a known unit suffix and its ``unit`` converts to it; a quaternion takes no
+    ``sign`` or ``scale`` (-q is the same rotation; a scaled one is none)."""
     for name, source in signals.items():
+        if name.endswith("_quat") and source.factor != 1.0:
+            key = "sign" if source.sign != 1 else "scale"
+            raise checks.KeyedError(f"{name}.{key}", f"signal {name!r} is a quaternion: `sign` and `scale` do not "
+                                    "apply (-q is the same rotation); map its axes with sensors.attitude.convention")
         try:
             conversion(name, source.unit)
         except ConfigError as err:

@@ -405,6 +405,10 @@ class Vehicle(VehicleMethods, Frozen):
         dupes = sorted({n for n in known if names.count(n) > 1})
         if dupes:
             where = [s for s, stream in self.streams.items() if dupes[0] in stream.signals]
+            if not where:  # only mixed outputs define it
+                where = [s for s, stream in self.streams.items() if stream.mixing and dupes[0] in stream.mixing.outputs]
+                raise KeyedError(f"streams.{where[-1]}.mixing.outputs", f"signals defined in more than one stream: "
+                                 f"{dupes} ({dupes[0]!r} mixed in streams {where})")
             raise KeyedError(f"streams.{where[-1]}.signals.{dupes[0]}",
                              f"signals defined in more than one stream: {dupes} ({dupes[0]!r} in streams {where})")
         for i, thr in enumerate(self.thrusters):

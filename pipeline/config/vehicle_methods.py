@@ -26,7 +26,9 @@ class VehicleMethods:
         return self._base_dir / relative
 
     def signal_names(self) -> list[str]:
-        return [name for stream in self.streams.values() for name in stream.signals]
+        """Every signal of every stream, the mixed motor PWMs (a stream's ``mixing.outputs``) included."""
+        return [name for stream in self.streams.values()
+                for name in [*stream.signals, *(stream.mixing.outputs if stream.mixing is not None else ())]]
 
     def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
         """Every trial override as given: ``{pattern: {stream: {key: value}}}``, in config order."""

@@ -1,7 +1,7 @@
 """A BlueROV2-like ROV from a raw ROS 2 sqlite3 bag to the feature store (issue 14, done-when 2 and 5).
 
 The bag is written with rosbags' own writer and carries no message definitions (its `message_definitions` table is
-dropped, as in bags before Iron): `mavros_msgs/msg/OverrideRCIn` (the six thrusters' PWM, decoded with a `.msg`
+dropped, as in bags before Iron): `mavros_msgs/msg/RCOut` (the six motors' PWM, decoded with a `.msg`
 file in a ROS package tree), the header-less `std_msgs/msg/Float64` depth, a `sensor_msgs/msg/Imu` in ROS axes
 (FLU body, ENU earth) and a DVL's `geometry_msgs/msg/TwistWithCovarianceStamped` in its FLU axes.
 
@@ -35,13 +35,14 @@ from stages import features as features_stage
 from stages import ingest as ingest_stage
 from stages import sync as sync_stage
 from tests.fixturepaths import SHARED, T200_CSV, shared_fixture
-from tests.io.helpers import OVERRIDE_RC_IN
 
 GUIDE = Path(__file__).resolve().parents[2] / "docs" / "user-guide.md"
 T200 = SHARED / "csv" / "bluerobotics_t200_performance_10-20V.csv"
 KGF_N = 9.80665
 
-RC = "mavros_msgs/msg/OverrideRCIn"
+RC = "mavros_msgs/msg/RCOut"
+#: mavros's servo outputs: the PWM the autopilot sends each motor (not the pilot's RC override inputs)
+RC_OUT = "std_msgs/Header header\nuint16[] channels\n"
 TWIST = "geometry_msgs/msg/TwistWithCovarianceStamped"
 
 T0_NS = 1_700_000_000_000_000_000   # a multiple of the 50-ms grid period
@@ -94,7 +95,7 @@ def block_of(t_s: np.ndarray) -> np.ndarray:
 
 
 def rc_stamps_s() -> np.ndarray:
-    """The RC override's log times: 10 Hz, 25 ms off the 20 Hz grid (mavros sends on its own clock)."""
+    """The servo outputs' log times: 10 Hz, 25 ms off the 20 Hz grid (mavros sends on its own clock)."""
     return RC_PHASE_S + np.arange(int(DURATION_S * 10)) * 0.1
 
 
@@ -124,20 +125,20 @@ def surge_truth(h_s: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_msg_tree(root: Path) -> None:
-    """A ROS package tree: <root>/mavros_msgs/msg/OverrideRCIn.msg, with the package.xml of a checkout."""
+    """A ROS package tree: <root>/mavros_msgs/msg/RCOut.msg, with the package.xml of a checkout."""
     (root / "mavros_msgs" / "msg").mkdir(parents=True)
-    (root / "mavros_msgs" / "msg" / "OverrideRCIn.msg").write_text(OVERRIDE_RC_IN)
+    (root / "mavros_msgs" / "msg" / "RCOut.msg").write_text(RC_OUT)
     (root / "mavros_msgs" / "package.xml").write_text("<package><name>mavros_msgs</name></package>\n")
 
 
 def write_bag(path: Path, seed: int = 0) -> Path:
-    """The dive: RC override at 10 Hz (log time, off the grid), IMU at 50 Hz and DVL at 10 Hz (header stamps, logged
+    """The dive: servo outputs at 10 Hz (log time, off the grid), IMU at 50 Hz and DVL at 10 Hz (header stamps, logged
     20 ms later), depth at 10 Hz; no message definitions in the bag."""
     from rosbags.rosbag2 import Writer
 
     rng = np.random.default_rng(seed)
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    ts.register(get_types_from_msg(OVERRIDE_RC_IN, RC))
+    ts.register(get_types_from_msg(RC_OUT, RC))
     T = ts.types
     t_truth, u_truth = surge_truth()
     no_hash = "RIHS01_" + "0" * 64
@@ -160,14 +161,15 @@ def write_bag(path: Path, seed: int = 0) -> Path:
         def conn(topic: str, msgtype: str) -> object:
             return w.add_connection(topic, msgtype, msgdef="", rihs01=no_hash)
 
-        rc, imu, dvl, depth = (conn("/mavros/rc/override", RC), conn("/mavros/imu/data", "sensor_msgs/msg/Imu"),
+        rc, imu, dvl, depth = (conn("/mavros/rc/out", RC), conn("/mavros/imu/data", "sensor_msgs/msg/Imu"),
                                conn("/dvl/twist", TWIST),
                                conn("/bluerov/depth", "std_msgs/msg/Float64"))
         messages: list[tuple[int, object, bytes]] = []
         for t in rc_stamps_s():
-            channels = np.full(18, 65535, dtype=np.uint16)  # the rest: "no change"
+            channels = np.full(16, 0, dtype=np.uint16)  # the unused outputs: 0
             channels[:6] = PWM_US[block_of(t)]
-            messages.append((log_ns(t), rc, ts.serialize_cdr(T[RC](channels=channels), RC)))
+            out = T[RC](header=header(t - 0.001), channels=channels)
+            messages.append((log_ns(t), rc, ts.serialize_cdr(out, RC)))
         for k in range(int(DURATION_S * 50) + 1):
             t = k * 0.02 + 0.005
             gyro = rng.normal(0.0, 2e-4, 3)
@@ -260,15 +262,15 @@ def test_the_guides_bluerov2_runs_from_a_bag_without_definitions_to_features_wit
     assert u.max() > 1.0 and u.min() < -0.3  # a real manoeuvre, both ways
 
 
-def test_the_guides_inspect_commands_decode_the_override_with_the_msg_tree(
+def test_the_guides_inspect_commands_decode_the_servo_outputs_with_the_msg_tree(
         dive: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from pipeline.cli import main
 
     bag, msgs = str(dive / "dives" / "dive01"), str(dive / "msgs")
     assert main(["inspect", bag, "--msgs", msgs]) == 0
     listing = capsys.readouterr().out
-    assert "mavros_msgs/msg/OverrideRCIn" in listing and "cannot decode" not in listing
-    assert main(["inspect", bag, "--msgs", msgs, "--fields", "/mavros/rc/override"]) == 0
+    assert "mavros_msgs/msg/RCOut" in listing and "cannot decode" not in listing
+    assert main(["inspect", bag, "--msgs", msgs, "--fields", "/mavros/rc/out"]) == 0
     assert "channels[i]" in capsys.readouterr().out
     assert main(["inspect", bag]) == 0  # without the definitions: listed, with what to do
     assert "`message_definitions`" in capsys.readouterr().out
