@@ -3,6 +3,7 @@
     nice python bench/span.py models                                  # the demo's tune + train
     nice python bench/span.py derive --trials 16 --minutes 60 --logs /tmp/span60   # 16 one-hour trials, ingest..derive
     nice python bench/span.py models --workers 1 2 4 8 16             # where a machine has the cores
+    nice python bench/span.py models --dask                           # ... and on a Dask LocalCluster of as many
 
 Each run is a whole ``auvid run`` process, started fresh, with ``AUVID_TASK_TRACE`` set: every stage and every task
 the stages hand to the executor (a log's ingest, a trial's sync / differentiate / derive, a search chain of tune, a
@@ -79,10 +80,12 @@ def outputs_digest(root: Path) -> str:
     return digest.hexdigest()
 
 
-def run_once(root: Path, args: list[str], jobs: int) -> dict[str, Any]:
+def run_once(root: Path, args: list[str], jobs: int, dask: bool = False) -> dict[str, Any]:
     trace = Path(tempfile.mkstemp(suffix=".jsonl")[1])
     env = {**{k: v for k, v in os.environ.items() if k not in KNOBS}, "AUVID_JOBS": str(jobs),
            "AUVID_TASK_TRACE": str(trace)}
+    if dask:  # a LocalCluster of `jobs` one-thread workers, started by the run
+        env["AUVID_SCHEDULER"] = f"local:{jobs}"
     cmd = [str(Path(sys.executable).with_name("auvid")), "run", "--root", str(root), *args]
     with tempfile.TemporaryFile("w+") as out:
         t0 = time.perf_counter()
@@ -125,6 +128,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--logs", type=Path, default=None, help="keep / reuse the simulated log and run dirs here")
     parser.add_argument("--workers", type=int, nargs="+", default=[2])
     parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--dask", action="store_true", help="also each --workers N on a Dask LocalCluster of N")
     args = parser.parse_args(argv)
     compile_sources()
     work = args.logs or Path(tempfile.mkdtemp(prefix="auvid-span-"))
@@ -137,12 +141,13 @@ def main(argv: list[str] | None = None) -> None:
     else:
         root, run_args = models_root(work)
         reset, title = reset_models, "the demo's tune + train, auvid run --from tune --to train"
-    runs: dict[int, list[dict[str, Any]]] = {n: [] for n in [1, *args.workers]}
+    modes = [(1, False), *[(n, False) for n in args.workers], *[(n, True) for n in args.workers if args.dask]]
+    runs: dict[tuple[int, bool], list[dict[str, Any]]] = {m: [] for m in modes}
     for _ in range(args.repeat):
-        for n in runs:
+        for n, dask in runs:
             reset(root)
-            runs[n].append(run_once(root, run_args, n))
-    serial = runs[1]
+            runs[n, dask].append(run_once(root, run_args, n, dask))
+    serial = runs[1, False]
     shape = span_of(serial[0]["trace"])
     print(f"# {title}\n")
     print("| stage | serial wall s | tasks | serial part s | longest task s | span s |")
@@ -154,11 +159,12 @@ def main(argv: list[str] | None = None) -> None:
     base = statistics.median(r["wall"] for r in serial)
     print("| workers | wall s (median) | CPU s | speed-up | same bytes as serial |")
     print("| --- | --- | --- | --- | --- |")
-    for n, rs in runs.items():
+    for (n, dask), rs in runs.items():
         wall = statistics.median(r["wall"] for r in rs)
         cpu = statistics.median(r["cpu"] for r in rs)
         same = all(r["outputs"] == serial[0]["outputs"] for r in rs)
-        print(f"| {n} | {wall:.1f} | {cpu:.1f} | {base / wall:.2f}x | {'yes' if same else 'NO'} |")
+        who = f"{n} (Dask LocalCluster)" if dask else str(n)
+        print(f"| {who} | {wall:.1f} | {cpu:.1f} | {base / wall:.2f}x | {'yes' if same else 'NO'} |")
 
 
 if __name__ == "__main__":
