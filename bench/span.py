@@ -11,9 +11,10 @@ CV fold or final fit of train) records its wall and CPU time (``pipeline.paralle
 
 From the serial run (``AUVID_JOBS=1``: tasks one after the other, undisturbed):
 
-* work = the stages' wall times summed (every task and the stages' own serial parts: loading, writing);
+* work = the process's wall time: the stages' (every task and the stages' own serial parts: loading, writing) and
+  the process's start and end outside them (imports, configs);
 * span = per stage, its serial part (its wall time less its tasks') plus its longest task, summed over the stages
-  (a stage starts when the one before it ends; its tasks depend on nothing else);
+  (a stage starts when the one before it ends; its tasks depend on nothing else), plus the process's start and end;
 * work / span = the speed-up unlimited workers could give this run.
 
 Then the same run with ``AUVID_JOBS=N`` for each ``--workers`` N: wall time, CPU time of the whole process tree
@@ -149,6 +150,13 @@ def main(argv: list[str] | None = None) -> None:
             runs[n, dask].append(run_once(root, run_args, n, dask))
     serial = runs[1, False]
     shape = span_of(serial[0]["trace"])
+    # the process's start (imports, configs) and end, outside every stage: serial in any run
+    outside = max(0.0, serial[0]["wall"] - shape["work_s"])
+    shape["stages"].insert(0, {"stage": "(process start and end)", "wall_s": outside, "tasks": 0, "serial_s": outside,
+                               "longest_task_s": 0.0, "span_s": outside})
+    shape["work_s"] += outside
+    shape["span_s"] += outside
+    shape["work_over_span"] = shape["work_s"] / shape["span_s"]
     print(f"# {title}\n")
     print("| stage | serial wall s | tasks | serial part s | longest task s | span s |")
     print("| --- | --- | --- | --- | --- | --- |")

@@ -16,6 +16,7 @@ import hashlib
 import io
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -54,12 +55,49 @@ def card_path(model_path: str | Path) -> Path:
 def save_model(estimator: Any, path: str | Path, card: dict[str, Any]) -> tuple[Path, Path]:
     """Write the estimator (joblib, atomically) and its card (``versions`` added, sha256 of the pickle)."""
     path = Path(path)
+    # a pickle writes a string or a dtype once and refers back to it where the same object comes again; which equal
+    # ones are one object depends on where the model was built, fitted and passed through (unpickling interns
+    # attribute names, not a dict's keys; an unpickled array holds its own dtype). The file is the pickle of a
+    # canonical copy, so a model fitted here, in a worker or on a cluster is the same bytes
+    buffer = io.BytesIO()
+    joblib.dump(estimator, buffer)
+    buffer.seek(0)
+    canonical = _canonical(joblib.load(buffer), {})
     with atomic_path(path) as tmp:
-        joblib.dump(estimator, tmp)
+        joblib.dump(canonical, tmp)
     full = {**card, "versions": {**card.get("versions", {}), **versions()}, "model_file": path.name,
             "model_sha256": file_sha256(path),
             "estimator": type(estimator).__name__}
     return path, write_json(full, card_path(path))
+
+
+def _canonical(obj: Any, done: dict[int, Any]) -> Any:
+    """``obj`` with every string interned and every array of a plain dtype holding numpy's own instance of that
+    dtype (an unpickled array holds a copy of it), through attributes, dicts, lists, tuples and object arrays.
+    Dicts, lists and object arrays are changed in place; tuples and arrays are replaced (one replacement per
+    object, so what was shared stays shared)."""
+    if type(obj) is str:
+        return sys.intern(obj)
+    if id(obj) in done or isinstance(obj, type):
+        return done.get(id(obj), obj)
+    done[id(obj)] = obj
+    if isinstance(obj, dict):
+        items = [(_canonical(k, done), _canonical(v, done)) for k, v in obj.items()]
+        obj.clear()
+        obj.update(items)
+    elif isinstance(obj, list):
+        obj[:] = [_canonical(v, done) for v in obj]
+    elif type(obj) is tuple:
+        done[id(obj)] = tuple(_canonical(v, done) for v in obj)
+    elif isinstance(obj, np.ndarray):
+        if obj.dtype == object:
+            for i, v in enumerate(obj.flat):
+                obj.flat[i] = _canonical(v, done)
+        elif obj.dtype.fields is None and np.dtype(obj.dtype.str) is not obj.dtype:
+            done[id(obj)] = obj.view(np.dtype(obj.dtype.str))
+    elif hasattr(obj, "__dict__"):
+        _canonical(vars(obj), done)
+    return done[id(obj)]
 
 
 def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:

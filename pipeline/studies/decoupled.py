@@ -27,7 +27,6 @@ keeps at most ``gp_max_samples`` points evenly spread in velocity (see ``bench/g
 from __future__ import annotations
 
 import logging
-import pickle
 import platform
 import time
 import warnings
@@ -379,18 +378,13 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
 
 
 def _unit(unit: dict[str, Any]) -> dict[str, Any]:
-    """One (DOF, model): :func:`_study_one` and its scores on the unseen rows, or ``{"failed": entry}``. It works on
-    an unpickled copy of ``unit`` and returns the final model as an unpickled copy, wherever it runs: a pickle
-    refers back to an object met before, so the model's file is the same bytes only if its objects share the same
-    way in a worker and here (as :mod:`pipeline.studies.tasks` does for the coupled study)."""
-    unit = pickle.loads(pickle.dumps(unit, protocol=pickle.HIGHEST_PROTOCOL))
+    """One (DOF, model): :func:`_study_one` and its scores on the unseen rows, or ``{"failed": entry}``."""
     try:
         result = _study_one(unit["dof"], unit["name"], *unit["rows"], **unit["kw"])
         if unit["unseen"] is not None:
             result.test = unseen_scores(result, *unit["unseen"], unit["trials"])
     except MODEL_FAILURES as err:
         return {"failed": model_failure(unit["name"], err, dof=unit["dof"])}
-    result.estimator = pickle.loads(pickle.dumps(result.estimator, protocol=pickle.HIGHEST_PROTOCOL))
     return {"result": result}
 
 

@@ -16,7 +16,6 @@ import copy
 import hashlib
 import json
 import logging
-import pickle
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
@@ -67,10 +66,6 @@ def _run_chain(item: dict[str, Any]) -> list[Any]:
         warm = res.best_params if item["settings"].method == "fast" else None
         out.append(res)
     return out
-
-
-def _copy(obj: Any) -> Any:
-    return pickle.loads(pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 class SearchCache:
@@ -148,14 +143,11 @@ def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
         if spec["kind"] == "fold":
             return {"fold": {**fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"]),
                              "fold": spec["fold"]}}
-        # the final model is fitted on, and returned as, an unpickled copy, as in a worker: its file is then the same
-        # bytes wherever it ran (a pickle refers back to an object met before, and which strings are one object
-        # differs between a graph built here and one unpickled)
-        est = _copy(spec["estimator"]).fit(X, y)
+        est = spec["estimator"].fit(X, y)
         final = None
         if spec["X_test"] is not None:
             final = score_holdout(est, np.ascontiguousarray(spec["X_test"], dtype=float),
                                   np.ascontiguousarray(spec["y_test"], dtype=float), spec["outputs"])
-        return {"estimator": _copy(est), "final": final}
+        return {"estimator": est, "final": final}
     except MODEL_FAILURES as err:
         return {"failed": model_failure(spec["model"], err)}
