@@ -183,6 +183,11 @@ class CoupledParams(Frozen):
         "over the block searched (its whole span of motion), so a search's cost does not grow with the trials' "
         "length; the final models are fitted on every train_test row. null: every row (a search's cost then grows "
         "as rows squared: hours on two 480-s trials). docs/models.md, 'A bounded search by default'.")
+    svr_max_rows: int | None = Field(
+        4000, ge=100, le=10_000_000, description="Every SVR fit of the train stage (CV folds, final models, a gray "
+        "box's residual) uses at most this many of its rows, evenly spaced in time, with C scaled to them: a libsvm "
+        "fit costs about the square of its rows and a free run its support vectors. null: every row (hours on a "
+        "campaign of many trials). docs/models.md, 'Bounded final fits'.")
     screen_samples: int | None = Field(
         None, ge=10, description="Successive halving over rows (fast search): each search screens its candidates "
         "on this many of its max_samples rows (evenly spaced in time), then scores its `survivors` best and the warm "

@@ -123,11 +123,13 @@ class SearchSettings:
 
 
 def make_svr(model: str, params: dict[str, Any], n_velocity: int = 3, C_rate: float = 0.5,
-             max_iter: int | None = None) -> Any:
+             max_iter: int | None = None, max_rows: int | None = None) -> Any:
     """An unfitted SVR variant from a flat hyperparameter dict (as stored in the tuning JSON). Its ``C_rows``
     (written by :func:`search`; absent in older files: C kept) and ``C_rate`` scale C to the rows it is fitted on
-    (:func:`pipeline.models.svr.scaled_C`). ``max_iter``: libsvm's iteration cap (None: none, libsvm's -1)."""
-    scale = {"C_rows": params.get("C_rows"), "C_rate": C_rate, "max_iter": -1 if max_iter is None else int(max_iter)}
+    (:func:`pipeline.models.svr.scaled_C`). ``max_iter``: libsvm's iteration cap (None: none, libsvm's -1).
+    ``max_rows``: fitted on at most this many rows, evenly spaced (None: all)."""
+    scale = {"C_rows": params.get("C_rows"), "C_rate": C_rate, "max_iter": -1 if max_iter is None else int(max_iter),
+             "max_rows": max_rows}
     if model == "rbf_svr":
         return RBFSVR(gamma=params["gamma"], C=params["C"], epsilon=params["epsilon"], **scale)
     if model == "two_weights_svr":

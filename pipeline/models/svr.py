@@ -32,7 +32,7 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RBFSVR", "TwoWeightsSVR", "WDSESVR", "PerOutputRegressor", "scaled_C", "wdse_gram"]
+__all__ = ["RBFSVR", "TwoWeightsSVR", "WDSESVR", "PerOutputRegressor", "fit_rows", "scaled_C", "wdse_gram"]
 
 
 def scaled_C(C: float, C_rows: int | None, n_rows: int, C_rate: float = 0.5) -> float:
@@ -45,8 +45,20 @@ def scaled_C(C: float, C_rows: int | None, n_rows: int, C_rate: float = 0.5) -> 
     return float(C) * (C_rows / n_rows) ** C_rate
 
 
+def fit_rows(n_rows: int, max_rows: int | None) -> np.ndarray:
+    """The rows an SVR is fitted on: all, or ``max_rows`` of them evenly spaced (the rows are in time order, so in
+    time: a slowly varying signal sampled at 10-20 Hz repeats itself from row to row). A libsvm fit costs about the
+    square of its rows, and a prediction its support vectors; both stay bounded on long campaigns."""
+    if max_rows is None or n_rows <= max_rows:
+        return np.arange(n_rows)
+    if max_rows < 1:
+        raise ValueError(f"max_rows must be >= 1, got {max_rows}")
+    return np.unique(np.linspace(0, n_rows - 1, int(max_rows)).round().astype(np.int64))
+
+
 class _ScaledRBFSVR(RegressorMixin, BaseEstimator):
-    """Shared machinery: standardize, scale column i by sqrt(gamma_i), libsvm RBF with gamma = 1."""
+    """Shared machinery: standardize, scale column i by sqrt(gamma_i), libsvm RBF with gamma = 1. ``max_rows``
+    (None: every row): fit on at most this many rows (:func:`fit_rows`), C scaled to them."""
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -60,6 +72,9 @@ class _ScaledRBFSVR(RegressorMixin, BaseEstimator):
 
     def fit(self, X, y):
         X, y = validate_data(self, X, y, y_numeric=True, dtype=np.float64)
+        rows = fit_rows(len(X), self.max_rows)
+        X, y = X[rows], y[rows]
+        self.n_fit_rows_ = len(rows)
         gammas = self._gamma_vector(X.shape[1])
         if np.any(~np.isfinite(gammas)) or np.any(gammas < 0):
             raise ValueError(f"gammas must be finite and >= 0, got {gammas.tolist()}")
@@ -102,7 +117,7 @@ class RBFSVR(_ScaledRBFSVR):
 
     def __init__(self, gamma: float = 0.1, C: float = 1.0, epsilon: float = 0.1, *, tol: float = 1e-3,
                  cache_size: float = 200.0, max_iter: int = -1, C_rows: int | None = None,
-                 C_rate: float = 0.5) -> None:
+                 C_rate: float = 0.5, max_rows: int | None = None) -> None:
         self.gamma = gamma
         self.C = C
         self.epsilon = epsilon
@@ -111,6 +126,7 @@ class RBFSVR(_ScaledRBFSVR):
         self.max_iter = max_iter
         self.C_rows = C_rows
         self.C_rate = C_rate
+        self.max_rows = max_rows
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:
         return np.full(n_features, float(self.gamma))
@@ -124,7 +140,8 @@ class TwoWeightsSVR(_ScaledRBFSVR):
 
     def __init__(self, gamma_velocity: float = 0.1, gamma_actuator: float = 0.1, C: float = 1.0,
                  epsilon: float = 0.1, *, n_velocity: int = 3, tol: float = 1e-3, cache_size: float = 200.0,
-                 max_iter: int = -1, C_rows: int | None = None, C_rate: float = 0.5) -> None:
+                 max_iter: int = -1, C_rows: int | None = None, C_rate: float = 0.5,
+                 max_rows: int | None = None) -> None:
         self.gamma_velocity = gamma_velocity
         self.gamma_actuator = gamma_actuator
         self.C = C
@@ -135,6 +152,7 @@ class TwoWeightsSVR(_ScaledRBFSVR):
         self.max_iter = max_iter
         self.C_rows = C_rows
         self.C_rate = C_rate
+        self.max_rows = max_rows
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:
         if self.n_velocity < 0:
@@ -153,7 +171,7 @@ class WDSESVR(_ScaledRBFSVR):
 
     def __init__(self, gammas: Sequence[float] | None = None, C: float = 1.0, epsilon: float = 0.1, *,
                  tol: float = 1e-3, cache_size: float = 200.0, max_iter: int = -1, C_rows: int | None = None,
-                 C_rate: float = 0.5) -> None:
+                 C_rate: float = 0.5, max_rows: int | None = None) -> None:
         self.gammas = gammas
         self.C = C
         self.epsilon = epsilon
@@ -162,6 +180,7 @@ class WDSESVR(_ScaledRBFSVR):
         self.max_iter = max_iter
         self.C_rows = C_rows
         self.C_rate = C_rate
+        self.max_rows = max_rows
 
     def _gamma_vector(self, n_features: int) -> np.ndarray:
         if self.gammas is None:

@@ -124,12 +124,13 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
         base = _explicit(GRAYBOX_MODELS[model], noise_std, train, rigid_body_mass)
-        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate)
-                                       for out in params.outputs])
+        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate,
+                                                max_rows=params.svr_max_rows) for out in params.outputs])
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
                        residual_columns=tuple(res_cols))
     n_velocity = params.n_velocity_inputs()
-    return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate) for out in params.outputs])
+    return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate, max_rows=params.svr_max_rows)
+                               for out in params.outputs])
 
 
 def _check_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
@@ -471,6 +472,8 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
                            "trials": sorted(train_test["trial"].unique())},
             "scores": {"cv": result["summary"], "final_check": result["final"],
                        "final_check_trials": sorted(test["trial"].unique())}}
+    if model not in EXPLICIT_MODELS:  # each SVR fitted on at most this many of the rows (evenly spaced in time)
+        card["trained_on"]["svr_max_rows"] = params.svr_max_rows
     estimator = result["estimator"]
     if hasattr(estimator, "coefficients"):
         card["coefficients"] = estimator.coefficients()

@@ -87,3 +87,20 @@ def test_C_chosen_on_fewer_rows_is_scaled_to_the_rows_fitted(make):
         np.testing.assert_array_equal(est.predict(X), make(C=expected).fit(X, y).predict(X))
     with pytest.raises(ValueError, match="C_rows"):
         make(C=4.0, C_rows=0).fit(X, y)
+
+
+@pytest.mark.parametrize("make", [lambda **kw: RBFSVR(gamma=0.2, epsilon=0.05, **kw),
+                                  lambda **kw: WDSESVR(gammas=[0.3, 2.0, 0.05, 1e-3, 0.1, 0.7], **kw)])
+def test_max_rows_fits_on_evenly_spaced_rows_with_C_scaled_to_them(make):
+    """``max_rows``: a fit on 1000 rows with max_rows 250 is the fit on rows 0, 4, 8, ... 999 (evenly spaced, the
+    last included) with C scaled to 250 rows; fewer rows than the cap are all used."""
+    X, y = _data(n=1000)
+    capped = make(C=4.0, C_rows=100, C_rate=0.5, max_rows=250).fit(X, y)
+    rows = np.unique(np.linspace(0, 999, 250).round().astype(int))
+    assert capped.n_fit_rows_ == 250 and rows[0] == 0 and rows[-1] == 999
+    assert capped.C_ == pytest.approx(4.0 * (100 / 250) ** 0.5, rel=1e-12)
+    plain = make(C=4.0, C_rows=100, C_rate=0.5).fit(X[rows], y[rows])
+    np.testing.assert_array_equal(capped.predict(X), plain.predict(X))
+    assert make(max_rows=5000).fit(X, y).n_fit_rows_ == 1000
+    with pytest.raises(ValueError, match="max_rows"):
+        make(max_rows=0).fit(X, y)
