@@ -433,6 +433,9 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
     elif "velocity_body" in roles:
         out += ["  velocity:", "    frame: body", "    axes: flu  # mavros's body velocity: ROS axes, FLU -> FRD",
                 f"    signals: {_v(roles['velocity_body'])}"]
+    elif "depth" in roles:  # a depth alone: the heave of a depth-hold trial (a DVL or velocity source: replace it)
+        out += ["  position:  # the depth differentiated: heave (w) only; a dvl or velocity source gives u, v too",
+                f"    signals: [{roles['depth']}]", "    components: [z]"]
     else:
         out.append(f"  velocity: {_todo('a velocity source: dvl (with mounting) or velocity (frame, signals)')}")
     quat = roles.get("quaternion") or (f"{roles.get('odometry')}_quat" if "odometry" in roles else None)
@@ -441,6 +444,8 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
     elif quat:
         out += ["  attitude:", f"    quaternion: {quat}",
                 f"    convention: {_todo('frd_ned (body FRD -> NED, marine) or flu_enu (ROS body FLU -> ENU)')}"]
+    elif "dvl" not in roles and "odometry" not in roles and "velocity_body" not in roles and "depth" in roles:
+        out.append("  # attitude: none logged: the vehicle is taken as level (roll = pitch = 0)")
     else:
         out.append(f"  attitude: {_todo('quaternion signal, or roll/pitch/yaw signals')}")
     odom = roles.get("odometry")

@@ -65,7 +65,8 @@ def write_msgs(root: Path) -> Path:
     return root
 
 
-def write_bag(path: Path, servo_outputs: bool = True) -> Path:
+def write_bag(path: Path, servo_outputs: bool = True, only: tuple[str, ...] | None = None) -> Path:
+    """The dive; ``only``: just these topics."""
     from rosbags.rosbag2 import Writer
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
@@ -91,10 +92,13 @@ def write_bag(path: Path, servo_outputs: bool = True) -> Path:
                   "/mavros/local_position/velocity_body": "geometry_msgs/msg/TwistStamped"}
         if servo_outputs:
             topics["/mavros/rc/out"] = "mavros_msgs/msg/RCOut"
+        if only is not None:
+            topics = {k: v for k, v in topics.items() if k in only}
         conn = {topic: w.add_connection(topic, msgtype, msgdef="", rihs01=no_hash) for topic, msgtype in topics.items()}
 
         def put(t_s: float, topic: str, msg: object) -> None:
-            messages.append((T0_NS + round(t_s * 1e9), conn[topic], bytes(ts.serialize_cdr(msg, topics[topic]))))
+            if topic in conn:
+                messages.append((T0_NS + round(t_s * 1e9), conn[topic], bytes(ts.serialize_cdr(msg, topics[topic]))))
 
         for k in range(N):
             t = 0.1 * k
@@ -161,6 +165,7 @@ def home(tmp_path_factory: pytest.TempPathFactory) -> Path:
     shutil.copy(shared_fixture(T200_CSV), home / T200.name)
     write_bag(home / "dive01", servo_outputs=True)
     write_bag(home / "manual01", servo_outputs=False)
+    write_bag(home / "hold01", only=("/mavros/rc/out", "/mavros/global_position/rel_alt"))
     return home
 
 
@@ -238,3 +243,12 @@ def test_without_definitions_the_mavros_topics_are_mapped_with_a_todo_for_them(h
     doc = yaml.safe_load(text)
     assert "/mavros/rc/out" in by_topic(doc)
     assert "message_definitions" in [k.split(".")[0] for k, _ in todo_markers(doc)]
+
+
+def test_servo_outputs_and_rel_alt_alone_make_a_heave_only_starter(home: Path) -> None:
+    """No IMU, no velocity: the depth differentiated is the motion sensor (w only) and the vehicle is level."""
+    doc, text = starter(home, "hold01")
+    assert doc["sensors"]["position"] == {"signals": ["depth_m"], "components": ["z"]}
+    assert "attitude" not in doc["sensors"] and "taken as level" in text
+    signals = ingest(home, doc, "hold01")
+    np.testing.assert_allclose(signals["depth_m"], -rel_alt_m(0.1 * np.arange(N)), rtol=1e-12)
