@@ -10,6 +10,7 @@ control surface's angle: :meth:`Vehicle.actuator_signals`). The differentiate st
   ``flu_enu`` (ROS) is body FLU -> ENU and is converted explicitly, R_ned_frd = T R_enu_flu F with
   T = [[0,1,0],[1,0,0],[0,0,-1]] (ENU -> NED) and F = diag(1,-1,-1) (FRD -> FLU). Roll/pitch/yaw are
   the ZYX Euler angles of R_ned_frd. Or from roll/pitch/yaw signals, taken as FRD/NED angles as they are.
+  Without ``sensors.attitude`` the vehicle is level, roll = pitch = yaw = 0 (a warning): a heave-only vehicle.
 - **Rates**: p, q, r from the configured rate signals times ``signs`` (gyro axis mapping). A rate that is
   not configured (a 3-DOF vehicle with only a FOG for r) is **0**, not the derivative of the attitude:
   differentiating roll/pitch would be noisy and, at the small angles of a horizontal-plane vehicle,
@@ -22,10 +23,13 @@ control surface's angle: :meth:`Vehicle.actuator_signals`). The differentiate st
   (ENU axes converted to NED first), then the same lever-arm term. Two signals make a planar source: u, v
   only (w = 0, not measured), and earth x/y rates are rotated by the heading alone (:func:`sensor_to_body`).
 - **Positions** (``sensors.position``): differentiated per earth axis by the white-jerk smoother first
-  (:mod:`pipeline.estimation.position`), their rates then rotated as earth-frame velocities.
+  (:mod:`pipeline.estimation.position`), their rates then rotated as earth-frame velocities. A source gives
+  axes by name (``components``): each signal goes into its own axis, the others 0; a depth alone (z) gives w only.
 """
 
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 import pandas as pd
@@ -36,7 +40,9 @@ from pipeline.sync import quat_columns
 from pipeline.vocabulary import VELOCITY
 
 __all__ = ["attitude_from_quaternion", "body_kinematics", "matrix_to_rpy", "mounting_matrix", "quat_to_matrix",
-           "rpy_matrix", "sensor_to_body", "unwrap_finite", "velocity_to_body"]
+           "rpy_matrix", "sensor_to_body", "sensor_vector", "unwrap_finite", "velocity_to_body"]
+
+log = logging.getLogger(__name__)
 
 _ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])
@@ -108,7 +114,10 @@ def body_kinematics(synced: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     out["segment"] = synced["segment"].to_numpy(dtype=np.int32)
 
     att = sensors.attitude
-    if att.quaternion is not None:
+    if att is None:
+        log.warning("sensors.attitude not given: the vehicle is taken as level (roll = pitch = 0, heading 0)")
+        roll, pitch, yaw = np.zeros(n), np.zeros(n), np.zeros(n)
+    elif att.quaternion is not None:
         q = np.stack([_column(synced, c, "sensors.attitude.quaternion") for c in quat_columns(att.quaternion)],
                      axis=1)
         roll, pitch, yaw = attitude_from_quaternion(q, att.convention)
@@ -160,41 +169,53 @@ def mounting_matrix(source: LinearVelocity) -> np.ndarray:
 
 
 def sensor_to_body(source: LinearVelocity, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Per sample (n, 3, 3), the rotation taking the velocity sensor's vector (padded with 0 to three components
-    when planar) into body FRD axes.
+    """Per sample (n, 3, 3), the rotation taking the velocity sensor's vector (each signal in its axis, the axes
+    not given 0: :func:`sensor_vector`) into body FRD axes.
 
     - ``body`` (a DVL or body-frame velocities): the constant mounting rotation R (``rotation_rpy_deg``, ZYX).
     - ``earth``: R_nb^T A, with R_nb = Rz(yaw) Ry(pitch) Rx(roll) the body attitude w.r.t. NED and A the earth
-      axes' map to NED (identity, or ENU -> NED). A planar (two-signal) earth source is rotated by the heading
-      alone, R_nb = Rz(yaw): its vertical velocity is not measured, so roll and pitch must not mix it in.
+      axes' map to NED (identity, or ENU -> NED). An earth source without all three axes (planar x, y; a depth's
+      z) is rotated by the heading alone, R_nb = Rz(yaw): the axes it does not measure are not known to be 0, so
+      roll and pitch must not mix them in.
     """
     n = np.shape(yaw)[0]
     if source.frame == "body":
         return np.broadcast_to(mounting_matrix(source), (n, 3, 3))
     if source.frame != "earth":
         raise ValueError(f"unknown velocity frame {source.frame!r}; expected body or earth")
-    planar = len(source.velocity) == 2
+    given = _given(source)
     zeros = np.zeros(n)
-    R_nb = rpy_matrix(zeros, zeros, yaw) if planar else rpy_matrix(roll, pitch, yaw)
+    R_nb = rpy_matrix(roll, pitch, yaw) if given.all() else rpy_matrix(zeros, zeros, yaw)
     A = _ENU_TO_NED if source.earth_axes == "enu" else np.eye(3)
-    if planar and source.earth_axes == "enu":
-        A = _ENU_TO_NED @ np.diag([1.0, 1.0, 0.0])  # x east, y north -> north, east; no vertical component
-    return np.swapaxes(R_nb, 1, 2) @ A
+    return np.swapaxes(R_nb, 1, 2) @ A @ np.diag(given.astype(float))
+
+
+def _given(source: LinearVelocity) -> np.ndarray:
+    """(3,) bool: which of the sensor's axes x, y, z its signals give."""
+    return np.array([a in source.axes_given for a in "xyz"])
+
+
+def sensor_vector(v_sensor: np.ndarray, source: LinearVelocity) -> np.ndarray:
+    """The sensor's signals (n, k, in signal order) as 3-vectors (n, 3): each in its axis, the others 0."""
+    v = np.asarray(v_sensor, dtype=float)
+    out = np.zeros((v.shape[0], 3))
+    for j, axis in enumerate(source.axes_given):
+        out[:, "xyz".index(axis)] = v[:, j]
+    return out
 
 
 def velocity_to_body(v_sensor: np.ndarray, source: LinearVelocity, roll: np.ndarray, pitch: np.ndarray,
                      yaw: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """Body velocity (n, 3) of the reference point from the velocity sensor's signals (n, 2 or 3):
-    v_ref = S v_sensor - omega x r (S: :func:`sensor_to_body`, r: the sensor's position). A planar source measures
-    no w: its w column is 0 (as an unconfigured rate), not the vertical part of the lever-arm term."""
-    v = np.asarray(v_sensor, dtype=float)
-    if v.shape[1] == 2:
-        v = np.column_stack([v, np.zeros(len(v))])
+    """Body velocity (n, 3) of the reference point from the velocity sensor's signals (n, 1 to 3):
+    v_ref = S v_sensor - omega x r (S: :func:`sensor_to_body`, r: the sensor's position). The DOFs the source does
+    not measure (w of a planar source; u, v of a depth) are 0 (as an unconfigured rate), not the lever-arm term."""
+    v = sensor_vector(v_sensor, source)
     r = np.asarray(source.position_m, dtype=float)
     if source.frame == "body":  # one constant rotation (the DVL's mounting): the plain product
         v_ref = v @ mounting_matrix(source).T - np.cross(omega, r)
     else:
         v_ref = np.einsum("nij,nj->ni", sensor_to_body(source, roll, pitch, yaw), v) - np.cross(omega, r)
-    if len(source.velocity) == 2:
-        v_ref[:, 2] = 0.0
+    for j, dof in enumerate("uvw"):
+        if dof not in source.dofs:
+            v_ref[:, j] = 0.0
     return v_ref

@@ -70,12 +70,14 @@ def valid_column(signal: str) -> str:
 
 
 def required_signals(vehicle: Vehicle) -> list[str]:
-    """Signals every later stage needs: velocity, attitude, configured rates, actuators (thruster inputs, control
-    surface angles)."""
+    """Signals every later stage needs: velocity, attitude (where configured: without it the vehicle is level),
+    configured rates, actuators (thruster inputs, control surface angles)."""
     sensors = vehicle.sensors
     names: list[str] = list(sensors.linear_velocity().velocity)
     att = sensors.attitude
-    if att.quaternion is not None:
+    if att is None:
+        pass
+    elif att.quaternion is not None:
         names.append(att.quaternion)
     else:
         names += [s for s in (att.roll, att.pitch, att.yaw) if s is not None]

@@ -17,7 +17,15 @@ Recognised topics (by message type, then by topic name where the type says too l
   rates when no IMU gives them;
 - ``std_msgs/Float64`` (and ``Float32``), ``geometry_msgs/PointStamped``: depth when the topic is named
   depth / pressure; other Float64 topics are listed as commented-out streams, to be named with a unit suffix;
-- ``geometry_msgs/Vector3Stamped`` named fog / gyro / rate: a yaw-rate gyro (``r_<s>_radps`` from ``vector.z``).
+- ``geometry_msgs/Vector3Stamped`` named fog / gyro / rate: a yaw-rate gyro (``r_<s>_radps`` from ``vector.z``);
+- mavros (ArduSub, PX4), recognised by type even where the log embeds no definition (a note then says to give the
+  ``.msg`` files): the servo outputs ``mavros_msgs/RCOut`` (``/mavros/rc/out``) as the motors' PWM, one thruster
+  ``pwm_signal`` per motor; where they are not logged, the pilot's inputs (``OverrideRCIn``, ``/mavros/rc/override``,
+  else ``RCIn``, ``/mavros/rc/in``) in ArduSub's channel order with a ``mixing`` block whose frame is a TODO (the
+  inputs are written, commented out, beside servo outputs); ``.../rel_alt`` (``std_msgs/Float64``, metres up) as
+  ``depth_m`` with ``sign: -1``, else ``VfrHud``'s ``altitude`` (commented out beside ``rel_alt``); a ``/mavros``
+  IMU in ROS axes (``convention: flu_enu``, rate signs [1, -1, -1]); ``local_position/velocity_body``
+  (``TwistStamped``, body FLU) as ``sensors.velocity``; ``local_position/odom`` as any Odometry.
 
 Each stream's ``clock`` is ``header`` when its type has a header and the stamp checks of :mod:`pipeline.stamps`
 found the header stamps usable in every log, else ``log`` (with the reason as a comment); duplicate or quantized
@@ -51,9 +59,19 @@ TODO = "TODO"
 _RATE_NAME = re.compile(r"fog|gyro|rate", re.IGNORECASE)
 _DEPTH_NAME = re.compile(r"depth|pressure", re.IGNORECASE)
 _FLAG_NAME = re.compile(r"lock|valid", re.IGNORECASE)
+_REL_ALT_NAME = re.compile(r"rel_alt", re.IGNORECASE)
+#: ArduSub's default RC channels 1-6 (RCMAP_*): the pilot's inputs, in channel order
+PILOT_AXES = ("pitch", "roll", "throttle", "yaw", "forward", "lateral")
+#: motors proposed from servo outputs or a mixing frame: ArduSub's vectored frame (the BlueROV2) has six
+MOTORS = 6
+_MAVROS_RC = ("mavros_msgs/RCOut", "mavros_msgs/OverrideRCIn", "mavros_msgs/RCIn")
 _STANDARD_PREFIXES = ("std_msgs/", "geometry_msgs/", "sensor_msgs/", "nav_msgs/", "builtin_interfaces/",
                       "tf2_msgs/", "rosgraph_msgs/", "diagnostic_msgs/")
 _STAMP_REMEDY = ("duplicates", "quantized", "steps_back")
+_SCALARS = ("std_msgs/Float64", "std_msgs/Float32")
+_PWM_TABLE = ("thrust table with a PWM column, e.g. {table: t200.csv, table_pwm_column: 'PWM (µs)', "
+              "table_thrust_column: 'Force (Kg f)', table_thrust_unit: kgf, table_voltage_column: 'Voltage (V)', "
+              "voltage_V: 16.0}")
 
 
 @dataclass
@@ -84,6 +102,9 @@ class _Stream:
     topic: _Topic
     signals: dict[str, tuple[str, str | None]]  # signal -> (field, unit)
     comment: str = ""
+    sign: dict[str, int] = field(default_factory=dict)  # signal -> -1 where the sensor's axis is the other way
+    mixing: list[str] = field(default_factory=list)     # YAML lines of a mixing block, under the stream
+    disabled: bool = False                               # written commented out (an alternative to a mapped one)
 
 
 def _short(msgtype: str) -> str:
@@ -92,6 +113,8 @@ def _short(msgtype: str) -> str:
 
 def _stream_name(topic: str, taken: set[str]) -> str:
     parts = [re.sub(r"[^A-Za-z0-9_]", "_", p) for p in topic.strip("/").split("/") if p]
+    if len(parts) > 1 and parts[0] == "mavros":  # /mavros/rc/out -> rc_out, /mavros/imu/data -> imu
+        parts = [re.sub(r"^(global|local)_position_|_data$", "", "_".join(parts[1:]))]
     name = (parts[0] if parts else "stream").lower() or "stream"
     i = 1
     while name in taken:
@@ -145,9 +168,20 @@ def _classify(topics: dict[str, _Topic], logs: list[Path], definitions: UserType
     joints: list[str] = []
     gyro = [t for t in topics.values() if _short(t.msgtype) == "geometry_msgs/Vector3Stamped"
             and _RATE_NAME.search(t.topic)]
+    kinds = {_short(t.msgtype) for t in topics.values()}
+    # the motors' PWM: servo outputs where logged, else one pilot-input topic mixed (override before RC in)
+    pilot = next((k for k in _MAVROS_RC[1:] if k in kinds), None) if _MAVROS_RC[0] not in kinds else None
+    depth_topic = any(_short(t.msgtype) in _SCALARS and (_DEPTH_NAME.search(t.topic) or _REL_ALT_NAME.search(t.topic))
+                      for t in topics.values())
     for name in sorted(topics):
         t = topics[name]
         kind = _short(t.msgtype)
+        if kind in _MAVROS_RC or kind == "mavros_msgs/VfrHud":
+            if not t.decodable:
+                notes.append(f"{name} ({t.msgtype}) cannot be decoded yet: give its .msg files (--msgs DIR, a "
+                             "mavros checkout works) and list them under message_definitions")
+            streams.append(_mavros_stream(t, kind, pilot, depth_topic, taken, roles))
+            continue
         if not t.decodable:
             notes.append(f"{name} ({t.msgtype}) cannot be decoded: {t.reason}")
             continue
@@ -155,6 +189,8 @@ def _classify(topics: dict[str, _Topic], logs: list[Path], definitions: UserType
             s = _stream_name(name, taken)
             sig = {f"{s}_quat": ("orientation", None), f"p_{s}_radps": ("angular_velocity.x", "rad/s"),
                    f"q_{s}_radps": ("angular_velocity.y", "rad/s")}
+            if "quaternion" not in roles and name.startswith("/mavros/"):
+                roles["ros_axes"] = s  # mavros publishes in ROS axes: body FLU, earth ENU
             roles.setdefault("quaternion", f"{s}_quat")
             roles.setdefault("p", f"p_{s}_radps")
             roles.setdefault("q", f"q_{s}_radps")
@@ -162,6 +198,11 @@ def _classify(topics: dict[str, _Topic], logs: list[Path], definitions: UserType
                 sig[f"r_{s}_radps"] = ("angular_velocity.z", "rad/s")
                 roles.setdefault("r", f"r_{s}_radps")
             streams.append(_Stream(s, t, sig, "attitude and body rates"))
+        elif kind == "geometry_msgs/TwistStamped" and "velocity_body" in name:
+            s = _stream_name(name, taken)
+            sig = {f"{a}_{s}_mps": (f"twist.linear.{x}", "m/s") for a, x in zip("uvw", "xyz", strict=True)}
+            roles.setdefault("velocity_body", list(sig))
+            streams.append(_Stream(s, t, sig, "body velocity in ROS axes (FLU)"))
         elif kind == "geometry_msgs/Vector3Stamped" and t in gyro:
             s = _stream_name(name, taken)
             streams.append(_Stream(s, t, {f"r_{s}_radps": ("vector.z", "rad/s")},
@@ -188,13 +229,18 @@ def _classify(topics: dict[str, _Topic], logs: list[Path], definitions: UserType
                    f"r_{s}_radps": ("twist.twist.angular.z", "rad/s")}
             roles.setdefault("odometry", s)
             streams.append(_Stream(s, t, sig, "twist in the child frame (ROS: FLU; check the signs of v, w)"))
-        elif kind in ("std_msgs/Float64", "std_msgs/Float32", "geometry_msgs/PointStamped") \
+        elif kind in _SCALARS and _REL_ALT_NAME.search(name) and "depth" not in roles:
+            s = _stream_name(name, taken)
+            streams.append(_Stream(s, t, {"depth_m": ("data", "m")}, "relative altitude, m up (ArduSub: the depth "
+                                   "sensor's): depth is down, so sign -1", sign={"depth_m": -1}))
+            roles["depth"] = "depth_m"
+        elif kind in (*_SCALARS, "geometry_msgs/PointStamped") \
                 and _DEPTH_NAME.search(name) and "depth" not in roles:
             s = _stream_name(name, taken)
             fld = "point.z" if kind == "geometry_msgs/PointStamped" else "data"
             streams.append(_Stream(s, t, {"depth_m": (fld, "m")}, "depth (positive down; check it is not pressure)"))
             roles["depth"] = "depth_m"
-        elif kind in ("std_msgs/Float64", "std_msgs/Float32"):
+        elif kind in _SCALARS:
             notes.append(f"{name} ({kind}): a scalar of unknown meaning; see the commented-out stream")
             streams.append(_Stream(_stream_name(name, taken), t, {}, "unknown scalar"))
         else:
@@ -212,6 +258,39 @@ def _classify(topics: dict[str, _Topic], logs: list[Path], definitions: UserType
                 notes.append(f"{name} ({t.msgtype}) not recognised; `auvid inspect LOG --fields {name}` lists its "
                              "fields")
     return streams, roles, joints, notes
+
+
+def _mavros_stream(t: _Topic, kind: str, pilot: str | None, depth_topic: bool, taken: set[str],
+                   roles: dict[str, Any]) -> _Stream:
+    """A mavros topic's stream: servo outputs as motor PWMs; pilot inputs, mixed where they are all there is
+    (``pilot``: the pilot-input type chosen), else commented out; VFR_HUD's altitude as depth where no depth or
+    rel_alt topic is logged, else commented out."""
+    s = _stream_name(t.topic, taken)
+    if kind == "mavros_msgs/VfrHud":
+        stream = _Stream(s, t, {"depth_m": ("altitude", "m")}, "VFR_HUD: altitude, m up (ArduSub: the depth "
+                         "sensor's); sign -1 for a depth", sign={"depth_m": -1}, disabled=depth_topic)
+        if not depth_topic:
+            roles["depth"] = "depth_m"
+        return stream
+    if kind == "mavros_msgs/RCOut":
+        pwm = [f"pwm{k}_s" for k in range(1, MOTORS + 1)]
+        roles["pwm"] = pwm
+        sig: dict[str, tuple[str, str | None]] = {n: (f"channels[{k}]", "us") for k, n in enumerate(pwm)}
+        return _Stream(s, t, sig, "servo outputs: the PWM each motor got (channels[i]: motor i+1)")
+    sig = {f"{a}_s": (f"channels[{k}]", "us") for k, a in enumerate(PILOT_AXES)}
+    what = "pilot inputs (ArduSub's RC 1-6: pitch, roll, throttle, yaw, forward, lateral), mixed by the autopilot"
+    if kind != pilot:
+        why = "the thrusters take the servo outputs" if pilot is None else f"{_short(pilot)}'s inputs are mixed"
+        return _Stream(s, t, sig, f"{what}; {why}", disabled=True)
+    pwm = [f"pwm{k}_s" for k in range(1, MOTORS + 1)]
+    roles["pwm"] = pwm
+    frame = _todo("ardusub_vectored (the BlueROV2, FRAME_CONFIG 1), or `matrix:` rows of "
+                  "[roll, pitch, yaw, throttle, forward, lateral] per motor")
+    inputs = ", ".join(f"{a}: {a}_s" for a in PILOT_AXES)
+    mixing = ["mixing:  # manual-mode trials only: a controller's additions are not in the pilot's inputs",
+              f"  frame: {frame}", f"  inputs: {{{inputs}}}", f"  outputs: {_v(pwm)}",
+              "  # directions: [1, 1, 1, 1, 1, 1]  # ArduSub's MOT_n_DIRECTION"]
+    return _Stream(s, t, sig, what + " into motor PWMs (docs/user-guide.md 8.1)", mixing=mixing)
 
 
 def _clock(t: _Topic, n_logs: int) -> tuple[str, list[str]]:
@@ -256,6 +335,8 @@ def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = No
     if definition_dirs:
         rel = [str(_relative(d, base_dir)) for d in definition_dirs]
         out.append(f"message_definitions: {_v(rel)}")
+    elif any(not t.decodable for t in topics.values() if _short(t.msgtype) in _MAVROS_RC):
+        out.append(f"message_definitions: [{_todo('directory of the mavros_msgs .msg files (a mavros checkout)')}]")
     out += [
         "rigid_body:",
         f"  mass_kg: {_todo('mass in air, kg')}",
@@ -277,6 +358,17 @@ def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = No
                 f"    direction: {towards}",
                 f"    thrust: {_todo('thrust curve: {k_fwd_N_per_rpm2: K, k_bwd_N_per_rpm2: K} or a table')}",
             ]
+    elif "pwm" in roles:
+        out.append("thrusters:  # one per motor (ArduSub's vectored frame: 1-4 horizontal, 5-6 vertical); a "
+                   "frame with more motors: add them")
+        for k, pwm in enumerate(roles["pwm"], start=1):
+            out += [
+                f"  - name: t{k}",
+                f"    pwm_signal: {pwm}",
+                f"    position_m: {_todo(f'position of motor {k} [x, y, z] in body axes, m')}",
+                f"    direction: {_todo(f'thrust direction of motor {k} in body axes (FRD), e.g. [1, 0, 0]')}",
+                f"    thrust: {_todo(_PWM_TABLE)}",
+            ]
     else:
         what = ("one entry per thruster: name, speed_signal / pwm_signal / thrust_signal, position_m, direction, "
                 "thrust (no JointState topic found)")
@@ -286,7 +378,7 @@ def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = No
     mapped: dict[str, str] = {}
     for s in streams:
         clock, comments = _clock(s.topic, len(paths))
-        prefix = "  " if s.signals else "  # "
+        prefix = "  " if s.signals and not s.disabled else "  # "
         out.append(f"{prefix}{s.name}:" + f"  # {_short(s.topic.msgtype)}: {s.comment}")
         out.append(f"{prefix}  topic: {_v(s.topic.topic)}")
         out.append(f"{prefix}  clock: {clock}" + (f"  # {'; '.join(comments)}" if comments else ""))
@@ -296,10 +388,13 @@ def starter_config(logs: list[str | Path] | list[Path], *, name: str | None = No
             out.append(f"{prefix}  optional: true  # in {s.topic.present} of {len(paths)} logs")
         out.append(f"{prefix}  signals:")
         if s.signals:
-            mapped[s.name] = s.topic.topic
+            if not s.disabled:
+                mapped[s.name] = s.topic.topic
             for sig, (fld, unit) in s.signals.items():
                 unit_part = f", unit: {_v(unit)}" if unit else ""
-                out.append(f"{prefix}    {sig}: {{field: {_v(fld)}{unit_part}}}")
+                sign_part = f", sign: {s.sign[sig]}" if sig in s.sign else ""
+                out.append(f"{prefix}    {sig}: {{field: {_v(fld)}{unit_part}{sign_part}}}")
+            out += [f"{prefix}  {line}" for line in s.mixing]
         else:
             out.append(f"{prefix}    {s.name}_<unit>: {{field: data, unit: ...}}  # e.g. rudder_rad (unit: deg), "
                        "then list it under control_surfaces")
@@ -335,12 +430,22 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
         signals = [f"u_{s}_mps", f"v_{s}_mps", f"w_{s}_mps"]
         out += ["  velocity:", "    frame: body", "    axes: flu  # a ROS twist, in its child frame: FLU -> FRD",
                 f"    signals: {_v(signals)}"]
+    elif "velocity_body" in roles:
+        out += ["  velocity:", "    frame: body", "    axes: flu  # mavros's body velocity: ROS axes, FLU -> FRD",
+                f"    signals: {_v(roles['velocity_body'])}"]
+    elif "depth" in roles:  # a depth alone: the heave of a depth-hold trial (a DVL or velocity source: replace it)
+        out += ["  position:  # the depth differentiated: heave (w) only; a dvl or velocity source gives u, v too",
+                f"    signals: [{roles['depth']}]", "    components: [z]"]
     else:
         out.append(f"  velocity: {_todo('a velocity source: dvl (with mounting) or velocity (frame, signals)')}")
     quat = roles.get("quaternion") or (f"{roles.get('odometry')}_quat" if "odometry" in roles else None)
-    if quat:
+    if quat and "ros_axes" in roles:
+        out += ["  attitude:", f"    quaternion: {quat}", "    convention: flu_enu  # mavros: body FLU -> ENU"]
+    elif quat:
         out += ["  attitude:", f"    quaternion: {quat}",
                 f"    convention: {_todo('frd_ned (body FRD -> NED, marine) or flu_enu (ROS body FLU -> ENU)')}"]
+    elif "dvl" not in roles and "odometry" not in roles and "velocity_body" not in roles and "depth" in roles:
+        out.append("  # attitude: none logged: the vehicle is taken as level (roll = pitch = 0)")
     else:
         out.append(f"  attitude: {_todo('quaternion signal, or roll/pitch/yaw signals')}")
     odom = roles.get("odometry")
@@ -348,10 +453,14 @@ def _sensors(roles: dict[str, Any]) -> list[str]:
     if any(rates.values()):
         out.append("  rates:")
         out += [f"    {a}: {sig}" for a, sig in rates.items() if sig]
+        imu = roles.get("ros_axes")
         if odom and any(rates[a] == f"{a}_{odom}_radps" for a in "qr"):
             # ROS twists are FLU: q (about y left) and r (about z up) change sign in the body FRD axes
             signs = [-1.0 if a != "p" and rates[a] == f"{a}_{odom}_radps" else 1.0 for a in "pqr"]
             out.append(f"    signs: {_v(signs)}  # the odometry's angular twist is FLU")
+        elif imu and any(rates[a] == f"{a}_{imu}_radps" for a in "qr"):
+            signs = [-1.0 if a != "p" and rates[a] == f"{a}_{imu}_radps" else 1.0 for a in "pqr"]
+            out.append(f"    signs: {_v(signs)}  # mavros's gyro is FLU")
     if "depth" in roles:
         out.append(f"  depth: {roles['depth']}")
     return out

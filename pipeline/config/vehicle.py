@@ -206,20 +206,47 @@ class VelocitySource(Frozen):
         return self
 
 
+#: The earth axes a position source may give: horizontal (x, y), vertical alone (z: a depth sensor), or all three.
+COMPONENT_SETS = ({"x", "y"}, {"z"}, {"x", "y", "z"})
+
+
 class PositionSource(Frozen):
-    """Positions in a local earth frame (motion capture, GNSS in local coordinates), differentiated into velocities:
-    per earth axis, the white-jerk smoother of the kalman method (positions at their own stamps, noise estimated
-    from the data) gives the earth-frame velocity and acceleration; they are rotated into body axes by the logged
-    attitude (the heading alone when planar), as an earth-frame velocity source is.
+    """Positions in a local earth frame (motion capture, GNSS in local coordinates, a depth sensor), differentiated
+    into velocities: per earth axis, the white-jerk smoother of the kalman method (positions at their own stamps,
+    noise estimated from the data) gives the earth-frame velocity and acceleration; they are rotated into body axes
+    by the logged attitude (the heading alone when not all three axes are given), as an earth-frame velocity source
+    is. A depth alone (``components: [z]``) gives w, the heave of a level vehicle; u and v are not measured (0).
     """
 
-    signals: list[str] = Field(min_length=2, max_length=3, description=(
-        "Signals of the position components in m: 2 (planar: x, y) or 3 (with z)."))
+    signals: list[str] = Field(min_length=1, max_length=3, description=(
+        "Signals of the position components in m, in the order of `components`: by default 2 (planar: x, y) or "
+        "3 (x, y, z)."))
+    components: list[Literal["x", "y", "z"]] | None = Field(None, description=(
+        "The earth axis of each signal: [x, y], [z] (a depth: the heave of a depth-hold trial) or [x, y, z], in "
+        "any order. None: x, y[, z] in the order of `signals`."))
     earth_axes: Literal["ned", "enu"] = Field("ned", description=(
         "ned (x north, y east, z down) or enu (x east, y north, z up; ROS), converted to NED explicitly."))
     position_m: Vec3 = Field((0.0, 0.0, 0.0), description=(
         "Body-axes position of the tracked point (marker set origin, GNSS antenna) relative to the reference point."))
     valid: str | None = Field(None, description="Validity flag signal (nonzero = valid); None: always valid.")
+
+    @model_validator(mode="after")
+    def _components_match(self) -> PositionSource:
+        given = self.components or ["x", "y", "z"][: len(self.signals)]
+        if len(given) != len(self.signals):
+            raise checks.KeyedError("components", f"{len(given)} components for {len(self.signals)} signals: name "
+                                    "the earth axis of each signal")
+        if len(set(given)) != len(given) or set(given) not in COMPONENT_SETS:
+            what = "a single signal gives a depth: `components: [z]`" if self.components is None else (
+                f"found {given}")
+            raise checks.KeyedError("components", "positions are [x, y] (planar), [z] (a depth) or [x, y, z]; "
+                                    + what)
+        return self
+
+    @property
+    def axes_given(self) -> tuple[str, ...]:
+        """The earth axis of each signal, in signal order."""
+        return tuple(self.components or ("x", "y", "z")[: len(self.signals)])
 
 
 class AccelerometerSource(Frozen):
@@ -255,11 +282,18 @@ class LinearVelocity:
     earth_axes: str = "ned"
     axes: str = "frd"             # body frame: frd, or flu (ROS), converted to FRD
     differentiated: bool = False  # sensors.position: ``velocity`` holds positions, differentiated by the smoother
+    components: tuple[str, ...] = ()  # the axis (x, y, z) of each signal; empty: x, y[, z] in signal order
+
+    @property
+    def axes_given(self) -> tuple[str, ...]:
+        """The sensor axis (x, y, z) of each signal, in signal order."""
+        return self.components or ("x", "y", "z")[: len(self.velocity)]
 
     @property
     def dofs(self) -> tuple[str, ...]:
-        """The body DOFs it measures: u, v (planar) or u, v, w."""
-        return ("u", "v", "w")[: len(self.velocity)]
+        """The body DOFs it measures, in u, v, w order: u, v (planar), w (a depth alone) or u, v, w."""
+        given = set(self.axes_given)
+        return tuple(d for d, a in zip("uvw", "xyz", strict=True) if a in given)
 
     @property
     def velocity_columns(self) -> tuple[str, ...]:
@@ -274,7 +308,9 @@ class Sensors(Frozen):
         "Velocities from another source: body or earth frame (give one of `dvl`, `velocity`, `position`)."))
     position: PositionSource | None = Field(None, description=(
         "Positions in a local earth frame (motion capture, GNSS), differentiated into velocities."))
-    attitude: AttitudeSource
+    attitude: AttitudeSource | None = Field(None, description=(
+        "The attitude signals. None: the vehicle is taken as level (roll = pitch = 0, heading 0; a warning per "
+        "trial): a heave-only vehicle with a depth sensor. Earth-frame horizontal velocities or positions need it."))
     rates: RateSource = RateSource()
     accelerometer: AccelerometerSource | None = Field(None, description=(
         "IMU accelerometers (optional): extra measurements of the body accelerations for the kalman method."))
@@ -299,6 +335,16 @@ class Sensors(Frozen):
                     raise checks.KeyedError(f"{key}.position_m", str(err)) from None
         return self
 
+    @model_validator(mode="after")
+    def _heading_for_earth_axes(self) -> Sensors:
+        source = self.linear_velocity()
+        if self.attitude is None and source.frame == "earth" and {"u", "v"} & set(source.dofs):
+            raise checks.KeyedError(source.key.split(".", 1)[1], (
+                "earth-frame horizontal velocities or positions are rotated into body axes by the heading: give "
+                "sensors.attitude (without it the vehicle is taken as level, which only a vertical source, "
+                "`components: [z]`, allows)"))
+        return self
+
     def linear_velocity(self) -> LinearVelocity:
         if self.dvl is not None:
             d = self.dvl
@@ -307,7 +353,7 @@ class Sensors(Frozen):
         if self.position is not None:
             x = self.position
             return LinearVelocity("sensors.position", "earth", tuple(x.signals), x.valid, False, x.position_m,
-                                  (0.0, 0.0, 0.0), x.earth_axes, differentiated=True)
+                                  (0.0, 0.0, 0.0), x.earth_axes, differentiated=True, components=x.axes_given)
         v = self.velocity
         assert v is not None
         return LinearVelocity("sensors.velocity", v.frame, tuple(v.signals), v.valid, False, v.position_m,
@@ -473,8 +519,9 @@ class Vehicle(VehicleMethods, Frozen):
         if source.valid is not None:
             refs.append((f"{source.key}.valid", source.valid))
         att = s.attitude
-        refs += [(f"sensors.attitude.{k}", n) for k, n in (("quaternion", att.quaternion), ("roll", att.roll),
-                                                           ("pitch", att.pitch), ("yaw", att.yaw)) if n]
+        if att is not None:
+            refs += [(f"sensors.attitude.{k}", n) for k, n in (("quaternion", att.quaternion), ("roll", att.roll),
+                                                               ("pitch", att.pitch), ("yaw", att.yaw)) if n]
         refs += [(f"sensors.rates.{k}", n) for k, n in zip("pqr", (s.rates.p, s.rates.q, s.rates.r), strict=True)
                  if n]
         if s.accelerometer is not None:

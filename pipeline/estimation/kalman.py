@@ -74,9 +74,11 @@ __all__ = ["estimate_motion"]
 
 
 def _other_required_valid(synced: pd.DataFrame, vehicle: Vehicle) -> np.ndarray:
-    """Grid samples where attitude and every actuator signal are valid (the velocities are the smoother's)."""
+    """Grid samples where attitude (if configured) and every actuator signal are valid (the velocities are the
+    smoother's)."""
     att = vehicle.sensors.attitude
-    names = [att.quaternion] if att.quaternion is not None else [s for s in (att.roll, att.pitch, att.yaw) if s]
+    names = [] if att is None else [att.quaternion] if att.quaternion is not None else [
+        s for s in (att.roll, att.pitch, att.yaw) if s]
     names += vehicle.actuator_signals()
     ok = np.ones(len(synced), dtype=bool)
     for name in names:
@@ -122,7 +124,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
 
     meas = {} if source.differentiated else velocity_measurements(synced, body, streams, vehicle, params, noise)
     rates = rate_measurements(synced, streams, vehicle, params, noise)
-    biases = rate_biases(synced, body, vehicle, rates) if params.rate_bias == "estimate" else {}
+    estimate_biases = params.rate_bias == "estimate" and vehicle.sensors.attitude is not None  # from the attitude
+    biases = rate_biases(synced, body, vehicle, rates) if estimate_biases else {}
     meas.update(debias(rates, biases))
 
     meas = {dof: meas[dof] for dof in DOFS if dof in meas}
@@ -227,7 +230,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         report["velocity_misalignment"] = misalignment.as_dict()
     if accelerometer is not None:
         report["accelerometer"] = accelerometer
-    if params.rate_bias == "estimate":
+    if estimate_biases:
         report["rate_bias"] = {dof: est.as_dict() for dof, est in biases.items()}
     log.info("kalman: %d of %d grid samples usable (%.0f %%, sync's segments alone: %.0f %%), %d segment(s)",
              len(kept), len(grid), 100 * report["usable_fraction"], 100 * report["synced_segment_fraction"],

@@ -35,7 +35,7 @@ from pipeline.errors import SyncError
 from pipeline.estimation.measurements import native_stream, signal_noise
 from pipeline.estimation.noise import NoiseEstimate
 from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothed_variances
-from pipeline.kinematics import sensor_to_body
+from pipeline.kinematics import sensor_to_body, sensor_vector
 
 log = logging.getLogger(__name__)
 
@@ -77,14 +77,14 @@ def with_position_rates(synced: pd.DataFrame, source: LinearVelocity, results: l
 def body_motion_from_positions(results: list[Smoothed], source: LinearVelocity, roll: np.ndarray,
                                pitch: np.ndarray, yaw: np.ndarray, omega: np.ndarray, omega_dot: np.ndarray
                                ) -> dict[str, Smoothed]:
-    """Body velocities and accelerations of the reference point (u, v[, w]) with their SDs, as smoother results
-    on the grid (see the module docstring); ``omega``, ``omega_dot``: (n, 3) smoothed rates and their derivatives."""
-    n = yaw.size
-    pad = [np.zeros(n)] * (3 - len(results))
-    v_e = np.stack([r.xdot for r in results] + pad, axis=1)
-    a_e = np.stack([r.xddot for r in results] + pad, axis=1)
-    var_v = np.stack([r.xdot_sd**2 for r in results] + pad, axis=1)
-    var_a = np.stack([r.xddot_sd**2 for r in results] + pad, axis=1)
+    """Body velocities and accelerations of the reference point (the DOFs the positions give: u, v; w; or u, v,
+    w) with their SDs, as smoother results on the grid (see the module docstring); ``omega``, ``omega_dot``: (n, 3)
+    smoothed rates and their derivatives."""
+    def by_axis(values: list[np.ndarray]) -> np.ndarray:  # each earth axis given in its place, the others 0
+        return sensor_vector(np.stack(values, axis=1), source)
+
+    v_e, a_e = by_axis([r.xdot for r in results]), by_axis([r.xddot for r in results])
+    var_v, var_a = by_axis([r.xdot_sd**2 for r in results]), by_axis([r.xddot_sd**2 for r in results])
     S = sensor_to_body(source, roll, pitch, yaw)
     lever = np.asarray(source.position_m, dtype=float)
     v_point = np.einsum("nij,nj->ni", S, v_e)
@@ -92,7 +92,8 @@ def body_motion_from_positions(results: list[Smoothed], source: LinearVelocity, 
     a_ref = np.einsum("nij,nj->ni", S, a_e) - np.cross(omega, v_point) - np.cross(omega_dot, lever)
     sd_v, sd_a = np.sqrt((S**2) @ var_v[..., None])[..., 0], np.sqrt((S**2) @ var_a[..., None])[..., 0]
     out = {}
-    for j, dof in enumerate(source.dofs):
+    for dof in source.dofs:
+        j = "uvw".index(dof)
         out[dof] = Smoothed(x=v_ref[:, j], xdot=a_ref[:, j], q=float("nan"), loglik=float("nan"),
                             used=min(r.used for r in results), gated=max(r.gated for r in results),
                             x_sd=sd_v[:, j], xdot_sd=sd_a[:, j], h_s=results[0].h_s)
