@@ -18,9 +18,10 @@ from pipeline.vocabulary import DOFS
 #: params too); tests/config/test_config_refuses.py keeps them equal to pipeline.studies.coupled's and
 #: pipeline.models.decoupled's.
 COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "fossen",
-                  "graybox", "graybox_gh", "graybox_fossen")
+                  "abkowitz", "graybox", "graybox_gh", "graybox_fossen", "graybox_abkowitz")
 #: the coupled models whose inputs are nu and tau (not ``coupled.inputs``)
-EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb", "fossen")
+#: (abkowitz: nu, the thrust columns of ``coupled.inputs`` and its control-surface angles, pipeline.models.manoeuvring)
+EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb", "fossen", "abkowitz")
 DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
 #: Bounds the config campaign (bench/fuzz_configs.py) found missing: a filter width beyond an hour, or more joblib
 #: workers than any machine has, is a typo or a hostile file, not a setting.

@@ -200,3 +200,95 @@ def synthetic_frame(n_samples: int = 1500, *, rate_hz: float = 2.0, seed: int = 
     else:
         frame["split"] = split
     return frame
+
+
+# -- a ship with a rudder: the manoeuvring family's plant ---------------------------------------------------------
+
+#: The simulated ship's true accelerations, Abkowitz-type terms solved for nudot (names as
+#: pipeline.models.manoeuvring's: ``d`` the rudder angle in rad, ``T`` the thrust in N; SI units). Every other term
+#: of that family is absent (0): a constant, u, v², r² in surge; the constants, |r|r / |v|v, v²r, vr², r δ² / v δ²
+#: and δ³ where not listed. Port-starboard symmetric: surge even in (v, r, δ), sway and yaw odd.
+SHIP_TRUTH: dict[str, float] = {
+    "X_|u|u": -0.17, "X_vr": 0.8, "X_dd": -0.3, "X_T": 0.0083,
+    "Y_v": -2.0, "Y_r": -0.3, "Y_|v|v": -2.0, "Y_d": 0.15, "Y_ddd": -0.3, "Y_Td": 0.008, "Y_vdd": 1.5,
+    "N_v": -0.8, "N_r": -0.5, "N_|r|r": -1.5, "N_d": -0.12, "N_Td": -0.008, "N_rdd": 0.6,
+}
+
+
+def _ship_nudot(nu: np.ndarray, thrust: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    u, v, r = nu.T
+    c = SHIP_TRUTH
+    T, d = thrust, delta
+    udot = c["X_|u|u"] * np.abs(u) * u + c["X_vr"] * v * r + c["X_dd"] * d * d + c["X_T"] * T
+    vdot = (c["Y_v"] * v + c["Y_r"] * r + c["Y_|v|v"] * np.abs(v) * v + c["Y_d"] * d + c["Y_ddd"] * d ** 3
+            + c["Y_Td"] * T * d + c["Y_vdd"] * v * d * d)
+    rdot = (c["N_v"] * v + c["N_r"] * r + c["N_|r|r"] * np.abs(r) * r + c["N_d"] * d + c["N_Td"] * T * d
+            + c["N_rdd"] * r * d * d)
+    return np.column_stack([udot, vdot, rdot])
+
+
+def _ship_step(nu: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    return _ship_nudot(nu, inputs[:, 0], inputs[:, 1])
+
+
+def ship_zigzag(duration_s: float = 300.0, *, rate_hz: float = 20.0, seed: int = 0,
+                amplitudes_deg: tuple[float, ...] = (10.0, 20.0, 30.0), thrusts_N: tuple[float, float] = (12.0, 35.0),
+                leg_s: float = 60.0, rudder_rate_degps: float = 30.0, manoeuvres: tuple[str, ...] = ("zigzag",),
+                hold_s: tuple[float, float] = (0.5, 3.0), noise: float = 0.1, trial: str = "ship01",
+                split: str = "train_test", vehicle: str = "ship") -> pd.DataFrame:
+    """Zig-zag manoeuvres of the ship of :data:`SHIP_TRUTH` as feature-store rows (RK4 at ``rate_hz``, thrust and
+    rudder held per step).
+
+    Each leg of ``leg_s`` draws a manoeuvre from ``manoeuvres``, an amplitude a from ``amplitudes_deg`` and a
+    propeller thrust in ``thrusts_N``: ``zigzag`` (rudder to +-a, switched when the heading passes +-a from the
+    leg's start) or ``steps`` (rudder to a uniform angle in [-a, a], held for a uniform time in ``hold_s``: the
+    transients that tell sway from yaw, which a zig-zag's near-steady turns keep proportional). The rudder moves at
+    ``rudder_rate_degps``. Columns: ``t_ns segment
+    u_mps v_mps r_radps T_prop_N rudder_rad tau_u_N tau_v_N tau_r_Nm udot_mps2 vdot_mps2 rdot_radps2
+    yaw_rad split``; velocities and accelerations carry white noise of ``noise`` times their SD (u, v, r: a tenth
+    of that), thrust and rudder are exact; ``tau_u_N`` is the thrust, ``tau_v_N`` = ``tau_r_Nm`` = 0 (the rudder
+    adds nothing to tau, as the derive stage has it). ``true_*dot`` columns hold the noise-free accelerations."""
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / rate_hz
+    n = int(round(duration_s * rate_hz))
+    leg = max(1, int(round(leg_s * rate_hz)))
+    x = np.array([[1.0, 0.0, 0.0]])
+    psi, delta, sign = 0.0, 0.0, 1.0
+    nu, thrust, rudder, yaw = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
+    amp = T = psi0 = target = hold = 0.0
+    kind = manoeuvres[0]
+    for k in range(n):
+        if k % leg == 0:
+            kind = manoeuvres[int(rng.integers(len(manoeuvres)))]
+            amp = np.deg2rad(rng.choice(amplitudes_deg))
+            T = rng.uniform(*thrusts_N)
+            psi0 = psi  # each leg zig-zags about the heading it starts on
+        if kind == "zigzag":
+            if sign * (psi - psi0) <= -amp:  # heading passed the switch: rudder to the other side
+                sign = -sign
+            target = sign * amp
+        else:
+            hold -= dt
+            if hold <= 0:
+                target, hold = rng.uniform(-amp, amp), rng.uniform(*hold_s)
+        step = np.deg2rad(rudder_rate_degps) * dt
+        delta += np.clip(target - delta, -step, step)
+        nu[k], thrust[k], rudder[k], yaw[k] = x[0], T, delta, psi
+        x_next = rk4_step(_ship_step, x, np.array([[T, delta]]), dt)
+        psi += 0.5 * dt * (x[0, 2] + x_next[0, 2])
+        x = x_next
+    nudot = _ship_nudot(nu, thrust, rudder)
+    sd_nu, sd_acc = nu.std(axis=0), nudot.std(axis=0)
+    nu_meas = nu + 0.1 * noise * sd_nu * rng.normal(size=nu.shape)
+    acc_meas = nudot + noise * sd_acc * rng.normal(size=nudot.shape)
+    return pd.DataFrame({
+        "vehicle": vehicle, "trial": trial,
+        "t_ns": (np.round(np.arange(n) * dt * 1e9)).astype(np.int64) + 1_700_000_000 * 10**9,
+        "segment": np.zeros(n, dtype=np.int32),
+        "u_mps": nu_meas[:, 0], "v_mps": nu_meas[:, 1], "r_radps": nu_meas[:, 2],
+        "T_prop_N": thrust, "rudder_rad": rudder,
+        "tau_u_N": thrust, "tau_v_N": np.zeros(n), "tau_r_Nm": np.zeros(n),
+        "udot_mps2": acc_meas[:, 0], "vdot_mps2": acc_meas[:, 1], "rdot_radps2": acc_meas[:, 2],
+        "true_udot_mps2": nudot[:, 0], "true_vdot_mps2": nudot[:, 1], "true_rdot_radps2": nudot[:, 2],
+        "yaw_rad": yaw, "split": split,
+    })

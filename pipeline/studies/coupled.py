@@ -8,7 +8,9 @@ Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``coupled.inputs`
 ``[u v r T1 T2 T3]``, the thrusters' static thrust, where the paper has their speeds ``n1 n2 n3``; one SVR per
 output with its own hyperparameters) and ``gertler_hagen``, ``mcfarland_whitcomb`` (inputs ``[u v r tau_u tau_v
 tau_r]``, all outputs at once, TLS), ``fossen`` (the same inputs; Fossen's 3-DOF model with the vehicle's M_RB,
-:mod:`pipeline.models.fossen`). Outputs ``[udot vdot rdot]``.
+:mod:`pipeline.models.fossen`), ``abkowitz`` (a ship's manoeuvring polynomial, :mod:`pipeline.models.manoeuvring`:
+inputs ``[u v r]``, the thrust columns and the control-surface angles of ``coupled.inputs``). Outputs ``[udot vdot
+rdot]``.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from pipeline.evaluate import (
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.fossen import Fossen3DOF
 from pipeline.models.graybox import GrayBox
+from pipeline.models.manoeuvring import Abkowitz3DOF
 from pipeline.models.search import SVR_MODELS, SearchSettings, make_svr
 from pipeline.models.search_halving import fold_subset, search
 from pipeline.models.svr import PerOutputRegressor
@@ -53,7 +56,8 @@ __all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "n
            "evaluate_models", "run_study", "train_columns", "train_stage"]
 
 #: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
-GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen", "graybox_fossen": "fossen"}
+GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen", "graybox_fossen": "fossen",
+                  "graybox_abkowitz": "abkowitz"}
 _EXPLICIT_CLASSES = {"gertler_hagen": GertlerHagen, "mcfarland_whitcomb": McFarlandWhitcomb}
 
 
@@ -62,10 +66,31 @@ def rigid_body_uvr(rigid_body: RigidBody) -> np.ndarray:
     return rigid_body_mass(rigid_body)[np.ix_([0, 1, 5], [0, 1, 5])]
 
 
+def _abkowitz_inputs(params: CoupledParams) -> tuple[list[str], list[str]]:
+    """``abkowitz``'s thrust and control-surface angle columns: the thrusters' thrust (``T_<thruster>_N``) of
+    ``coupled.inputs``, else ``tau_u_N`` (a ship's propeller is its surge force); the actuator inputs that are
+    angles (``_rad``: a control surface's ``angle_signal``)."""
+    thrust = [c for c in params.inputs if THRUST_COLUMN.match(c)] or [EXPLICIT_INPUTS[3]]
+    angles = [c for c in params.actuators() if c.endswith("_rad") and c not in thrust]
+    return thrust, angles
+
+
+def _base_inputs(model: str, params: CoupledParams) -> list[str]:
+    """The columns an explicit model takes: ν and τ, or ``abkowitz``'s ν, thrust and angles."""
+    if model == "abkowitz":
+        thrust, angles = _abkowitz_inputs(params)
+        return [*EXPLICIT_INPUTS[:3], *thrust, *angles]
+    return list(EXPLICIT_INPUTS)
+
+
 def _explicit(model: str, noise_std: Sequence[float] | None, frame: pd.DataFrame | None,
-              rigid_body_mass: np.ndarray | None, **refine: Any) -> Any:
+              rigid_body_mass: np.ndarray | None, params: CoupledParams, **refine: Any) -> Any:
     """An unfitted explicit model by name: ``fossen`` with the vehicle's M_RB and the rows' grid step (when
-    ``frame`` has ``t_ns``; otherwise estimated by the model), the others by WTLS with ``refine``'s keywords."""
+    ``frame`` has ``t_ns``; otherwise estimated by the model), ``abkowitz`` with its inputs' counts, the others by
+    WTLS with ``refine``'s keywords."""
+    if model == "abkowitz":
+        thrust, angles = _abkowitz_inputs(params)
+        return Abkowitz3DOF(n_thrust=len(thrust), n_surfaces=len(angles))
     if model == "fossen":
         dt = grid_step_s(frame["t_ns"].to_numpy()) if frame is not None and "t_ns" in frame.columns \
             and len(frame) > 1 else None
@@ -80,9 +105,10 @@ def model_inputs(model: str, params: CoupledParams) -> list[str]:
     """The feature columns a model takes: the SVRs ``params.inputs``, the explicit models ν and τ, a gray-box model
     the union (explicit inputs first, then the SVR inputs not among them: velocities stay first)."""
     if model in EXPLICIT_MODELS:
-        return list(EXPLICIT_INPUTS)
+        return _base_inputs(model, params)
     if model in GRAYBOX_MODELS:
-        return [*EXPLICIT_INPUTS, *(c for c in params.inputs if c not in EXPLICIT_INPUTS)]
+        base = _base_inputs(GRAYBOX_MODELS[model], params)
+        return [*base, *(c for c in params.inputs if c not in base)]
     return list(params.inputs)
 
 
@@ -108,12 +134,12 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         noise_std = noise_std_from(train)
     if model in EXPLICIT_MODELS:
         refine = {}
-        if params.explicit_refine and model != "fossen":
+        if params.explicit_refine and model not in ("fossen", "abkowitz"):
             if train is None or "t_ns" not in train.columns or len(train) < 2:
                 raise ModelError("explicit_refine needs the training rows' t_ns to know the grid step")
             refine = {"refine": True, "dt_s": grid_step_s(train["t_ns"].to_numpy()),
                       "refine_horizon_s": params.refine_horizon_s}
-        return _explicit(model, noise_std, train, rigid_body_mass, **refine)
+        return _explicit(model, noise_std, train, rigid_body_mass, params, **refine)
     known = list(SVR_MODELS) + list(EXPLICIT_MODELS) + list(GRAYBOX_MODELS)
     if model not in SVR_MODELS and model not in GRAYBOX_MODELS:
         raise ModelError(f"unknown model {model!r}; expected {known}")
@@ -123,10 +149,11 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         cols = model_inputs(model, params)
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
-        base = _explicit(GRAYBOX_MODELS[model], noise_std, train, rigid_body_mass)
+        base = _explicit(GRAYBOX_MODELS[model], noise_std, train, rigid_body_mass, params)
         residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate,
                                                 max_rows=params.svr_max_rows) for out in params.outputs])
-        return GrayBox(base=base, residual=residual, base_columns=tuple(range(len(EXPLICIT_INPUTS))),
+        n_base = len(_base_inputs(GRAYBOX_MODELS[model], params))
+        return GrayBox(base=base, residual=residual, base_columns=tuple(range(n_base)),
                        residual_columns=tuple(res_cols))
     n_velocity = params.n_velocity_inputs()
     return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate, max_rows=params.svr_max_rows)
@@ -182,7 +209,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     _check_columns(tuning, [*params.inputs, *params.outputs], "tune")
     graybox = [m for m in GRAYBOX_MODELS if m in params.models]
     if graybox:
-        _check_columns(tuning, EXPLICIT_INPUTS, f"tune ({', '.join(graybox)})")
+        _check_columns(tuning, sorted({c for m in graybox for c in _base_inputs(GRAYBOX_MODELS[m], params)}),
+                       f"tune ({', '.join(graybox)})")
     data = _subsample(tuning, params.max_samples)
     X = data[params.inputs].to_numpy(float)
     settings = search_settings(params, 1)
@@ -198,9 +226,10 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
                "y": data[out].to_numpy(float), "cache": cache} for out in params.outputs] if order else []
     for model in graybox:
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(tuning),
-                         tuning, rigid_body_mass)
-        base.fit(tuning[EXPLICIT_INPUTS].to_numpy(float), tuning[params.outputs].to_numpy(float))
-        resid = data[params.outputs].to_numpy(float) - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
+                         tuning, rigid_body_mass, params)
+        cols = _base_inputs(GRAYBOX_MODELS[model], params)
+        base.fit(tuning[cols].to_numpy(float), tuning[params.outputs].to_numpy(float))
+        resid = data[params.outputs].to_numpy(float) - base.predict(data[cols].to_numpy(float))
         # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs (the SVRs' optima are no warm start:
         # the target differs)
         kernels = list(SVR_MODELS) if settings.method == "fast" else ["wdse_svr"]
@@ -240,9 +269,10 @@ def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: di
     svr = model
     if model in GRAYBOX_MODELS:
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(frame),
-                         frame, rigid_body_mass)
-        base.fit(frame[EXPLICIT_INPUTS].to_numpy(float), frame[params.outputs].to_numpy(float))
-        Y = Y - base.predict(data[EXPLICIT_INPUTS].to_numpy(float))
+                         frame, rigid_body_mass, params)
+        cols = _base_inputs(GRAYBOX_MODELS[model], params)
+        base.fit(frame[cols].to_numpy(float), frame[params.outputs].to_numpy(float))
+        Y = Y - base.predict(data[cols].to_numpy(float))
         svr = "wdse_svr"
     subset = None
     if params.screen_folds is not None and params.screen_folds < params.tuning_folds:
