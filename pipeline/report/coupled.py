@@ -15,7 +15,8 @@ from pipeline.units import axis_label
 MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
                 "gertler_hagen": "Gertler-Hagen", "mcfarland_whitcomb": "McFarland-Whitcomb",
                 "fossen": "Fossen", "graybox": "Gray-box (MW + WDSE)", "graybox_gh": "Gray-box (GH + WDSE)",
-                "graybox_fossen": "Gray-box (Fossen + WDSE)"}  # the Markdown tables' (ASCII hyphens)
+                "graybox_fossen": "Gray-box (Fossen + WDSE)", "abkowitz": "Abkowitz",
+                "graybox_abkowitz": "Gray-box (Abkowitz + WDSE)"}  # the Markdown tables' (ASCII hyphens)
 
 
 def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], inputs: Sequence[str]) -> str:

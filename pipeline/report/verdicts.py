@@ -20,7 +20,8 @@ Marks = dict[str, dict[str, list[tuple[str, str]]]]
 COUPLED_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
                   "gertler_hagen": "Gertler–Hagen", "mcfarland_whitcomb": "McFarland–Whitcomb",
                   "fossen": "Fossen", "graybox": "Gray-box (MW + WDSE)", "graybox_gh": "Gray-box (GH + WDSE)",
-                  "graybox_fossen": "Gray-box (Fossen + WDSE)"}
+                  "graybox_fossen": "Gray-box (Fossen + WDSE)", "abkowitz": "Abkowitz",
+                  "graybox_abkowitz": "Gray-box (Abkowitz + WDSE)"}
 # paper 001's damping models
 DAMPING_LABELS = {"ls": "LS", "mlp": "MLP", "krr": "KRR", "svr": "SVR", "gp": "GP", "hold_last": "hold last DVL"}
 COUPLED_PREFIX = "coupled_"  # how the simulate stage names a coupled model beside the damping models
