@@ -7,6 +7,8 @@ Seeds: 0-2 are the tests' own; 100-119 served to choose SHARE_LIMIT (docs/estima
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -37,7 +39,7 @@ def _trial(seed: int, amp_mps: float) -> tuple[pd.DataFrame, float]:
     df = synthetic_trial(SyntheticPlant(), 300.0, 20.0, seed=seed)
     t = df["t_ns"].to_numpy()
     ring = amp_mps * np.sin(2 * np.pi * RING_HZ * t / 1e9 + 0.3)
-    out = df[["t_ns", "segment", *(TAU_COLUMNS[d] for d in DOFS)]].copy()
+    out = df[["t_ns", "segment", "n1_rpm", "roll_rad", "pitch_rad", "yaw_rad", *(TAU_COLUMNS[d] for d in DOFS)]].copy()
     for j in range(len(DOFS)):
         out[VELOCITY[j]] = out[SMOOTH[j]] = out[ACCELERATION[j]] = 0.0
     known = 0.0
@@ -144,3 +146,30 @@ def test_differentiate_applies_the_band_limit_after_any_method(ringing, monkeypa
     assert out.equals(band_limit(table, DifferentiateParams(notch_hz=[RING_HZ]))[0])
     _, plain = dispatch.differentiate(table, None, DifferentiateParams(method="gaussian"))
     assert "band_limit" not in plain
+
+
+def test_the_derive_stage_writes_the_check_beside_the_derived_table(ringing, tmp_path) -> None:
+    from pipeline import layout
+    from pipeline.config import Params, load_vehicle
+    from pipeline.estimation.spectral import report_path
+    from pipeline.tableio import write_parquet
+    from stages import derive as stage
+    from stages._pertrial import to_arrow
+    from tests.cli.helpers import VEHICLE_YAML
+
+    (tmp_path / "vehicle.yaml").write_text(VEHICLE_YAML)  # one surge thruster on n1_rpm
+    vehicle = load_vehicle(tmp_path / "vehicle.yaml")
+    table, _ = ringing
+    kin = table.drop(columns=[*TAU_COLUMNS.values(), *(DAMPING_COLUMNS[d] for d in MASS)])
+    layout.kinematics_path(tmp_path, "zigzag1").parent.mkdir(parents=True)
+    write_parquet(to_arrow(kin), layout.kinematics_path(tmp_path, "zigzag1"), {"stage": "differentiate"})
+    result = stage.run(tmp_path, vehicle, Params())
+    assert result.summary["zigzag1"]["spectral_warnings"] >= 1
+    doc = json.loads(report_path(tmp_path, "zigzag1").read_text())
+    assert doc["dofs"]["u"]["inputs"] == ["tau_u_N"]
+    [udot] = [w for w in doc["warnings"] if w["target"] == "udot_mps2"]
+    assert udot["peak_hz"] == pytest.approx(RING_HZ, abs=0.1) and "notch_hz" in udot["text"]
+    assert doc["dofs"]["r"]["inputs"] == ["T_th1_N", "n1_rpm"]  # no yaw moment: the actuators stand in
+    first = report_path(tmp_path, "zigzag1").read_bytes()
+    stage.run(tmp_path, vehicle, Params())
+    assert report_path(tmp_path, "zigzag1").read_bytes() == first
