@@ -55,20 +55,25 @@ def _trial(seed: int, amp_mps: float) -> tuple[pd.DataFrame, float]:
     return _with_damping(out), known
 
 
+def peak_share_over(target: dict, limit: float) -> bool:
+    return bool(target["peaks"]) and target["peaks"][0]["share"] > limit
+
+
 @pytest.fixture(scope="module")
 def ringing() -> tuple[pd.DataFrame, float]:
     return _trial(0, 0.01)
 
 
-def test_the_check_names_a_2_3_hz_ringing_on_surge(ringing) -> None:
-    table, known = ringing
+@pytest.mark.parametrize("amp_mps", [0.007, 0.01])  # 0.007: under SHARE_LIMIT, flagged by its peak alone
+def test_the_check_names_a_2_3_hz_ringing_on_surge(amp_mps: float) -> None:
+    table, known = _trial(0, amp_mps)
     rep = check_targets(table, "zigzag1", ["n1_rpm"])
     udot = rep["dofs"]["u"]["targets"]["udot_mps2"]
-    assert udot["flagged"] and udot["unexplained_above_band"] > PEAK_LIMIT
+    assert udot["flagged"] and peak_share_over(udot, PEAK_LIMIT)
     peak = udot["peaks"][0]
-    assert peak["frequency_hz"] == pytest.approx(RING_HZ, abs=0.1)
+    assert peak["frequency_hz"] == pytest.approx(RING_HZ, abs=0.02)  # on a bin: the interpolation stays there
     assert peak["share"] == pytest.approx(known, abs=0.03)  # the ringing's share of u̇'s variance
-    assert 0.1 < known < 0.4  # a ringing of a tenth of u's motion, as in the tank
+    assert 0.05 < known < 0.4
     [warning, *rest] = [w for w in rep["warnings"] if w["target"] == "udot_mps2"]
     assert not rest and warning["peak_hz"] == pytest.approx(RING_HZ, abs=0.1)
     text = warning["text"]
