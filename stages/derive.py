@@ -43,8 +43,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
             continue
         # derive uses the vehicle (mass, thrusters) and no params section: the config hash covers it
         write_parquet(to_arrow(frame), target, provenance(root, NAME, name, [source], vehicle, None))
-        write_json(spectra, report_path(root, name))
-        result.outputs += [target, report_path(root, name)]
+        write_json(spectra, report_path(root, name))  # a report beside the table, not counted among its outputs
+        result.outputs.append(target)
         result.summary[name] = {"samples": len(frame), "spectral_warnings": len(spectra["warnings"])}
         log.info("derive %s: %d samples", name, len(frame))
     return result
