@@ -1,14 +1,15 @@
 """Targets against what the vehicle can do: each target's spectrum against its inputs' (the check) and a band
 limit the user switches on from it (the remedy).
 
-- :func:`check_targets` (the derive stage, per trial): per measured DOF, the input band (the frequency below which
-  the DOF's generalized force, or failing one every actuator signal, puts all but :data:`INPUT_SHARE` of its
-  variance; the acceleration M^-1 (tau - g - C nu - d) follows it), the share of each target's
-  variance above that band (the acceleration u̇ ... and the damping target d_u ...), and the narrow-band peaks
-  there (frequency, share of the target's variance). A target gets a warning with the remedy where the share
-  above the band that no input explains (by coherence: the fast response to a thrust step is explained, noise and
-  vibration are not) exceeds :data:`SHARE_LIMIT`, or a peak there exceeds :data:`PEAK_LIMIT`: a carriage or shaft
-  vibration the smoother passed on, which no model can learn from the inputs.
+- :func:`check_targets` (the derive stage, per trial): per measured DOF, the input band (the widest frequency below
+  which the DOF's generalized force or an actuator signal puts all but :data:`INPUT_SHARE` of its variance; the
+  acceleration M^-1 (tau - g - C nu - d) follows the inputs, their products reach :data:`BAND_FACTOR` times the
+  band), the share of each target's variance above that (the acceleration u̇ ... and the damping target
+  d_u ...), and the narrow-band peaks there (frequency, share of the target's variance). A target gets a warning
+  with the remedy where the share above the band that no input explains (by coherence: the fast response to a
+  thrust step is explained, noise and vibration are not) exceeds :data:`SHARE_LIMIT`, or a peak there exceeds
+  :data:`PEAK_LIMIT`: a carriage or shaft vibration the smoother passed on, which no model can learn from the
+  inputs.
 - :func:`band_limit` (the differentiate stage, when ``notch_hz`` or ``max_hz`` is set): zero-phase notches and a
   low-pass applied per segment to the velocities and accelerations on the grid, after the method. On the grid, not
   on the sensors' own stamps: the Kalman smoother reads each sensor at its own, uneven stamps with gaps, where a
@@ -36,15 +37,19 @@ from pipeline.vocabulary import ACCELERATION, DAMPING_COLUMNS, DOFS, SMOOTH, TAU
 
 log = logging.getLogger(__name__)
 
-__all__ = ["INPUT_SHARE", "PEAK_LIMIT", "SHARE_LIMIT", "band_limit", "check_targets", "report_path", "spectrum"]
+__all__ = ["BAND_FACTOR", "INPUT_SHARE", "PEAK_LIMIT", "SHARE_LIMIT", "band_limit", "check_targets", "report_path",
+           "spectrum"]
 
 #: The input band: below it the DOF's inputs put all but this share of their variance
 INPUT_SHARE = 0.02
-#: A target is flagged where more than this share of its variance lies above the input band unexplained by the
-#: inputs (coherence), or where a narrow-band peak there holds more than PEAK_LIMIT of it. Chosen on validation
-#: seeds 100-119 (tests/estimation/test_spectral.py's trial, docs/estimation.md): clean trials reach 0.13
-#: unexplained and show no peak at all; a 2.3-Hz ringing of 0.01 m/s puts 0.13-0.2 of u̇ in its peak
-SHARE_LIMIT = 0.2
+#: The check looks above this multiple of the widest input band: products of inputs and motion (v r, delta^2,
+#: n|n|) reach twice an input's frequencies (a zig-zag's surge deceleration oscillates at twice the rudder's)
+BAND_FACTOR = 2.0
+#: A target is flagged where more than this share of its variance lies above the band unexplained by the inputs
+#: (coherence), or where a narrow-band peak there holds more than PEAK_LIMIT of it. Chosen on validation seeds
+#: 100-119 (tests/estimation/test_spectral.py's trial, docs/estimation.md): clean trials reach 0.02 unexplained and
+#: show no peak; a 2.3-Hz ringing of 0.01 m/s leaves 0.14-0.28 unexplained, 0.13-0.26 of u̇ in its peak
+SHARE_LIMIT = 0.1
 PEAK_LIMIT = 0.05
 #: A narrow-band peak: a local maximum this many times the median spectrum around it (within NEIGHBOUR_HZ) ...
 PEAK_RATIO = 10.0
@@ -156,8 +161,8 @@ def _label(column: str) -> str:
 
 def _remedy(band_hz: float, peaks: list[dict[str, float]]) -> str:
     """The params keys that would remove what lies above the band: notches at the peaks, or a low-pass between
-    the band and the lowest peak (at least 1.5 times the band, in 0.1-Hz steps)."""
-    max_hz = math.ceil(15 * band_hz) / 10
+    the band and the lowest peak (1.25 times the band, in 0.1-Hz steps up)."""
+    max_hz = math.ceil(12.5 * band_hz - 1e-9) / 10
     if peaks:
         lowest = min(p["frequency_hz"] for p in peaks)
         notches = ", ".join(f"{p['frequency_hz']:.2f}" for p in sorted(peaks, key=lambda p: p["frequency_hz"]))
@@ -166,21 +171,20 @@ def _remedy(band_hz: float, peaks: list[dict[str, float]]) -> str:
     return f"consider `differentiate.max_hz: {max_hz:g}` (or a smoother method)"
 
 
-def check_targets(derived: pd.DataFrame, trial: str, fallback_inputs: list[str] | None = None) -> dict[str, Any]:
-    """Per measured DOF, the input band and each target's share of variance above it and narrow-band peaks there;
-    ``warnings``: one sentence per target over :data:`SHARE_LIMIT`, with the remedy. The inputs of a DOF are its
-    generalized force ``tau_<dof>``; where that is constant (a rudder the thrust map does not see), every column of
-    ``fallback_inputs`` (thrusts, actuator signals) present, the widest band of them."""
+def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None = None) -> dict[str, Any]:
+    """Per measured DOF, the band of its inputs and each target's share of variance above :data:`BAND_FACTOR` times
+    it, and narrow-band peaks there; ``warnings``: one sentence per flagged target, with the remedy. The inputs of
+    a DOF are its generalized force ``tau_<dof>`` and every column of ``actuators`` present (thrusts, actuator
+    signals: through the coupling any actuator moves every DOF; a rudder the thrust map does not see), the widest
+    band of them."""
     rows, dt_s = _segments(derived)
     out: dict[str, Any] = {"trial": trial, "grid_step_s": dt_s, "input_share": INPUT_SHARE,
                            "share_limit": SHARE_LIMIT, "peak_limit": PEAK_LIMIT, "dofs": {}, "warnings": []}
     for dof, acc in zip(DOFS, ACCELERATION, strict=True):
         if acc not in derived.columns or not np.ptp(derived[acc].to_numpy(dtype=float)) > 0:
             continue  # a DOF without a sensor: 0 throughout
-        names = [TAU_COLUMNS[dof]] if TAU_COLUMNS[dof] in derived.columns else []
-        if not names or not np.ptp(derived[names[0]].to_numpy(dtype=float)) > 0:
-            names = [c for c in (fallback_inputs or []) if c in derived.columns
-                     and np.ptp(derived[c].to_numpy(dtype=float)) > 0]
+        names = [c for c in dict.fromkeys([TAU_COLUMNS[dof], *(actuators or [])])
+                 if c in derived.columns and np.ptp(derived[c].to_numpy(dtype=float)) > 0]
         if not names:
             continue
         inputs = {name: derived[name].to_numpy(dtype=float) for name in names}
@@ -188,8 +192,9 @@ def check_targets(derived: pd.DataFrame, trial: str, fallback_inputs: list[str] 
         for name, x in inputs.items():
             freq, psd = spectrum(x, rows, dt_s)
             bands.append((_band(freq, psd), name, psd))
-        band_hz, _, psd = max(bands, key=lambda b: b[0])
-        entry: dict[str, Any] = {"inputs": names, "input_band_hz": band_hz,
+        widest, _, psd = max(bands, key=lambda b: b[0])
+        band_hz = BAND_FACTOR * widest
+        entry: dict[str, Any] = {"inputs": names, "input_band_hz": widest, "band_hz": band_hz,
                                  "input_share_above": _share_above(freq, psd, band_hz), "targets": {}}
         for col in (acc, DAMPING_COLUMNS[dof]):
             if col not in derived.columns:
@@ -211,7 +216,7 @@ def check_targets(derived: pd.DataFrame, trial: str, fallback_inputs: list[str] 
                         f"where the actuators put {100 * entry['input_share_above']:.0f} % ({100 * unexplained:.0f} "
                         f"% unexplained by them){what}; {_remedy(band_hz, peaks)}")
                 out["warnings"].append({"target": col, "share_above_band": share,
-                                        "unexplained_above_band": unexplained, "input_band_hz": band_hz,
+                                        "unexplained_above_band": unexplained, "band_hz": band_hz,
                                         "peak_hz": peaks[0]["frequency_hz"] if peaks else None, "text": text})
                 log.warning("%s", text)
         out["dofs"][dof] = entry

@@ -27,18 +27,20 @@ def _read(path: Path) -> dict[str, Any] | None:
 
 def section(root: Path, trials: list[str], metrics: dict[str, Any]) -> str:
     """One table over every trial's targets, the warnings (with their remedy) above it; '' without any check."""
-    rows, warnings = [], []
+    rows, warnings, limit, peak = [], [], 0.0, 0.0
     for trial in trials:
         path = report_path(root, trial)
         doc = _read(path) if path.exists() else None
         if not doc:
             continue
+        limit, peak = doc.get("share_limit") or 0.0, doc.get("peak_limit") or 0.0
         for entry in (doc.get("dofs") or {}).values():
             for col, target in (entry.get("targets") or {}).items():
                 peaks = ", ".join(f"{p['frequency_hz']:.2f} Hz ({100 * p['share']:.0f} %)"
                                   for p in target.get("peaks") or [])
                 rows.append({"trial": trial, "target": signal_label(col), "inputs": ", ".join(entry.get("inputs", [])),
-                             "actuators' band [Hz]": entry.get("input_band_hz"),
+                             "inputs' band [Hz]": entry.get("input_band_hz"),
+                             "checked above [Hz]": entry.get("band_hz"),
                              "share above the band": target.get("share_above_band"),
                              "unexplained by the inputs": target.get("unexplained_above_band"),
                              "narrow-band peaks above the band": peaks or "none",
@@ -48,12 +50,12 @@ def section(root: Path, trials: list[str], metrics: dict[str, Any]) -> str:
         warnings += [w.get("text", "") for w in doc.get("warnings") or []]
     if not rows:
         return ""
-    limit = doc.get("share_limit") if doc else None
     parts = ["<h3>Targets against what the actuators can do</h3>"]
     parts += [f"<p class='warn'>{H.esc(text)}</p>" for text in warnings]
     parts.append(H.table(rows, caption=(
-        "Each target's variance above the band where its inputs (tau per DOF, else the thrusts and actuator "
-        "signals) put 2 % of theirs; a target is marked check where more than "
-        f"{100 * (limit or 0):.0f} % of its variance lies there unexplained by the inputs (a vibration the smoother "
-        "passed on: differentiate.notch_hz / max_hz remove it; docs/estimation.md)")))
+        "Each target's variance above twice the band where its inputs (its tau, the thrusts and actuator signals) "
+        "put 98 % of theirs; a target is marked check where more than "
+        f"{100 * limit:.0f} % of its variance lies there unexplained by the inputs, or a narrow-band peak "
+        f"holds more than {100 * peak:.0f} % (a vibration the smoother passed on: differentiate.notch_hz / "
+        "max_hz remove it; docs/estimation.md)")))
     return "".join(parts)
