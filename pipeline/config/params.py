@@ -132,6 +132,15 @@ class DifferentiateParams(Frozen):
     savgol_order: int = Field(3, ge=1, le=7, description="savgol: the local polynomial's degree (higher degrees "
                               "fit the noise).")
     edge_sigmas: float = Field(3.0, ge=0, description="Samples within this many sigma of a segment edge are dropped.")
+    notch_hz: list[Positive] = Field(
+        default_factory=list, description="Narrow-band disturbances to remove (Hz): zero-phase notches applied per "
+        "segment to the velocities and accelerations on the grid, after the method (every method). The derive "
+        "stage's spectral check (data/derived/<trial>.spectra.json, the report) names the frequency of a "
+        "disturbance the actuators cannot have caused (a carriage or shaft vibration).")
+    notch_width_hz: float = Field(0.2, gt=0, le=5.0, description="Each notch's -3 dB width (Hz).")
+    max_hz: float | None = Field(
+        None, gt=0, description="A band limit (Hz): a zero-phase 4th-order Butterworth low-pass applied with the "
+        "notches; null: none. Keep it above the actuators' band that the spectral check reports.")
 
     @field_validator("sigma_s", "savgol_window_s")
     @classmethod

@@ -8,6 +8,9 @@ the same pair (the contract: ``docs/contracts.md``):
   velocity and rate sensor at its own stamps, with SDs;
 - ``gaussian``, ``savgol``: :func:`pipeline.estimation.grid.filter_motion`, filters of the synced grid
   (:mod:`pipeline.estimation.gaussian`, :mod:`pipeline.estimation.savgol`).
+
+Then, where ``notch_hz`` or ``max_hz`` is set, :func:`pipeline.estimation.spectral.band_limit` filters the
+velocities and accelerations per segment (zero-phase), and the report's ``band_limit`` says what was applied.
 """
 
 from __future__ import annotations
@@ -47,7 +50,11 @@ def differentiate(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateP
     widths, how much of the trial is usable). ``streams``: the trial's native streams (stem -> table), for the
     smoother and ``auto`` widths; without them the synced grid's samples stand in."""
     with threadpool_limits(1, user_api="blas"):  # banded solves and 3x3 blocks: BLAS threads only spin
-        return method_function(params.method)(synced, vehicle, params, streams)
+        table, report = method_function(params.method)(synced, vehicle, params, streams)
+    if params.notch_hz or params.max_hz is not None:  # the user's band limit, after any method, on the grid
+        from pipeline.estimation.spectral import band_limit
+        table, report["band_limit"] = band_limit(table, params)
+    return table, report
 
 
 def kinematics(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateParams,

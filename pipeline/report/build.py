@@ -19,7 +19,7 @@ import pandas as pd
 
 from pipeline import __version__, layout
 from pipeline.config import Params, Vehicle, config_hash
-from pipeline.report import compare, coverage, figures, freeruns, studies, summary, verdicts
+from pipeline.report import compare, coverage, figures, freeruns, spectra, studies, summary, verdicts
 from pipeline.report import html as H
 from pipeline.report.names import signal_label
 from pipeline.report.plots import model_plots
@@ -383,7 +383,7 @@ def build(root: str | Path, vehicle: Vehicle, params: Params) -> Report:
         _collect_metrics(root, base, metrics)
     ingest = _ingest_section(root, trials, metrics, plots, figs)
     signals = _signals_section(root, trials, metrics, plots, figs)
-    estimation = _estimation_section(root, trials, metrics, figs)
+    estimation = _estimation_section(root, trials, metrics, figs) + spectra.section(root, trials, metrics)
     marks = verdicts.simulation_marks(freeruns.simulation_doc(root))
     parts = {"coupled": studies.coupled(root, figs, marks), "decoupled": studies.decoupled(root, figs, marks),
              "simulation": freeruns.section(root, figs, marks)}
