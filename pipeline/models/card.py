@@ -57,12 +57,10 @@ def save_model(estimator: Any, path: str | Path, card: dict[str, Any]) -> tuple[
     path = Path(path)
     # a pickle writes a string or a dtype once and refers back to it where the same object comes again; which equal
     # ones are one object depends on where the model was built, fitted and passed through (unpickling interns
-    # attribute names, not a dict's keys; an unpickled array holds its own dtype). The file is the pickle of a
-    # canonical copy, so a model fitted here, in a worker or on a cluster is the same bytes
-    buffer = io.BytesIO()
-    joblib.dump(estimator, buffer)
-    buffer.seek(0)
-    canonical = _canonical(joblib.load(buffer), {})
+    # attribute names, not a dict's keys; an unpickled array holds its own dtype). The file is the pickle of the
+    # model made canonical (equal values, nothing unpickled here), so a model fitted here, in a worker or on a
+    # cluster is the same bytes
+    canonical = _canonical(estimator, {})
     with atomic_path(path) as tmp:
         joblib.dump(canonical, tmp)
     full = {**card, "versions": {**card.get("versions", {}), **versions()}, "model_file": path.name,

@@ -222,8 +222,8 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     wanted = [m for m in SVR_MODELS if m in params.models]
     order = SVR_MODELS[:SVR_MODELS.index(wanted[-1]) + 1] if wanted and params.search == "fast" else wanted
     # independent chains (tasks.tune_chains): per output the SVRs' chain, per gray box and output its residual's
-    chains = [{"owner": None, "output": out, "label": out, "models": order, "X": X,
-               "y": data[out].to_numpy(float), "cache": cache} for out in params.outputs] if order else []
+    chains = [{"owner": None, "output": out, "label": out, "models": order, "names": [f"{m}/{out}" for m in order],
+               "X": X, "y": data[out].to_numpy(float), "cache": cache} for out in params.outputs] if order else []
     for model in graybox:
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(tuning),
                          tuning, rigid_body_mass, params)
@@ -234,6 +234,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         # the target differs)
         kernels = list(SVR_MODELS) if settings.method == "fast" else ["wdse_svr"]
         chains += [{"owner": model, "output": out, "label": f"{model}/{out}", "models": kernels, "X": X,
+                    "names": [*[None] * (len(kernels) - 1), f"{model}/{out}"],
                     "y": resid[:, k], "cache": cache} for k, out in enumerate(params.outputs)]
     done = tune_chains(chains, settings, workers(n_jobs), progress)
     hyper: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in [*order, *graybox]}
@@ -420,7 +421,7 @@ def _model_tasks(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np
     rows = keys.reset_index(drop=True)
     for train, held in folds:
         check_no_leakage(rows.iloc[train], rows.iloc[held], tuning_keys)
-    common = {"model": model, "X": X, "y": y, "outputs": params.outputs}
+    common = {"model": model, "X": X, "y": y, "outputs": params.outputs, "folds": len(folds)}
     tasks = [{**common, "kind": "fold", "fold": k, "estimator": cv_est, "train": train, "test": held}
              for k, (train, held) in enumerate(folds)]
     tasks.append({**common, "kind": "final", "estimator": est,

@@ -32,7 +32,8 @@ log = logging.getLogger(__name__)
 
 def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs: int,
                 progress: Callable[..., Any] | None = None) -> list[list[Any]]:
-    """Run each chain (``{"label", "models": [kernel, ...], "X", "y", "cache"}``; other keys are carried) of
+    """Run each chain (``{"label", "models": [kernel, ...], "names": [each search's name on the progress bar, or
+    None], "X", "y", "cache"}``; other keys are carried) of
     warm-started searches, each through the chain's :class:`SearchCache` (a worker's copy starts empty); returns, per
     chain in order, its searches' :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers
     (1: inline, with each search's candidates on ``progress``; more, or -1 on a Dask cluster: ``progress`` moves as
@@ -40,9 +41,15 @@ def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs
     settings = replace(settings, n_jobs=1)  # one level of parallelism: the chains
     items = [{**c, "X": np.ascontiguousarray(c["X"], dtype=float), "y": np.ascontiguousarray(c["y"], dtype=float),
               "settings": settings} for c in chains]
-    if jobs == 1:
-        for k, item in enumerate(items):
-            item["progress"] = _labelled(progress, f"{item['label']} ({k + 1}/{len(items)})")
+    if jobs == 1:  # each search that has a name (``names``, None: a warm start only) moves the bar by its candidates
+        total = sum(n is not None for item in items for n in item.get("names", item["models"]))
+        k = 0
+        for item in items:
+            labels = []
+            for name in item.get("names", item["models"]):
+                k += name is not None
+                labels.append(None if name is None else _labelled(progress, f"{name} ({k}/{total})"))
+            item["progress"] = labels
     results: list[Any] = [None] * len(items)
     for done, (index, timed) in enumerate(imap(timed_task(_run_chain, "tune"), items, jobs=jobs), start=1):
         results[index] = task_result(timed, "tune", items[index]["label"])
@@ -60,9 +67,9 @@ def _labelled(progress: Callable[..., Any] | None, label: str) -> Callable[..., 
 def _run_chain(item: dict[str, Any]) -> list[Any]:
     cache = item.get("cache") or SearchCache()
     warm, out = None, []
-    for model in item["models"]:
-        res = cache.search(model, item["X"], item["y"], item["settings"], warm_start=warm,
-                           progress=item.get("progress"))
+    bars = item.get("progress") or [None] * len(item["models"])
+    for model, bar in zip(item["models"], bars, strict=True):
+        res = cache.search(model, item["X"], item["y"], item["settings"], warm_start=warm, progress=bar)
         warm = res.best_params if item["settings"].method == "fast" else None
         out.append(res)
     return out
@@ -128,7 +135,7 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     for done, (index, timed) in enumerate(imap(timed_task(_run_train_task, "train"), list(jobs_spec), jobs=jobs),
                                           start=1):
         spec = jobs_spec[index]
-        what = f"fold {spec['fold'] + 1}" if spec["kind"] == "fold" else "final fit"
+        what = f"fold {spec['fold'] + 1}/{spec['folds']}" if spec["kind"] == "fold" else "final fit"
         results[index] = res = task_result(timed, "train", f"{spec['model']} {what}")
         if progress is not None:
             progress(done, len(jobs_spec), f"{spec['model']} {what}")

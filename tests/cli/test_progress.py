@@ -73,8 +73,9 @@ def test_tune_names_each_search_and_its_place(frame: Any) -> None:
     cp = CoupledParams(models=["rbf_svr", "two_weights_svr"], max_evals=4, tuning="split", tuning_folds=2)
     rec = Recorder()
     tune(frame["tuning"], cp, progress=rec)
-    searches = [f"{m}/{o} ({k}/6)" for k, (m, o) in enumerate(
-        [(m, o) for m in cp.models for o in cp.outputs], start=1)]
+    # one chain per output (RBF, then 2-weights warm-started from it), run in output order
+    searches = [f"{m}/{o} ({k}/6)" for k, (o, m) in enumerate(
+        [(o, m) for o in cp.outputs for m in cp.models], start=1)]
     seen = list(dict.fromkeys(desc.split(" ", 2)[0] + " " + desc.split(" ", 2)[1] for _, _, desc in rec.calls))
     assert seen == searches
     assert all(t == 4 for _, t, _ in rec.calls)

@@ -128,7 +128,7 @@ def test_smooth_tolerance_picks_the_widest_kernel_among_near_ties():
 def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch):
     """coupled.tuning = nested: every CV fold's hyperparameters come from a search over exactly that fold's
     training rows (never a row of its test block), and the final model's from the whole train_test block."""
-    from pipeline.studies import coupled, tasks
+    from pipeline.studies import coupled
 
     frame = pd.concat([synthetic_frame(300, seed=0, tuning_fraction=0.2),
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
