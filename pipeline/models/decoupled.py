@@ -93,6 +93,10 @@ def even_subsample(x: np.ndarray, max_samples: int, n_bins: int = 64) -> np.ndar
             lo_cap = mid
         else:
             hi_cap = mid - 1
+    if lo_cap == 0:  # more occupied bins than samples: one sample (its middle one in time) from bins spread evenly
+        occupied = [m for m in members if m.size]
+        chosen = np.unique(np.linspace(0, len(occupied) - 1, max_samples).round().astype(int))
+        return np.sort(np.array([occupied[i][occupied[i].size // 2] for i in chosen], dtype=np.int64))
     keep = []
     for m in members:
         if m.size <= lo_cap:

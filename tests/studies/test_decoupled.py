@@ -73,6 +73,16 @@ def test_even_subsample_keeps_the_extremes_and_the_cap() -> None:
     assert np.all(np.diff(idx) > 0)
 
 
+def test_even_subsample_with_fewer_samples_than_occupied_bins_spans_the_range() -> None:
+    """gp_max_samples 50-63 against 64 bins: every bin is occupied, so the water-filling cap is 0; the subsample is
+    then one row from bins spread over the range (the extremes included), not nothing."""
+    x = np.linspace(-1.0, 1.0, 640)[np.random.default_rng(1).permutation(640)]
+    idx = even_subsample(x, 50)
+    assert len(idx) == 50 and np.all(np.diff(idx) > 0)
+    assert x[idx].min() < -0.95 and x[idx].max() > 0.95
+    assert len(np.unique(np.minimum(((x[idx] + 1) / 2 * 64).astype(int), 63))) == 50  # one per bin
+
+
 def test_paper_grids_are_the_papers() -> None:
     assert PAPER_GRIDS["svr"]["gamma"] == [1, 5, 10, 20, 30]
     assert len(param_grid("svr", "paper_grid")["svr__C"]) == 5
