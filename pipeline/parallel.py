@@ -153,7 +153,15 @@ def _local_cluster(workers: int | None) -> Any:
                                               else max(logging.WARNING, root_level))
     n = workers or usable_cpus()
     log.info("starting a Dask LocalCluster with %d worker(s)", n)
-    return distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+    import dask
+
+    # Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then hands freed memory back to the system
+    # at once, and a trial's next large arrays fault their pages in again (twice the CPU per trial, half of it in
+    # the kernel, docs/benchmarks.md); glibc's own default keeps it
+    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", None) or {}).items()
+               if k != "MALLOC_TRIM_THRESHOLD_"}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        return distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
 
 
 def _connect(scheduler: Any) -> Any:

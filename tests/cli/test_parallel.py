@@ -319,3 +319,25 @@ def test_forked_workers_are_kept_from_fan_out_to_fan_out_inside_a_local_backend(
     assert set(multiprocessing.active_children()) - before == set()  # the context's end ends them
     once = set(parallel.pmap(_pid, range(4), jobs=2))  # outside a backend: the fan-out's own workers
     assert not once & third and set(multiprocessing.active_children()) - before == set()
+
+
+def _malloc_trim() -> str | None:
+    import os
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def test_local_cluster_workers_keep_glibcs_memory() -> None:
+    """``--scheduler local``'s workers start without Dask's MALLOC_TRIM_THRESHOLD_=65536, under which every trial's
+    large arrays faulted their pages in again (twice the CPU per trial); the rest of Dask's worker environment (one
+    BLAS thread) stays."""
+    from dask.distributed import Client
+
+    cluster = parallel._local_cluster(1)
+    try:
+        with Client(cluster) as client:
+            env = next(iter(client.run(_malloc_trim).values()))
+            blas = next(iter(client.run(lambda: __import__("os").environ.get("OPENBLAS_NUM_THREADS")).values()))
+    finally:
+        cluster.close()
+    assert env is None and blas == "1"
