@@ -24,7 +24,8 @@ from pipeline.errors import ModelError, PipelineError
 log = logging.getLogger(__name__)
 
 __all__ = ["SPLITS", "split_blocks", "blocked_folds", "check_no_leakage", "regression_scores",
-           "cross_validate_blocked", "fit_fold", "summarize_folds", "score_holdout", "MODEL_FAILURES", "model_failure"]
+           "cross_validate_blocked", "fit_fold", "guarded_folds", "summarize_folds", "score_holdout", "MODEL_FAILURES",
+           "model_failure"]
 
 #: What one model's fit or evaluation may raise without stopping a study: the pipeline's own errors and numerical
 #: errors from numpy / scipy / scikit-learn (LinAlgError is a ValueError). Never KeyboardInterrupt or MemoryError.
@@ -116,6 +117,21 @@ def fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, te
             "test_start": int(test[0]), "test_stop": int(test[-1]) + 1}
 
 
+def guarded_folds(n_samples: int, n_folds: int, keys: pd.DataFrame | None = None,
+                  tuning_keys: pd.DataFrame | None = None, *, group: str = "trial", time_col: str = "t_ns"
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`blocked_folds`, each passed by the leakage guard (:func:`check_no_leakage`) when ``keys`` (one row per
+    sample) are given."""
+    folds = blocked_folds(n_samples, n_folds)
+    if keys is not None:
+        if len(keys) != n_samples:
+            raise ModelError(f"keys have {len(keys)} rows, X has {n_samples}")
+        keys = keys.reset_index(drop=True)
+        for train, test in folds:
+            check_no_leakage(keys.iloc[train], keys.iloc[test], tuning_keys, group=group, time_col=time_col)
+    return folds
+
+
 def cross_validate_blocked(estimator: Any, X: np.ndarray, y: np.ndarray, *, n_folds: int = 5,
                            keys: pd.DataFrame | None = None, tuning_keys: pd.DataFrame | None = None,
                            outputs: Sequence[str] | None = None, n_jobs: int | None = 1,
@@ -128,13 +144,7 @@ def cross_validate_blocked(estimator: Any, X: np.ndarray, y: np.ndarray, *, n_fo
     """
     X = np.asarray(X, dtype=float)
     y = np.asarray(y, dtype=float)
-    folds = blocked_folds(len(X), n_folds)
-    if keys is not None:
-        if len(keys) != len(X):
-            raise ModelError(f"keys have {len(keys)} rows, X has {len(X)}")
-        keys = keys.reset_index(drop=True)
-        for train, test in folds:
-            check_no_leakage(keys.iloc[train], keys.iloc[test], tuning_keys, group=group, time_col=time_col)
+    folds = guarded_folds(len(X), n_folds, keys, tuning_keys, group=group, time_col=time_col)
     jobs = (delayed(fit_fold)(estimator, X, y, tr, te, outputs) for tr, te in folds)
     if progress is None:
         results = Parallel(n_jobs=n_jobs)(jobs)

@@ -30,8 +30,8 @@ from pipeline.config.vehicle import THRUST_COLUMN
 from pipeline.errors import ModelError
 from pipeline.evaluate import (
     MODEL_FAILURES,
-    blocked_folds,
     check_no_leakage,
+    guarded_folds,
     model_failure,
     split_blocks,
     summarize_folds,
@@ -176,9 +176,10 @@ def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:
     return frame.iloc[idx]
 
 
-def search_settings(params: CoupledParams, n_jobs: int | None = 1) -> SearchSettings:
-    """The settings of every search of the study: ``params.search``'s method with its keys of ``params``."""
-    return SearchSettings(method=params.search, n_folds=params.tuning_folds, n_jobs=n_jobs,
+def search_settings(params: CoupledParams) -> SearchSettings:
+    """The settings of every search of the study: ``params.search``'s method with its keys of ``params`` (each
+    search serial: the study's parallelism is its tasks, :mod:`pipeline.studies.tasks`)."""
+    return SearchSettings(method=params.search, n_folds=params.tuning_folds, n_jobs=1,
                           n_velocity=params.n_velocity_inputs(), max_evals=params.max_evals, seed=params.seed,
                           smooth_tolerance=params.smooth_tolerance, one_se=params.selection == "one_se",
                           screen_rows=params.screen_samples, screen_folds=params.screen_folds,
@@ -213,7 +214,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
                        f"tune ({', '.join(graybox)})")
     data = _subsample(tuning, params.max_samples)
     X = data[params.inputs].to_numpy(float)
-    settings = search_settings(params, 1)
+    settings = search_settings(params)
     cache = cache if cache is not None else SearchCache()
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum. The
     # chain runs even where the simpler kernels are not asked for (their results serve as warm starts only): a
@@ -417,10 +418,7 @@ def _model_tasks(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np
     nested = params.tuning == "nested" and model not in EXPLICIT_MODELS
     cv_est = NestedTuned(model, params, noise_std_from(train_test), cache, hyper.get(model),
                          rigid_body_mass) if nested else est
-    folds = blocked_folds(len(X), params.folds)
-    rows = keys.reset_index(drop=True)
-    for train, held in folds:
-        check_no_leakage(rows.iloc[train], rows.iloc[held], tuning_keys)
+    folds = guarded_folds(len(X), params.folds, keys, tuning_keys)
     common = {"model": model, "X": X, "y": y, "outputs": params.outputs, "folds": len(folds)}
     tasks = [{**common, "kind": "fold", "fold": k, "estimator": cv_est, "train": train, "test": held}
              for k, (train, held) in enumerate(folds)]

@@ -334,9 +334,9 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
                               f"train_test trials of the feature store: {sorted(known)}",
                               field=f"decoupled.trials.{dof}")
 
-    def failed(name: str, dof: str, err: Exception) -> None:
-        entry = model_failure(name, err, dof=dof)
-        log.error("%s/%s failed, the others go on: %s: %s", dof, name, entry["error"], entry["reason"])
+    def failed(entry: dict[str, str]) -> None:
+        log.error("%s/%s failed, the others go on: %s: %s", entry["dof"], entry["model"], entry["error"],
+                  entry["reason"])
         study.failed.append(entry)
         if on_result is not None:
             on_result(None, entry)
@@ -347,7 +347,7 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
             rows = _dof_rows(tuning, train_test, dof, folds, max_samples, dof_trials)
         except MODEL_FAILURES as err:
             for name in models:
-                failed(name, dof, err)
+                failed(model_failure(name, err, dof=dof))
             continue
         unseen = None if test is None or test.empty else dof_samples(test, dof)
         trials = sorted(set(test["trial"])) if unseen is not None and "trial" in test else []
@@ -361,12 +361,7 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
         unit = units[index]
         out = task_result(timed, "decoupled", f"{unit['dof']}/{unit['name']}")
         if "failed" in out:
-            entry = out["failed"]
-            log.error("%s/%s failed, the others go on: %s: %s", unit["dof"], unit["name"], entry["error"],
-                      entry["reason"])
-            study.failed.append(entry)
-            if on_result is not None:
-                on_result(None, entry)
+            failed(out["failed"])
             continue
         finished[index] = out["result"]
         if on_result is not None:

@@ -32,10 +32,10 @@ log = logging.getLogger(__name__)
 
 def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs: int,
                 progress: Callable[..., Any] | None = None) -> list[list[Any]]:
-    """Run each chain (``{"label", "models": [kernel, ...], "names": [each search's name on the progress bar, or
-    None], "X", "y", "cache"}``; other keys are carried) of
-    warm-started searches, each through the chain's :class:`SearchCache` (a worker's copy starts empty); returns, per
-    chain in order, its searches' :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers
+    """Run each chain of warm-started searches (``{"label", "models": [kernel, ...], "names": [each search's name
+    on the progress bar, or None], "X", "y", "cache"}``; other keys are carried), each through the chain's
+    :class:`SearchCache` (a worker's copy starts empty); returns, per chain in order, its searches'
+    :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers
     (1: inline, with each search's candidates on ``progress``; more, or -1 on a Dask cluster: ``progress`` moves as
     each chain ends)."""
     settings = replace(settings, n_jobs=1)  # one level of parallelism: the chains
