@@ -156,8 +156,8 @@ def _local_cluster(workers: int | None) -> Any:
     import dask
 
     # Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then hands freed memory back to the system
-    # at once, and a trial's next large arrays fault their pages in again (twice the CPU per trial, half of it in
-    # the kernel, docs/benchmarks.md); glibc's own default keeps it
+    # at once, and a trial's next large arrays fault their pages in again (the kernel's time per trial, in
+    # docs/benchmarks.md); glibc's own default keeps it
     environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", None) or {}).items()
                if k != "MALLOC_TRIM_THRESHOLD_"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
@@ -311,7 +311,7 @@ def imap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, w
         tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
         # one task per worker in flight, the next in input order as one ends (greedy list scheduling): a cluster's
         # scheduler handed everything at once may queue a long task behind another while a worker idles (the tune
-        # stage's chains differ fourfold in cost); callers list the costliest first where they know it
+        # stage's chains differ several times in cost); callers list the costliest first where they know it
         done = joblib.Parallel(n_jobs=jobs, return_as="generator_unordered", pre_dispatch="n_jobs")(tasks)
     yield from (_input_order(done) if in_order else done)
 

@@ -46,9 +46,8 @@ INPUT_SHARE = 0.02
 #: n|n|) reach twice an input's frequencies (a zig-zag's surge deceleration oscillates at twice the rudder's)
 BAND_FACTOR = 2.0
 #: A target is flagged where more than this share of its variance lies above the band unexplained by the inputs
-#: (coherence), or where a narrow-band peak there holds more than PEAK_LIMIT of it. Chosen on validation seeds
-#: 100-119 (tests/estimation/test_spectral.py's trial, docs/estimation.md): clean trials reach 0.02 unexplained and
-#: show no peak; a 2.3-Hz ringing of 0.01 m/s leaves 0.14-0.28 unexplained, 0.13-0.26 of u̇ in its peak
+#: (coherence), or where a narrow-band peak there holds more than PEAK_LIMIT of it. Chosen on validation seeds,
+#: with what clean and ringing trials give, in docs/estimation.md ("Targets against what the actuators can do")
 SHARE_LIMIT = 0.1
 PEAK_LIMIT = 0.05
 #: A narrow-band peak: a local maximum this many times the median spectrum around it (within NEIGHBOUR_HZ) ...
