@@ -7,6 +7,7 @@ does not depend on how tolerant the models themselves are of a degenerate column
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -74,13 +75,20 @@ def test_train_keeps_the_models_that_finished_and_names_the_one_that_failed(tmp_
 
 def test_train_writes_each_model_as_it_finishes(tmp_path: Path, vehicle: Vehicle,
                                                 monkeypatch: pytest.MonkeyPatch) -> None:
-    """A study stopped by a later model (here: interrupted) still leaves the finished model's files."""
+    """A study stopped by a later model (here: interrupted) still leaves the finished model's files.
+
+    The interrupt comes once the first model is written, however many workers run the study's tasks at once:
+    in a pool the second model's fits may start before the first model's last fit ends."""
     params = Params(features={"test_trials": ["b"]},
                     coupled={"models": ["gertler_hagen", "mcfarland_whitcomb"], "folds": 3})
     _store(tmp_path, vehicle, {t: synthetic_frame(400, seed=s, trial=t, rate_hz=5.0)
                                for t, s in (("a", 1), ("b", 2))}, params)
+    finished = tmp_path / "data/models/coupled/gertler_hagen.card.json"
 
     def interrupted(self, X, y):  # noqa: ANN001, ANN202
+        deadline = time.monotonic() + 60.0
+        while not finished.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
         raise KeyboardInterrupt  # never swallowed as a model failure
 
     monkeypatch.setattr(explicit.McFarlandWhitcomb, "fit", interrupted)
