@@ -42,6 +42,17 @@ from threadpoolctl import threadpool_limits
 
 from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
+from pipeline.models.search_cost import (
+    ITER_CAP_RATIO,
+    ITER_FLOOR_PER_ROW,
+    ITER_PER_ROW,
+    ITER_WARMUP_CANDIDATES,
+    IterationCap,
+    candidate_entry,
+    cost_summary,
+    iteration_cap,
+    log_capped,
+)
 from pipeline.models.search_steps import model_steps, pattern_search
 from pipeline.models.svr import RBFSVR, WDSESVR, TwoWeightsSVR
 
@@ -59,13 +70,6 @@ EPSILON_GRID = (1e-3, 1e-2, 3e-2, 1e-1, 3e-1)  # x y_scale
 GAMMA_BOUNDS = (1e-5, 1e2)
 C_BOUNDS = (1e-2, 1e3)  # x y_scale (fast search)
 EPSILON_BOUNDS = (1e-3, 0.5)  # x y_scale (fast search)
-#: libsvm's iterations per candidate fit of a search, per training row of the fold (docs/models.md): above the
-#: slowest candidate of the demo's searches (940 per row), so a runaway fit is stopped and reported while the
-#: demo's choices stay as they were; a tighter cap (300) moved r_dot's choices to lower tuning scores
-ITER_PER_ROW: float | None = 1000.0
-SLOW_FIELDS = ("params", "score", "cpu_s", "n_iter", "capped")  # a slowest candidate's fields in the trace
-
-
 @dataclass
 class SearchResult:
     model: str
@@ -100,6 +104,7 @@ class SearchSettings:
     n_jobs: int | None = 1
     n_velocity: int = 3
     iter_per_row: float | None = ITER_PER_ROW  # libsvm's iterations per candidate fit / training row (None: no cap)
+    iter_cap_ratio: float | None = ITER_CAP_RATIO  # fast and local: x the median fit's iterations (None: no cap)
     max_evals: int = 30  # fast search only, as the three below
     seed: int = 0
     smooth_tolerance: float = 0.0
@@ -115,7 +120,7 @@ class SearchSettings:
                               "iter_per_row": self.iter_per_row}
         if self.method == "fast":
             kw.update(max_evals=self.max_evals, seed=self.seed, smooth_tolerance=self.smooth_tolerance,
-                      one_se=self.one_se)
+                      one_se=self.one_se, iter_cap_ratio=self.iter_cap_ratio)
             if self.screen_rows is not None or self.screen_folds is not None:
                 kw.update(screen_rows=self.screen_rows, screen_folds=self.screen_folds, survivors=self.survivors,
                           c_rate=self.c_rate)
@@ -211,36 +216,11 @@ def _cv_fits(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
     return list(Parallel(n_jobs=n_jobs)(delayed(_fold_fit)(est, X, y, tr, te) for tr, te in folds))
 
 
-def _iteration_cap(iter_per_row: float | None, folds: list[tuple[np.ndarray, np.ndarray]]) -> int | None:
-    """libsvm's iterations per candidate fit: ``iter_per_row`` x the folds' mean training rows (None: no cap)."""
-    if iter_per_row is not None and iter_per_row <= 0:
-        raise ModelError(f"iter_per_row must be > 0 or None, got {iter_per_row}")
+def _cap(iter_per_row: float | None, ratio: float | None, folds: list[tuple[np.ndarray, np.ndarray]]
+         ) -> IterationCap:
+    """A search's :class:`~pipeline.models.search_cost.IterationCap` on these folds' training rows."""
     rows = float(np.mean([len(tr) for tr, _ in folds]))
-    return None if iter_per_row is None else max(1, int(round(iter_per_row * rows)))
-
-
-def _candidate_entry(params: dict[str, Any], fits: list[tuple[float, float, int]], max_iter: int | None,
-                     **extra: Any) -> dict[str, Any]:
-    """A candidate's trace entry: mean fold R² (``score``), its standard error, the CPU seconds of its fits and
-    how many of them ``max_iter`` stopped (``capped``)."""
-    scores = [r2 for r2, _, _ in fits]
-    se = float(np.std(scores, ddof=1) / math.sqrt(len(scores))) if len(scores) > 1 else 0.0
-    return {"params": params, "score": float(np.mean(scores)), "se": se, **extra,
-            "cpu_s": round(float(sum(c for _, c, _ in fits)), 6), "n_iter": max(n for _, _, n in fits),
-            "capped": sum(max_iter is not None and n >= max_iter for _, _, n in fits)}
-
-
-def cost_summary(trace: list[dict[str, Any]], max_iter: int | None, n_slowest: int = 3) -> dict[str, Any]:
-    """A search's cost from its trace: the CPU of its candidates' fits (total, median and largest per
-    candidate; each measured in the process that ran it, so a parallel search counts its workers'), the
-    iteration cap, how many candidates it stopped, and the ``n_slowest`` candidates."""
-    cpu = [t["cpu_s"] for t in trace]
-    slowest = sorted(range(len(trace)), key=lambda k: -trace[k]["cpu_s"])[:n_slowest]
-    return {"fits_cpu_s": round(float(sum(cpu)), 4),
-            "median_candidate_cpu_s": round(float(np.median(cpu)), 6) if cpu else 0.0,
-            "max_candidate_cpu_s": round(float(max(cpu, default=0.0)), 6), "max_iter": max_iter,
-            "n_capped": sum(1 for t in trace if t["capped"]),
-            "slowest_by_cpu": [{"candidate": k, **{f: trace[k][f] for f in SLOW_FIELDS}} for k in slowest]}
+    return IterationCap(iteration_cap(iter_per_row, folds), ratio, floor=int(round(ITER_FLOOR_PER_ROW * rows)))
 
 
 def cv_score(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
@@ -269,7 +249,7 @@ def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, lis
     X, y = _check_xy(X, y)
     grid = grid or paper_grid(model, X.shape[1], float(np.std(y)))
     folds = blocked_folds(len(X), n_folds)
-    max_iter = _iteration_cap(iter_per_row, folds)
+    max_iter = iteration_cap(iter_per_row, folds)  # the absolute cap only: a grid's candidates run at once
     t0 = time.perf_counter()
     candidates = list(grid_candidates(model, grid))
     log.info("grid search %s: %d candidates x %d folds", model, len(candidates), n_folds)
@@ -277,17 +257,17 @@ def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, lis
     entries: list[dict[str, Any]] = []
     if progress is None:
         fits = Parallel(n_jobs=n_jobs, batch_size="auto")(jobs)
-        entries = [_candidate_entry(c, f, max_iter) for c, f in zip(candidates, fits, strict=True)]
+        entries = [candidate_entry(c, f, max_iter) for c, f in zip(candidates, fits, strict=True)]
     else:  # the same work, its results taken as they come (in order) to move the bar
         for f in Parallel(n_jobs=n_jobs, batch_size="auto", return_as="generator")(jobs):
-            entries.append(_candidate_entry(candidates[len(entries)], f, max_iter))
+            entries.append(candidate_entry(candidates[len(entries)], f, max_iter))
             progress(len(entries), len(candidates), f"{model} grid")
     scores = [e["score"] for e in entries]
     best = int(np.argmax(scores))
     result = SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
                           len(candidates) * n_folds, n_folds, time.perf_counter() - t0,
                           trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter), n_rows=len(X))
-    _log_capped(result)
+    log_capped(model, result.n_candidates, result.cost)
     return result
 
 
@@ -361,7 +341,7 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
-                iter_per_row: float | None = ITER_PER_ROW,
+                iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
                 local: str = "model", model_share: float = 0.6, progress: Progress | None = None,
                 report_kept: bool = True, fold_subset: list[int] | None = None) -> SearchResult:
@@ -396,9 +376,10 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
     folds = blocked_folds(len(X), n_folds)
-    max_iter = _iteration_cap(iter_per_row, folds)
+    cap = _cap(iter_per_row, iter_cap_ratio, folds)
     if fold_subset is not None:
         folds = [folds[i] for i in fold_subset]
+    cap.warmup = ITER_WARMUP_CANDIDATES * len(folds)
     names = _names(model, X.shape[1])
     if max_fits is not None:
         max_evals = max(1, max_fits // n_folds)
@@ -419,8 +400,10 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
         key = tuple(np.round(v, 6))
         if key not in cache:
             params = _to_params(model, names, np.exp(v))
+            max_iter = cap()
             fits = _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)
-            entry = _candidate_entry(params, fits, max_iter, phase=phase)
+            cap.record(fits)
+            entry = candidate_entry(params, fits, max_iter, phase=phase)
             if fold_subset is not None:
                 entry["fold_r2"] = [r2 for r2, _, _ in fits]
             cache[key] = entry["score"]
@@ -466,16 +449,17 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if tolerance > 0:
         result.best_params, result.best_score = _smoothest_within(trace, best, tolerance)
     result.elapsed_s = time.perf_counter() - t0
-    cost = cost_summary(trace, max_iter)
+    cost = cost_summary(trace, cap)
     own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)  # GP seeds, EI model steps
     result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
-    _log_capped(result)
+    log_capped(model, result.n_candidates, result.cost)
     return result
 
 
 def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, Any], n_folds: int = 3,
                  n_jobs: int | None = 1, n_velocity: int = 3, max_evals: int = 8,
-                 iter_per_row: float | None = ITER_PER_ROW, initial_step: float = math.log(2.0),
+                 iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
+                 initial_step: float = math.log(2.0),
                  min_step: float = math.log(1.25), fold_subset: list[int] | None = None) -> SearchResult:
     """A small search around ``start`` (another search's optimum, e.g. the tune stage's on the rows these are cut
     from): ``start`` scored, then the pattern search of :func:`fast_search` from it, steps of ``initial_step``
@@ -485,9 +469,10 @@ def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, A
     ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does)."""
     X, y = _check_xy(X, y)
     folds = blocked_folds(len(X), n_folds)
-    max_iter = _iteration_cap(iter_per_row, folds)
+    cap = _cap(iter_per_row, iter_cap_ratio, folds)
     if fold_subset is not None:
         folds = [folds[i] for i in fold_subset]
+    cap.warmup = ITER_WARMUP_CANDIDATES * len(folds)
     names = _names(model, X.shape[1])
     lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
     t0, cpu0 = time.perf_counter(), time.process_time()
@@ -498,8 +483,10 @@ def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, A
         key = tuple(np.round(np.clip(v, lo, hi), 6))
         if key not in cache:
             params = _to_params(model, names, np.exp(np.array(key)))
+            max_iter = cap()
             fits = _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)
-            trace.append(_candidate_entry(params, fits, max_iter, phase=phase))
+            cap.record(fits)
+            trace.append(candidate_entry(params, fits, max_iter, phase=phase))
             cache[key] = trace[-1]["score"]
         return cache[key]
 
@@ -513,17 +500,10 @@ def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, A
     if tuple(np.round(x, 6)) == tuple(np.round(x0, 6)):
         result.warm_start_kept = True
         result.note = _kept_note(trace, start_score, n_folds)
-    cost = cost_summary(trace, max_iter)
+    cost = cost_summary(trace, cap)
     own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)
     result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
     return result
-
-
-def _log_capped(result: SearchResult) -> None:
-    if (cost := result.cost).get("n_capped"):
-        log.info("%s search: %d of %d candidates stopped at libsvm's %d iterations (scored as they are); "
-                 "slowest %.3g CPU-s, median %.3g", result.model, cost["n_capped"], result.n_candidates,
-                 cost["max_iter"], cost["max_candidate_cpu_s"], cost["median_candidate_cpu_s"])
 
 
 def _kept_note(trace: list[dict[str, Any]], warm_score: float, n_folds: int) -> str:

@@ -29,19 +29,18 @@ from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
 from pipeline.models.search import (
     SearchResult,
-    _candidate_entry,
+    _cap,
     _check_xy,
     _cv_fits,
     _expand,
-    _iteration_cap,
     _names,
     _smoothest_within,
     _to_params,
-    cost_summary,
     fast_search,
     with_C_rows,
 )
 from pipeline.models.search import search as plain_search
+from pipeline.models.search_cost import ITER_CAP_RATIO, ITER_PER_ROW, candidate_entry, cost_summary
 from pipeline.models.svr import scaled_C
 
 log = logging.getLogger(__name__)
@@ -102,7 +101,7 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
     if not (by_rows or by_folds):
         return fast_search(model, X, y, **kw)
     t0, cpu0 = time.perf_counter(), time.process_time()
-    n_jobs, iter_per_row = kw.get("n_jobs", 1), kw.get("iter_per_row", 1000.0)
+    n_jobs, iter_per_row = kw.get("n_jobs", 1), kw.get("iter_per_row", ITER_PER_ROW)
     idx = screen_index(len(X), screen_rows) if by_rows else np.arange(len(X))
     subset = fold_subset(n_folds, screen_folds) if by_folds else None
     rows_screen, rows_all = _train_rows(len(idx), n_folds), _train_rows(len(X), n_folds)
@@ -130,7 +129,10 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
                                                                                np.exp(np.array(warm_key)))}))
 
     folds = blocked_folds(len(X), n_folds)
-    max_iter = _iteration_cap(iter_per_row, folds)
+    # the survivors' relative cap from the screen's candidates (their largest fold's iterations, on all rows)
+    cap = _cap(iter_per_row, kw.get("iter_cap_ratio", ITER_CAP_RATIO), folds)
+    for t in screen.trace:
+        cap.record([(t["score"], 0.0, int(round(t["n_iter"] * rows_all / rows_screen)))])
     final: list[dict[str, Any]] = []
     n_new = 0
     for key, seen in picked.items():
@@ -139,13 +141,15 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
             params = {**params, "C": scaled_C(params["C"], round(rows_screen), round(rows_all), c_rate)}
         kept = dict(zip(subset, seen["fold_r2"], strict=True)) if not by_rows and "fold_r2" in seen else {}
         rest = [i for i in range(n_folds) if i not in kept]
+        max_iter = cap()
         fits = dict(zip(rest, _cv_fits(model, params, X, y, [folds[i] for i in rest], n_jobs, n_velocity,
                                        max_iter), strict=True))
         new_cpu = [fits[i] for i in rest]
         n_new += len(rest)
         all_fits = [fits[i] if i in fits else (kept[i], 0.0, 0) for i in range(n_folds)]
-        entry = _candidate_entry(params, all_fits, max_iter, phase="survivor", rung=1, n_rows=len(X))
+        entry = candidate_entry(params, all_fits, max_iter, phase="survivor", rung=1, n_rows=len(X))
         entry["cpu_s"] = round(float(sum(c for _, c, _ in new_cpu)), 6)  # the screen's fits are in its entry
+        entry["n_fits"] = len(new_cpu)
         entry["n_iter"] = max([n for _, _, n in new_cpu] + [seen.get("n_iter", 0)])
         entry["screen_key"] = list(key)
         final.append(entry)
@@ -180,7 +184,7 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
                            f"{result.halving['screen_folds']}) it scored {screen_warm:.4f}, the screen's best "
                            f"{screen.best_score:.4f}")
             log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
-    cost = cost_summary(trace, max_iter)
+    cost = cost_summary(trace, cap)
     own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)
     result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
     result.elapsed_s = time.perf_counter() - t0

@@ -137,16 +137,16 @@ def test_the_iteration_cap_stops_candidates_and_the_trace_reports_it(caplog):
     kw = {"max_evals": 12, "n_folds": 3}
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no ConvergenceWarning per fit
-        with caplog.at_level(logging.INFO, logger="pipeline.models.search"):
-            capped = fast_search("rbf_svr", X, y, iter_per_row=0.1, **kw)
-    free = fast_search("rbf_svr", X, y, iter_per_row=None, **kw)
+        with caplog.at_level(logging.INFO, logger="pipeline.models.search_cost"):
+            capped = fast_search("rbf_svr", X, y, iter_per_row=0.1, iter_cap_ratio=None, **kw)
+    free = fast_search("rbf_svr", X, y, iter_per_row=None, iter_cap_ratio=None, **kw)
     cap = capped.cost["max_iter"]
     assert cap == round(0.1 * 160)  # 3 blocked folds of 240 rows: 160 training rows each
     stopped = [t for t in capped.trace if t["capped"]]
     assert stopped and capped.cost["n_capped"] == len(stopped)
     assert all(t["n_iter"] == cap and np.isfinite(t["score"]) for t in stopped)
     assert all(t["n_iter"] < cap for t in capped.trace if not t["capped"])
-    assert sum("stopped at libsvm's" in r.getMessage() for r in caplog.records) == 1
+    assert sum("stopped by libsvm's iteration cap" in r.getMessage() for r in caplog.records) == 1
     assert free.cost["max_iter"] is None and free.cost["n_capped"] == 0
     assert max(t["n_iter"] for t in free.trace) > cap
     first = capped.trace[0]  # the first seed: the same candidate in both; unstopped, the same score
@@ -155,3 +155,46 @@ def test_the_iteration_cap_stops_candidates_and_the_trace_reports_it(caplog):
     slow = [s["cpu_s"] for s in capped.cost["slowest_by_cpu"]]
     assert len(slow) == 3 and slow == sorted(slow, reverse=True) and slow[0] == capped.cost["max_candidate_cpu_s"]
     assert capped.cost["cpu_s"] >= capped.cost["fits_cpu_s"] > 0
+
+
+def test_the_relative_cap_holds_each_fit_near_the_median_of_the_fits_before_it(monkeypatch):
+    """Once a search has scored its first five candidates, a fit stops at ``iter_cap_ratio`` x the median
+    iterations of the search's fits so far, but never below twice the iterations of the best candidate so far (nor
+    the floor): each candidate's cap is that rule applied to the fits before it, the costly candidates far from
+    the best are stopped, and the same search without the relative cap has fits many times its median."""
+    import math
+
+    from pipeline.models import search as search_module
+    from pipeline.models.search_cost import IterationCap
+
+    X, y = _two_of_six(n=240)
+    calls: list[tuple[int | None, float, int]] = []
+    real = search_module._fold_fit
+
+    def spy(est, *args):  # noqa: ANN001, ANN002, ANN202
+        r2, cpu, n_iter = real(est, *args)
+        calls.append((None if est.max_iter == -1 else est.max_iter, r2, n_iter))
+        return r2, cpu, n_iter
+
+    monkeypatch.setattr(search_module, "_fold_fit", spy)
+    monkeypatch.setattr(search_module, "ITER_FLOOR_PER_ROW", 1.0)  # the floor: 160 iterations on these folds
+    ratio, kw = 2.0, {"max_evals": 16, "n_folds": 3, "iter_per_row": None}
+    capped = fast_search("rbf_svr", X, y, iter_cap_ratio=ratio, **kw)
+    assert all(cap is None for cap, _, _ in calls[:15])  # the first five candidates: no cap but the absolute one
+    for k in range(15, len(calls)):  # a candidate's three folds run under the cap of the fits before it
+        before = [calls[j:j + 3] for j in range(0, k - k % 3, 3)]
+        best = max(before, key=lambda fits: np.mean([r2 for _, r2, _ in fits]))
+        expected = max(160, math.ceil(ratio * float(np.median([n for c in before for _, _, n in c]))),
+                       2 * max(n for _, _, n in best))
+        assert calls[k][0] == expected and calls[k][2] <= expected
+    stopped = [t for t in capped.trace if t["capped"]]
+    assert stopped and capped.cost["n_capped"] == len(stopped) and capped.cost["iter_cap_ratio"] == ratio
+    assert all(t["n_iter"] == t["max_iter"] and t["score"] < capped.best_score for t in stopped)
+
+    calls.clear()
+    free = fast_search("rbf_svr", X, y, iter_cap_ratio=None, **kw)
+    iters = [n for _, _, n in calls]
+    assert max(iters) > 3 * ratio * float(np.median(iters))  # what the cap is for
+    assert free.cost["n_capped"] == 0 and free.cost["slowest_fit_over_median"] > 0
+    with pytest.raises(Exception, match="ratio must be a number >= 1"):
+        IterationCap(None, 0.5)
