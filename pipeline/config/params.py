@@ -72,6 +72,16 @@ def _dof_keys(mapping: dict[str, object]) -> None:
 
 class IngestParams(Frozen):
     salvage: bool = Field(True, description="Keep every complete message of a file cut short.")
+    # What one text file (CSV, .csv.gz ...) may hold; a file beyond is refused, naming the file and the limit,
+    # before pandas parses it (pipeline.io.text). The defaults fit a 1-kHz log of an hour with room; the upper
+    # bounds are those of the line counts (int32 positions) and of a line pandas buffers whole.
+    text_max_bytes: int = Field(1 << 30, ge=1 << 10, le=(1 << 31) - 1, description=(
+        "Most bytes of text in one text file, inflated for a .gz (default 1 GiB; 1 KiB to 2 GiB - 1): pandas "
+        "parses a file in memory, ~100 bytes a row."))
+    text_max_lines: int = Field(10_000_000, ge=1, le=(1 << 31) - 1, description=(
+        "Most lines in one text file (default 10 million)."))
+    text_max_line_bytes: int = Field(16 << 20, ge=1 << 10, le=1 << 30, description=(
+        "Longest line of a text file, in bytes (default 16 MiB; 1 KiB to 1 GiB)."))
     checksum: Literal["sha256", "none"] = Field(
         "sha256", description="The raw log's checksum in the outputs' provenance: sha256 of its bytes, or none (no "
         "hash computed: provenance says `checksum: none` with `source_sha256: null`; saves reading the log once "
