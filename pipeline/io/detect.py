@@ -76,11 +76,12 @@ def open_log(path: str | Path, definitions: UserTypes | None = None, *,
     path = Path(path)
     kind = sniff(path)
     if kind in ("csv-dir", "csv-file"):
-        from pipeline.io.text import TextLimits, open_text
+        from pipeline.io.text import open_text
 
-        limits = text_limits or TextLimits()
-        return open_text(path, max_bytes=limits.max_bytes, max_lines=limits.max_lines,
-                         max_line_bytes=limits.max_line_bytes)
+        if text_limits is None:
+            return open_text(path)
+        return open_text(path, max_bytes=text_limits.max_bytes, max_lines=text_limits.max_lines,
+                         max_line_bytes=text_limits.max_line_bytes)
     reader: RawReader
     if kind == "mcap":
         from pipeline.io.mcap_reader import McapReader
