@@ -56,6 +56,7 @@ if TYPE_CHECKING:  # pyarrow is imported where tables are built, not with this m
 
     from pipeline.config import Vehicle  # a model, or the snapshot's view of one (pipeline.config.snapshot)
     from pipeline.config.sources import StreamSource
+    from pipeline.io.text import TextLimits
 
 log = logging.getLogger(__name__)
 
@@ -113,11 +114,11 @@ def column_plans(stream: StreamSource) -> list[ColumnPlan]:
     return plans
 
 
-def _open(path: Path, definitions: UserTypes | None = None) -> Any:
+def _open(path: Path, definitions: UserTypes | None = None, text_limits: TextLimits | None = None) -> Any:
     """The reader for ``path``, chosen by content (:func:`pipeline.io.open_log`); a CSV directory -> text."""
     from pipeline.io import open_log
 
-    return open_log(path, definitions)
+    return open_log(path, definitions, text_limits=text_limits)
 
 
 def user_types(vehicle: Vehicle) -> UserTypes | None:
@@ -152,13 +153,15 @@ def _resolve_csv_file(name: str, pattern: str, available: list[str], path: Path,
 
 
 def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, salvage: bool = True,
-               source_name: str | None = None, checksum: Checksum = "sha256") -> IngestOutput:
+               source_name: str | None = None, checksum: Checksum = "sha256",
+               text_limits: TextLimits | None = None) -> IngestOutput:
     """Read one log and build one table per configured stream (see the module docstring).
 
     ``source_name`` is what provenance records as ``source_file`` (the stage passes a root-relative path, so
     that outputs do not depend on where the run directory lives); default: ``str(path)``. ``checksum``: the
     log's sha256 goes into the report and provenance as ``source_sha256`` (a CSV file's also as
     ``file_sha256``), or with ``"none"`` no hash is computed and both are ``None``; ``checksum`` records which.
+    ``text_limits``: what a text file may hold (params ``ingest.text_max_*``; default: the defaults of those keys).
     """
     if checksum not in CHECKSUMS:
         raise ValueError(f"checksum must be one of {list(CHECKSUMS)}, got {checksum!r}")
@@ -172,19 +175,20 @@ def ingest_log(path: str | Path, vehicle: Vehicle, *, trial: str | None = None, 
     vehicle = vehicle.for_trial(out.trial)
     if checksum == "none":
         return _ingest(path, vehicle, out, salvage=salvage, source_name=source_name, sha_job=None,
-                       chash=chash, overrides=overrides)
+                       chash=chash, overrides=overrides, text_limits=text_limits)
     # The file's sha256 (provenance) is computed while the log is read: hashlib and file reads release the GIL.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256") as pool:
         sha_job = pool.submit(file_sha256, path)
         try:
             return _ingest(path, vehicle, out, salvage=salvage, source_name=source_name, sha_job=sha_job,
-                           chash=chash, overrides=overrides)
+                           chash=chash, overrides=overrides, text_limits=text_limits)
         finally:
             sha_job.cancel()
 
 
 def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, source_name: str | None,
-            sha_job: Any | None, chash: str, overrides: dict[str, Any]) -> IngestOutput:
+            sha_job: Any | None, chash: str, overrides: dict[str, Any],
+            text_limits: TextLimits | None = None) -> IngestOutput:
     """The read and the tables; ``sha_job`` is the sha256's future, None with ``checksum: none``."""
     absent: dict[str, dict[str, Any]] = {}  # optional streams this trial lacks
 
@@ -195,7 +199,7 @@ def _ingest(path: Path, vehicle: Vehicle, out: IngestOutput, *, salvage: bool, s
         log.warning("%s (%s): optional stream %r (%s) is absent: %s; its signals %s are invalid in this trial",
                     out.trial, path.name, name, source, reason, list(stream.signals))
 
-    with _open(path, user_types(vehicle)) as reader:
+    with _open(path, user_types(vehicle), text_limits) as reader:
         is_csv = reader.format == "csv"
         # The cheap listing (a reader may take counts from the recorder's summary; read() checks them).
         infos: dict[str, TopicInfo] = reader.catalog() if hasattr(reader, "catalog") else reader.topics()

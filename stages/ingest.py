@@ -28,6 +28,7 @@ from pipeline import layout
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import ConfigError, PipelineError
 from pipeline.ingest import Checksum, ingest_log, trial_id, user_types
+from pipeline.io.text import TextLimits
 from pipeline.parallel import imap, task_result, timed_task, usable_cpus
 from pipeline.tableio import remove_stale_temps, write_json, write_parquet
 from stages.common import StageResult, stage_main
@@ -96,11 +97,12 @@ def write_trial(root: Path, trial: str, tables: dict[str, Any], provenance: dict
 
 
 def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bool,
-               checksum: Checksum = "sha256") -> dict[str, Any]:
+               checksum: Checksum = "sha256", text_limits: TextLimits | None = None) -> dict[str, Any]:
     """Ingest and write one log; returns {"trial", "outputs"} or {"trial", "quarantine": entry}."""
     shown = _display(path, root)
     try:
-        out = ingest_log(path, vehicle, trial=trial, salvage=salvage, source_name=shown, checksum=checksum)
+        out = ingest_log(path, vehicle, trial=trial, salvage=salvage, source_name=shown, checksum=checksum,
+                         text_limits=text_limits)
     except PipelineError as err:
         entry = {**err.as_dict(), "file": shown, "trial": trial}
         return {"trial": trial, "quarantine": entry}
@@ -113,7 +115,7 @@ def ingest_one(root: Path, vehicle: Vehicle, path: Path, trial: str, salvage: bo
     return {"trial": trial, "outputs": outputs, "salvage": out.report.get("salvage"), "file": shown}
 
 
-def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool, Checksum]) -> dict[str, Any]:
+def _ingest_job(job: tuple[Path, Vehicle, Path, str, bool, Checksum, TextLimits]) -> dict[str, Any]:
     return ingest_one(*job)
 
 
@@ -159,10 +161,11 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
     log.info("ingest: %d log(s)", len(jobs))
 
     salvage, checksum = params.ingest.salvage, params.ingest.checksum
+    limits = TextLimits(params.ingest.text_max_bytes, params.ingest.text_max_lines, params.ingest.text_max_line_bytes)
     # n_jobs > 1: the logs go to worker processes (forked: they start with this process's imports), the
     # outcomes come back in log order as each is ready
-    outcomes = imap(timed_task(_ingest_job, NAME), [(root, vehicle, p, t, salvage, checksum) for p, t in jobs],
-                    jobs=n_jobs, in_order=True)
+    outcomes = imap(timed_task(_ingest_job, NAME),
+                    [(root, vehicle, p, t, salvage, checksum, limits) for p, t in jobs], jobs=n_jobs, in_order=True)
     salvaged: list[dict[str, Any]] = []
     for index, timed in outcomes:
         outcome = task_result(timed, NAME, jobs[index][1])

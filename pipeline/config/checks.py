@@ -35,6 +35,13 @@ MAX_BODY_POINT_M = 1000.0
 #: under 5e7 kg); outside, a unit or typing error (1e-300, tonnes given as kg squared ...).
 MIN_MASS_KG, MAX_MASS_KG = 1e-3, 1e8
 
+#: The most buoyancy a vehicle may have, in weights: a float or a buoyant sensor body is a few weights; beyond ten
+#: the restoring force dwarfs every other, and the number is a unit error (N given as kg of displacement x 1000).
+MAX_BUOYANCY_RATIO = 10.0
+
+#: A mounting angle (deg): within one turn either way; 1e261 deg is no angle (its sine is round-off).
+MAX_ANGLE_DEG = 360.0
+
 
 class KeyedError(ValueError):
     """A validation error that knows the offending key, relative to where the validator runs."""

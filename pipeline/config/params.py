@@ -27,13 +27,22 @@ DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
 #: workers than any machine has, is a typo or a hostile file, not a setting.
 MAX_WIDTH_S = 3600.0
 MAX_WORKERS = 1024
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
 #: A length of time a run can mean: up to a day (longer is a unit mistake, and overflows int64 nanoseconds on the
 #: way to 1e300).
 Seconds = Annotated[float, Field(gt=0, le=86_400.0)]
 #: numpy's seeds are 32-bit unsigned integers.
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+#: A filter width given per signal (s): as ``sigma_s``.
+Width = Annotated[float, Field(gt=0, le=MAX_WIDTH_S)]
+#: A white-noise SD in a signal's unit: from 1e-9 (a variance of 1e-18 still factorizes in the smoother; a zero one
+#: does not) to 1e6 (a million rpm, m/s or rad/s is no sensor).
+NoiseSd = Annotated[float, Field(ge=1e-9, le=1e6)]
+#: A jerk's spectral density per DOF: within 12 orders of magnitude of what a vehicle shows (1e-6 to 1 in SI).
+SpectralDensity = Annotated[float, Field(ge=1e-12, le=1e6)]
+#: A frequency on the grid (Hz): from one cycle in 1000 s (a filter's settling, 3 / f, is then padding of under an
+#: hour) to the Nyquist frequency of the fastest grid (``sync.rate_hz`` 1000); at load also below the run's own
+#: Nyquist frequency (:class:`Params`).
+Frequency = Annotated[float, Field(ge=0.001, le=500.0)]
 
 
 def _unique_safe_names(names: list[str], what: str) -> list[str]:
@@ -63,6 +72,16 @@ def _dof_keys(mapping: dict[str, object]) -> None:
 
 class IngestParams(Frozen):
     salvage: bool = Field(True, description="Keep every complete message of a file cut short.")
+    # What one text file (CSV, .csv.gz ...) may hold; a file beyond is refused, naming the file and the limit,
+    # before pandas parses it (pipeline.io.text). The defaults fit a 1-kHz log of an hour with room; the upper
+    # bounds are those of the line counts (int32 positions) and of a line pandas buffers whole.
+    text_max_bytes: int = Field(1 << 30, ge=1 << 10, le=(1 << 31) - 1, description=(
+        "Most bytes of text in one text file, inflated for a .gz (default 1 GiB; 1 KiB to 2 GiB - 1): pandas "
+        "parses a file in memory, ~100 bytes a row."))
+    text_max_lines: int = Field(10_000_000, ge=1, le=(1 << 31) - 1, description=(
+        "Most lines in one text file (default 10 million)."))
+    text_max_line_bytes: int = Field(16 << 20, ge=1 << 10, le=1 << 30, description=(
+        "Longest line of a text file, in bytes (default 16 MiB; 1 KiB to 1 GiB)."))
     checksum: Literal["sha256", "none"] = Field(
         "sha256", description="The raw log's checksum in the outputs' provenance: sha256 of its bytes, or none (no "
         "hash computed: provenance says `checksum: none` with `source_sha256: null`; saves reading the log once "
@@ -79,7 +98,8 @@ class SyncParams(Frozen):
         default_factory=dict,
         description="Per signal; default: linear for states, zoh for *_rpm commands and thrusters' PWM, nearest for "
         "*_flag.")
-    min_segment_s: float = Field(5.0, ge=0, description="Shorter valid stretches get no segment id.")
+    min_segment_s: float = Field(5.0, ge=0, le=86_400.0, description="Shorter valid stretches get no segment id "
+                                 "(s, 0 to 86400: a day).")
 
 
 class DifferentiateParams(Frozen):
@@ -101,46 +121,50 @@ class DifferentiateParams(Frozen):
         "Earth's rate) from the logged attitude, subtracted before the smoother and its variance added to the "
         "rate's (pipeline.estimation.rate_bias); a bias the trial cannot identify is kept. none: rates as "
         "measured.")
-    noise_sd: dict[str, Positive] = Field(
+    noise_sd: dict[str, NoiseSd] = Field(
         default_factory=dict, description="Per signal, its white-noise SD in the signal's unit; signals not named "
-        "get an SD estimated from the data (robust local fit).")
-    process_noise: dict[str, Positive] = Field(
-        default_factory=dict, description="kalman: per DOF (u v w p q r), the jerk's spectral density; DOFs not "
-        "named get it by maximum likelihood.")
+        "get an SD estimated from the data (robust local fit). From 1e-9 to 1e6.")
+    process_noise: dict[str, SpectralDensity] = Field(
+        default_factory=dict, description="kalman: per DOF (u v w p q r), the jerk's spectral density (SI, 1e-12 to "
+        "1e6); DOFs not named get it by maximum likelihood.")
 
     @field_validator("process_noise")
     @classmethod
     def _process_noise_per_dof(cls, process_noise: dict[str, float]) -> dict[str, float]:
         _dof_keys(process_noise)
         return process_noise
-    gate_sigmas: float = Field(5.0, ge=0, description="kalman: measurements whose residual exceeds this many SDs "
-                               "are rejected as outliers (0: none).")
+    gate_sigmas: float = Field(5.0, ge=0, le=100.0, description="kalman: measurements whose residual exceeds this "
+                               "many SDs are rejected as outliers (0: none; up to 100, beyond which no Gaussian "
+                               "residual is ever gated).")
     max_velocity_sd_mps: float = Field(
         0.03, gt=0, le=10.0, description="kalman: a grid sample is usable where each smoothed linear velocity's SD "
         "is within this (bridged lock losses grow it).")
     max_rate_sd_radps: float = Field(0.01, gt=0, le=10.0, description="kalman: the same for the angular rates.")
-    min_segment_s: float = Field(5.0, ge=0, description="kalman: shorter usable stretches get no segment id.")
+    min_segment_s: float = Field(5.0, ge=0, le=86_400.0, description="kalman: shorter usable stretches get no "
+                                 "segment id (s, 0 to 86400).")
     sigma_s: float | Literal["auto"] = Field(
         "auto", description="gaussian: kernel width (s), or auto: per signal, the width of least estimated "
         "mean-square error of the derivative from the signal's noise and spectrum.")
-    sigma_s_per_signal: dict[str, Positive] = Field(
-        default_factory=dict, description="gaussian: per velocity column (u_mps ...), a width overriding sigma_s.")
+    sigma_s_per_signal: dict[str, Width] = Field(
+        default_factory=dict, description="gaussian: per velocity column (u_mps ...), a width overriding sigma_s "
+        f"(s, up to {MAX_WIDTH_S:g}).")
     gaussian_degree: Literal[2, 4] = Field(
         2, description="Gaussian kernels exact for polynomials up to this degree: 2 = the plain Gaussian derivative "
         "(bias sigma^2/2 times the third derivative), 4 = bias-corrected (a Gaussian-weighted local cubic fit).")
     savgol_window_s: float | Literal["auto"] = Field(1.0, description="savgol: window (s), or auto (per signal).")
     savgol_order: int = Field(3, ge=1, le=7, description="savgol: the local polynomial's degree (higher degrees "
                               "fit the noise).")
-    edge_sigmas: float = Field(3.0, ge=0, description="Samples within this many sigma of a segment edge are dropped.")
-    notch_hz: list[Positive] = Field(
+    edge_sigmas: float = Field(3.0, ge=0, le=10.0, description="Samples within this many sigma of a segment edge "
+                               "are dropped (0 to 10; a Gaussian kernel's reach is under 5 sigma).")
+    notch_hz: list[Frequency] = Field(
         default_factory=list, description="Narrow-band disturbances to remove (Hz): zero-phase notches applied per "
         "segment to the velocities and accelerations on the grid, after the method (every method). The derive "
         "stage's spectral check (data/derived/<trial>.spectra.json, the report) names the frequency of a "
         "disturbance the actuators cannot have caused (a carriage or shaft vibration).")
-    notch_width_hz: float = Field(0.2, gt=0, le=5.0, description="Each notch's -3 dB width (Hz).")
+    notch_width_hz: float = Field(0.2, ge=0.001, le=5.0, description="Each notch's -3 dB width (Hz, 0.001 to 5).")
     max_hz: float | None = Field(
-        None, gt=0, description="A band limit (Hz): a zero-phase 4th-order Butterworth low-pass applied with the "
-        "notches; null: none. Keep it above the actuators' band that the spectral check reports.")
+        None, description="A band limit (Hz): a zero-phase 4th-order Butterworth low-pass applied with the "
+        "notches; null: none. Keep it above the actuators' band that the spectral check reports.", ge=0.001, le=500.0)
 
     @field_validator("sigma_s", "savgol_window_s")
     @classmethod
@@ -172,12 +196,13 @@ class CoupledParams(Frozen):
         description="The SVRs' inputs, velocities first, then actuators: feature-store columns. The default feeds "
         "each horizontal thruster's static thrust (T_<thruster>_N, the derive stage's thrust map of its speed or "
         "PWM), not its speed: the paper's n1 n2 n3 ([u_mps, v_mps, r_radps, n1_rpm, n2_rpm, n3_rpm]) leave the "
-        "kernel to learn n|n|, which it cannot extrapolate to a trial with wider excitation (docs/models.md).")
+        "kernel to learn n|n|, which it cannot extrapolate to a trial with wider excitation (docs/models.md).",
+        min_length=1)
     actuator_inputs: list[str] | None = Field(None, description=(
         "The inputs that are actuators or control inputs (thruster speeds, PWM, thrust, rudder angle): the 2-weights "
         "kernel gives them one gamma, the velocities another. They must come last in `inputs`. None: every input "
         "that is not a body velocity of the kinematics table (u_mps ... r_radps, their _smooth and _meas forms)."))
-    outputs: list[str] = Field(default_factory=lambda: ["udot_mps2", "vdot_mps2", "rdot_radps2"])
+    outputs: list[str] = Field(default_factory=lambda: ["udot_mps2", "vdot_mps2", "rdot_radps2"], min_length=1)
     models: list[str] = Field(
         default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
                                  "graybox"],
@@ -199,17 +224,17 @@ class CoupledParams(Frozen):
         "fit costs about the square of its rows and a free run its support vectors. null: every row (hours on a "
         "campaign of many trials). docs/models.md, 'Bounded final fits'.")
     screen_samples: int | None = Field(
-        None, ge=10, description="Successive halving over rows (fast search): each search screens its candidates "
+        None, description="Successive halving over rows (fast search): each search screens its candidates "
         "on this many of its max_samples rows (evenly spaced in time), then scores its `survivors` best and the warm "
         "start on all of them. null (or >= max_samples): no row screen. Off by default: on the demo a search's cost "
-        "is libsvm's iterations at large C, not its rows (docs/models.md, 'Successive halving').")
+        "is libsvm's iterations at large C, not its rows (docs/models.md, 'Successive halving').", ge=10, le=1_000_000)
     screen_folds: int | None = Field(
-        2, ge=1, description="Successive halving over folds (fast search): each search screens its max_evals "
+        2, ge=1, le=100, description="Successive halving over folds (fast search): each search screens its max_evals "
         "candidates on this many of its tuning_folds folds (spread over the block), then completes the other folds "
         "for its `survivors` best and the warm start, and keeps the best of those by the mean over all folds. null "
         "(or >= tuning_folds): every candidate on every fold. docs/models.md, 'Successive halving'.")
-    survivors: int = Field(6, ge=1, description="Successive halving: the screen's best candidates scored on every "
-                           "row and fold (the warm start besides).")
+    survivors: int = Field(6, description="Successive halving: the screen's best candidates scored on every "
+                           "row and fold (the warm start besides).", ge=1, le=10_000)
     c_rate: float = Field(
         0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
         "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "
@@ -220,7 +245,8 @@ class CoupledParams(Frozen):
         "fossen, whose terms are already chosen by free-run error): "
         "from the WTLS fit, coefficients refined by minimizing the free-run velocity error over windows of "
         "refine_horizon_s (multiple shooting, RK4 at the grid step; kept only if it lowers that error).")
-    refine_horizon_s: float = Field(2.0, gt=0, description="explicit_refine: length of each free-run window (s).")
+    refine_horizon_s: float = Field(2.0, gt=0, le=3600.0, description="explicit_refine: length of each free-run "
+                                    "window (s, up to an hour).")
     tuning: Literal["nested", "split"] = Field(
         "nested", description="Where the SVRs' hyperparameters are searched. nested: on the rows each model is "
         "fitted on: in each CV fold on that fold's training blocks only (so the CV score stays unbiased), for the "
@@ -231,13 +257,13 @@ class CoupledParams(Frozen):
                               "each candidate is scored on this many test blocks (docs/models.md).")
     max_evals: int = Field(30, ge=1, le=10_000, description="Fast search: most candidates per model and output.")
     fold_evals: int | None = Field(
-        8, ge=1, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
+        8, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
         "by a local search of at most this many candidates started from the tune stage's optimum (steps of x2), "
         "each scored on the halving screen's folds (screen_folds), not a whole search. null: a whole search per "
-        "fold (folds + 1 times the tune stage). docs/models.md.")
+        "fold (folds + 1 times the tune stage). docs/models.md.", ge=1, le=10_000)
     smooth_tolerance: float = Field(
-        0.0, ge=0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
-        "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.")
+        0.0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
+        "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.", ge=0, le=1.0)
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")
@@ -293,8 +319,8 @@ def _n_jobs(n_jobs: int | str) -> int | str:
 
 
 class DecoupledParams(Frozen):
-    dofs: list[str] = Field(default_factory=lambda: ["u", "v", "r"])
-    models: list[str] = Field(default_factory=lambda: ["ls", "mlp", "krr", "svr", "gp"])
+    dofs: list[str] = Field(default_factory=lambda: ["u", "v", "r"], min_length=1)
+    models: list[str] = Field(default_factory=lambda: ["ls", "mlp", "krr", "svr", "gp"], min_length=1)
     folds: int = Field(5, ge=2, le=100)
     search: Literal["paper_grid", "fast"] = "fast"
     gp_max_samples: int = Field(
@@ -353,7 +379,8 @@ class SimulateParams(Frozen):
     horizons_s: list[Seconds] = Field(default_factory=lambda: [1.0, 5.0, 10.0], min_length=1)
     outage_windows_s: list[Seconds] = Field(default_factory=lambda: [10.0, 30.0, 60.0])
     divergence_factor: float = Field(
-        10.0, gt=1, description="A rollout beyond this many times the measured range diverged.")
+        10.0, gt=1, le=1000.0, description="A rollout beyond this many times the measured range diverged (1 to 1000: "
+        "further out, the states overflow before the bound is met).")
     method: Literal["rk4", "euler"] = Field("rk4", description="Fixed-step integrator at the grid rate (ZOH inputs).")
     band_samples: int = Field(32, ge=0, le=1000,
                               description="GP posterior functions rolled out for the 2-sigma band (0: none).")
@@ -374,3 +401,19 @@ class Params(Frozen):
     coupled: CoupledParams = CoupledParams()
     decoupled: DecoupledParams = DecoupledParams()
     simulate: SimulateParams = SimulateParams()
+
+    @model_validator(mode="after")
+    def _below_nyquist(self) -> Params:
+        """The band limit's frequencies below the grid's Nyquist frequency (the differentiate stage checks it
+        again on the grid it gets)."""
+        nyquist = self.sync.rate_hz / 2
+        d = self.differentiate
+        for i, f in enumerate(d.notch_hz):
+            if not f + d.notch_width_hz / 2 < nyquist:
+                raise checks.KeyedError(f"differentiate.notch_hz.{i}", f"a notch at {f:g} Hz (width "
+                                        f"{d.notch_width_hz:g} Hz) is not below the grid's Nyquist frequency "
+                                        f"{nyquist:g} Hz (sync.rate_hz / 2)")
+        if d.max_hz is not None and not d.max_hz < nyquist:
+            raise checks.KeyedError("differentiate.max_hz", f"max_hz {d.max_hz:g} Hz is not below the grid's Nyquist "
+                                    f"frequency {nyquist:g} Hz (sync.rate_hz / 2)")
+        return self

@@ -22,8 +22,10 @@ class RigidBody(Frozen):
                                             "definite.")
     cg_m: Vec3 = (0.0, 0.0, 0.0)
     cb_m: Vec3 = (0.0, 0.0, 0.0)
-    buoyancy_N: float | None = Field(None, ge=0, description="Buoyancy; None: equal to the weight (neutral).")
-    gravity_mps2: float = Field(9.81, gt=0)
+    buoyancy_N: float | None = Field(None, ge=0, description="Buoyancy; None: equal to the weight (neutral). At "
+                                     f"most {checks.MAX_BUOYANCY_RATIO:g} times the weight.")
+    gravity_mps2: float = Field(9.81, ge=0.1, le=100.0, description="Gravity (m/s^2, 0.1 to 100: the Moon's 1.6 "
+                                "to Jupiter's 25, with room).")
 
     @field_validator("inertia_kgm2")
     @classmethod
@@ -51,6 +53,15 @@ class RigidBody(Frozen):
         if not checks.MIN_MASS_KG <= self.mass_kg <= checks.MAX_MASS_KG:
             raise checks.KeyedError("mass_kg", f"mass_kg {self.mass_kg:g} is outside {checks.MIN_MASS_KG:g} to "
                                     f"{checks.MAX_MASS_KG:g} kg (a few grams to the largest submarines)")
+        return self
+
+    @model_validator(mode="after")
+    def _buoyancy_physical(self) -> RigidBody:
+        weight = self.mass_kg * self.gravity_mps2
+        if self.buoyancy_N is not None and self.buoyancy_N > checks.MAX_BUOYANCY_RATIO * weight:
+            raise checks.KeyedError("buoyancy_N", f"buoyancy_N {self.buoyancy_N:g} N is more than "
+                                    f"{checks.MAX_BUOYANCY_RATIO:g} times the weight {weight:g} N (mass_kg * "
+                                    "gravity_mps2): accepted 0 to that (a unit or typing error?)")
         return self
 
 

@@ -81,6 +81,11 @@ MESSAGE_DEFINITIONS_DOC = (
     "standard types.")
 
 
+#: The sizes a signal's ``scale`` may have: 12 orders of magnitude either way; beyond, a raw value times it
+#: underflows to 0 or overflows float64 on the way through a unit conversion.
+MIN_SCALE, MAX_SCALE = 1e-12, 1e12
+
+
 class SignalSource(Frozen):
     """One signal: a field of the stream's messages (a CSV column), with its unit; ``sign`` and ``scale`` map a
     sensor's own convention onto the pipeline's, applied once at ingest before the unit: the signal is
@@ -95,14 +100,15 @@ class SignalSource(Frozen):
     sign: Literal[1, -1] = Field(1, description=(
         "-1 flips the signal (a sensor whose axis points the other way: rel_alt is up, depth is down)."))
     scale: float = Field(1.0, description=(
-        "Factor on the raw value, before `unit` converts it (counts to the unit); finite, non-zero; "
+        "Factor on the raw value, before `unit` converts it (counts to the unit); its size from 1e-12 to 1e12; "
         "for a flip give `sign: -1`."))
 
     @field_validator("scale")
     @classmethod
     def _scale_usable(cls, scale: float) -> float:
-        if not math.isfinite(scale) or scale == 0.0:
-            raise ValueError(f"scale must be a finite, non-zero number; found {scale!r}")
+        if not math.isfinite(scale) or not MIN_SCALE <= abs(scale) <= MAX_SCALE:
+            raise ValueError(f"scale must be a finite, non-zero number of size {MIN_SCALE:g} to {MAX_SCALE:g} "
+                             f"(counts of a picometre to a terametre); found {scale!r}")
         return scale
 
     @property
@@ -192,8 +198,10 @@ class Mixing(Frozen):
         "Names of the motor PWM signals, one per matrix row (`<name>_s`): what thrusters' `pwm_signal` names."))
     directions: list[Literal[1, -1]] | None = Field(None, description=(
         "Per motor, 1 or -1 (ArduSub's MOT_n_DIRECTION); default all 1."))
-    neutral_us: float = Field(1500.0, gt=0, description="PWM of a neutral input and a stopped motor (us).")
-    range_us: float = Field(400.0, gt=0, description="PWM from neutral to a full input or output (us).")
+    neutral_us: float = Field(1500.0, gt=0, le=20_000.0, description="PWM of a neutral input and a stopped motor "
+                              "(us; a pulse within a 50-Hz frame: up to 20000).")
+    range_us: float = Field(400.0, gt=0, le=20_000.0, description="PWM from neutral to a full input or output (us, "
+                            "up to 20000).")
 
     @model_validator(mode="after")
     def _shape(self) -> Mixing:

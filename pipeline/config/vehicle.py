@@ -22,15 +22,20 @@ from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource, Trial
 from pipeline.config.vehicle_methods import VehicleMethods
 from pipeline.errors import ConfigError
 
+#: The largest thrust coefficient k (N per rpm^2): a large ship's propeller gives ~1e6 N at ~100 rpm (k ~ 100).
+MAX_THRUST_COEFFICIENT = 1e4
+
 
 class ThrustCurve(Frozen):
     """T = k n|n| (n in rpm), with separate coefficients forward and backward; or a measured table, looked up by
     propeller speed (``table_speed_column``, rpm) or by PWM pulse width (``table_pwm_column``), at one supply
     voltage when the table holds several (``table_voltage_column`` and ``voltage_V``)."""
 
-    k_fwd_N_per_rpm2: float | None = Field(None, ge=0, description="Forward coefficient (thrust N per rpm^2).")
-    k_bwd_N_per_rpm2: float | None = Field(None, ge=0, description="Backward coefficient, positive like the forward "
-                                           "one (reverse thrust is -k_bwd n^2).")
+    k_fwd_N_per_rpm2: float | None = Field(None, ge=0, le=MAX_THRUST_COEFFICIENT, description=(
+        f"Forward coefficient (thrust N per rpm^2, 0 to {MAX_THRUST_COEFFICIENT:g}: a small thruster is ~1e-6, a "
+        "ship's propeller ~100)."))
+    k_bwd_N_per_rpm2: float | None = Field(None, ge=0, le=MAX_THRUST_COEFFICIENT, description=(
+        "Backward coefficient, positive like the forward one (reverse thrust is -k_bwd n^2)."))
     table: str | None = Field(None, description="CSV thrust table, path relative to the vehicle file.")
     table_speed_column: str | None = Field(None, description="Column of propeller speed (rpm) in the table.")
     table_pwm_column: str | None = Field(None, description="Column of PWM pulse width in the table (a thruster "
@@ -40,8 +45,9 @@ class ThrustCurve(Frozen):
     table_thrust_unit: str = "N"
     table_voltage_column: str | None = Field(None, description="Column of supply voltage (V), for a table measured "
                                              "at several voltages.")
-    voltage_V: float | None = Field(None, gt=0, description="Supply voltage of the vehicle: the table's rows at this "
-                                    "voltage are used (between two measured voltages, the thrust is interpolated).")
+    voltage_V: float | None = Field(None, gt=0, le=10_000.0, description=(
+        "Supply voltage of the vehicle (V, up to 10000): the table's rows at this voltage are used (between two "
+        "measured voltages, the thrust is interpolated)."))
 
     @model_validator(mode="after")
     def _one_kind(self) -> ThrustCurve:
@@ -80,7 +86,8 @@ class Thruster(Frozen):
     direction: Vec3 = Field(description="Thrust direction in body axes: any non-zero vector, normalized by the "
                             "pipeline ([1, 1, 0] is 45 degrees between x and y).")
     thrust: ThrustCurve | None = Field(None, description="Thrust model; not needed with `thrust_signal`.")
-    lag_s: float = Field(0.0, ge=0, description="First-order lag of the propeller (simulator only).")
+    lag_s: float = Field(0.0, ge=0, le=60.0, description="First-order lag of the propeller (simulator only; s, 0 to "
+                         "60).")
 
     @field_validator("position_m")
     @classmethod
@@ -147,7 +154,17 @@ class DvlMount(Frozen):
     valid: str | None = Field(None, description="Bottom-lock flag signal (nonzero = valid).")
     zero_is_invalid: bool = Field(True, description="An exact zero vector means lost lock, not rest.")
     position_m: Vec3 = (0.0, 0.0, 0.0)
-    rotation_rpy_deg: Vec3 = Field((0.0, 0.0, 0.0), description="DVL frame to body frame, roll-pitch-yaw.")
+    rotation_rpy_deg: Vec3 = Field((0.0, 0.0, 0.0), description="DVL frame to body frame, roll-pitch-yaw (deg, "
+                                   f"each within +/-{checks.MAX_ANGLE_DEG:g}).")
+
+    @field_validator("rotation_rpy_deg")
+    @classmethod
+    def _angles(cls, rpy: Vec3) -> Vec3:
+        far = max(abs(a) for a in rpy)
+        if far > checks.MAX_ANGLE_DEG:
+            raise ValueError(f"rotation_rpy_deg {list(rpy)}: an angle of {far:g} deg; accepted: each within "
+                             f"+/-{checks.MAX_ANGLE_DEG:g} deg")
+        return rpy
 
 
 class AttitudeSource(Frozen):
@@ -171,7 +188,15 @@ class RateSource(Frozen):
     p: str | None = None
     q: str | None = None
     r: str | None = None
-    signs: Vec3 = (1.0, 1.0, 1.0)
+    signs: Vec3 = Field((1.0, 1.0, 1.0), description="Per body axis p, q, r: 1 or -1 (the gyro's axis points the "
+                        "other way).")
+
+    @field_validator("signs")
+    @classmethod
+    def _unit_signs(cls, signs: Vec3) -> Vec3:
+        if any(s not in (1.0, -1.0) for s in signs):
+            raise ValueError(f"signs {list(signs)}: each must be 1 or -1 (a rate is measured or flipped, not scaled)")
+        return signs
 
 
 class VelocitySource(Frozen):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.errors import IngestError
 from pipeline.io.base import LogReader
@@ -18,6 +19,9 @@ from pipeline.io.reader import RawReader
 from pipeline.io.rosbag1_records import MAGIC as ROS1_MAGIC
 from pipeline.io.rosbag2.reader import ZSTD_MAGIC, storage_files
 from pipeline.io.sqlite_format import MAGIC as SQLITE_MAGIC
+
+if TYPE_CHECKING:  # the text reader is imported where a text log is opened
+    from pipeline.io.text import TextLimits
 
 log = logging.getLogger(__name__)
 
@@ -62,18 +66,22 @@ def sniff(path: Path) -> str:
     raise IngestError(f"unknown format: the file starts with {head[:16]!r}; {EXPECTED}", file=path)
 
 
-def open_log(path: str | Path, definitions: UserTypes | None = None) -> LogReader:
+def open_log(path: str | Path, definitions: UserTypes | None = None, *,
+             text_limits: TextLimits | None = None) -> LogReader:
     """Open any supported log; the reader lists topics and reads requested fields (:mod:`pipeline.io.base`).
 
     ``definitions``: the user's message definitions (:func:`pipeline.io.msgdefs.load_user_types`), used for the
-    types the log does not embed.
+    types the log does not embed. ``text_limits``: what a text file may hold (default: :class:`TextLimits`'s).
     """
     path = Path(path)
     kind = sniff(path)
     if kind in ("csv-dir", "csv-file"):
         from pipeline.io.text import open_text
 
-        return open_text(path)
+        if text_limits is None:
+            return open_text(path)
+        return open_text(path, max_bytes=text_limits.max_bytes, max_lines=text_limits.max_lines,
+                         max_line_bytes=text_limits.max_line_bytes)
     reader: RawReader
     if kind == "mcap":
         from pipeline.io.mcap_reader import McapReader

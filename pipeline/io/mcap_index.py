@@ -57,6 +57,7 @@ class ChunkRef:
     compression: str
     at: int                      # file offset of the chunk record (for damage reports)
     index: dict[int, np.ndarray] = field(default_factory=dict)  # channel -> message offsets in the chunk
+    private: int = -1            # records with a private opcode inside (-1: not read yet; :func:`private_records`)
 
 
 @dataclass
@@ -262,7 +263,52 @@ def _batch(fd: int, group: list[ChunkRef], wanted: dict[int, str], scratch: list
         if not ascending(offs):
             offs = np.sort(offs, kind="stable")
         rows[topic] = Rows(*_locate(buf, offs, end, channels[topic], where[0][0].at))
+    for chunk, at in where:
+        if chunk.private < 0:
+            chunk.private = _unindexed_records(buf, chunk, at)
     return Batch(buf, rows)
+
+
+def _unindexed_records(buf: np.ndarray, chunk: ChunkRef, at: int) -> int:
+    """How many private records (0x80-0xff, which the spec tells readers to skip) lie in the chunk at ``at`` of
+    ``buf`` between the messages its indexes list. The gaps are walked record by record (a few schemas, channels
+    and private records; messages are located from the indexes, vectorized); a message no index lists, or any
+    other record, is :class:`Damaged` (the record walk then reads the chunk whole)."""
+    offs = np.concatenate([np.zeros(0, dtype=np.int64), *(o.astype(np.int64) for o in chunk.index.values())])
+    offs = np.sort(offs, kind="stable") + at
+    end = at + chunk.usize
+    if len(offs) and int(offs[-1]) + 9 > end:
+        raise Damaged("message index points outside its chunk", chunk.at)
+    length = field_view(take_rows(buf, offs, 9), 1, "<u8")
+    if len(length) and int(length.max()) > chunk.usize:
+        raise Damaged("message record overruns its chunk", chunk.at)
+    stops = offs + 9 + length.astype(np.int64)
+    starts = np.append(offs, end)
+    if (stops > starts[1:]).any():
+        raise Damaged("message records overlap or overrun their chunk", chunk.at)
+    gaps = [(at, int(starts[0]))] + [(int(a), int(b)) for a, b in zip(stops[stops < starts[1:]],
+                                                                       starts[1:][stops < starts[1:]], strict=True)]
+    private = 0
+    for pos, stop in gaps:
+        while pos < stop:
+            if pos + 9 > stop:
+                raise Damaged("record header cut short between a chunk's messages", chunk.at)
+            op, n = struct.unpack_from("<BQ", buf, pos)
+            if pos + 9 + n > stop or op not in (OP_SCHEMA, OP_CHANNEL) and op < 0x80:
+                raise Damaged(f"chunk holds a record (opcode 0x{op:02x}) that its message indexes do not list",
+                              chunk.at)
+            private += op >= 0x80
+            pos += 9 + n
+    return private
+
+
+def private_records(indexed: IndexedFile) -> bool:
+    """Whether the chunks read so far hold private records; their count and the first one's chunk go into
+    ``indexed.walk`` (``private``, ``private_at``), which the salvage report states."""
+    found = [c for c in indexed.chunks if c.private > 0]
+    indexed.walk.private = sum(c.private for c in found)
+    indexed.walk.private_at = found[0].at if found else -1
+    return bool(found)
 
 
 def _chunk_data(fd: int, chunk: ChunkRef) -> bytes:

@@ -285,7 +285,7 @@ class McapReader(RawReader):
         assert self._walk is not None
         by_channel = {cid: ch.topic for cid, ch in self._walk.channels.items() if ch.topic in topics}
         if self._index is not None:
-            from pipeline.io.mcap_index import chunk_batches
+            from pipeline.io.mcap_index import chunk_batches, private_records
 
             try:
                 yield from chunk_batches(self.path, self._index, by_channel)
@@ -295,6 +295,8 @@ class McapReader(RawReader):
                 self._infos = self._index = None
                 self._encoding = {}
                 raise Restart from dmg
+            if private_records(self._index):  # skipped, as the spec says, and reported as the record walk does
+                self.salvage = salvage_info(self.path, self._index.walk)
             return
         def walk_wanted(emit: Callable[[str, int, bytes], None]) -> None:
             def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:

@@ -26,7 +26,8 @@ logged as a warning with their line numbers.
 A file is counted (a block of bytes at a time) before anything parses it, and refused with an IngestError naming
 the file and the limit beyond :data:`TEXT_MAX_BYTES` of text (inflated, for a ``.gz``: a 5-MB ``.csv.gz`` can
 hold gigabytes of rows), :data:`TEXT_MAX_LINES` lines or a line of :data:`TEXT_MAX_LINE_BYTES`;
-``open_text(path, max_bytes=..., max_lines=...)`` sets other limits.
+``open_text(path, max_bytes=..., max_lines=..., max_line_bytes=...)`` sets other limits (ingest: the params keys
+``ingest.text_max_bytes``, ``text_max_lines`` and ``text_max_line_bytes``, as a :class:`TextLimits`).
 """
 
 from __future__ import annotations
@@ -72,6 +73,15 @@ _HEAD_LINE_CHARS = 1 << 20  # a sniffed line longer than this is cut there
 TEXT_MAX_BYTES = 1 << 30
 TEXT_MAX_LINES = 10_000_000
 TEXT_MAX_LINE_BYTES = 16 << 20  # one line (a row of a log is bytes to kilobytes; pandas buffers a line whole)
+
+
+@dataclass(frozen=True)
+class TextLimits:
+    """What one text file may hold: bytes of text (inflated), lines, bytes in one line."""
+
+    max_bytes: int = TEXT_MAX_BYTES
+    max_lines: int = TEXT_MAX_LINES
+    max_line_bytes: int = TEXT_MAX_LINE_BYTES
 
 
 @dataclass
@@ -162,10 +172,11 @@ def looks_like_text_dir(path: str | Path) -> bool:
     return bool(files) and not any(p.suffix in {".db3", ".mcap", ".bag"} for p in path.iterdir())
 
 
-def open_text(path: str | Path, *, max_bytes: int = TEXT_MAX_BYTES, max_lines: int = TEXT_MAX_LINES) -> TextLogReader:
-    """Open a directory of delimited text files (a CSV trial) or a single text file (at most ``max_bytes`` and
-    ``max_lines`` per file)."""
-    return TextLogReader(path, max_bytes=max_bytes, max_lines=max_lines)
+def open_text(path: str | Path, *, max_bytes: int = TEXT_MAX_BYTES, max_lines: int = TEXT_MAX_LINES,
+              max_line_bytes: int = TEXT_MAX_LINE_BYTES) -> TextLogReader:
+    """Open a directory of delimited text files (a CSV trial) or a single text file (at most ``max_bytes``,
+    ``max_lines`` and a line of ``max_line_bytes`` per file)."""
+    return TextLogReader(path, max_bytes=max_bytes, max_lines=max_lines, max_line_bytes=max_line_bytes)
 
 
 def _text_files(directory: Path) -> list[Path]:
@@ -178,10 +189,10 @@ class TextLogReader:
 
     format = "csv"
 
-    def __init__(self, path: str | Path, *, max_bytes: int = TEXT_MAX_BYTES,
-                 max_lines: int = TEXT_MAX_LINES) -> None:
+    def __init__(self, path: str | Path, *, max_bytes: int = TEXT_MAX_BYTES, max_lines: int = TEXT_MAX_LINES,
+                 max_line_bytes: int = TEXT_MAX_LINE_BYTES) -> None:
         self.path = Path(path)
-        self.max_bytes, self.max_lines = max_bytes, max_lines
+        self.max_bytes, self.max_lines, self.max_line_bytes = max_bytes, max_lines, max_line_bytes
         if not self.path.exists():
             raise FileNotFoundError(self.path)
         if self.path.is_dir():
@@ -312,7 +323,7 @@ class TextLogReader:
         def scan() -> LineScan:
             with self._binary(name) as handle:
                 return scan_lines(handle, skip=skip, max_bytes=self.max_bytes, max_lines=self.max_lines,
-                                  max_line_bytes=TEXT_MAX_LINE_BYTES)
+                                  max_line_bytes=self.max_line_bytes)
 
         try:
             found = self._tolerating_cut(name, scan)
@@ -322,7 +333,7 @@ class TextLogReader:
             inflated = " (inflated)" if is_gzip(path) else ""
             limit = {"bytes": f"more than {self.max_bytes} bytes of text{inflated}",
                      "lines": f"more than {self.max_lines} lines",
-                     "line": f"a line longer than {TEXT_MAX_LINE_BYTES} bytes"}[found.over]
+                     "line": f"a line longer than {self.max_line_bytes} bytes"}[found.over]
             raise IngestError(f"text file holds {limit}, the limit per text file (stopped counting at "
                               f"{found.size} bytes, line {found.lines + 1}); split the log", file=path)
         self._scans[name, skip] = found

@@ -150,11 +150,17 @@ class LineScan:
         return None
 
 
+def _longest_inside(piece: bytes) -> int:
+    """The longest line between two line ends of ``piece`` (bytes; the ends not counted)."""
+    ends = np.flatnonzero(np.frombuffer(piece, dtype=np.uint8) == 10)
+    return int((np.diff(ends) - 1).max()) if len(ends) > 1 else 0
+
+
 def scan_lines(handle: BinaryIO, *, skip: int, max_bytes: int, max_lines: int,
                max_line_bytes: int = 16 << 20) -> LineScan:
     """Count lines a block of bytes at a time (numpy, no Python loop per line), stopping past a budget: bytes,
-    lines, or one line's bytes (``max_line_bytes``, at least a block: a longer line spans blocks, so the run of
-    bytes without a line end across them finds every one).
+    lines, or one line's bytes (``max_line_bytes``: a longer line is found by the run of bytes without a line end
+    across blocks, and, for a limit below a block, by the gaps between the line ends inside one).
 
     A line is blank when it holds nothing but ASCII white space (``bytes.strip()``'s set); line ends are ``\\n``
     bytes, as the reader's physical lines (quoted line breaks are not told apart). Memory: one block, a few
@@ -175,6 +181,8 @@ def scan_lines(handle: BinaryIO, *, skip: int, max_bytes: int, max_lines: int,
             return LineScan(size, lines, data, content_seen, "line", skip)
         if first >= 0:
             run = len(piece) - 1 - piece.rfind(b"\n")
+            if max_line_bytes < len(piece) and _longest_inside(piece) > max_line_bytes:  # a limit below a block
+                return LineScan(size, lines, data, content_seen, "line", skip)
         if lines >= max(skip, _HEAD):  # past the head: counts only
             squeezed = piece.translate(None, _BLANKS)  # white space but line ends removed
             ends_at = np.frombuffer(squeezed, dtype=np.uint8) == 10

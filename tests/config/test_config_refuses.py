@@ -110,8 +110,9 @@ VEHICLE_CASES = [
                  "rigid_body.inertia_kgm2", "positive definite", id="inertia-indefinite"),
     pytest.param(put("rigid_body.inertia_kgm2", 5.0), "rigid_body.inertia_kgm2", "list", id="inertia-scalar"),
     # gravity, buoyancy, centres
-    pytest.param(put("rigid_body.gravity_mps2", 0.0), "rigid_body.gravity_mps2", "greater than 0", id="gravity-0"),
-    pytest.param(put("rigid_body.gravity_mps2", -9.81), "rigid_body.gravity_mps2", "greater than 0",
+    pytest.param(put("rigid_body.gravity_mps2", 0.0), "rigid_body.gravity_mps2", "greater than or equal to 0.1",
+                 id="gravity-0"),
+    pytest.param(put("rigid_body.gravity_mps2", -9.81), "rigid_body.gravity_mps2", "greater than or equal to 0.1",
                  id="gravity-negative"),
     pytest.param(put("rigid_body.gravity_mps2", INF), "rigid_body.gravity_mps2", "finite", id="gravity-inf"),
     pytest.param(put("rigid_body.buoyancy_N", -740.0), "rigid_body.buoyancy_N", "greater than or equal",
@@ -394,7 +395,7 @@ PARAMS_CASES = [
     pytest.param({"differentiate": {"process_noise": {"z": 1.0}}}, "differentiate.process_noise.z", "not a DOF",
                  id="process-noise-dof"),
     pytest.param({"differentiate": {"noise_sd": {"dvl_x_mps": 0.0}}}, "differentiate.noise_sd.dvl_x_mps",
-                 "greater than 0", id="noise-sd-zero"),
+                 "greater than or equal to 0.000000001", id="noise-sd-zero"),
     pytest.param({"sync": {"rate_hz": INF}}, "sync.rate_hz", "finite", id="rate-inf"),
     pytest.param({"sync": {"rate_hz": True}}, "sync.rate_hz", "boolean", id="rate-true"),
     pytest.param({"sync": {"max_gap_s": {"default": -1.0}}}, "sync.max_gap_s.default", "greater than or equal",
@@ -438,6 +439,49 @@ PARAMS_CASES = [
                  id="horizon-negative"),
     pytest.param({"simulate": {"horizons_s": [1e9]}}, "simulate.horizons_s.0", "less than or equal to 86400",
                  id="horizon-1e9"),
+    # the rest of issue 36's item 3: numbers that loaded and gave nonsense or a traceback at their stage
+    pytest.param({"differentiate": {"gate_sigmas": 1e142}}, "differentiate.gate_sigmas", "less than or equal to 100",
+                 id="gate-1e142"),
+    pytest.param({"sync": {"min_segment_s": 1e9}}, "sync.min_segment_s", "less than or equal to 86400",
+                 id="sync-min-segment-1e9"),
+    pytest.param({"differentiate": {"min_segment_s": 1e9}}, "differentiate.min_segment_s",
+                 "less than or equal to 86400", id="kalman-min-segment-1e9"),
+    pytest.param({"simulate": {"divergence_factor": 2**64}}, "simulate.divergence_factor",
+                 "less than or equal to 1000", id="divergence-2-64"),
+    pytest.param({"differentiate": {"edge_sigmas": 1e300}}, "differentiate.edge_sigmas", "less than or equal to 10",
+                 id="edge-sigmas-1e300"),
+    pytest.param({"differentiate": {"noise_sd": {"dvl_x_mps": 1e300}}}, "differentiate.noise_sd.dvl_x_mps",
+                 "less than or equal to 1000000", id="noise-sd-1e300"),
+    pytest.param({"differentiate": {"process_noise": {"u": 5e-324}}}, "differentiate.process_noise.u",
+                 "greater than or equal to 0.000000000001", id="process-noise-denormal"),
+    pytest.param({"differentiate": {"sigma_s_per_signal": {"u_mps": 1e9}}}, "differentiate.sigma_s_per_signal.u_mps",
+                 "less than or equal to 3600", id="sigma-per-signal-1e9"),
+    pytest.param({"differentiate": {"notch_hz": [1e-300]}}, "differentiate.notch_hz.0",
+                 "greater than or equal to 0.001", id="notch-1e-300"),
+    pytest.param({"differentiate": {"notch_hz": [12.0]}}, "differentiate.notch_hz.0", "Nyquist frequency 10 Hz",
+                 id="notch-above-nyquist"),
+    pytest.param({"differentiate": {"notch_width_hz": 1e-300}}, "differentiate.notch_width_hz",
+                 "greater than or equal to 0.001", id="notch-width-1e-300"),
+    pytest.param({"differentiate": {"max_hz": 1e-300}}, "differentiate.max_hz", "greater than or equal to 0.001",
+                 id="max-hz-1e-300"),
+    pytest.param({"sync": {"rate_hz": 4.0}, "differentiate": {"max_hz": 2.0}}, "differentiate.max_hz",
+                 "Nyquist frequency 2 Hz", id="max-hz-at-nyquist"),
+    pytest.param({"coupled": {"screen_samples": 2**70}}, "coupled.screen_samples", "less than or equal to 1000000",
+                 id="screen-samples-2-70"),
+    pytest.param({"coupled": {"screen_folds": 10**9}}, "coupled.screen_folds", "less than or equal to 100",
+                 id="screen-folds-1e9"),
+    pytest.param({"coupled": {"survivors": 2**63}}, "coupled.survivors", "less than or equal to 10000",
+                 id="survivors-2-63"),
+    pytest.param({"coupled": {"fold_evals": 2**63}}, "coupled.fold_evals", "less than or equal to 10000",
+                 id="fold-evals-2-63"),
+    pytest.param({"coupled": {"refine_horizon_s": 1e300}}, "coupled.refine_horizon_s", "less than or equal to 3600",
+                 id="refine-horizon-1e300"),
+    pytest.param({"coupled": {"smooth_tolerance": 1e300}}, "coupled.smooth_tolerance", "less than or equal to 1",
+                 id="smooth-tolerance-1e300"),
+    pytest.param({"coupled": {"inputs": []}}, "coupled.inputs", "at least 1 item", id="coupled-inputs-empty"),
+    pytest.param({"coupled": {"outputs": []}}, "coupled.outputs", "at least 1 item", id="coupled-outputs-empty"),
+    pytest.param({"decoupled": {"dofs": []}}, "decoupled.dofs", "at least 1 item", id="decoupled-dofs-empty"),
+    pytest.param({"decoupled": {"models": []}}, "decoupled.models", "at least 1 item", id="decoupled-models-empty"),
 ]
 
 
@@ -445,10 +489,13 @@ def test_the_bounds_admit_what_users_give() -> None:
     """The bounds refuse nonsense, not settings: all cores, auto widths, a 1-kHz grid, no bridging windows."""
     from pipeline.config.params import Params
 
-    ok = Params.model_validate({"sync": {"rate_hz": 1000.0, "max_gap_s": {"default": 0.0}},
-                                "differentiate": {"sigma_s": "auto", "savgol_window_s": 0.05},
+    ok = Params.model_validate({"sync": {"rate_hz": 1000.0, "max_gap_s": {"default": 0.0}, "min_segment_s": 0.0},
+                                "differentiate": {"sigma_s": "auto", "savgol_window_s": 0.05, "gate_sigmas": 100.0,
+                                                  "notch_hz": [0.001, 499.0], "max_hz": 499.9,
+                                                  "noise_sd": {"n1_rpm": 50.0}, "process_noise": {"u": 1e-9}},
                                 "coupled": {"n_jobs": -1, "seed": 2**32 - 1, "max_samples": None},
-                                "simulate": {"outage_windows_s": [], "horizons_s": [86_400.0]}})
+                                "simulate": {"outage_windows_s": [], "horizons_s": [86_400.0],
+                                             "divergence_factor": 1000.0}})
     assert ok.coupled.n_jobs == -1 and ok.simulate.outage_windows_s == []
 
 

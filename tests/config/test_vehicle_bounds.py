@@ -29,6 +29,24 @@ CASES = [
     pytest.param(add_csv_stream(encoding="base64"), "streams.tank.csv.encoding", "not a text encoding", id="base64"),
     pytest.param(add_csv_stream(encoding="hex"), "streams.tank.csv.encoding", "not a text encoding", id="hex"),
     pytest.param(add_csv_stream(encoding="zlib"), "streams.tank.csv.encoding", "not a text encoding", id="zlib"),
+    # loaded, then nonsense or a traceback at their stage (issue 36, item 3)
+    pytest.param(put("rigid_body.gravity_mps2", 3.7e275), "rigid_body.gravity_mps2", "less than or equal to 100",
+                 id="gravity-3.7e275"),
+    pytest.param(put("rigid_body.gravity_mps2", 1e-300), "rigid_body.gravity_mps2", "greater than or equal to 0.1",
+                 id="gravity-1e-300"),
+    pytest.param(put("rigid_body.buoyancy_N", 1e300), "rigid_body.buoyancy_N", "more than 10 times the weight",
+                 id="buoyancy-1e300"),
+    pytest.param(put("sensors.dvl.rotation_rpy_deg", [0.0, 0.0, 1e261]), "sensors.dvl.rotation_rpy_deg",
+                 "within +/-360 deg", id="dvl-rotation-1e261"),
+    pytest.param(put("sensors.rates.signs", [1.0, 1e300, 1.0]), "sensors.rates.signs", "1 or -1",
+                 id="rate-sign-1e300"),
+    pytest.param(put("thrusters.0.lag_s", 1e300), "thrusters.0.lag_s", "less than or equal to 60", id="lag-1e300"),
+    pytest.param(put("thrusters.0.thrust.k_fwd_N_per_rpm2", 1e300), "thrusters.0.thrust.k_fwd_N_per_rpm2",
+                 "less than or equal to 10000", id="thrust-k-1e300"),
+    pytest.param(put("streams.dvl.signals.dvl_x_mps.scale", 1e-300), "streams.dvl.signals.dvl_x_mps.scale",
+                 "size 1e-12 to 1e+12", id="scale-1e-300"),
+    pytest.param(put("streams.dvl.signals.dvl_x_mps.scale", -1e300), "streams.dvl.signals.dvl_x_mps.scale",
+                 "size 1e-12 to 1e+12", id="scale-minus-1e300"),
 ]
 
 

@@ -168,7 +168,7 @@ def fake_setup(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, *, fail_thr: boo
     log_file = tmp_path / "run1.mcap"
     log_file.write_bytes(b"stand-in")
     reader = FakeReader(log_file, ReadResult(topics=topics, failed=failed), infos)
-    monkeypatch.setattr(ingest_mod, "_open", lambda path, definitions=None: reader)
+    monkeypatch.setattr(ingest_mod, "_open", lambda path, definitions=None, text_limits=None: reader)
     return reader
 
 

@@ -69,7 +69,7 @@ class McapStorage:
         """The wanted channels' payloads of one MCAP storage file: by its chunk indexes, else by a record walk."""
         index = self._indexes[self.files.index(path)]
         if index is not None and self.compression_mode != "MESSAGE":
-            from pipeline.io.mcap_index import chunk_batches
+            from pipeline.io.mcap_index import chunk_batches, private_records
 
             try:
                 yield from chunk_batches(path, index, wanted)
@@ -79,6 +79,10 @@ class McapStorage:
                 self._infos = None
                 self._encoding = {}
                 raise Restart from dmg
+            if private_records(index):  # skipped, as the spec says, and reported as the record walk does
+                info = salvage_info(path, index.walk)
+                info.reason = f"{path.name}: {info.reason}"
+                self.salvage = info
             return
         def walk_wanted(emit: Any, path: Path = path, wanted: dict[int, str] = wanted) -> None:
             def on_message(cid: int, log_ns: int, payload: bytes | None) -> None:
