@@ -337,6 +337,11 @@ class DecoupledParams(Frozen):
     trials: dict[str, list[str]] = Field(
         default_factory=dict, description="Per DOF, the trials its damping is learned from (paper 001: experiments "
         "that excite that DOF alone, e.g. pipeline.sim Controls(excite='surge')); DOFs not named use every trial.")
+    intercept: list[str] = Field(
+        default_factory=lambda: ["w"], description="DOFs whose ls model fits a constant beside d_l and d_q: the "
+        "static force the damping target still holds. For w (heave) it is the net buoyancy that the vehicle's "
+        "buoyancy_N leaves out (all of B - W with buoyancy_N: null), and the study reports B - W with its SD; "
+        "[]: paper 001's model, no constant (docs/models.md).")
     n_jobs: int | Literal["auto"] = Field(
         "auto", description="Workers for the study's (DOF, model) units, each a search, a CV and a final fit. auto "
         "(or -1): every usable core (AUVID_JOBS where set; every worker of a Dask cluster under --scheduler); 1: "
@@ -357,6 +362,12 @@ class DecoupledParams(Frozen):
     @classmethod
     def _models_known(cls, models: list[str]) -> list[str]:
         return _decoupled_models(models)
+
+    @field_validator("intercept")
+    @classmethod
+    def _intercept_dofs(cls, dofs: list[str]) -> list[str]:
+        _known(dofs, DOFS, "DOF")
+        return _unique_safe_names(dofs, "DOF")
 
     @field_validator("trials")
     @classmethod

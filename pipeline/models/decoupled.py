@@ -2,8 +2,9 @@
 
 Every model is a scikit-learn estimator. Two are written here and pass ``parametrize_with_checks``:
 
-- :class:`LinearQuadraticDamping`: closed-form least squares on ``[x, x|x|]`` per input column, no intercept
-  (paper eq. 6-7).
+- :class:`LinearQuadraticDamping`: closed-form least squares on ``[x, x|x|]`` per input column (paper eq. 6-7),
+  without an intercept as in the paper or, with ``fit_intercept``, with a constant and its SD (for heave: the net
+  buoyancy that the damping target still holds).
 - :class:`DampingGP`: GP regression with ``C * RBF + WhiteKernel`` on standardized inputs and targets, kernel
   hyperparameters by marginal likelihood, trained on at most ``max_samples`` points chosen evenly in the
   first input (equal-width bins, water-filled), because scikit-learn's GP is O(n^3) (see ``bench/gp.py``).
@@ -132,9 +133,12 @@ def decorrelation(r: np.ndarray, threshold: float = 0.1, max_lag: int = 60) -> t
 
 
 class LinearQuadraticDamping(RegressorMixin, BaseEstimator):
-    """Least squares on ``[x, x|x|]`` for each input column (paper eq. 6-7): ``d = d_l x + d_q x|x|``.
+    """Least squares on ``[x, x|x|]`` for each input column (paper eq. 6-7): ``d = d_l x + d_q x|x|`` (``+ c`` with
+    ``fit_intercept``).
 
-    ``coef_`` holds ``[d_l, d_q]`` per input column (shape ``(2 * n_features,)`` or ``(n_outputs, 2 * n)``).
+    ``coef_`` holds ``[d_l, d_q]`` per input column (shape ``(2 * n_features,)`` or ``(n_outputs, 2 * n)``);
+    ``intercept_`` the constant ``c`` (0 without ``fit_intercept``) and ``intercept_sd_`` its SD (None where
+    ``coef_cov_`` is None or without ``fit_intercept``).
     """
 
     def __init__(self, fit_intercept: bool = False) -> None:
@@ -158,20 +162,23 @@ class LinearQuadraticDamping(RegressorMixin, BaseEstimator):
         n = 2 * X.shape[1]
         self.coef_ = theta[:n].T
         self.intercept_ = theta[n] if self.fit_intercept else np.zeros(y.shape[1:]) if y.ndim > 1 else 0.0
-        self.coef_cov_ = self._covariance(A, y - A @ theta, n) if y.ndim == 1 else None
+        cov = self._covariance(A, y - A @ theta) if y.ndim == 1 else None
+        self.coef_cov_ = None if cov is None else cov[:n, :n]
+        self.intercept_sd_ = float(np.sqrt(cov[n, n])) if cov is not None and self.fit_intercept else None
         return self
 
     @staticmethod
-    def _covariance(A: np.ndarray, resid: np.ndarray, n: int) -> np.ndarray | None:
-        """Covariance of ``coef_``: s^2 (A'A)^-1, scaled by the residuals' integrated autocorrelation time
-        (:func:`decorrelation`; the rows are taken in time order, and smoothed targets are correlated in time,
-        which plain OLS errors would ignore and so come out too narrow). None where it is not defined."""
+    def _covariance(A: np.ndarray, resid: np.ndarray) -> np.ndarray | None:
+        """Covariance of the parameters (``coef_``, then the intercept): s^2 (A'A)^-1, scaled by the residuals'
+        integrated autocorrelation time (:func:`decorrelation`; the rows are taken in time order, and smoothed
+        targets are correlated in time, which plain OLS errors would ignore and so come out too narrow). None where
+        it is not defined."""
         dof = A.shape[0] - A.shape[1]
         gram = A.T @ A
         if dof < 1 or np.linalg.matrix_rank(gram) < A.shape[1]:
             return None
         _, tau = decorrelation(resid)
-        return (float(resid @ resid) / dof * tau * np.linalg.inv(gram))[:n, :n]
+        return float(resid @ resid) / dof * tau * np.linalg.inv(gram)
 
     def coefficient_intervals(self, level: float = 0.95) -> np.ndarray | None:
         """``(2 * n_features, 2)``: the ``level`` confidence interval of each of ``coef_`` (normal approximation,
@@ -400,11 +407,12 @@ class DampingGP(RegressorMixin, BaseEstimator):
         return f"{self.theta_[0]:.3g} * RBF([{ls}] on {on}) + White({self.theta_[-1]:.3g})"
 
 
-def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000, gp_warp: str = "signed_square"
-                   ) -> BaseEstimator:
-    """A fresh, unfitted estimator for one of :data:`MODEL_NAMES` (paper-default hyperparameters)."""
+def make_estimator(name: str, seed: int = 0, gp_max_samples: int = 2000, gp_warp: str = "signed_square",
+                   intercept: bool = False) -> BaseEstimator:
+    """A fresh, unfitted estimator for one of :data:`MODEL_NAMES` (paper-default hyperparameters); ``intercept``:
+    the ``ls`` model fits a constant too (the others learn any offset anyway)."""
     if name == "ls":
-        return LinearQuadraticDamping()
+        return LinearQuadraticDamping(fit_intercept=intercept)
     if name == "mlp":
         mlp = MLPRegressor(hidden_layer_sizes=(5,), activation="tanh", solver="lbfgs", alpha=1e-3,
                            max_iter=500, random_state=seed)
@@ -449,7 +457,11 @@ def paper_names(name: str, best_params: dict[str, Any]) -> dict[str, Any]:
 def describe(name: str, estimator: BaseEstimator) -> dict[str, Any]:
     """The hyperparameters / learned constants worth reporting for a fitted model."""
     if name == "ls":
-        return {"d_l": float(np.ravel(estimator.coef_)[0]), "d_q": float(np.ravel(estimator.coef_)[1])}
+        out = {"d_l": float(np.ravel(estimator.coef_)[0]), "d_q": float(np.ravel(estimator.coef_)[1])}
+        if estimator.fit_intercept:  # the constant and its SD (None where the covariance is not defined)
+            out.update(intercept=float(np.ravel(estimator.intercept_)[0]),
+                       intercept_sd=getattr(estimator, "intercept_sd_", None))
+        return out
     if name == "gp":
         return {"length_scale": [float(v) for v in estimator.length_scale_], "noise_std": estimator.noise_std_,
                 "target_sd": getattr(estimator, "target_sd_", 0.0),

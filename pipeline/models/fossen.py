@@ -260,6 +260,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
             raise ModelError(f"Fossen3DOF: no acceleration excitation for "
                              f"{[ADDED_MASS_TERMS[k] for k in np.flatnonzero(dead[:4])]}: the mass matrix cannot be "
                              "identified")
+        self._check_forced(everything, m_rb)
         folds = [(train, starts, st) for (train, starts), st in zip(folds, fold_stats, strict=True)]
         self.selection_: list[dict[str, object]] = []
         if self.select and folds:
@@ -280,6 +281,21 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
                         [round(float(self.heldout_r2_[j]), 3) for j in bad])
         log.debug("Fossen3DOF: terms %s, coefficients %s", terms, self.coefficients())
         return self
+
+    @staticmethod
+    def _check_forced(stats: _Stats, m_rb: np.ndarray) -> None:
+        """Each equation needs a right-hand side (tau - M_RB nudot - C_RB nu) that is not identically zero: one
+        that is (a ship's sway and yaw, whose rudder force is not in tau, without M_RB) leaves that equation
+        homogeneous, its coefficients without a scale, and its weight (1/RMS) infinite."""
+        rhs = np.linalg.norm(stats.r[:, :, -1], axis=1) / np.sqrt(max(stats.n, 1))
+        unforced = [("surge", "tau_u"), ("sway", "tau_v"), ("yaw", "tau_r")]
+        bad = [unforced[e] for e in range(3) if not rhs[e] > _ZERO_COLUMN * max(float(rhs.max()), 1e-300)]
+        if bad:
+            mass = "" if np.any(m_rb) else " and no rigid_body_mass (M_RB) is given"
+            raise ModelError(f"Fossen3DOF: the {', '.join(d for d, _ in bad)} equation(s) have no force: "
+                             f"{', '.join(t for _, t in bad)} are zero in every row{mass}, so nothing scales their "
+                             "coefficients. A control surface's force (a rudder, fins) is not in tau; for a ship use "
+                             "the manoeuvring model (abkowitz), or give the vehicle's M_RB")
 
     def _set_mass(self, m_rb: np.ndarray) -> None:
         self.mass_matrix_ = m_rb + _added_mass(self.coef_[:4])

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.studies.decoupled import StudyResult, dof_columns, dof_data
+from pipeline.studies.decoupled import StudyResult, dof_columns, dof_data, net_buoyancy
 from pipeline.units import axis_label
 
 
@@ -42,6 +42,12 @@ def table_markdown(study: StudyResult) -> str:
                  "SD with the learned noise and each target's own SD. "
                  + (f"Unseen: the share of the test trial(s) {', '.join(tested)} inside (85–95 % and 90–98 % "
                     "expected)." if tested else "No test trial in the store: coverage not measured."))
+    for r in study.results:
+        b = net_buoyancy(r, study.configured_net_buoyancy_N)
+        if "B_minus_W_N" in b:
+            sd = "" if b["sd_N"] is None else f" ± {b['sd_N']:.3f} (1 SD)"
+            lines.append(f"\nHeave ({r.model} with a constant): B − W = {b['B_minus_W_N']:.3f} N{sd}: the vehicle "
+                         f"config's {b['configured_N']:.3f} N plus the fitted constant {b['intercept_N']:.3f} N.")
     for f in study.failed:
         lines.append(f"\nFailed, not in the table: {f['dof']}/{f['model']} ({f['error']}: {f['reason']})")
     return "\n".join(lines) + "\n"

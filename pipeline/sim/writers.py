@@ -3,8 +3,10 @@
 Formats (:data:`FORMATS`): ``mcap`` (ROS 2 CDR in MCAP via the ``mcap`` writer, ``ros2msg`` schemas),
 ``ros1`` (``rosbags.rosbag1.Writer``), ``ros2-sqlite3`` and ``ros2-mcap`` (``rosbags.rosbag2.Writer``, a bag
 directory), ``csv`` (a directory with one ``<stream>.csv`` per stream, time columns ``stamp_ns`` (header) and
-``log_ns``). The DVL message ``auv_msgs/msg/DVL`` is registered from ``msgs/DVL.msg``, so each log embeds its
-definition. Messages are written in log-time order (ties: stream order), so the same trial gives the same bytes.
+``log_ns``). The DVL message ``auv_msgs/msg/DVL`` and mavros's servo outputs ``mavros_msgs/msg/RCOut`` are
+registered from ``msgs/``, so each log embeds their definitions. A trial is anything with ``streams`` (a
+:class:`pipeline.sim.SimTrial`, or :class:`pipeline.sim.ardusub.HeaveTrial`: servo outputs and ``rel_alt``, no
+attitude). Messages are written in log-time order (ties: stream order), so the same trial gives the same bytes.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ log = logging.getLogger(__name__)
 FORMATS = ("mcap", "ros1", "ros2-sqlite3", "ros2-mcap", "csv")
 EXTENSIONS = {"mcap": ".mcap", "ros1": ".bag", "ros2-sqlite3": "", "ros2-mcap": "", "csv": ""}
 DVL_TYPE = "auv_msgs/msg/DVL"
+RC_OUT_TYPE = "mavros_msgs/msg/RCOut"
 _LIBRARY = "auvid-sim"
 
 
@@ -37,13 +40,19 @@ def dvl_msgdef() -> str:
     return resources.files("pipeline.sim").joinpath("msgs/DVL.msg").read_text(encoding="utf-8")
 
 
+def rc_out_msgdef() -> str:
+    """mavros's servo outputs (``pipeline/sim/msgs/RCOut.msg``; the same text in ROS 1 and ROS 2)."""
+    return resources.files("pipeline.sim").joinpath("msgs/RCOut.msg").read_text(encoding="utf-8")
+
+
 @cache
 def typestore(ros_version: int) -> Any:
-    """A rosbags typestore (ROS 1 Noetic or ROS 2 Humble) with the DVL type registered."""
+    """A rosbags typestore (ROS 1 Noetic or ROS 2 Humble) with the DVL and RCOut types registered."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC if ros_version == 1 else Stores.ROS2_HUMBLE)
     store.register(get_types_from_msg(dvl_msgdef(), DVL_TYPE))
+    store.register(get_types_from_msg(rc_out_msgdef(), RC_OUT_TYPE))
     return store
 
 
@@ -86,6 +95,10 @@ def _messages(stream: Stream, store: Any, ros_version: int) -> list[Any]:
         elif stream.msgtype == "sensor_msgs/msg/JointState":
             msg = T[stream.msgtype](header=header(i), name=list(stream.joint_names), position=empty,
                                     velocity=np.asarray(stream.fields["velocity"][i], dtype=np.float64), effort=empty)
+        elif stream.msgtype == RC_OUT_TYPE:
+            msg = T[RC_OUT_TYPE](header=header(i), channels=np.asarray(stream.fields["channels"][i], dtype=np.uint16))
+        elif stream.msgtype == "std_msgs/msg/Float64":  # no header: only its log time says when
+            msg = T[stream.msgtype](data=float(f["data"][i]))
         else:
             raise ValueError(f"no message builder for {stream.msgtype}")
         out.append(msg)
@@ -150,9 +163,13 @@ def _write_rosbag2(streams: dict[str, Stream], path: Path, storage: str) -> None
 
 
 def csv_column(field: str) -> str:
-    """CSV column of a message field path: ``velocity[name=th1]`` -> ``velocity.th1``."""
+    """CSV column of a message field path: ``velocity[name=th1]`` -> ``velocity.th1``, ``channels[4]`` ->
+    ``channels.4``."""
     if "[name=" in field:
         head, rest = field.split("[name=", 1)
+        return f"{head}.{rest.rstrip(']')}"
+    if field.endswith("]") and "[" in field:
+        head, rest = field.split("[", 1)
         return f"{head}.{rest.rstrip(']')}"
     return field
 
@@ -178,6 +195,8 @@ def _write_csv(streams: dict[str, Stream], path: Path, convention: str) -> None:
             cols.update({f"angular_velocity.{a}": rates[:, j] for j, a in enumerate("xyz")})
         elif stream.msgtype == "sensor_msgs/msg/JointState":
             cols.update({f"velocity.{n}": stream.fields["velocity"][:, j] for j, n in enumerate(stream.joint_names)})
+        elif stream.msgtype == RC_OUT_TYPE:
+            cols.update({csv_column(f"channels[{j}]"): c for j, c in enumerate(stream.fields["channels"].T)})
         else:
             for key, values in stream.fields.items():
                 cols[key] = np.asarray(values).astype(int) if values.dtype == bool else values
@@ -188,14 +207,16 @@ def csv_vehicle(vehicle: Vehicle) -> Vehicle:
     """The vehicle config for the CSV layout written by ``write_trial(trial, "csv", dir)``.
 
     Each stream becomes ``file: <stream>.csv`` stamped by ``stamp_ns`` (header clock) or ``log_ns`` (log clock),
-    with the same ``offset_s``; the AHRS quaternion becomes roll/pitch/yaw columns in degrees (FRD -> NED).
+    with the same ``offset_s``; the AHRS quaternion becomes roll/pitch/yaw columns in degrees (FRD -> NED). A vehicle
+    without ``sensors.attitude`` (a level, heave-only one) keeps its sensors as they are.
     """
     data = vehicle.model_dump(mode="json")
+    quaternion = None if vehicle.sensors.attitude is None else vehicle.sensors.attitude.quaternion
     for name, stream in data["streams"].items():
         time_column = "log_ns" if stream["clock"] == "log" else "stamp_ns"
         signals = {}
         for signal, source in stream["signals"].items():
-            if signal == vehicle.sensors.attitude.quaternion:
+            if quaternion is not None and signal == quaternion:
                 for axis in ("roll", "pitch", "yaw"):
                     signals[f"{axis}_rad"] = {"field": axis, "unit": "deg"}
             else:
@@ -204,7 +225,7 @@ def csv_vehicle(vehicle: Vehicle) -> Vehicle:
             "file": f"{name}.csv", "clock": "column", "offset_s": stream["offset_s"],
             "csv": {"time_column": time_column, "time_unit": "ns", "time_origin": "absolute"}, "signals": signals,
         }
-    if vehicle.sensors.attitude.quaternion is not None:
+    if quaternion is not None:
         data["sensors"]["attitude"] = {"roll": "roll_rad", "pitch": "pitch_rad", "yaw": "yaw_rad",
                                        "convention": "frd_ned"}
     out = parse(Vehicle, data, "<csv variant of the example vehicle>")

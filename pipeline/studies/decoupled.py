@@ -51,6 +51,7 @@ from pipeline.errors import ConfigError, ModelError
 from pipeline.evaluate import MODEL_FAILURES, model_failure
 from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
 from pipeline.parallel import imap, task_result, timed_task, workers
+from pipeline.physics import weight_buoyancy_N
 from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS, force_column
 
 log = logging.getLogger(__name__)
@@ -118,6 +119,21 @@ def conformal_half_width(abs_residuals: np.ndarray, level: float = INTERVAL_LEVE
     return float(r[min(k, r.size) - 1])
 
 
+def net_buoyancy(result: ModelResult, configured_N: float | None) -> dict[str, Any]:
+    """B - W (N) of a heave ``ls`` model with a constant, ``{}`` for any other: derive took the configured B - W out
+    of d_w (as g_w, times cos(pitch) cos(roll)), so the constant is what it left, and B - W = configured + constant,
+    with the constant's SD (None where not defined). Without the configured value (None) only the constant."""
+    if result.dof != "w" or result.model != "ls" or result.estimator is None:
+        return {}
+    learned = describe("ls", result.estimator)
+    if "intercept" not in learned:
+        return {}
+    out = {"intercept_N": learned["intercept"], "sd_N": learned["intercept_sd"], "configured_N": configured_N}
+    if configured_N is not None:
+        out["B_minus_W_N"] = configured_N + learned["intercept"]
+    return out
+
+
 @dataclass
 class ModelResult:
     """Everything the study learned about one (DOF, model)."""
@@ -148,6 +164,8 @@ class StudyResult:
     results: list[ModelResult]
     #: (DOF, model) pairs that failed: :func:`pipeline.evaluate.model_failure` entries with ``dof``
     failed: list[dict[str, str]] = field(default_factory=list)
+    #: the vehicle's B - W (N, from its config) that derive took out of the heave damping target; None: not known
+    configured_net_buoyancy_N: float | None = None
 
     def get(self, dof: str, model: str) -> ModelResult:
         for r in self.results:
@@ -160,6 +178,9 @@ class StudyResult:
         out: dict[str, Any] = {}
         for r in self.results:
             out.setdefault(r.dof, {})[r.model] = r.as_dict()
+            buoyancy = net_buoyancy(r, self.configured_net_buoyancy_N)
+            if buoyancy:
+                out[r.dof][r.model]["net_buoyancy"] = buoyancy
         for f in self.failed:
             out.setdefault(f["dof"], {})[f["model"]] = {"failed": f"{f['error']}: {f['reason']}"}
         return out
@@ -183,10 +204,11 @@ def _fit_params(name: str, sd: np.ndarray | None) -> dict[str, Any] | None:
 
 
 def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, list[Any]] = "fast", folds: int = 5,
-         seed: int = 0, gp_max_samples: int = 500, gp_warp: str = "signed_square", sd: np.ndarray | None = None
-         ) -> tuple[BaseEstimator, dict[str, Any], float]:
-    """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE)``."""
-    estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples, gp_warp=gp_warp)
+         seed: int = 0, gp_max_samples: int = 500, gp_warp: str = "signed_square", sd: np.ndarray | None = None,
+         intercept: bool = False) -> tuple[BaseEstimator, dict[str, Any], float]:
+    """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE)``;
+    ``intercept``: the ``ls`` model with a constant."""
+    estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples, gp_warp=gp_warp, intercept=intercept)
     grid = param_grid(name, search)
     cv = KFold(n_splits=folds, shuffle=False)
     if len(y) < 2 * folds:
@@ -299,8 +321,10 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
               max_samples: int | None = 3000, curve_points: int = 5, seed: int = 0,
               dof_trials: Mapping[str, Sequence[str]] | None = None, gp_warp: str = "signed_square",
               on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None,
-              test: pd.DataFrame | None = None, n_jobs: int | str | None = 1) -> StudyResult:
+              test: pd.DataFrame | None = None, n_jobs: int | str | None = 1, intercept: Sequence[str] = ()
+              ) -> StudyResult:
     """The whole study; ``search`` may also map a model name to an explicit grid in the paper's names.
+    ``intercept``: the DOFs whose ``ls`` model fits a constant (:func:`net_buoyancy` for w).
 
     A (DOF, model) that fails (:data:`pipeline.evaluate.MODEL_FAILURES`, e.g. too few samples of a DOF) is logged
     and listed in :attr:`StudyResult.failed`; the others go on. ``on_result(result, None)`` or ``on_result(None,
@@ -318,14 +342,15 @@ def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[
     """
     with threadpool_limits(1, user_api="blas"):  # small problems: parallelism belongs to models, not BLAS
         return _run_study(tuning, train_test, dofs, models, folds, search, gp_max_samples, max_samples, curve_points,
-                          seed, dof_trials, gp_warp, on_result, test, n_jobs)
+                          seed, dof_trials, gp_warp, on_result, test, n_jobs, intercept)
 
 
 def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[str], models: Sequence[str], folds: int,
                search: str | dict[str, dict[str, list[Any]]], gp_max_samples: int, max_samples: int | None,
                curve_points: int, seed: int, dof_trials: Mapping[str, Sequence[str]] | None, gp_warp: str,
                on_result: Callable[[ModelResult | None, dict[str, str] | None], None] | None = None,
-               test: pd.DataFrame | None = None, n_jobs: int | str | None = 1) -> StudyResult:
+               test: pd.DataFrame | None = None, n_jobs: int | str | None = 1, intercept: Sequence[str] = ()
+               ) -> StudyResult:
     study = StudyResult([])
     known = set(tuning["trial"]) | set(train_test["trial"]) if dof_trials else set()
     for dof, names in (dof_trials or {}).items():  # a misspelt name would shrink the DOF's data without a word
@@ -353,7 +378,8 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
         trials = sorted(set(test["trial"])) if unseen is not None and "trial" in test else []
         units += [{"dof": dof, "name": name, "rows": rows, "unseen": unseen, "trials": trials,
                    "kw": {"folds": folds, "search": search, "seed": seed, "gp_max_samples": gp_max_samples,
-                          "gp_warp": gp_warp, "curve_points": curve_points}} for name in models]
+                          "gp_warp": gp_warp, "curve_points": curve_points, "intercept": dof in intercept}}
+                  for name in models]
     # every (DOF, model) is an independent task (search, CV, final fit) for the run's workers; results are kept in
     # DOF-then-model order whatever order they finish in
     finished: dict[int, ModelResult] = {}
@@ -402,11 +428,11 @@ def _dof_rows(tuning: pd.DataFrame, train_test: pd.DataFrame, dof: str, folds: i
 def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, sd_tune: np.ndarray | None,
                X: np.ndarray, y: np.ndarray, sd: np.ndarray | None, *, folds: int,
                search: str | dict[str, dict[str, list[Any]]], seed: int, gp_max_samples: int, gp_warp: str,
-               curve_points: int) -> ModelResult:
+               curve_points: int, intercept: bool = False) -> ModelResult:
     model_search = search.get(name, "fast") if isinstance(search, dict) else search
     t0 = time.perf_counter()
     est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
-                            gp_max_samples=gp_max_samples, gp_warp=gp_warp, sd=sd_tune)
+                            gp_max_samples=gp_max_samples, gp_warp=gp_warp, sd=sd_tune, intercept=intercept)
     cv, curve, fit_s, pred_s, interval = evaluate(est, X, y, folds=folds, curve_points=curve_points, sd=sd,
                                                   name=name)
     with _quiet():
@@ -446,9 +472,11 @@ def stage_columns(params: DecoupledParams, available: Sequence[str] | None = Non
 def run_lineage(vehicle: Vehicle, params: DecoupledParams, tuning: pd.DataFrame, train_test: pd.DataFrame
                 ) -> dict[str, Any]:
     """What a run learned from: the vehicle and params (hashes, params), the trials and the rows of each split."""
+    weight, buoyancy = weight_buoyancy_N(vehicle.rigid_body)
     return {"vehicle": vehicle.name, "vehicle_hash": config_hash(vehicle), "params_hash": config_hash(params),
             "params": params.model_dump(), "trials": sorted(set(tuning["trial"]) | set(train_test["trial"])),
-            "rows": {"tuning": len(tuning), "train_test": len(train_test)}}
+            "rows": {"tuning": len(tuning), "train_test": len(train_test)},
+            "configured_net_buoyancy_N": buoyancy - weight}
 
 
 def versions() -> dict[str, str]:
@@ -462,6 +490,7 @@ def model_card(result: ModelResult, lineage: dict[str, Any]) -> dict[str, Any]:
     return {"kind": "decoupled_damping", "dof": result.dof, "model": result.model, "inputs": [x_col],
             "output": y_col, "hyperparameters": result.best_params, "learned": describe(result.model, result.estimator),
             "search_mae": result.search_mae, "scores": result.cv, "interval": result.interval, "test": result.test,
+            **({"net_buoyancy": b} if (b := net_buoyancy(result, lineage.get("configured_net_buoyancy_N"))) else {}),
             "lineage": lineage, "versions": versions()}
 
 
@@ -483,7 +512,8 @@ def decoupled_stage(tuning: pd.DataFrame, train_test: pd.DataFrame, params: Deco
     study = run_study(tuning, train_test, dofs=p.dofs, models=p.models, folds=p.folds, search=p.search,
                       gp_max_samples=p.gp_max_samples, max_samples=p.max_samples, curve_points=p.curve_points,
                       seed=p.seed, dof_trials=p.trials, gp_warp=p.gp_warp, on_result=finished, test=test,
-                      n_jobs=p.n_jobs)
+                      n_jobs=p.n_jobs, intercept=p.intercept)
+    study.configured_net_buoyancy_N = lineage.get("configured_net_buoyancy_N")
     if not study.results:
         raise ModelError("every decoupled model failed: " + "; ".join(
             f"{f['dof']}/{f['model']}: {f['reason']}" for f in study.failed))

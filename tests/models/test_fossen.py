@@ -165,3 +165,19 @@ def test_coupled_study_builds_fits_and_saves_fossen_and_its_gray_box(tmp_path):
     gcols = model_inputs("graybox_fossen", params)
     gray.fit(train[gcols].to_numpy(float), train[params.outputs].to_numpy(float))
     assert gray.base_.rigid_body_mass == m_rb.tolist()
+
+
+def test_a_ship_whose_rudder_is_not_in_tau_is_a_clear_error_not_an_svd_failure():
+    # the simulated ship: tau_v = tau_r = 0 (its rudder acts through the hull, not through tau) and no M_RB, so the
+    # sway and yaw equations are homogeneous; the WTLS weights were 1/0 and numpy's SVD did not converge
+    from pipeline.sim.synthetic import ship_zigzag
+
+    d = ship_zigzag(120.0, rate_hz=10.0, seed=0, trial="ship", manoeuvres=("zigzag", "steps"))
+    X = d[["u_mps", "v_mps", "r_radps", "tau_u_N", "tau_v_N", "tau_r_Nm"]].to_numpy()
+    y = d[["udot_mps2", "vdot_mps2", "rdot_radps2"]].to_numpy()
+    with pytest.raises(ModelError, match=r"Fossen3DOF: the sway, yaw equation\(s\) have no force: tau_v, tau_r .*"
+                                         r"no rigid_body_mass.*abkowitz"):
+        Fossen3DOF(dt_s=0.1).fit(X, y)
+    # with M_RB the equations have a scale, but an unactuated sway and yaw still fall outside the family: a clear error
+    with pytest.raises(ModelError, match="Fossen3DOF: identified mass matrix .* not positive definite"):
+        Fossen3DOF(rigid_body_mass=M_RB, dt_s=0.1, select=False).fit(X, y)
