@@ -55,7 +55,8 @@ def _coverage(root: Path, vehicle: Vehicle, params: Params) -> dict[str, Any]:
     available = set(store.dataset(root).schema.names)
     inputs = {m: [c for c in model_inputs(m, params.coupled) if c in available] for m in params.coupled.models}
     columns = sorted({c for cols in inputs.values() for c in cols})
-    frame = store.load(root, vehicle=vehicle.name, split=["train_test", "test"], columns=["split", *columns])
+    frame = store.load(root, vehicle=vehicle.name, split=["train_test", "test"],
+                       columns=["split", "t_ns", *columns])
     return study_coverage(frame[frame["split"] == "train_test"], frame[frame["split"] == "test"], inputs)
 
 

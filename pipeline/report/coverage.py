@@ -76,6 +76,21 @@ def advice(trial: str, entry: dict[str, Any]) -> list[str]:
     return out
 
 
+def which(trial: str, entry: dict[str, Any]) -> str:
+    """Which of a flagged trial's predictions are extrapolations: the share and the stretches, in seconds from the
+    trial's first sample ("" where none is)."""
+    share = verdicts.number(entry.get("extrapolated_share"))
+    if not share:
+        return ""
+    runs = entry.get("stretches") or []
+    total = entry.get("stretches_total") or len(runs)
+    listed = ", ".join(f"{_num(r['start_s'])}–{_num(r['end_s'])} s" for r in runs)
+    where = (f" in {total} stretch{'es' if total != 1 else ''}"
+             + (f": {listed}" if listed else "")
+             + (f" (the {len(runs)} longest listed)" if total > len(runs) and runs else "")) if total else ""
+    return f"The predictions on {_num(100 * share)} % of {trial}'s samples are extrapolations{where}."
+
+
 def _input_rows(entry: dict[str, Any]) -> list[dict[str, Any]]:
     return [{"input": d["input"],
              "training range": f"{_q(d['train_min'], d['input'])} … {_q(d['train_max'], d['input'])}",
@@ -122,9 +137,12 @@ def section(root: Path) -> tuple[str, str, set[str]]:
                          "inputs beyond the training range": ", ".join(entry.get("extrapolated_inputs") or []) or
                          "none", "share outside the hull": hull.get("share_beyond"),
                          "hull drivers": ", ".join(hull.get("drivers") or []) or "—",
-                         "extrapolation": bool(entry.get("outside"))})
+                         "extrapolation": bool(entry.get("outside")),
+                         "share of predictions extrapolated": entry.get("extrapolated_share")})
             if entry.get("outside"):
+                said = which(trial, entry)
                 details.append(H.table(_input_rows(entry), caption=f"{trial}: each input against the training rows")
+                               + (f"<p>{H.esc(said)}</p>" if said else "")
                                + "".join(f"<p class='warn'>{H.esc(a)}</p>" for a in advice(trial, entry)))
         if rows:
             parts.append(H.table(rows, caption="Test trials against the training rows"))

@@ -27,6 +27,12 @@ thrusts) get a variance floor of 1e-9 of the largest, so a trial that breaks tha
 inputs **driving** an excursion are those whose removal lowers ``share_beyond`` by at least
 :data:`DRIVER_DROP` of it (the distance recomputed, threshold too, without that input).
 
+**Which predictions** (``extrapolated_share``, ``stretches``): a sample of a flagged trial is an extrapolation
+when a named input lies outside its training range there or, for a trial outside the hull, the sample lies beyond
+it; a trial that is not flagged has none (its ~0.5 % beyond the hull are the training's own tail). With the trial's
+``t_ns`` the flagged samples are given as stretches of consecutive samples, in seconds from the trial's first
+sample (the :data:`MAX_STRETCHES` longest, in time order).
+
 **Excitation** (:func:`excitation`): per input, the training's 0.5–99.5 % quantile span over the test trials'
 (pooled) span: below 1 the models are asked about a wider range than they learned; ``least_excited`` lists the
 inputs below :data:`EXCITATION_RATIO`, lowest first, and ``lowest`` names the lowest (None without test trials).
@@ -46,7 +52,8 @@ from pipeline.errors import ModelError
 log = logging.getLogger(__name__)
 
 __all__ = ["QUANTILE", "RANGE_SHARE", "MIN_EXCESS_SD", "HULL_QUANTILE", "HULL_SHARE", "DRIVER_DROP",
-           "EXCITATION_RATIO", "input_coverage", "hull_share", "excitation", "study_coverage"]
+           "EXCITATION_RATIO", "MAX_STRETCHES", "input_coverage", "hull_share", "stretches", "excitation",
+           "study_coverage"]
 
 QUANTILE = 0.005  # the per-input quantile band [0.5 %, 99.5 %]
 RANGE_SHARE = 0.01  # an input is named when more of a trial's samples than this lie outside the training range
@@ -55,6 +62,7 @@ HULL_QUANTILE = 0.995  # the training's own Mahalanobis quantile that bounds the
 HULL_SHARE = 0.05  # outside the hull: more than this share beyond it (10x the 0.5 % of a trial like the training)
 DRIVER_DROP = 0.5  # an input drives an excursion when leaving it out lowers share_beyond by this fraction of it
 EXCITATION_RATIO = 0.8  # least excited: training span below this fraction of the test trials' span
+MAX_STRETCHES = 10  # the longest stretches of extrapolated samples listed per trial
 _EIGEN_FLOOR = 1e-9
 
 
@@ -96,12 +104,17 @@ def hull_share(train: np.ndarray, test: np.ndarray) -> float:
     return _Hull(np.asarray(train, float)).share_beyond(np.asarray(test, float))
 
 
+def _outside(tr: np.ndarray, te: np.ndarray) -> np.ndarray:
+    """Per test sample: outside the training's [min, max]."""
+    return (te < tr.min()) | (te > tr.max())
+
+
 def _per_input(name: str, tr: np.ndarray, te: np.ndarray) -> dict[str, Any]:
     lo, hi = float(tr.min()), float(tr.max())
     qlo, qhi = (float(q) for q in np.quantile(tr, [QUANTILE, 1.0 - QUANTILE]))
     sd = float(tr.std())
     excess = np.maximum(np.maximum(te - hi, lo - te), 0.0)
-    share = float(((te < lo) | (te > hi)).mean())
+    share = float(_outside(tr, te).mean())
     max_excess = float(excess.max())
     excess_sd = max_excess / sd if sd > 0 else None
     named = share > RANGE_SHARE and (excess_sd is None or excess_sd > MIN_EXCESS_SD)
@@ -111,17 +124,22 @@ def _per_input(name: str, tr: np.ndarray, te: np.ndarray) -> dict[str, Any]:
             "max_excess": max_excess, "max_excess_sd": excess_sd, "extrapolated": bool(named)}
 
 
-def input_coverage(train: pd.DataFrame, test: pd.DataFrame, columns: Sequence[str]) -> dict[str, Any]:
-    """How far one test trial's rows leave the training rows on ``columns``: per input and as a hull (see the module
-    docstring). Rows with a non-finite value in ``columns`` are left out (their count is given)."""
+def input_coverage(train: pd.DataFrame, test: pd.DataFrame, columns: Sequence[str], *,
+                   time_column: str = "t_ns") -> dict[str, Any]:
+    """How far one test trial's rows leave the training rows on ``columns``: per input and as a hull, and which of
+    its samples are extrapolations (see the module docstring; ``stretches`` only where ``test`` has
+    ``time_column``, int64 ns). Rows with a non-finite value in ``columns`` are left out (their count is given)."""
     columns = list(columns)
+    if time_column in test.columns:
+        test = test.sort_values(time_column, kind="mergesort")
     tr_all, te_all = _values(train, columns, "training"), _values(test, columns, "test")
     tr, te = _finite_rows(tr_all), _finite_rows(te_all)
     if len(tr) < 2:
         raise ModelError(f"coverage: {len(tr)} finite training row(s) on {columns}; need at least 2")
     out: dict[str, Any] = {"rows": len(te), "rows_dropped_nonfinite": len(te_all) - len(te)}
     if len(te) == 0:
-        return {**out, "inputs": [], "extrapolated_inputs": [], "hull": None, "outside": False}
+        return {**out, "inputs": [], "extrapolated_inputs": [], "hull": None, "outside": False,
+                "extrapolated_share": 0.0, "stretches": [], "stretches_total": 0}
     inputs = [_per_input(c, tr[:, j], te[:, j]) for j, c in enumerate(columns)]
     hull = _Hull(tr)
     share = hull.share_beyond(te)
@@ -133,12 +151,40 @@ def input_coverage(train: pd.DataFrame, test: pd.DataFrame, columns: Sequence[st
                 drivers.append(c)
     named = [d["input"] for d in inputs if d["extrapolated"]]
     pairs = _pair_correlations(tr, te, columns, drivers)
+    flagged = np.zeros(len(te), dtype=bool)
+    for j, d in enumerate(inputs):
+        if d["extrapolated"]:
+            flagged |= _outside(tr[:, j], te[:, j])
+    if share > HULL_SHARE:
+        flagged |= hull.distance(te) > hull.limit
+    runs, n_runs = [], 0
+    if time_column in test.columns:
+        times = test[time_column].to_numpy()
+        runs, n_runs = stretches(flagged, times[np.isfinite(te_all).all(axis=1)], origin_ns=int(times[0]))
     out.update(inputs=inputs, extrapolated_inputs=named,
                hull={"measure": "mahalanobis", "quantile": HULL_QUANTILE, "train_limit": hull.limit,
                      "share_beyond": share, "outside": share > HULL_SHARE, "drivers": drivers,
                      "driver_correlations": pairs},
-               outside=bool(named) or share > HULL_SHARE)
+               outside=bool(named) or share > HULL_SHARE, extrapolated_share=float(flagged.mean()),
+               stretches=runs, stretches_total=n_runs)
     return out
+
+
+def stretches(flagged: np.ndarray, times_ns: np.ndarray, *, origin_ns: int | None = None
+              ) -> tuple[list[dict[str, Any]], int]:
+    """Runs of consecutive flagged samples (in time order) as ``{"start_s", "end_s", "samples"}``, in seconds from
+    ``origin_ns`` (default: the first sample): the :data:`MAX_STRETCHES` longest (ties: the earlier), listed in
+    time order; and how many runs there are in all."""
+    flagged = np.asarray(flagged, dtype=bool)
+    if not flagged.any():
+        return [], 0
+    edges = np.diff(np.concatenate([[0], flagged.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1  # inclusive sample indices
+    lengths = ends - starts + 1
+    keep = np.sort(np.argsort(-lengths, kind="stable")[:MAX_STRETCHES])
+    t0 = int(times_ns[0]) if origin_ns is None else int(origin_ns)
+    return [{"start_s": (int(times_ns[starts[k]]) - t0) / 1e9, "end_s": (int(times_ns[ends[k]]) - t0) / 1e9,
+             "samples": int(lengths[k])} for k in keep], len(starts)
 
 
 def _pair_correlations(tr: np.ndarray, te: np.ndarray, columns: list[str], drivers: list[str]
@@ -201,7 +247,7 @@ def study_coverage(train: pd.DataFrame, test: pd.DataFrame, inputs_by_model: Map
         "test_trials": trials,
         "thresholds": {"quantile": QUANTILE, "range_share": RANGE_SHARE, "min_excess_sd": MIN_EXCESS_SD,
                        "hull_quantile": HULL_QUANTILE, "hull_share": HULL_SHARE, "driver_drop": DRIVER_DROP,
-                       "excitation_ratio": EXCITATION_RATIO},
+                       "excitation_ratio": EXCITATION_RATIO, "max_stretches": MAX_STRETCHES},
         "groups": [], "flagged": {}}
     for cols, models in groups.items():
         per_trial = {t: input_coverage(train, test[test[trial_column].astype(str) == t], cols) for t in trials}
@@ -214,7 +260,8 @@ def study_coverage(train: pd.DataFrame, test: pd.DataFrame, inputs_by_model: Map
                     if name not in names:
                         names.append(name)
                 log.warning("coverage: test trial %s lies outside the training rows of %s: inputs %s beyond "
-                            "their range, %.1f %% of its samples outside the hull (drivers %s)", t,
-                            ", ".join(models), res["extrapolated_inputs"], 100 * res["hull"]["share_beyond"],
-                            res["hull"]["drivers"])
+                            "their range, %.1f %% of its samples outside the hull (drivers %s); %.1f %% of its "
+                            "predictions are extrapolations", t, ", ".join(models), res["extrapolated_inputs"],
+                            100 * res["hull"]["share_beyond"], res["hull"]["drivers"],
+                            100 * res["extrapolated_share"])
     return doc

@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.errors import ModelError
 from pipeline.report import coverage as report_coverage
-from pipeline.studies.coverage import excitation, input_coverage, study_coverage
+from pipeline.studies.coverage import MAX_STRETCHES, excitation, input_coverage, stretches, study_coverage
 
 COLS = ["x1_N", "x2_N", "x3_mps"]
 
@@ -131,3 +131,78 @@ def test_study_document_groups_models_by_inputs_and_flags_the_trials(train: pd.D
     advice = report_coverage.advice("out", doc["groups"][0]["trials"]["out"])
     assert len(advice) == 1 and advice[0].startswith("x1_N: 20 % of out's samples lie outside the training range")
     assert "add a training trial that drives x1_N to" in advice[0] and "1.5 N" in advice[0]
+
+
+# Two sinusoidal trials with the coupled models' default inputs, 10 Hz, periods incommensurate so that the training
+# fills its box: the test trial is the training's generator again (other phases) except that sway thrust T_th2_N
+# runs at twice the training amplitude in its second half.
+INPUTS = ["u_mps", "v_mps", "r_radps", "T_th1_N", "T_th2_N", "T_th3_N"]
+PERIODS_S = [13.77, 9.13, 7.31, 11.37, 6.07, 17.93]  # not multiples of the step: the training fills its range
+DT_S = 0.1
+
+
+def _sines(duration_s: float, phase: float, t0_ns: int, gain: np.ndarray | None = None) -> pd.DataFrame:
+    t = np.arange(round(duration_s / DT_S)) * DT_S
+    frame = pd.DataFrame({c: np.sin(2 * np.pi * t / p + phase * (k + 1)) for k, (c, p) in
+                          enumerate(zip(INPUTS, PERIODS_S, strict=True))})
+    if gain is not None:
+        frame["T_th2_N"] *= gain
+    return frame.assign(t_ns=t0_ns + np.round(t * 1e9).astype(np.int64))
+
+
+def test_sway_thrust_twice_the_training_range_on_a_known_share_is_named_with_its_samples() -> None:
+    """Known answer: 2·sin leaves [-1, 1] where |sin| > 1/2, 2/3 of the time, so 1/3 of a trial doubled on its second
+    half; every extrapolated sample lies in that half; the largest excess is 2 - 1 = 1 = sqrt(2) SDs of a unit sine.
+    Tolerance 0.005 on the share: each of the ~200 crossings of the bound can miscount one sample of 6000 and the
+    miscounts' signs vary, so the error is a few samples (measured: under one sample); 0.005 is 30 samples."""
+    train = _sines(1200.0, 0.0, 0).assign(trial="train")
+    gain = np.where(np.arange(6000) >= 3000, 2.0, 1.0)
+    test = _sines(600.0, 1.0, 10**12, gain).assign(trial="test")
+    doc = study_coverage(train, test, {"wdse_svr": INPUTS})
+    assert doc["flagged"] == {"test": ["T_th2_N"]}
+    res = doc["groups"][0]["trials"]["test"]
+    assert res["extrapolated_inputs"] == ["T_th2_N"] and res["outside"]
+    by = {d["input"]: d for d in res["inputs"]}
+    assert by["T_th2_N"]["share_outside_range"] == pytest.approx(1 / 3, abs=0.005)
+    assert by["T_th2_N"]["max_excess_sd"] == pytest.approx(np.sqrt(2), rel=0.01)
+    for c in INPUTS[:4] + INPUTS[5:]:  # other phases of the same sines: a few samples 1e-6 SD past a sampled peak
+        assert by[c]["share_outside_range"] < 0.002 and by[c]["max_excess_sd"] < 1e-5 and not by[c]["extrapolated"]
+    # which predictions: every flagged sample in the doubled half (from 300 s), about the input's share
+    assert res["extrapolated_share"] == pytest.approx(1 / 3, abs=0.02)
+    assert res["stretches"] and all(r["start_s"] >= 300.0 for r in res["stretches"])
+    assert res["stretches_total"] >= 2 * 300 / PERIODS_S[4] - 2  # two excursions per period of 2·sin
+    said = report_coverage.which("test", res)
+    assert said.startswith("The predictions on 33") and f"in {res['stretches_total']} stretches" in said
+    (advice,) = report_coverage.advice("test", res)
+    assert advice.startswith("T_th2_N: 33") and "drives T_th2_N to" in advice
+    # the same trial without the doubling is inside: nothing flagged, no extrapolated predictions
+    inside = study_coverage(train, _sines(600.0, 1.0, 10**12).assign(trial="test"), {"wdse_svr": INPUTS})
+    assert inside["flagged"] == {}
+    entry = inside["groups"][0]["trials"]["test"]
+    assert entry["extrapolated_share"] == 0.0 and entry["stretches"] == []
+    assert report_coverage.which("test", entry) == ""
+
+
+def test_extrapolated_samples_are_exactly_those_outside_with_their_times(train: pd.DataFrame) -> None:
+    """Samples 100..199 of 500 (10 Hz) 3 SD out, one more at 450 that is 0.05 SD out on another input (not named,
+    so not an extrapolation): one stretch 10.0-19.9 s; unsorted rows are put in time order first."""
+    test = _uniform(np.random.default_rng(9), 500, 0.5).assign(t_ns=7 * 10**11 + np.arange(500) * 10**8)
+    test.loc[100:199, "x2_N"] = train["x2_N"].max() + 3.0 * train["x2_N"].std(ddof=0)
+    test.loc[450, "x1_N"] = train["x1_N"].max() + 0.05 * train["x1_N"].std(ddof=0)
+    res = input_coverage(train, test.iloc[::-1], COLS)
+    assert res["extrapolated_share"] == 0.2 and res["stretches_total"] == 1
+    assert res["stretches"] == [{"start_s": 10.0, "end_s": 19.9, "samples": 100}]
+    assert report_coverage.which("s", res) == "The predictions on 20 % of s's samples are extrapolations in 1 " \
+                                              "stretch: 10–19.9 s."
+
+
+def test_only_the_longest_stretches_are_listed_in_time_order() -> None:
+    flagged = np.zeros(200, dtype=bool)
+    runs = [(k * 15, k * 15 + 1 + k % 4) for k in range(12)]  # 12 runs of 1-4 samples
+    for a, b in runs:
+        flagged[a:b] = True
+    listed, total = stretches(flagged, np.arange(200) * 10**9)
+    assert total == 12 and len(listed) == MAX_STRETCHES
+    assert [r["start_s"] for r in listed] == sorted(r["start_s"] for r in listed)
+    dropped = {float(a) for a, _ in runs} - {r["start_s"] for r in listed}
+    assert dropped == {60.0, 120.0}  # three runs of 1 sample (at 0, 60, 120 s): the earliest kept

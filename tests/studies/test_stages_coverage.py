@@ -74,11 +74,17 @@ def test_tune_writes_the_coverage_before_the_search_and_the_report_names_the_inp
     assert pushed["share_outside_range"] == pytest.approx(0.2, abs=1 / entry["rows"])
     assert pushed["max_excess_sd"] == pytest.approx(3.0, rel=1e-9)
     assert svr["excitation"]["inputs"][PUSHED]["ratio"] < 1.0
+    # which predictions: the pushed first 20 % (one stretch from the trial's first sample), and the few of the
+    # training's own tail beyond the hull (s3 is s1: its ~0.5 % beyond the training's 99.5 % quantile)
+    assert 0.2 - 1 / entry["rows"] <= entry["extrapolated_share"] <= 0.21
+    first = entry["stretches"][0]
+    assert first["start_s"] == 0.0 and first["samples"] >= round(0.2 * entry["rows"]) - 1
     report_stage.run(root, vehicle, params)
     text = (root / "reports/report.html").read_text()
     section = text.split('<section id="extrapolation">', 1)[1].split("</section>", 1)[0]
     assert f"the predictions on s3 ({PUSHED}) are extrapolations" in section
     assert f"add a training trial that drives {PUSHED} to" in section
+    assert "of s3&#x27;s samples are extrapolations in 1 stretch" in section  # ' escaped
     assert "Extrapolation:</b> the predictions on s3" in text.split('<section id="summary">', 1)[1].split(
         "</section>", 1)[0]
     assert np.isfinite(pushed["train_max"])
