@@ -235,6 +235,12 @@ class CoupledParams(Frozen):
         "(or >= tuning_folds): every candidate on every fold. docs/models.md, 'Successive halving'.")
     survivors: int = Field(6, description="Successive halving: the screen's best candidates scored on every "
                            "row and fold (the warm start besides).", ge=1, le=10_000)
+    iter_cap_ratio: float | None = Field(
+        20.0, ge=1, le=1e6, description="Fast search: once five candidates are scored, a candidate's fits stop at "
+        "this many times the median libsvm iterations of the search's fits so far (never below twice the best "
+        "candidate's), so that no candidate costs far more than its search's median; a stopped fit is scored as it "
+        "is and counted in the search's trace. null: only the absolute cap (1000 iterations per row). "
+        "docs/models.md, 'Each candidate's cost is capped and reported'.")
     c_rate: float = Field(
         0.5, ge=0, le=1, description="The SVRs' C is chosen on a search fold's rows (C_rows in the tuning JSON) and "
         "the model fitted on n rows uses C (C_rows / n)^c_rate: libsvm's regularization 1/(2 C n) then falls as "

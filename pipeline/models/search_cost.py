@@ -25,8 +25,8 @@ from pipeline.errors import ModelError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ITER_CAP_RATIO", "ITER_FLOOR_PER_ROW", "ITER_PER_ROW", "ITER_WARMUP_CANDIDATES", "IterationCap", "candidate_entry",
-           "cost_summary", "iteration_cap"]
+__all__ = ["ITER_CAP_RATIO", "ITER_FLOOR_PER_ROW", "ITER_PER_ROW", "ITER_WARMUP_CANDIDATES", "IterationCap",
+           "candidate_entry", "cost_summary", "iteration_cap", "log_capped"]
 
 #: libsvm's iterations per candidate fit of a search, per training row of the fold (docs/models.md): above the
 #: slowest candidate of the demo's searches, so only a runaway fit is stopped by it

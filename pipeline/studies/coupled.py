@@ -183,7 +183,7 @@ def search_settings(params: CoupledParams) -> SearchSettings:
                           n_velocity=params.n_velocity_inputs(), max_evals=params.max_evals, seed=params.seed,
                           smooth_tolerance=params.smooth_tolerance, one_se=params.selection == "one_se",
                           screen_rows=params.screen_samples, screen_folds=params.screen_folds,
-                          survivors=params.survivors, c_rate=params.c_rate)
+                          survivors=params.survivors, c_rate=params.c_rate, iter_cap_ratio=params.iter_cap_ratio)
 
 
 def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1, split: str = "tuning",
@@ -283,7 +283,8 @@ def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: di
     trace: dict[str, Any] = {}
     for k, out in enumerate(params.outputs):
         res = search(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds, n_jobs=1,
-                     n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset)
+                     n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset,
+                     iter_cap_ratio=params.iter_cap_ratio)
         hyper[out], trace[out] = res.best_params, res.to_dict()
     return hyper, trace
 
