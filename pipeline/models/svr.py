@@ -230,31 +230,33 @@ class PerOutputRegressor(RegressorMixin, BaseEstimator):
 
         Per output: ``z = (x - mean) / scale * sqrt(gamma)`` (the estimator's own transform), ``y = sum_j a_j
         exp(-|z - s_j|^2) + b`` (libsvm's RBF with gamma = 1; ``a`` the dual coefficients, ``b`` the intercept),
-        with ``|z - s|^2 = |z|^2 + |s|^2 - 2 z.s`` about the support vectors' centroid, so a batch costs one BLAS
-        matrix product per output instead of a ``(B, n_sv, n_features)`` difference array. Equal to ``predict``
-        to float rounding.
+        with ``-|z - s|^2 = 2 z.s - |s|^2 - |z|^2`` about the support vectors' centroid, so a batch costs one BLAS
+        matrix product per output instead of a ``(B, n_sv, n_features)`` difference array, and every other pass
+        works in place on that product (a temporary of its size would be allocated and faulted in again at every
+        call). Equal to ``predict`` to float rounding.
         """
         parts = []
         for est in getattr(self, "estimators_", None) or []:
             terms = est.kernel_terms() if isinstance(est, _ScaledRBFSVR) else None
             if terms is None:
                 return None
-            parts.append(terms)
+            mean, std, scale, centre, sv_c, sv_sq, coef, b = terms
+            gain = scale / std  # z = x gain + shift
+            parts.append((gain, -mean * gain - centre, 2.0 * sv_c, sv_sq, coef, b))
         if not parts or getattr(self, "_y_1d", True):
             return None
 
         def predict(X: np.ndarray) -> np.ndarray:
             X = np.asarray(X, dtype=float)
             out = np.empty((X.shape[0], len(parts)))
-            for k, (mean, std, scale, centre, sv_c, sv_sq, coef, b) in enumerate(parts):
-                z = (X - mean) / std * scale - centre
-                d2 = z @ sv_c.T  # one matrix product per output for the whole batch
-                d2 *= -2.0
-                d2 += np.einsum("ij,ij->i", z, z)[:, None]
-                d2 += sv_sq
-                np.maximum(d2, 0.0, out=d2)
-                np.exp(-d2, out=d2)
-                out[:, k] = d2 @ coef + b
+            for k, (gain, shift, sv2, sv_sq, coef, b) in enumerate(parts):
+                z = X * gain + shift
+                arg = z @ sv2.T  # one matrix product per output for the whole batch: 2 z.s
+                arg -= sv_sq
+                arg -= np.einsum("ij,ij->i", z, z)[:, None]  # -|z - s|^2
+                np.minimum(arg, 0.0, out=arg)
+                np.exp(arg, out=arg)
+                out[:, k] = arg @ coef + b
             return out
 
         return predict

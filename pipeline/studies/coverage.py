@@ -259,9 +259,10 @@ def study_coverage(train: pd.DataFrame, test: pd.DataFrame, inputs_by_model: Map
                 for name in [*res["extrapolated_inputs"], *((res["hull"] or {}).get("drivers") or [])]:
                     if name not in names:
                         names.append(name)
-                log.warning("coverage: test trial %s lies outside the training rows of %s: inputs %s beyond "
-                            "their range, %.1f %% of its samples outside the hull (drivers %s); %.1f %% of its "
-                            "predictions are extrapolations", t, ", ".join(models), res["extrapolated_inputs"],
-                            100 * res["hull"]["share_beyond"], res["hull"]["drivers"],
+                drivers = res["hull"]["drivers"]
+                log.warning("coverage: test trial %s lies outside the training rows of %s: %s beyond their range, "
+                            "%.1f %% of its samples outside the hull%s; %.1f %% of its predictions are "
+                            "extrapolations", t, ", ".join(models), ", ".join(res["extrapolated_inputs"]) or "no input",
+                            100 * res["hull"]["share_beyond"], f" (driven by {', '.join(drivers)})" if drivers else "",
                             100 * res["extrapolated_share"])
     return doc
