@@ -230,10 +230,10 @@ class PerOutputRegressor(RegressorMixin, BaseEstimator):
 
         Per output: ``z = (x - mean) / scale * sqrt(gamma)`` (the estimator's own transform), ``y = sum_j a_j
         exp(-|z - s_j|^2) + b`` (libsvm's RBF with gamma = 1; ``a`` the dual coefficients, ``b`` the intercept),
-        with ``-|z - s|^2 = 2 z.s - |s|^2 - |z|^2`` about the support vectors' centroid, so a batch costs one BLAS
-        matrix product per output instead of a ``(B, n_sv, n_features)`` difference array, and every other pass
-        works in place on that product (a temporary of its size would be allocated and faulted in again at every
-        call). Equal to ``predict`` to float rounding.
+        with ``-|z - s|^2 = 2 z.s - |s|^2 - |z|^2`` about the support vectors' centroid as one BLAS product per
+        output, ``[2z, -1, -|z|^2] . [s, |s|^2, 1]``, instead of a ``(B, n_sv, n_features)`` difference array; the
+        exponential and the dual sum then work in place on it (a temporary of its size would be allocated and
+        faulted in again at every call). Equal to ``predict`` to float rounding.
         """
         parts = []
         for est in getattr(self, "estimators_", None) or []:
@@ -242,19 +242,22 @@ class PerOutputRegressor(RegressorMixin, BaseEstimator):
                 return None
             mean, std, scale, centre, sv_c, sv_sq, coef, b = terms
             gain = scale / std  # z = x gain + shift
-            parts.append((gain, -mean * gain - centre, 2.0 * sv_c, sv_sq, coef, b))
+            support = np.vstack([sv_c.T, sv_sq, np.ones_like(sv_sq)])  # (n_features + 2, n_sv)
+            parts.append((gain, -mean * gain - centre, support, coef, b))
         if not parts or getattr(self, "_y_1d", True):
             return None
 
         def predict(X: np.ndarray) -> np.ndarray:
             X = np.asarray(X, dtype=float)
-            out = np.empty((X.shape[0], len(parts)))
-            for k, (gain, shift, sv2, sv_sq, coef, b) in enumerate(parts):
+            n, d = X.shape
+            out = np.empty((n, len(parts)))
+            query = np.empty((n, d + 2))
+            query[:, d] = -1.0
+            for k, (gain, shift, support, coef, b) in enumerate(parts):
                 z = X * gain + shift
-                arg = z @ sv2.T  # one matrix product per output for the whole batch: 2 z.s
-                arg -= sv_sq
-                arg -= np.einsum("ij,ij->i", z, z)[:, None]  # -|z - s|^2
-                np.minimum(arg, 0.0, out=arg)
+                np.multiply(z, 2.0, out=query[:, :d])
+                query[:, d + 1] = -np.einsum("ij,ij->i", z, z)
+                arg = query @ support  # -|z - s|^2 for every query and support vector
                 np.exp(arg, out=arg)
                 out[:, k] = arg @ coef + b
             return out
