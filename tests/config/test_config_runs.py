@@ -24,11 +24,12 @@ PER_KIND = 3  # configs that load, per kind: ~3 s each
 
 
 def _loading(kind: str, tmp: Path) -> list[tuple[dict[str, Any], list[str]]]:
-    """The first ``PER_KIND`` generated configs of ``kind`` that load (the generator is seeded)."""
+    """The first ``PER_KIND`` generated configs of ``kind`` that load and whose edits act before the features stage
+    (a model section's edit is the bench's, run to ``report``); the generator is seeded."""
     found = []
-    for i in range(2000):
+    for i in range(5000):
         doc, what = random_edit(PARAMS if kind == "params" else VEHICLE, random.Random(f"{SEED}:{kind}:{i}"))
-        if outcome(kind, write(tmp / f"{kind}.yaml", doc))[0] == "loaded":
+        if run_plan(kind, doc, what)[2] == "derive" and outcome(kind, write(tmp / f"{kind}.yaml", doc))[0] == "loaded":
             found.append((doc, what))
             if len(found) == PER_KIND:
                 return found
