@@ -189,7 +189,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, logs: Iterable[Path] | Non
             progress(status)
 
     ok = sorted(o.parent.name for o in result.outputs if o.name == "ingest_report.json")
-    _raise_if_config_sinks_every_log(result.quarantined, ok, len(paths))
+    _raise_if_config_sinks_every_log(result.quarantined, ok, len(paths), vehicle)
     # keyed by file: a log whose name gives no safe trial id has trial None
     result.summary = {"logs": len(paths), "trials_written": ok,
                       "quarantined": sorted(e["file"] for e in result.quarantined),
@@ -212,11 +212,13 @@ def unmatched_overrides(vehicle: Vehicle, trials: list[str]) -> list[str]:
     return unmatched
 
 
-def _raise_if_config_sinks_every_log(quarantined: list[dict[str, Any]], written: list[str], n_logs: int) -> None:
+def _raise_if_config_sinks_every_log(quarantined: list[dict[str, Any]], written: list[str], n_logs: int,
+                                     vehicle: Vehicle) -> None:
     """Two or more logs, none written, every one stopped by the same configured topic / field: the config is wrong.
 
     (With one log the log may be the odd one out, so it is quarantined.) Raised as a ConfigError so that the
-    shell exits 2 with the cause instead of writing one quarantine entry per log.
+    shell exits 2 with the cause instead of writing one quarantine entry per log; it names the vehicle file and
+    the key there (``streams.depth.topic``) where it can, else the topic and the field.
     """
     if written or n_logs < 2 or len(quarantined) != n_logs:
         return
@@ -226,8 +228,12 @@ def _raise_if_config_sinks_every_log(quarantined: list[dict[str, Any]], written:
     error, topic, fld = next(iter(keys))
     if error != "IngestError" or topic is None or any("report" in e for e in quarantined):
         return
-    raise ConfigError(f"every log ({n_logs}) fails on the same configured source; fix the vehicle config's "
-                      f"streams: {quarantined[0]['reason']}", topic=topic, field=fld)
+    message = (f"every log ({n_logs}) fails on the same configured source; fix the vehicle config's streams: "
+               f"{quarantined[0]['reason']}")
+    key = vehicle.source_key(topic, fld)
+    if key is None:
+        raise ConfigError(message, topic=topic, field=fld)
+    raise ConfigError(message, file=vehicle.config_file(), field=key)
 
 
 def update_quarantine_file(root: Path, files: list[str], written: list[str], quarantined: list[dict[str, Any]],

@@ -70,6 +70,7 @@ def load_vehicle(path: str | Path) -> Vehicle:
         raise ConfigError(f"{len(todo)} value(s) still to fill in (TODO): {listed}", file=path, field=todo[0][0])
     vehicle = parse(Vehicle, data, path)
     vehicle._base_dir = Path(path).resolve().parent
+    vehicle._source = str(path)
     return vehicle
 
 

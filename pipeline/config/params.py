@@ -23,6 +23,8 @@ COUPLED_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mc
 #: (abkowitz: nu, the thrust columns of ``coupled.inputs`` and its control-surface angles, pipeline.models.manoeuvring)
 EXPLICIT_MODELS = ("gertler_hagen", "mcfarland_whitcomb", "fossen", "abkowitz")
 DECOUPLED_MODELS = ("ls", "mlp", "krr", "svr", "gp")
+#: what the explicit models predict, in their equations' order
+PLANAR_OUTPUTS = ["udot_mps2", "vdot_mps2", "rdot_radps2"]
 #: Bounds the config campaign (bench/fuzz_configs.py) found missing: a filter width beyond an hour, or more joblib
 #: workers than any machine has, is a typo or a hostile file, not a setting.
 MAX_WIDTH_S = 3600.0
@@ -289,6 +291,17 @@ class CoupledParams(Frozen):
     def _models_known(cls, models: list[str]) -> list[str]:
         _known(models, COUPLED_MODELS, "coupled model")
         return _unique_safe_names(models, "model")
+
+    @model_validator(mode="after")
+    def _explicit_outputs(self) -> CoupledParams:
+        # the explicit models (and gray boxes on them) predict [udot vdot rdot] as one system, column by column:
+        # another count fails deep in the train stage, another order would fit each equation to the wrong target
+        explicit = [m for m in self.models if m in EXPLICIT_MODELS or m.startswith("graybox")]
+        if explicit and self.outputs != PLANAR_OUTPUTS:
+            raise checks.KeyedError("outputs", f"coupled.models {explicit} predict {PLANAR_OUTPUTS} in this order: "
+                                    f"set coupled.outputs to it (not {self.outputs}), or keep only SVRs in "
+                                    "coupled.models")
+        return self
 
     @model_validator(mode="after")
     def _input_groups(self) -> CoupledParams:

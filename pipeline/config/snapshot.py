@@ -138,7 +138,7 @@ class VehicleView(VehicleMethods, ConfigView):
         from pipeline.config.vehicle import Vehicle
 
         vehicle = parse(Vehicle, self._raw, self._source)
-        vehicle._base_dir = self._base_dir
+        vehicle._base_dir, vehicle._source = self._base_dir, self._source
         return vehicle
 
 

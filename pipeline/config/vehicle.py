@@ -401,6 +401,7 @@ class Vehicle(VehicleMethods, Frozen):
         "for the matching trials. Several matching keys apply in config order, a later one winning per key."))
 
     _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
+    _source: str | None = PrivateAttr(default=None)
 
     def override_keys(self) -> dict[str, dict[str, dict[str, Any]]]:
         """Every trial override as given: ``{pattern: {stream: {key: value}}}``, in config order."""

@@ -19,7 +19,23 @@ class VehicleMethods:
 
     if TYPE_CHECKING:  # declared for type checkers only: pydantic must not take them for fields
         _base_dir: Path
+        _source: str | None
         streams: dict[str, Any]
+
+    def config_file(self) -> str | None:
+        """The YAML file the config was loaded from (None: built in memory), for errors found after loading."""
+        return self._source
+
+    def source_key(self, topic: str | None, field: str | None = None) -> str | None:
+        """The config key that names ``topic`` (a stream's topic or file) or, with ``field``, the field of one of
+        its signals: ``streams.dvl.topic``, ``streams.dvl.signals.dvl_x_mps.field``; None if no stream does."""
+        for name, stream in self.streams.items():
+            if topic is not None and topic in (stream.topic, stream.file):
+                for signal, source in stream.signals.items():
+                    if field is not None and source.field == field:
+                        return f"streams.{name}.signals.{signal}.field"
+                return f"streams.{name}.{'topic' if stream.topic == topic else 'file'}"
+        return None
 
     def resolve(self, relative: str | Path) -> Path:
         """A path from the config (a thrust table), relative to the vehicle file's directory."""

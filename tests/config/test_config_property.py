@@ -93,3 +93,20 @@ def test_a_csv_skip_rows_beyond_the_line_budget_is_refused(tmp_path: Path) -> No
     doc = copy.deepcopy(VEHICLE)
     doc["streams"]["tank"]["csv"]["skip_rows"] = 2**64  # pandas: OverflowError at ingest
     assert outcome("vehicle", write(tmp_path / "vehicle.yaml", doc)) == ("refused", "streams.tank.csv.skip_rows")
+
+
+@pytest.mark.parametrize("outputs", [["udot_mps2", "rdot_radps2"], ["vdot_mps2", "udot_mps2", "rdot_radps2"]])
+def test_explicit_models_with_other_outputs_than_udot_vdot_rdot_are_refused(tmp_path: Path,
+                                                                             outputs: list[str]) -> None:
+    """Found by the run campaign (``bench/fuzz_configs.py --run``, seed 3711): ``drop coupled.outputs.1`` loaded,
+    and the tune stage ended in a traceback from inside the McFarland-Whitcomb estimator (two columns, not three);
+    the same outputs reordered would fit each of its equations to another equation's target without a word."""
+    doc = copy.deepcopy(PARAMS)
+    doc["coupled"]["outputs"] = outputs
+    path = write(tmp_path / "params.yaml", doc)
+    with pytest.raises(ConfigError) as info:
+        load_params(path)
+    assert info.value.file == str(path) and info.value.field == "coupled.outputs"
+    assert "['gertler_hagen', 'mcfarland_whitcomb', 'graybox']" in str(info.value)
+    doc["coupled"]["models"] = ["rbf_svr", "wdse_svr"]  # the SVRs predict each output on its own: any set loads
+    load_params(write(tmp_path / "params.yaml", doc))
