@@ -95,8 +95,8 @@ def bridging_figure(rows: Sequence[Mapping[str, Any]], failed: Mapping[str, str]
         if pts:
             x, y = zip(*pts, strict=True)
             bad = name in failed
-            ax.plot(x, y, marker="o", mfc="none" if bad else None, label=label(name) + (
-                f" (failed: {failed[name]})" if bad else ""), ls=":" if bad else "--" if name == "hold_last" else "-")
+            ax.plot(x, y, marker="o", mfc="none" if bad else None, label=label(name) + (" (failed)" if bad else ""),
+                    ls=":" if bad else "--" if name == "hold_last" else "-")  # why: in the report's verdicts
     ax.set_xlabel("DVL outage [s]")
     ax.set_ylabel("mean position error at the end [m]")
     ax.set_yscale("log")

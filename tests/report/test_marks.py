@@ -116,3 +116,26 @@ def test_a_box_plot_clips_a_failed_model_off_scale_and_names_it() -> None:
     ticks = [t.get_text() for t in ax.get_xticklabels()]
     assert ticks == ["WDSE-SVR", "Gertler–Hagen\n(failed: train R² < 0)"]
     figures.png_bytes(fig)
+
+
+def test_the_bridging_figure_marks_failed_models_without_crowding_out_its_axes() -> None:
+    """The reasons a model failed are the report's verdicts; in the legend it is "(failed)", dotted and hollow,
+    so that long reasons (a divergence time, an R² below the mean's) never squeeze the axes to nothing, which
+    matplotlib warns about on the user's terminal."""
+    import warnings
+
+    from pipeline.report.rollout import bridging_figure
+
+    models = ["hold_last", "rbf_svr", "two_weights_svr", "wdse_svr", "graybox", "ls", "mlp", "krr", "svr", "gp"]
+    rows = [{"model": m, "window_s": w, "mean_error_m": 0.1 * w * (k + 1), "n_windows": 14,
+             "n_diverged": 2 if m == "mlp" else 0} for k, m in enumerate(models) for w in (10.0, 30.0)]
+    why = "R² below the mean predictor's on the unseen trial (-0.21); the free run diverged at t = 135.40 s"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fig = bridging_figure(rows, {m: why for m in models[1:6]})
+        figures.png_bytes(fig)
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert sum(t.endswith(" (failed)") for t in texts) == 6  # five given, and the one that diverged in a window
+    lines = {t.get_label(): t for t in fig.axes[0].get_lines()}
+    assert all(lines[t].get_linestyle() == ":" and lines[t].get_markerfacecolor() == "none"
+               for t in texts if t.endswith(" (failed)"))
