@@ -27,9 +27,9 @@ exactly as the train stage does (``pipeline.studies.coupled.build_model`` with t
 the train stage's cross-validation folds, which decide nothing the test trial sees: the scores are the same numbers.
 
 ``--intervals`` (needs the CV: not with ``--no-cv``) adds a table of each model's 90 % prediction interval
-(``pipeline.studies.intervals``: split conformal on the train stage's out-of-fold residuals, in units of each
-target's own SD) and its share of the test trial's MEASURED targets inside, mean and worst over seeds, beside the
-same share for one half-width per output (the quantile of the unscaled |residuals|, the alternative).
+(``pipeline.studies.intervals``: split conformal on the train stage's out-of-fold |residuals|, one half-width per
+output) and its share of the test trial's MEASURED targets inside, mean and worst over seeds, beside the same
+share for the alternative normalized by each target's own SD (``half_width_sd`` times the row's SD).
 
     python bench/coupled_study.py --seeds 16 17 --duration 300 --intervals
 
@@ -99,8 +99,8 @@ def final_models(root: Path, params: Params, vehicle) -> dict:
 
 
 def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
-    """Per output: the share of the test trial's measured targets inside the model's 90 % interval (each row's
-    half-width q times its target's SD) and inside one half-width (the unscaled |residuals|' quantile)."""
+    """Per output: the share of the test trial's measured targets inside the model's 90 % interval and inside the
+    alternative normalized by the target's SD (q_sd times each row's SD; None without SD columns)."""
     from pipeline.evaluate import interval_half_width
     from pipeline.studies.intervals import target_sd
 
@@ -108,9 +108,9 @@ def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
     out = {}
     for j, o in enumerate(OUTPUTS):
         err = np.abs(test[o].to_numpy(float) - pred[:, j])
+        q_sd = interval[o].get("half_width_sd")
         out[o] = {"inside": float(np.mean(err <= interval_half_width(interval[o], sd[o]))),
-                  "inside_unscaled": float(np.mean(err <= interval[o]["half_width_unscaled"])),
-                  "half_width_sd": interval[o].get("half_width_sd")}
+                  "inside_sd": None if q_sd is None or sd[o] is None else float(np.mean(err <= q_sd * sd[o]))}
     return out
 
 
@@ -253,14 +253,14 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
         print(f"| {name} | " + " | ".join(f"{v:.3f}" for v in mean + worst) + " |")
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial s3's MEASURED targets inside each model's 90 % interval "
-              "(normalized by the target's SD: the method; one half-width: the alternative), mean / worst over seeds")
+              "(one half-width: the method; normalized by the target's SD: the alternative), mean / worst over seeds")
         print("| model | " + " | ".join(f"{o} inside" for o in OUTPUTS) + " | "
-              + " | ".join(f"{o} one half-width" for o in OUTPUTS) + " |")
+              + " | ".join(f"{o} normalized" for o in OUTPUTS) + " |")
         print("| --- |" + " ---: |" * 6)
         for m in models:
             per = [r["intervals"][m] for r in results if m in r.get("intervals", {})]
-            cells = [f"{np.mean([p[o][k] for p in per]):.3f} / {np.min([p[o][k] for p in per]):.3f}"
-                     for k in ("inside", "inside_unscaled") for o in OUTPUTS]
+            cells = [f"{np.mean(v):.3f} / {np.min(v):.3f}" if None not in (v := [p[o][k] for p in per]) else "–"
+                     for k in ("inside", "inside_sd") for o in OUTPUTS]
             print(f"| {m} | " + " | ".join(cells) + " |")
     if args.oracle:
         print("\nbest WDSE-SVR candidate of the search, chosen on the test truth (a bound, not a method); per seed")

@@ -202,7 +202,7 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
                                  "the mean on its own training rows; a free run that diverged or is worse than the "
                                  "mean on the output's DOF is named too; either leaves the model out of “best”. "
                                  "90 % interval: prediction ± the split-conformal quantile of the CV's out-of-fold "
-                                 "|residuals| (in each target's own SD where known); inside: the share of the unseen "
+                                 "|residuals|; inside: the share of the unseen "
                                  "trial's measured targets within it, 85–95 % expected")
     return html, failed
 

@@ -1,11 +1,15 @@
 """The coupled study's 90 % prediction intervals: split conformal on the blocked CV's out-of-fold residuals.
 
 The train stage's blocked CV already predicts every train_test row with a model fitted without its block (the
-folds' ``test_pred``). Per output the score of a row is ``|residual| / sd``, ``sd`` the smoother's SD of that
-target (``udot_std_mps2`` ..., where the store has it: the band widens where the target is uncertain; 1 where it
-has none), and ``q`` (``half_width_sd``) is the ``ceil((n + 1) 0.9)``-th smallest score
-(:func:`pipeline.evaluate.conformal_half_width`). A row's interval is the final model's prediction ± ``q · sd``.
-The final check scores the share of the test trial(s)' measured targets inside (``interval_coverage``).
+folds' ``test_pred``). Per output the score of a row is ``|residual|`` and ``q`` (``half_width``) is the
+``ceil((n + 1) 0.9)``-th smallest score (:func:`pipeline.evaluate.conformal_half_width`); a row's interval is the
+final model's prediction ± ``q``. The final check scores the share of the test trial(s)' measured targets inside
+(``interval_coverage``).
+
+One half-width, not one normalized by each target's smoother SD (``udot_std_mps2`` ...; the decoupled study's
+choice): the coupled models' residuals are mostly model error, which does not grow with the smoother's SD, and on
+the validation seeds the normalized band missed more (docs/models.md, "Coupled models' intervals"). The
+normalized quantile is saved beside it (``half_width_sd``) for comparison, where the store has the SDs.
 
 Blocks are exchangeable only approximately (the targets' errors are correlated in time) and a test trial of
 another regime is a covariate shift: docs/models.md, "Coupled models' intervals", says what guarantee remains and
@@ -60,25 +64,21 @@ def target_sd(frame: pd.DataFrame, outputs: Sequence[str]) -> dict[str, np.ndarr
 def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray, outputs: Sequence[str],
                   sd: Mapping[str, np.ndarray | None]) -> dict[str, dict[str, Any]]:
     """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the folds' ``(test rows,
-    predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs). With the rows' SDs
-    (``sd[output]``) it is normalized (``scale: target_sd``, ``half_width_sd`` = q, ``half_width`` = q times the
-    rows' RMS SD, the typical width); without, ``scale: none`` and ``half_width`` = q. ``half_width_unscaled``:
-    the quantile of ``|residual|`` alone, for comparison (docs/models.md)."""
+    predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: none``, ``half_width``
+    = q of ``|residual|``. With the rows' SDs (``sd[output]``) also the alternative, not used: ``half_width_sd``,
+    the quantile of ``|residual| / sd`` (docs/models.md)."""
     rows = np.concatenate([np.asarray(r) for r, _ in folds])
     pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), -1) for r, p in folds])
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
         r = np.abs(y[rows, k] - pred[:, k])
-        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size), "method": METHOD,
-                                 "half_width_unscaled": conformal_half_width(r)}
+        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size), "method": METHOD, "scale": "none",
+                                 "half_width": conformal_half_width(r)}
         s = sd.get(o)
-        if s is None:
-            entry.update(scale="none", half_width=entry["half_width_unscaled"])
-        else:
-            q = conformal_half_width(r / sd_floor(s[rows]))
-            entry.update(scale="target_sd", sd_column=target_sd_column(o), half_width_sd=q,
-                         half_width=q * float(np.sqrt(np.mean(s**2))))
+        if s is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
+            entry.update(alternative_sd_column=target_sd_column(o),
+                         half_width_sd=conformal_half_width(r / sd_floor(s[rows])))
         out[o] = entry
     return out
 
@@ -86,7 +86,7 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
 def interval_coverage(intervals: Mapping[str, dict[str, Any]], y: np.ndarray, pred: np.ndarray,
                       outputs: Sequence[str], sd: Mapping[str, np.ndarray | None]) -> dict[str, float]:
     """Per output the share of the rows' measured targets ``y`` inside prediction ± the interval's half-width (each
-    row's own, ``q · sd``, where the rows' SDs are known)."""
+    row's own, ``q · sd``, for an interval normalized by the targets' SDs ``sd``)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     pred = np.asarray(pred, dtype=float).reshape(len(pred), -1)
     return {o: float(np.mean(np.abs(y[:, k] - pred[:, k]) <= interval_half_width(intervals[o], sd.get(o))))
