@@ -26,6 +26,13 @@ each seed and the mean over seeds.
 exactly as the train stage does (``pipeline.studies.coupled.build_model`` with the tuned hyperparameters), skipping
 the train stage's cross-validation folds, which decide nothing the test trial sees: the scores are the same numbers.
 
+``--intervals`` (needs the CV: not with ``--no-cv``) adds a table of each model's 90 % prediction interval
+(``pipeline.studies.intervals``: split conformal on the train stage's out-of-fold |residuals|, one half-width per
+output) and its share of the test trial's MEASURED targets inside, mean and worst over seeds, beside the same
+share for the alternative normalized by each target's own SD (``half_width_sd`` times the row's SD).
+
+    python bench/coupled_study.py --seeds 16 17 --duration 300 --intervals
+
 ``--oracle OUTPUT ...`` (a diagnostic, not a method): every WDSE-SVR candidate the tune stage's search scored for
 that output (its ``search_trace.json``) is fitted on the train_test block as the final model is and scored against
 the test trial's truth; the table gets a row with the best of them per seed, chosen on the test truth. It bounds
@@ -91,6 +98,22 @@ def final_models(root: Path, params: Params, vehicle) -> dict:
     return out
 
 
+def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
+    """Per output: the share of the test trial's measured targets inside the model's 90 % interval and inside the
+    alternative normalized by the target's SD (q_sd times each row's SD; None without SD columns)."""
+    from pipeline.evaluate import interval_half_width
+    from pipeline.studies.intervals import target_sd
+
+    sd = target_sd(test, OUTPUTS)
+    out = {}
+    for j, o in enumerate(OUTPUTS):
+        err = np.abs(test[o].to_numpy(float) - pred[:, j])
+        q_sd = interval[o].get("half_width_sd")
+        out[o] = {"inside": float(np.mean(err <= interval_half_width(interval[o], sd[o]))),
+                  "inside_sd": None if q_sd is None or sd[o] is None else float(np.mean(err <= q_sd * sd[o]))}
+    return out
+
+
 def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: np.ndarray) -> dict:
     """Per output: the best R² against the truth over every WDSE-SVR candidate of the tune stage's search, each
     fitted on the train_test block as the final model is (its C scaled from the rows the search fitted)."""
@@ -152,17 +175,21 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
         out["targets"] = {o: r2(test[o].to_numpy(), a_true[:, j]) for j, o in enumerate(OUTPUTS)}
         out["models"] = {}
         if cv:
-            fitted = {}
+            fitted, intervals = {}, {}
             for path in sorted((root / "data/models/coupled").glob("*.joblib")):
                 est, card = load_model(path)
                 fitted[card["model"]] = (est, card["inputs"])
+                intervals[card["model"]] = card["interval"]
             metrics = json.loads((root / "data/evaluation/coupled/metrics.json").read_text())
             out["failed"] = {m: v["failed"] for m, v in metrics.items() if isinstance(v, dict) and "failed" in v}
         else:
             fitted, out["failed"] = final_models(root, params, vehicle), {}
+        out["intervals"] = {}
         for model, (est, cols) in sorted(fitted.items()):
             pred = est.predict(test[cols].to_numpy(float))
             out["models"][model] = {o: r2(pred[:, j], a_true[:, j]) for j, o in enumerate(OUTPUTS)}
+            if cv:
+                out["intervals"][model] = interval_shares(intervals[model], test, pred)
         if oracle:
             out["oracle"] = oracle_scores(root, params, oracle, test, a_true)
     return out
@@ -183,9 +210,13 @@ def main() -> None:
                     help="coupled.max_samples for this run (the tuning subsample; default: the params file's)")
     ap.add_argument("--no-cv", action="store_true",
                     help="skip the train stage's CV folds: fit the final models as it does (same test scores)")
+    ap.add_argument("--intervals", action="store_true",
+                    help="also each model's 90 %% interval and its share of the test trial's targets inside")
     ap.add_argument("--oracle", nargs="+", default=None, choices=OUTPUTS, metavar="OUTPUT",
                     help="also the best WDSE-SVR search candidate per seed on the test truth (a bound; see above)")
     args = ap.parse_args()
+    if args.intervals and args.no_cv:
+        ap.error("--intervals needs the train stage's CV folds: drop --no-cv")
     if args.oracle and args.models and "wdse_svr" not in args.models:
         ap.error("--oracle bounds the WDSE-SVR: add wdse_svr to --models")
     params = Params.model_validate(yaml.safe_load(args.params.read_text()) or {})
@@ -220,6 +251,17 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
         mean = [np.mean([p[o] for p in per_seed]) for o in OUTPUTS]
         worst = [np.min([p[o] for p in per_seed]) for o in OUTPUTS]
         print(f"| {name} | " + " | ".join(f"{v:.3f}" for v in mean + worst) + " |")
+    if args.intervals:
+        print(f"\n{preset} preset: share of the unseen trial s3's MEASURED targets inside each model's 90 % interval "
+              "(one half-width: the method; normalized by the target's SD: the alternative), mean / worst over seeds")
+        print("| model | " + " | ".join(f"{o} inside" for o in OUTPUTS) + " | "
+              + " | ".join(f"{o} normalized" for o in OUTPUTS) + " |")
+        print("| --- |" + " ---: |" * 6)
+        for m in models:
+            per = [r["intervals"][m] for r in results if m in r.get("intervals", {})]
+            cells = [f"{np.mean(v):.3f} / {np.min(v):.3f}" if None not in (v := [p[o][k] for p in per]) else "–"
+                     for k in ("inside", "inside_sd") for o in OUTPUTS]
+            print(f"| {m} | " + " | ".join(cells) + " |")
     if args.oracle:
         print("\nbest WDSE-SVR candidate of the search, chosen on the test truth (a bound, not a method); per seed")
         for o in args.oracle:

@@ -1,4 +1,6 @@
-"""Evaluation protocol: split blocks, unshuffled blocked k-fold CV with a leakage guard, metrics.
+"""Evaluation protocol: split blocks, unshuffled blocked k-fold CV with a leakage guard, metrics, and the
+split-conformal prediction interval from the CV's out-of-fold residuals (docs/models.md, "Decoupled models'
+intervals" and "Coupled models' intervals").
 
 Generic on purpose (the coupled and the decoupled studies both use it): an estimator, ``X``, ``y`` (1-D or
 2-D), and optionally a ``keys`` frame that says where each row comes from (``trial`` + ``t_ns`` by default)
@@ -25,7 +27,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SPLITS", "split_blocks", "blocked_folds", "check_no_leakage", "regression_scores",
            "cross_validate_blocked", "fit_fold", "guarded_folds", "summarize_folds", "score_holdout", "MODEL_FAILURES",
-           "model_failure"]
+           "model_failure", "INTERVAL_LEVEL", "conformal_half_width", "sd_floor", "interval_half_width"]
 
 #: What one model's fit or evaluation may raise without stopping a study: the pipeline's own errors and numerical
 #: errors from numpy / scipy / scikit-learn (LinAlgError is a ValueError). Never KeyboardInterrupt or MemoryError.
@@ -100,9 +102,10 @@ def regression_scores(y_true: np.ndarray, y_pred: np.ndarray, outputs: Sequence[
 
 
 def fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray,
-             outputs: Sequence[str] | None) -> dict[str, Any]:
+             outputs: Sequence[str] | None, *, predictions: bool = False) -> dict[str, Any]:
     """A clone of ``estimator`` fitted on the ``train`` rows: its scores on them and on the ``test`` rows, times,
-    sizes and the test block's span."""
+    sizes and the test block's span; with ``predictions`` also its predictions of the ``test`` rows
+    (``test_pred``, the out-of-fold predictions a conformal interval is calibrated on)."""
     est = clone(estimator)
     t0 = time.perf_counter()
     est.fit(X[train], y[train])
@@ -110,11 +113,14 @@ def fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, te
     pred_test = est.predict(X[test])
     t2 = time.perf_counter()
     pred_train = est.predict(X[train])
-    return {"train": regression_scores(y[train], pred_train, outputs),
-            "test": regression_scores(y[test], pred_test, outputs),
-            "fit_time_s": t1 - t0, "predict_time_s": t2 - t1,
-            "n_train": int(train.size), "n_test": int(test.size),
-            "test_start": int(test[0]), "test_stop": int(test[-1]) + 1}
+    out = {"train": regression_scores(y[train], pred_train, outputs),
+           "test": regression_scores(y[test], pred_test, outputs),
+           "fit_time_s": t1 - t0, "predict_time_s": t2 - t1,
+           "n_train": int(train.size), "n_test": int(test.size),
+           "test_start": int(test[0]), "test_stop": int(test[-1]) + 1}
+    if predictions:
+        out["test_pred"] = np.asarray(pred_test, dtype=float).reshape(int(test.size), -1)
+    return out
 
 
 def guarded_folds(n_samples: int, n_folds: int, keys: pd.DataFrame | None = None,
@@ -175,3 +181,33 @@ def score_holdout(model: Any, X: np.ndarray, y: np.ndarray, outputs: Sequence[st
                   ) -> dict[str, dict[str, float]]:
     """Scores of a fitted model on a held-out block (the final check on an unseen trial)."""
     return regression_scores(y, model.predict(np.asarray(X, dtype=float)), outputs)
+
+
+#: The prediction intervals' nominal coverage.
+INTERVAL_LEVEL = 0.9
+
+
+def conformal_half_width(abs_residuals: np.ndarray, level: float = INTERVAL_LEVEL) -> float:
+    """The split-conformal half-width: the ``ceil((n + 1) level)``-th smallest of ``n`` absolute out-of-fold
+    residuals (the largest where ``n`` is too small for ``level``, with a warning)."""
+    r = np.sort(np.asarray(abs_residuals, dtype=float))
+    if r.size == 0:
+        raise ModelError("no out-of-fold residuals to calibrate an interval with")
+    k = int(np.ceil((r.size + 1) * level))
+    if k > r.size:
+        log.warning("%d residuals are too few for a %.0f %% conformal interval; the largest is used", r.size,
+                    100 * level)
+    return float(r[min(k, r.size) - 1])
+
+
+def sd_floor(sd: np.ndarray) -> np.ndarray:
+    """SDs kept away from 0 (a thousandth of their median), so a normalized score stays finite."""
+    return np.maximum(sd, 1e-3 * float(np.median(sd)) + 1e-300)
+
+
+def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None) -> np.ndarray | float:
+    """The half-width of each row's interval: ``half_width_sd * sd`` for a normalized interval
+    (``scale == "target_sd"``) where the rows' SDs are known, else the typical ``half_width``."""
+    if interval.get("scale") == "target_sd" and sd is not None:
+        return interval["half_width_sd"] * sd_floor(sd)
+    return float(interval["half_width"])

@@ -41,24 +41,41 @@ def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], 
 
 def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, dict[str, str]] | None = None
            ) -> tuple[str, dict[str, Any]]:
-    """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check.
+    """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check, the
+    90 % prediction interval (± half-width) and the share of the test trial(s)' targets inside it.
     The models in ``failed`` are named under the table (JSON: ``{model: {"failed": entry}}``)."""
     lines = ["| Model | Output | train R² mean | train R² SD | test R² mean | test R² SD | test MAE mean | "
-             "final-check R² |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+             "final-check R² | 90 % interval ± | final check: inside 90 % |",
+             "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     doc: dict[str, Any] = {}
     for model, res in results.items():
-        doc[model] = {"cv": res["summary"], "final": res["final"]}
+        doc[model] = {"cv": res["summary"], "final": res["final"], "interval": res.get("interval") or {}}
         for out in outputs:
             s = res["summary"][out]
             final = f"{res['final'][out]['r2']:.3f}" if res["final"] else "n/a"
+            inside = (res["final"] or {}).get(out, {}).get("interval_coverage")
             lines.append(f"| {MODEL_LABELS.get(model, model)} | {out} | {s['train_r2']['mean']:.3f} | "
                          f"{s['train_r2']['sd']:.3f} | {s['test_r2']['mean']:.3f} | {s['test_r2']['sd']:.3f} | "
-                         f"{s['test_mae']['mean']:.4g} | {final} |")
+                         f"{s['test_mae']['mean']:.4g} | {final} | {interval_text(doc[model]['interval'].get(out))} | "
+                         f"{'n/a' if inside is None else f'{inside:.0%}'} |")
+    if results:
+        lines.append("\n90 % interval: the prediction ± the split-conformal quantile of the blocked CV's out-of-fold "
+                     "|residuals| (one half-width per output); inside: the share of the test trial(s)' measured "
+                     "targets within it (85–95 % expected).")
     for model, entry in (failed or {}).items():
         doc[model] = {"failed": entry}
         lines.append(f"\nFailed, not in the table: {MODEL_LABELS.get(model, model)} "
                      f"({entry['error']}: {entry['reason']})")
     return "\n".join(lines) + "\n", doc
+
+
+def interval_text(interval: dict[str, Any] | None) -> str:
+    """'1.42 SD (≈ 0.0123)' for an interval normalized by the target's SD, '0.0123' for one half-width."""
+    if not interval:
+        return "n/a"
+    if interval.get("scale") == "target_sd":
+        return f"{interval['half_width_sd']:.2f} SD (≈ {interval['half_width']:.3g})"
+    return f"{interval['half_width']:.3g}"
 
 
 #: Fig. 4's lowest R² on scale: below it a box says nothing the others need, and would squash them

@@ -192,12 +192,18 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
                          "CV train R² (mean ± sd)": H.mean_sd(c.get("train_r2", {}).get("mean"),
                                                               c.get("train_r2", {}).get("sd")),
                          "final check R² (unseen trial)": f.get("r2"), "final check MAE": f.get("mae"),
+                         "90 % interval ±": report_coupled.interval_text((entry.get("interval") or {}).get(out)),
+                         "inside 90 % (unseen trial)": None if not isinstance(f.get("interval_coverage"), float)
+                         else f"{f['interval_coverage']:.0%}",
                          "verdict": coupled_verdict(entry, marks, model, out)})
     html = H.table(rows, caption="Table III — cross-validation and final check (paper 000): blocked k-fold CV on "
                                  "the train_test block (mean ± sd over folds), then the model fitted on all of it "
                                  "scored on the unseen test trial(s); verdict “failed: train R² < 0”: worse than "
                                  "the mean on its own training rows; a free run that diverged or is worse than the "
-                                 "mean on the output's DOF is named too; either leaves the model out of “best”")
+                                 "mean on the output's DOF is named too; either leaves the model out of “best”. "
+                                 "90 % interval: prediction ± the split-conformal quantile of the CV's out-of-fold "
+                                 "|residuals|; inside: the share of the unseen "
+                                 "trial's measured targets within it, 85–95 % expected")
     return html, failed
 
 

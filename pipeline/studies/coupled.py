@@ -45,6 +45,7 @@ from pipeline.models.search_halving import fold_subset, search
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
+from pipeline.studies.intervals import interval_coverage, oof_intervals, target_sd
 from pipeline.studies.tasks import SearchCache, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
 
@@ -340,8 +341,10 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
                     rigid_body_mass: np.ndarray | None = None) -> dict[str, Any]:
     """Blocked CV on the train_test block and the final check on the test trial(s), per model.
 
-    Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted}}``; the
-    final estimator is fitted on the whole train_test block.
+    Returns ``{model: {"folds": [...], "summary": {...}, "final": {...} | None, "estimator": fitted,
+    "interval": {output: {...}}}}``; the final estimator is fitted on the whole train_test block, the 90 %
+    interval calibrated on the folds' out-of-fold residuals (:mod:`pipeline.studies.intervals`) and its share of
+    the test trials' targets inside is in ``final[output]["interval_coverage"]``.
 
     A model's failure (:data:`pipeline.evaluate.MODEL_FAILURES`) names the model. With ``failures`` given it is
     logged, recorded there (``failures[model]`` = :func:`pipeline.evaluate.model_failure`) and the other models go
@@ -357,6 +360,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
     if len(test):
         check_no_leakage(train_test[["trial", "t_ns"]], test[["trial", "t_ns"]], tuning_keys)
     y = train_test[params.outputs].to_numpy(float)
+    sd_train, sd_test = target_sd(train_test, params.outputs), target_sd(test, params.outputs)
     results: dict[str, Any] = {}
     specs: list[dict[str, Any]] = []
     for model in params.models:
@@ -383,8 +387,15 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
             return
         folds = [r["fold"] for r in mine if "fold" in r]
         final = mine[-1]
+        mine_specs = [s for s in specs if s["model"] == model]  # the folds' test rows: out-of-fold residuals
+        interval = oof_intervals([(s["test"], r["pred"]) for s, r in zip(mine_specs, mine, strict=True)
+                                  if s["kind"] == "fold"], y, params.outputs, sd_train)
+        if final["final"] is not None:  # the final check: the test trials' targets inside, beside R²
+            inside = interval_coverage(interval, mine_specs[-1]["y_test"], final["pred"], params.outputs, sd_test)
+            for o in params.outputs:
+                final["final"][o]["interval_coverage"] = inside[o]
         results[model] = {"folds": folds, "summary": summarize_folds(folds), "final": final["final"],
-                          "estimator": final["estimator"]}
+                          "estimator": final["estimator"], "interval": interval}
         log.info("%s: CV test R2 %s", model, {o: round(s["test_r2"]["mean"], 4)
                                              for o, s in results[model]["summary"].items()})
         if on_model is not None:
@@ -501,7 +512,8 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
             "trained_on": {"split": "train_test", "rows": len(train_test),
                            "trials": sorted(train_test["trial"].unique())},
             "scores": {"cv": result["summary"], "final_check": result["final"],
-                       "final_check_trials": sorted(test["trial"].unique())}}
+                       "final_check_trials": sorted(test["trial"].unique())},
+            "interval": result.get("interval")}  # per output; its coverage of the test trials in final_check
     if model not in EXPLICIT_MODELS:  # each SVR fitted on at most this many of the rows (evenly spaced in time)
         card["trained_on"]["svr_max_rows"] = params.svr_max_rows
     estimator = result["estimator"]
@@ -522,11 +534,14 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
 
 
 def metrics(results: dict[str, Any], failed: dict[str, dict[str, str]]) -> dict[str, Any]:
-    """metrics.json: per model and output the CV test R² (mean, SD) and the final check's; the failed models'
-    reasons."""
+    """metrics.json: per model and output the CV test R² (mean, SD) and the final check's, the 90 % interval's
+    typical half-width and its share of the test trials' targets inside; the failed models' reasons."""
     out: dict[str, Any] = {
         m: {o: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
-                "final_r2": (r["final"] or {}).get(o, {}).get("r2")} for o, s in r["summary"].items()}
+                "final_r2": (r["final"] or {}).get(o, {}).get("r2"),
+                "interval_half_width": (r.get("interval") or {}).get(o, {}).get("half_width"),
+                "final_interval_coverage": (r["final"] or {}).get(o, {}).get("interval_coverage")}
+            for o, s in r["summary"].items()}
         for m, r in results.items()}
     out.update({m: {"failed": f"{e['error']}: {e['reason']}"} for m, e in failed.items()})
     return out

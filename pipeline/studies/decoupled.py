@@ -48,7 +48,14 @@ from pipeline import __version__
 from pipeline.config import Vehicle, config_hash
 from pipeline.config.params import DecoupledParams
 from pipeline.errors import ConfigError, ModelError
-from pipeline.evaluate import MODEL_FAILURES, model_failure
+from pipeline.evaluate import (
+    INTERVAL_LEVEL,
+    MODEL_FAILURES,
+    conformal_half_width,
+    interval_half_width,
+    model_failure,
+    sd_floor,
+)
 from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
 from pipeline.parallel import imap, task_result, timed_task, workers
 from pipeline.physics import weight_buoyancy_N
@@ -57,8 +64,6 @@ from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS, force_column
 log = logging.getLogger(__name__)
 
 SCORING = {"mae": "neg_mean_absolute_error", "r2": "r2"}
-#: The prediction intervals' nominal coverage.
-INTERVAL_LEVEL = 0.9
 #: Models whose ``fit`` takes the targets' own SDs (``sample_sd``).
 TAKES_SD = ("gp",)
 
@@ -104,19 +109,6 @@ def dof_samples(df: pd.DataFrame, dof: str, max_samples: int | None = None
                         int(bad.sum()), bad.size)
             sd[bad] = float(np.median(sd[~bad]))
     return x[ok, None], y[ok], sd
-
-
-def conformal_half_width(abs_residuals: np.ndarray, level: float = INTERVAL_LEVEL) -> float:
-    """The split-conformal half-width: the ``ceil((n + 1) level)``-th smallest of ``n`` absolute out-of-fold
-    residuals (the largest where ``n`` is too small for ``level``, with a warning)."""
-    r = np.sort(np.asarray(abs_residuals, dtype=float))
-    if r.size == 0:
-        raise ModelError("no out-of-fold residuals to calibrate an interval with")
-    k = int(np.ceil((r.size + 1) * level))
-    if k > r.size:
-        log.warning("%d residuals are too few for a %.0f %% conformal interval; the largest is used", r.size,
-                    100 * level)
-    return float(r[min(k, r.size) - 1])
 
 
 def net_buoyancy(result: ModelResult, configured_N: float | None) -> dict[str, Any]:
@@ -274,7 +266,7 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
     if sd is None:
         out.update(scale="none", half_width=conformal_half_width(r))
     else:
-        scale = _sd_floor(np.concatenate([sd[rows] for rows in test_folds]))
+        scale = sd_floor(np.concatenate([sd[rows] for rows in test_folds]))
         q = conformal_half_width(r / scale)
         out.update(scale="target_sd", half_width_sd=q, half_width=q * float(np.sqrt(np.mean(sd**2))))
     if inside:
@@ -300,19 +292,6 @@ def unseen_scores(result: ModelResult, X: np.ndarray, y: np.ndarray, sd: np.ndar
     if "half_width" in result.interval:
         out["interval_coverage"] = float(np.mean(err <= interval_half_width(result.interval, sd)))
     return out
-
-
-def _sd_floor(sd: np.ndarray) -> np.ndarray:
-    """SDs kept away from 0 (a thousandth of their median), so a normalized score stays finite."""
-    return np.maximum(sd, 1e-3 * float(np.median(sd)) + 1e-300)
-
-
-def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None) -> np.ndarray | float:
-    """The half-width of each row's interval: ``half_width_sd * sd`` for a normalized interval where the rows'
-    SDs are known, else the typical ``half_width``."""
-    if interval.get("scale") == "target_sd" and sd is not None:
-        return interval["half_width_sd"] * _sd_floor(sd)
-    return float(interval["half_width"])
 
 
 def run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, *, dofs: Sequence[str] = ("u", "v", "r"),

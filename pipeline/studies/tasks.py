@@ -3,7 +3,8 @@
 * tune: one task per output for the SVRs' warm-start chain (RBF -> 2-weights -> WDSE, each search started from the
   simpler kernel's optimum), and one per gray box and output for its residual's chain. Chains do not depend on each
   other, so the stage's critical path is one chain, not eighteen searches.
-* train: one task per model and CV fold, and one per model's final fit (with its check on the test trials).
+* train: one task per model and CV fold (its scores and its test block's predictions, the conformal interval's
+  out-of-fold residuals), and one per model's final fit (with its check on the test trials).
 
 Every task runs under one BLAS thread, inline or in a worker, and takes contiguous copies of its arrays: the same
 task gives the same bits serially, in a forked pool or on a Dask worker (``tests/studies/test_parallel_study.py``).
@@ -22,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.evaluate import MODEL_FAILURES, fit_fold, model_failure, score_holdout
+from pipeline.evaluate import MODEL_FAILURES, fit_fold, model_failure, regression_scores
 from pipeline.models.search import SearchResult, SearchSettings
 from pipeline.models.search_halving import search
 from pipeline.parallel import imap, task_result, timed_task
@@ -128,7 +129,8 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
                 on_task: Callable[[int, dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
     """Run the train stage's tasks: each ``{"model", "kind": "fold" | "final", "estimator", "X", "y", ...}``
     (a fold: ``train`` / ``test`` row indices and ``fold``; the final fit: ``X_test`` / ``y_test`` or None).
-    Returns per task in order ``{"fold": scores}`` / ``{"estimator", "final"}``, or ``{"failed": entry}`` when
+    Returns per task in order ``{"fold": scores, "pred"}`` / ``{"estimator", "final", "pred"}`` (``pred``: the
+    predictions of the fold's test rows / of ``X_test``), or ``{"failed": entry}`` when
     the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
     ``on_task(index, result)`` as each task ends (completion order)."""
     results: list[Any] = [None] * len(jobs_spec)
@@ -147,14 +149,15 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
 def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
     X, y = np.ascontiguousarray(spec["X"], dtype=float), np.ascontiguousarray(spec["y"], dtype=float)
     try:
-        if spec["kind"] == "fold":
-            return {"fold": {**fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"]),
-                             "fold": spec["fold"]}}
+        if spec["kind"] == "fold":  # its test block's predictions calibrate the conformal interval
+            scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True)
+            pred = scores.pop("test_pred")
+            return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred}
         est = spec["estimator"].fit(X, y)
-        final = None
+        final = pred = None
         if spec["X_test"] is not None:
-            final = score_holdout(est, np.ascontiguousarray(spec["X_test"], dtype=float),
-                                  np.ascontiguousarray(spec["y_test"], dtype=float), spec["outputs"])
-        return {"estimator": est, "final": final}
+            pred = est.predict(np.ascontiguousarray(spec["X_test"], dtype=float))
+            final = regression_scores(np.ascontiguousarray(spec["y_test"], dtype=float), pred, spec["outputs"])
+        return {"estimator": est, "final": final, "pred": pred}
     except MODEL_FAILURES as err:
         return {"failed": model_failure(spec["model"], err)}

@@ -96,6 +96,8 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     assert any(name.endswith("u_gp.joblib") for name in serial)
     metrics = json.loads(serial["evaluation/coupled/metrics.json"])
     assert set(metrics) == {"rbf_svr", "wdse_svr", "mcfarland_whitcomb", "graybox"}
+    # the conformal intervals (from the folds' out-of-fold predictions, gathered in any order) are among the bytes
+    assert all(0 < m[o]["final_interval_coverage"] <= 1 for m in metrics.values() for o in m)
     for other in (pooled, on_dask):
         assert sorted(other) == sorted(serial)
         assert [name for name in serial if other[name] != serial[name]] == []

@@ -1,0 +1,93 @@
+"""The coupled study's 90 % prediction intervals: split conformal on the blocked CV's out-of-fold residuals.
+
+The train stage's blocked CV already predicts every train_test row with a model fitted without its block (the
+folds' ``test_pred``). Per output the score of a row is ``|residual|`` and ``q`` (``half_width``) is the
+``ceil((n + 1) 0.9)``-th smallest score (:func:`pipeline.evaluate.conformal_half_width`); a row's interval is the
+final model's prediction ± ``q``. The final check scores the share of the test trial(s)' measured targets inside
+(``interval_coverage``).
+
+One half-width, not one normalized by each target's smoother SD (``udot_std_mps2`` ...; the decoupled study's
+choice): the coupled models' residuals are mostly model error, which does not grow with the smoother's SD, and on
+the validation seeds the normalized band missed more (docs/models.md, "Coupled models' intervals"). The
+normalized quantile is saved beside it (``half_width_sd``) for comparison, where the store has the SDs.
+
+Blocks are exchangeable only approximately (the targets' errors are correlated in time) and a test trial of
+another regime is a covariate shift: docs/models.md, "Coupled models' intervals", says what guarantee remains and
+measures it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pipeline.evaluate import INTERVAL_LEVEL, conformal_half_width, interval_half_width, sd_floor
+from pipeline.vocabulary import DOFS, accel_std_column, acceleration_column
+
+log = logging.getLogger(__name__)
+
+__all__ = ["METHOD", "target_sd_column", "target_sd", "oof_intervals", "interval_coverage"]
+
+METHOD = "split conformal on the blocked CV's out-of-fold residuals"
+
+
+def target_sd_column(output: str) -> str | None:
+    """The smoother's SD column of an acceleration output (``vdot_mps2`` -> ``vdot_std_mps2``); None for any
+    other output."""
+    return next((accel_std_column(d) for d in DOFS if acceleration_column(d) == output), None)
+
+
+def target_sd(frame: pd.DataFrame, outputs: Sequence[str]) -> dict[str, np.ndarray | None]:
+    """Per output the rows' target SDs (None where ``frame`` has no finite SD column for it: the interval is then
+    one half-width); a non-finite or negative SD takes the median of the others, with a warning."""
+    out: dict[str, np.ndarray | None] = {}
+    for o in outputs:
+        col = target_sd_column(o)
+        sd = frame[col].to_numpy(dtype=float) if col is not None and col in frame.columns else None
+        if sd is not None:
+            bad = ~(np.isfinite(sd) & (sd >= 0))
+            if bad.all():
+                sd = None
+            elif bad.any():
+                log.warning("%s: %d of %d rows have no finite SD; they take the median SD", col, int(bad.sum()),
+                            bad.size)
+                sd = sd.copy()
+                sd[bad] = float(np.median(sd[~bad]))
+        out[o] = sd
+    return out
+
+
+def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray, outputs: Sequence[str],
+                  sd: Mapping[str, np.ndarray | None]) -> dict[str, dict[str, Any]]:
+    """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the folds' ``(test rows,
+    predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: none``, ``half_width``
+    = q of ``|residual|``. With the rows' SDs (``sd[output]``) also the alternative, not used: ``half_width_sd``,
+    the quantile of ``|residual| / sd`` (docs/models.md)."""
+    rows = np.concatenate([np.asarray(r) for r, _ in folds])
+    pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), -1) for r, p in folds])
+    y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    out: dict[str, dict[str, Any]] = {}
+    for k, o in enumerate(outputs):
+        r = np.abs(y[rows, k] - pred[:, k])
+        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size), "method": METHOD, "scale": "none",
+                                 "half_width": conformal_half_width(r)}
+        s = sd.get(o)
+        if s is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
+            entry.update(alternative_sd_column=target_sd_column(o),
+                         half_width_sd=conformal_half_width(r / sd_floor(s[rows])))
+        out[o] = entry
+    return out
+
+
+def interval_coverage(intervals: Mapping[str, dict[str, Any]], y: np.ndarray, pred: np.ndarray,
+                      outputs: Sequence[str], sd: Mapping[str, np.ndarray | None]) -> dict[str, float]:
+    """Per output the share of the rows' measured targets ``y`` inside prediction ± the interval's half-width (each
+    row's own, ``q · sd``, for an interval normalized by the targets' SDs ``sd``)."""
+    y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    pred = np.asarray(pred, dtype=float).reshape(len(pred), -1)
+    return {o: float(np.mean(np.abs(y[:, k] - pred[:, k]) <= interval_half_width(intervals[o], sd.get(o))))
+            for k, o in enumerate(outputs)}

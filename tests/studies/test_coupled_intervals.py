@@ -1,0 +1,158 @@
+"""The coupled models' 90 % prediction intervals on a plant with a known answer: the targets are an explicit
+model's accelerations (so McFarland-Whitcomb's family holds the truth) plus independent Gaussian noise of known
+SD (the store's ``*dot_std_*`` columns). The scores |residual| / SD are then |N(0, 1)|: the half-width is its 90 %
+quantile, 1.645 SD, and a fresh trial of the same process falls inside ~90 % of the time. With noise whose SD grows
+with speed, the normalized alternative keeps the coverage where the noise is largest.
+
+Tolerances: with n = 1500 calibration rows and 2000 fresh rows, the coverage of a conformal band varies by
+sqrt(0.09 / 1500 + 0.09 / 2000) ~ 0.010 (the calibration quantile's own spread plus the fresh rows' binomial
+spread), so 0.86-0.94 is 4 SD; the sample quantile's SD is sqrt(0.09 / 1500) / (2 phi(1.645)) ~ 0.038, so
+1.645 +- 0.15 is 4 SD."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from sklearn.base import clone
+
+from pipeline import store
+from pipeline.config import Params
+from pipeline.config.params import CoupledParams
+from pipeline.evaluate import blocked_folds
+from pipeline.models.explicit import EXPLICIT_INPUTS, McFarlandWhitcomb
+from pipeline.sim import load_example_vehicle
+from pipeline.sim.synthetic import synthetic_frame
+from pipeline.studies.coupled import build_model, evaluate_models
+from stages import train as train_stage
+
+OUTPUTS = ["udot_mps2", "vdot_mps2", "rdot_radps2"]
+SD = ["udot_std_mps2", "vdot_std_mps2", "rdot_std_radps2"]
+Z90 = 1.6449  # the 90 % quantile of |N(0, 1)|
+
+
+@pytest.fixture(scope="module")
+def truth() -> McFarlandWhitcomb:
+    base = synthetic_frame(3000, seed=1, trial="a", rate_hz=5.0, noise=0.0, split="train_test")
+    model = McFarlandWhitcomb(solver="ols").fit(base[list(EXPLICIT_INPUTS)].to_numpy(), base[OUTPUTS].to_numpy())
+    model.scale_ = base[OUTPUTS].to_numpy().std(axis=0)  # every trial's noise in units of these (test data only)
+    return model
+
+
+def trial(truth: McFarlandWhitcomb, seed: int, name: str, n: int, split: str = "train_test", *,
+          hetero: bool = False) -> pd.DataFrame:
+    """Exact inputs; targets = the truth's accelerations + N(0, sd²), sd 2 % of a reference trial's target SD or,
+    ``hetero``, 1-4 % growing with |u| (a faster manoeuvre's targets are noisier)."""
+    f = synthetic_frame(n, seed=seed, trial=name, rate_hz=5.0, noise=0.0, split=split)
+    rng = np.random.default_rng(100 + seed)
+    clean = truth.predict(f[list(EXPLICIT_INPUTS)].to_numpy())
+    speed = np.abs(f["u_mps"].to_numpy())
+    for k, (out, sd_col) in enumerate(zip(OUTPUTS, SD, strict=True)):
+        sd = 0.01 * truth.scale_[k] * ((1 + 3 * speed / speed.max()) if hetero else np.full(len(f), 2.0))
+        f[out] = clean[:, k] + sd * rng.standard_normal(len(f))
+        f[sd_col] = sd
+    return f
+
+
+@pytest.fixture(scope="module")
+def study(truth: McFarlandWhitcomb) -> tuple[dict, pd.DataFrame, pd.DataFrame, CoupledParams]:
+    tt, fresh = trial(truth, 2, "a", 1500), trial(truth, 3, "b", 2000, split="test")
+    params = CoupledParams(models=["mcfarland_whitcomb"], folds=5)
+    return evaluate_models(tt, fresh, {}, params), tt, fresh, params
+
+
+@pytest.fixture(scope="module")
+def hetero_study(truth: McFarlandWhitcomb) -> tuple[dict, pd.DataFrame, pd.DataFrame, CoupledParams]:
+    tt, fresh = trial(truth, 2, "a", 1500, hetero=True), trial(truth, 3, "b", 2000, split="test", hetero=True)
+    params = CoupledParams(models=["mcfarland_whitcomb"], folds=5)
+    return evaluate_models(tt, fresh, {}, params), tt, fresh, params
+
+
+def test_interval_covers_90_percent_of_a_fresh_trial(study) -> None:
+    results, tt, _, _ = study
+    res = results["mcfarland_whitcomb"]
+    for j, out in enumerate(OUTPUTS):
+        interval = res["interval"][out]
+        assert interval["level"] == 0.9 and interval["scale"] == "none" and interval["rows"] == 1500
+        assert abs(interval["half_width_sd"] - Z90) < 0.15, (out, interval)
+        assert interval["half_width"] == pytest.approx(interval["half_width_sd"] * tt[SD[j]].iloc[0])  # constant SD
+        assert 0.86 <= res["final"][out]["interval_coverage"] <= 0.94, (out, res["final"][out])
+
+
+def test_half_width_is_the_conformal_quantile_of_the_out_of_fold_residuals(study) -> None:
+    """By hand: the blocked folds' models, their held-out rows' |residual| (and / SD, the alternative), the
+    ceil((n + 1) 0.9)-th smallest; then the fresh trial's share inside the final model's prediction +- q."""
+    results, tt, fresh, params = study
+    res = results["mcfarland_whitcomb"]
+    X, y = tt[list(EXPLICIT_INPUTS)].to_numpy(), tt[OUTPUTS].to_numpy()
+    est = build_model("mcfarland_whitcomb", None, params, train=tt)
+    folds = blocked_folds(len(tt), 5)
+    scores = np.concatenate([np.abs(y[test] - clone(est).fit(X[train], y[train]).predict(X[test]))
+                             for train, test in folds])
+    sd = np.concatenate([tt[SD].to_numpy()[test] for _, test in folds])
+    k = int(np.ceil((len(scores) + 1) * 0.9))  # 1351st of 1500
+    pred = res["estimator"].predict(fresh[list(EXPLICIT_INPUTS)].to_numpy())
+    for j, out in enumerate(OUTPUTS):
+        q = np.sort(scores[:, j])[k - 1]
+        assert res["interval"][out]["half_width"] == pytest.approx(q, rel=1e-12)
+        assert res["interval"][out]["half_width_sd"] == pytest.approx(np.sort(scores[:, j] / sd[:, j])[k - 1],
+                                                                      rel=1e-12)
+        inside = np.abs(fresh[out].to_numpy() - pred[:, j]) <= q
+        assert res["final"][out]["interval_coverage"] == pytest.approx(inside.mean(), abs=1e-12)
+
+
+def test_interval_widens_where_the_target_is_noisier(hetero_study) -> None:
+    """Where the residual is noise of known SD (not the coupled models' usual model error), the normalized
+    alternative keeps the coverage of the fresh trial's fast quarter (4x the noise of the slow rows); one half-width
+    for all rows misses there and is too wide where the noise is small."""
+    results, _, fresh, _ = hetero_study
+    res = results["mcfarland_whitcomb"]
+    pred = res["estimator"].predict(fresh[list(EXPLICIT_INPUTS)].to_numpy())
+    speed = np.abs(fresh["u_mps"].to_numpy())
+    fast, slow = speed > np.quantile(speed, 0.75), speed < np.quantile(speed, 0.25)
+    for j, out in enumerate(OUTPUTS):
+        err = np.abs(fresh[out].to_numpy() - pred[:, j])
+        band = res["interval"][out]["half_width_sd"] * fresh[SD[j]].to_numpy()
+        assert np.mean(err[fast] <= band[fast]) >= 0.85
+        one = res["interval"][out]["half_width"]
+        assert np.mean(err[fast] <= one) < 0.8 and np.mean(err[slow] <= one) > 0.97
+
+
+def test_without_sd_columns_one_half_width(truth: McFarlandWhitcomb) -> None:
+    """A store without the smoother's SDs (gaussian / savgol differentiation): one half-width per output, the
+    quantile of |residual| in the output's unit."""
+    tt, fresh = (trial(truth, s, n, 1000, split=sp).drop(columns=SD) for s, n, sp in ((4, "c", "train_test"),
+                                                                                      (5, "d", "test")))
+    res = evaluate_models(tt, fresh, {}, CoupledParams(models=["mcfarland_whitcomb"], folds=5))["mcfarland_whitcomb"]
+    for out in OUTPUTS:
+        interval = res["interval"][out]
+        assert interval["scale"] == "none" and interval["half_width"] > 0 and "half_width_sd" not in interval
+        assert 0.8 <= res["final"][out]["interval_coverage"] <= 0.99  # heteroscedastic: right on average only
+
+
+def test_train_stage_writes_the_interval_and_its_coverage(tmp_path: Path, truth: McFarlandWhitcomb) -> None:
+    """The card, metrics.json and Table III (md and JSON) carry each output's interval and the final check's share
+    of the test trial inside it."""
+    vehicle = load_example_vehicle()
+    params = Params(features={"test_trials": ["b"]}, coupled={"models": ["mcfarland_whitcomb"], "folds": 3})
+    for name, seed, n in (("a", 6, 900), ("b", 7, 900)):
+        frame = trial(truth, seed, name, n).drop(columns=["split"])
+        frame = frame[[c for c in frame.columns if c in ("t_ns", "segment") or store._column_type(c) is not None]]
+        fill = {c: 0.0 for c, _ in store.FIXED_COLUMNS if c != "split" and c not in frame.columns}
+        store.write_trial(tmp_path, vehicle.name, name, frame.assign(**fill), params.features, {})
+    train_stage.run(tmp_path, vehicle, params)
+    card = json.loads((tmp_path / "data/models/coupled/mcfarland_whitcomb.card.json").read_text())
+    metrics = json.loads((tmp_path / "data/evaluation/coupled/metrics.json").read_text())["mcfarland_whitcomb"]
+    t3 = json.loads((tmp_path / "data/evaluation/coupled/table3.json").read_text())["mcfarland_whitcomb"]
+    md = (tmp_path / "data/evaluation/coupled/table3.md").read_text()
+    for out in OUTPUTS:
+        interval, final = card["interval"][out], card["scores"]["final_check"][out]
+        assert interval["scale"] == "none" and interval == t3["interval"][out]
+        assert 0.8 <= final["interval_coverage"] <= 0.98 and final == t3["final"][out]
+        assert metrics[out]["final_interval_coverage"] == final["interval_coverage"]
+        assert metrics[out]["interval_half_width"] == interval["half_width"]
+    assert "| 90 % interval ± | final check: inside 90 % |" in md
+    assert f"| {card['interval']['udot_mps2']['half_width']:.3g} | " in md
