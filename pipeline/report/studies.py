@@ -79,6 +79,8 @@ def png(root: Path, rel: str, used: set[str], figs: dict[str, bytes], key: str) 
 
 # ------------------------------------------------------------------------------------------- paper 000 (coupled)
 
+CV_SPREAD_FLOOR = 0.005  # a fold spread below it (three folds alike to the third digit) is no spread
+
 def protocol_line(hyper_doc: dict[str, Any] | None) -> str:
     """Which tuning protocol produced the tables (``hyperparameters.json``: ``tuning`` / ``tuned_on``)."""
     if not hyper_doc:
@@ -207,6 +209,43 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
     return html, failed
 
 
+def cv_against_unseen(doc: dict[str, Any], outputs: Sequence[str], trace: Any = None) -> str:
+    """A warning table of the models and outputs whose unseen trial's R² lies outside their CV's fold spread (the
+    CV test R²'s mean ± its SD over folds, at least ± 0.005), beside the search's own CV score (tuning R²,
+    ``search_trace.json``) where the model has one; '' when none parts. A CV whose folds cut one trial's motion
+    into blocks sees that trial's excitation in every fold; the next trial may not repeat it."""
+    rows = []
+    for model in sorted(doc, key=lambda m: (list(LABELS).index(m) if m in LABELS else 99, m)):
+        entry = doc[model]
+        if not isinstance(entry, dict) or not isinstance(entry.get("final"), dict):
+            continue
+        for out in outputs:
+            test = ((entry.get("cv") or {}).get(out) or {}).get("test_r2") or {}
+            unseen = (entry["final"].get(out) or {}).get("r2")
+            mean, sd = test.get("mean"), test.get("sd")
+            if not all(isinstance(v, (int, float)) for v in (mean, sd, unseen)):
+                continue
+            gap = unseen - mean
+            if abs(gap) <= max(sd, CV_SPREAD_FLOOR):
+                continue
+            search = ((trace or {}).get(model) or {}).get(out) if isinstance(trace, dict) else None
+            rows.append({"model": label(model), "output": OUTPUT_LABELS.get(out, out),
+                         "search's CV R²": (search or {}).get("best_score") if isinstance(search, dict) else None,
+                         "CV test R² (mean ± sd)": H.mean_sd(mean, sd), "unseen trial R²": unseen,
+                         "unseen − CV": f"{gap:+.3f} ({abs(gap) / max(sd, CV_SPREAD_FLOOR):.1f} × the spread)",
+                         "reads as": "optimistic CV: the unseen trial does worse than the folds" if gap < 0
+                         else "the unseen trial does better than the folds"})
+    if not rows:
+        return ""
+    worse = sum(r["unseen − CV"].startswith("-") for r in rows)
+    return (f"<p class='warn'>{worse} of {len(rows)} model–output pair(s) score on the unseen trial below their "
+            "cross-validation's fold spread: their CV score promised more than the next trial gave (see the "
+            "table). Folds cut from the training trials see those trials' excitation in every fold; a training "
+            "trial excited like the unseen one, or several training trials, narrows the gap.</p>"
+            + H.table(rows, caption="CV against the unseen trial: the pairs whose unseen trial's R² lies outside "
+                                    "the CV test R²'s mean ± sd over folds (at least ± 0.005)"))
+
+
 def _best_per_output(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks | None = None
                      ) -> dict[str, tuple[str, float]]:
     """Per output, the best final R² among the models not failed on it (verdicts.best_coupled)."""
@@ -297,6 +336,7 @@ def coupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = N
         parts.append(html)
         best = _best_per_output(t3, outputs, marks)
         parts.append(ranking_note(best, hyper_doc))
+        parts.append(cv_against_unseen(t3, outputs, trace))
         part.headline = [{"output": OUTPUT_LABELS.get(o, o), "best model": label(m),
                           "R² on the unseen trial": r2} for o, (m, r2) in best.items()]
         part.verdicts = _train_failures(t3, outputs)
