@@ -75,6 +75,25 @@ def test_recovers_own_structure(cls, solver):
         np.testing.assert_allclose(M, M.T)
 
 
+@pytest.mark.parametrize("cls", [GertlerHagen, McFarlandWhitcomb])
+def test_the_fast_predictor_is_predict_to_float_rounding(cls):
+    """A free run calls the model four times a step: its fast predictor (McFarland-Whitcomb's from the
+    coefficients, not the design matrix) gives ``predict``'s accelerations on states with every sign, and on a
+    single row; none before fit."""
+    model = cls()
+    assert model.fast_predictor() is None
+    theta = _true_theta(model, seed=7)
+    nu, nudot = _states()
+    X = np.column_stack([nu, model.design(nu, nudot) @ theta])
+    model.fit(X, nudot)
+    fast = model.fast_predictor()
+    rng = np.random.default_rng(5)
+    Xq = np.column_stack([rng.normal(0, 1.5, (64, 3)), rng.normal(0, 50.0, (64, 3))])
+    slow = model.predict(Xq)
+    assert np.abs(fast(Xq) - slow).max() <= 1e-12 * np.abs(slow).max()
+    np.testing.assert_allclose(fast(Xq[:1]), slow[:1], rtol=1e-12, atol=1e-12 * np.abs(slow).max())
+
+
 def test_tls_beats_ols_with_errors_in_variables():
     rng = np.random.default_rng(3)
     x = rng.normal(size=4000)
