@@ -52,7 +52,8 @@ def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs
                 labels.append(None if name is None else _labelled(progress, f"{name} ({k}/{total})"))
             item["progress"] = labels
     results: list[Any] = [None] * len(items)
-    for done, (index, timed) in enumerate(imap(timed_task(_run_chain, "tune"), items, jobs=jobs), start=1):
+    for done, (index, timed) in enumerate(imap(timed_task(_run_chain, "tune"), items, jobs=jobs, shared=("X",)),
+                                          start=1):
         results[index] = task_result(timed, "tune", items[index]["label"])
         if progress is not None and jobs > 1:
             progress(done, len(items), f"{items[index]['label']} ({done}/{len(items)} chains)")
@@ -134,8 +135,9 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
     ``on_task(index, result)`` as each task ends (completion order)."""
     results: list[Any] = [None] * len(jobs_spec)
-    for done, (index, timed) in enumerate(imap(timed_task(_run_train_task, "train"), list(jobs_spec), jobs=jobs),
-                                          start=1):
+    # a model's rows (X, y) are one object in each of its tasks, the test trials' in its final fit: sent once
+    for done, (index, timed) in enumerate(imap(timed_task(_run_train_task, "train"), list(jobs_spec), jobs=jobs,
+                                               shared=("X", "y")), start=1):
         spec = jobs_spec[index]
         what = f"fold {spec['fold'] + 1}/{spec['folds']}" if spec["kind"] == "fold" else "final fit"
         results[index] = res = task_result(timed, "train", f"{spec['model']} {what}")

@@ -341,3 +341,52 @@ def test_local_cluster_workers_keep_glibcs_memory() -> None:
     finally:
         cluster.close()
     assert env is None and blas == "1"
+
+
+def _row_sum(item: dict) -> float:
+    return float(item["X"][item["k"]].sum() + item["k"])
+
+
+def test_an_array_every_task_holds_goes_to_the_cluster_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``imap(..., shared=("X",))``: a study's rows, held by each of its tasks, are scattered to the cluster once
+    (joblib's dask backend scatters a task's own large arguments and reuses the future for the same object);
+    without it the array rides inside every task's pickled item. Results are the same either way."""
+    import numpy as np
+    from distributed import Client
+
+    X = np.arange(64 * 1000, dtype=float).reshape(1000, 64)
+    items = [{"X": X, "k": k} for k in range(8)]
+    expected = [_row_sum(item) for item in items]
+    scattered: list[object] = []
+    real = Client.scatter
+
+    def counting(self, data, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        scattered.append(data)
+        return real(self, data, *args, **kwargs)
+
+    monkeypatch.setattr(Client, "scatter", counting)
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        monkeypatch.setenv(parallel.ENV_SCHEDULER, cluster.scheduler_address)
+        with parallel.backend():
+            got = dict(parallel.imap(_row_sum, items, jobs=-1, shared=("X",)))
+            assert [got[k] for k in range(8)] == expected
+            assert sum(s is X for s in scattered) == 1
+            scattered.clear()
+            got = dict(parallel.imap(_row_sum, items, jobs=-1))
+            assert [got[k] for k in range(8)] == expected
+            assert not any(s is X for s in scattered)
+
+
+def test_starting_a_local_cluster_leaves_this_process_environment_as_it_was() -> None:
+    """Dask's nannies write their pre-spawn environment (MALLOC_TRIM_THRESHOLD_, one BLAS thread) into the
+    process that starts them and leave it there: every process started later (the next cluster's workers, a
+    forked pool's) would inherit it. ``--scheduler local`` puts the environment back."""
+    import os
+
+    before = dict(os.environ)
+    cluster = parallel._local_cluster(1)
+    try:
+        assert dict(os.environ) == before
+    finally:
+        cluster.close()
+    assert "MALLOC_TRIM_THRESHOLD_" not in os.environ or "MALLOC_TRIM_THRESHOLD_" in before

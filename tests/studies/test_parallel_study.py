@@ -6,6 +6,7 @@ ones that record time."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -87,9 +88,14 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
 
     calls.clear()
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster:
-        on_dask = _run(store_root, tmp_path / "dask", scheduler=cluster)
+    saved = dict(os.environ)  # a LocalCluster's nannies leave their pre-spawn environment in this process
+    try:
+        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster:
+            on_dask = _run(store_root, tmp_path / "dask", scheduler=cluster)
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
     assert calls == [(6, -1), (16, -1), (15, -1)]
 
     assert any(name.endswith("wdse_svr.joblib") for name in serial)
