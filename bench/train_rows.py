@@ -38,10 +38,13 @@ from pipeline import store  # noqa: E402
 from pipeline.config import Params  # noqa: E402
 from pipeline.sim import example_vehicle_path, load_example_vehicle  # noqa: E402
 from pipeline.sim.synthetic import synthetic_frame  # noqa: E402
+from pipeline.vocabulary import NOISE_STD_COLUMNS  # noqa: E402
 
 RATE_HZ = 10.0
 SVRS = ("rbf_svr", "two_weights_svr", "wdse_svr", "graybox")
 TEST_SEED = 999
+NOISE = 0.02  # synthetic_frame's default measurement noise, a fraction of each signal's SD
+SD_OF = ("u_mps", "v_mps", "r_radps", "udot_mps2", "vdot_mps2", "rdot_radps2")  # NOISE_STD_COLUMNS' signals
 
 
 def trial_plan(total_min: float, trial_min: float) -> list[tuple[str, int, int]]:
@@ -59,8 +62,12 @@ def write_store(root: Path, total_min: float, trial_min: float) -> int:
     params = Params(features={"test_trials": ["test"]})
     total = 0
     for k, (trial, seed, rows) in enumerate(trial_plan(total_min, trial_min)):
-        frame = synthetic_frame(rows, rate_hz=RATE_HZ, seed=seed, trial=trial)
+        frame = synthetic_frame(rows, rate_hz=RATE_HZ, seed=seed, trial=trial, noise=NOISE)
         frame["t_ns"] += int(k * (rows / RATE_HZ + 100.0) * 1e9)  # one trial after the other on the clock
+        # the smoother's SDs, as a real store has them (the explicit models' errors-in-variables weights):
+        # synthetic_frame's noise, 2 % of each signal's SD
+        for name, signal in zip(NOISE_STD_COLUMNS, SD_OF, strict=True):
+            frame[name] = NOISE * frame[signal].std()
         frame = frame[[c for c in frame.columns if c in ("t_ns", "segment") or store._column_type(c) is not None]]
         fill = {n: 0.0 for n, _ in store.FIXED_COLUMNS if n != "split" and n not in frame.columns}
         store.write_trial(root, vehicle.name, trial, frame.assign(**fill), params.features, {})
