@@ -85,11 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             records += campaign(kind, args.examples, args.seed, args.time_limit, Path(tmp), raw)
     elapsed = time.monotonic() - t0
     print(f"seed {args.seed}, {len(records)} configs, {elapsed:.0f} s, limit {args.time_limit:g} s a load\n")
-    print("| kind | " + " | ".join(OUTCOMES) + " |")
-    print("| --- | " + " | ".join("---:" for _ in OUTCOMES) + " |")
-    for kind in ("params", "vehicle", "all"):
-        row = Counter(r["outcome"] for r in records if kind in ("all", r["kind"]))
-        print(f"| {kind} | " + " | ".join(str(row[o]) for o in OUTCOMES) + " |")
+    _print_counts(records, "outcome", OUTCOMES)
     bad = [r for r in records if r["outcome"] not in ("loaded", "refused")]
     for r in bad:
         print(f"\n{r['kind']} {r['case']} {r['outcome']}: {r['edits']}\n    {r['detail']}")
@@ -100,17 +96,22 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if bad else 0
 
 
+def _print_counts(records: list[dict[str, Any]], field: str, outcomes: tuple[str, ...] | list[str]) -> None:
+    """A markdown table: per kind of config (and all), how many records have each ``field`` outcome."""
+    print("| kind | " + " | ".join(outcomes) + " |")
+    print("| --- | " + " | ".join("---:" for _ in outcomes) + " |")
+    for kind in ("params", "vehicle", "all"):
+        row = Counter(r[field] for r in records if kind in ("all", r["kind"]))
+        print(f"| {kind} | " + " | ".join(str(row[o]) for o in outcomes) + " |")
+
+
 def _run_table(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Print the run campaign's table and its failures (returned); its stage failures are printed too."""
     from tests.config.runs import GOOD, RUN_OUTCOMES
 
     seconds = sum(r["run_s"] for r in runs)
     print(f"\nruns of the configs that loaded: {len(runs)}, {seconds:.0f} s in all\n")
-    print("| kind | " + " | ".join(RUN_OUTCOMES) + " |")
-    print("| --- | " + " | ".join("---:" for _ in RUN_OUTCOMES) + " |")
-    for kind in ("params", "vehicle", "all"):
-        row = Counter(r["run"] for r in runs if kind in ("all", r["kind"]))
-        print(f"| {kind} | " + " | ".join(str(row[o]) for o in RUN_OUTCOMES) + " |")
+    _print_counts(runs, "run", RUN_OUTCOMES)
     for r in runs:
         if r["run"] not in ("ran-ok", "refused"):
             print(f"\n{r['kind']} {r['case']} run {r['run']}: {r['edits']}\n    {r['run_detail']}")
