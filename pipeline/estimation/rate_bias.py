@@ -80,7 +80,11 @@ class RateBias:
     reason: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"signal": self.signal, "bias_radps": self.bias_radps, "sd_radps": self.sd_radps,
+        """The JSON record; a bias that was not estimated is null (NaN is not JSON), with its ``reason``."""
+        def number(x: float) -> float | None:
+            return float(x) if np.isfinite(x) else None
+
+        return {"signal": self.signal, "bias_radps": number(self.bias_radps), "sd_radps": number(self.sd_radps),
                 "identifiable": self.identifiable, "subtracted": self.identifiable, "reason": self.reason}
 
 

@@ -87,13 +87,15 @@ def test_an_empty_result_is_nonsense_only_without_a_warning(tmp_path: Path) -> N
     assert nonsense(root, "WARNING pipeline.sync: no segment of 5 s") == ""
 
 
-def test_nan_in_an_output_json_is_nonsense_unless_its_object_says_why(tmp_path: Path) -> None:
+def test_nan_in_an_output_json_is_nonsense_even_where_its_object_says_why(tmp_path: Path) -> None:
     root = _root(tmp_path)
     out = root / "data" / "evaluation" / "metrics.json"
     out.parent.mkdir(parents=True)
     out.write_text(json.dumps({"ls": {"u": {"final_r2": float("nan")}}}))
     assert nonsense(root, "") == "data/evaluation/metrics.json: ls.u.final_r2 is not finite"
     out.write_text(json.dumps({"p": {"bias_radps": float("nan"), "reason": "40 s, under the 60 s needed"}}))
+    assert nonsense(root, "") == "data/evaluation/metrics.json: p.bias_radps is not finite"
+    out.write_text(json.dumps({"p": {"bias_radps": None, "reason": "40 s, under the 60 s needed"}}))
     assert nonsense(root, "") == ""
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -139,6 +141,8 @@ def test_a_short_trial_or_an_unlogged_attitude_keeps_the_rates_as_measured() -> 
     assert "under the 60 s" in est["r"].reason
     kept = debias(rates, est)
     assert all(np.array_equal(kept[d].y, rates[d].y) for d in "pqr")
+    record = json.loads(json.dumps(est["r"].as_dict(), allow_nan=False))  # strict JSON: no NaN for "not estimated"
+    assert record["bias_radps"] is None and record["sd_radps"] is None and "under the 60 s" in record["reason"]
     # yaw alone, level: roll and pitch are not logged, so p and q move no logged angle
     est = _estimate(grid_ns, angles, rates, used=(False, False, True))
     assert not est["p"].identifiable and "no logged attitude angle" in est["p"].reason
