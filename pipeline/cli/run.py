@@ -101,15 +101,21 @@ def _known_trials(args: argparse.Namespace, stages: list[str]) -> set[str]:
 
 
 def _check_test_trials(args: argparse.Namespace, stages: list[str], params: Any) -> None:
-    """A ``features.test_trials`` name that matches none of the run's trials is a config error found before the
-    first stage runs (the features stage would find it only after ingest..derive), naming the trials there are."""
+    """Config errors in ``features.test_trials`` found before the first stage runs, naming the trials there are: a
+    name that matches none of the run's trials (the features stage would find it only after ingest..derive), and
+    none at all in a run that reaches the simulate stage (which rolls the models out on an unseen trial: it would
+    fail after the model stages' minutes)."""
+    where = args.params or (Path(args.root) / "params.yaml" if (Path(args.root) / "params.yaml").exists() else None)
+    if "simulate" in stages and not params.features.test_trials:
+        known = sorted(_known_trials(args, stages))
+        raise ConfigError("features.test_trials is empty: the simulate stage rolls the models out on an unseen "
+                          "trial; name one of this run's trials there" + (f" (its trials: {known})" if known else "")
+                          + ", or stop before simulate (--to decoupled)", file=where, field="features.test_trials")
     if "features" not in stages or not params.features.test_trials:
         return
     known = _known_trials(args, stages)
     unknown = [t for t in params.features.test_trials if t not in known]
     if known and unknown:
-        where = args.params or (Path(args.root) / "params.yaml" if (Path(args.root) / "params.yaml").exists()
-                                else None)
         raise ConfigError(f"features.test_trials names {unknown}, which match no trial of this run; its trials: "
                           f"{sorted(known)}", file=where, field="features.test_trials")
 

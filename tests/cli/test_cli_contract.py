@@ -61,6 +61,23 @@ def test_nothing_to_process_is_a_usage_error(tmp_path: Path, monkeypatch: pytest
     assert dag.calls == [("ingest", None)]
 
 
+def test_a_run_to_simulate_without_test_trials_is_refused_before_any_stage(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The simulate stage rolls the models out on an unseen trial: with no ``features.test_trials`` it failed with
+    exit 3 after ingest .. decoupled had run (minutes); the run now stops at once, naming the params file, the key
+    and the trials it could name. A run that stops before simulate goes on."""
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path)
+    params = root / "params.yaml"
+    params.write_text("features:\n  tuning_fraction: 0.2\n")
+    assert cli.main(["run", *_base(root), "--params", str(params), "-q"]) == cli_common.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert str(params) in err and "features.test_trials" in err and "['trial01', 'trial02']" in err
+    assert dag.calls == []
+    assert cli.main(["run", *_base(root), "--params", str(params), "-q", "--to", "decoupled"]) == cli_common.EXIT_OK
+    assert [stage for stage, _ in dag.calls][-1] == "decoupled"
+
+
 def test_retrain_without_inbox_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["retrain", "--root", str(tmp_path), "--inbox", str(tmp_path / "inbox")]) == cli_common.EXIT_USAGE
     assert "inbox" in capsys.readouterr().err
