@@ -126,4 +126,6 @@ def make_run_dir(tmp_path: Path, trials: tuple[str, ...] = ("trial01", "trial02"
     for t in trials:
         (raw / f"{t}.mcap").write_text(f"log {t}")
     (root / "vehicle.yaml").write_text(VEHICLE_YAML)
+    if trials:  # a run that reaches simulate needs an unseen trial
+        (root / "params.yaml").write_text(f"features:\n  test_trials: [{trials[-1]}]\n")
     return root

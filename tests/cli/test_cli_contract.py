@@ -94,7 +94,8 @@ def _csv_root(tmp_path: Path, trials: tuple[str, ...] = ("trial01", "trial02")) 
 
 def _use_vehicle(monkeypatch: pytest.MonkeyPatch, streams: dict[str, Any]) -> None:
     monkeypatch.setenv("AUVID_JOBS", "1")
-    monkeypatch.setattr(cli_run, "_load", lambda args, stages: (make_vehicle(streams), Params()))
+    params = Params(features={"test_trials": ["trial02"]})  # a run that reaches simulate needs an unseen trial
+    monkeypatch.setattr(cli_run, "_load", lambda args, stages: (make_vehicle(streams), params))
 
 
 def test_misspelt_field_in_every_log_is_a_config_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
