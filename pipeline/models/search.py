@@ -216,11 +216,14 @@ def _cv_fits(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
     return list(Parallel(n_jobs=n_jobs)(delayed(_fold_fit)(est, X, y, tr, te) for tr, te in folds))
 
 
-def _cap(iter_per_row: float | None, ratio: float | None, folds: list[tuple[np.ndarray, np.ndarray]]
-         ) -> IterationCap:
-    """A search's :class:`~pipeline.models.search_cost.IterationCap` on these folds' training rows."""
+def _cap(iter_per_row: float | None, ratio: float | None, folds: list[tuple[np.ndarray, np.ndarray]],
+         scored_folds: int | None = None) -> IterationCap:
+    """A search's :class:`~pipeline.models.search_cost.IterationCap` on these folds' training rows; with
+    ``scored_folds`` (the folds each candidate fits), relative once ITER_WARMUP_CANDIDATES candidates are scored."""
     rows = float(np.mean([len(tr) for tr, _ in folds]))
-    return IterationCap(iteration_cap(iter_per_row, folds), ratio, floor=int(round(ITER_FLOOR_PER_ROW * rows)))
+    warmup = 1 if scored_folds is None else ITER_WARMUP_CANDIDATES * scored_folds
+    return IterationCap(iteration_cap(iter_per_row, folds), ratio, floor=int(round(ITER_FLOOR_PER_ROW * rows)),
+                        warmup=warmup)
 
 
 def cv_score(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
@@ -376,10 +379,9 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
     folds = blocked_folds(len(X), n_folds)
-    cap = _cap(iter_per_row, iter_cap_ratio, folds)
+    cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
     if fold_subset is not None:
         folds = [folds[i] for i in fold_subset]
-    cap.warmup = ITER_WARMUP_CANDIDATES * len(folds)
     names = _names(model, X.shape[1])
     if max_fits is not None:
         max_evals = max(1, max_fits // n_folds)
@@ -469,10 +471,9 @@ def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, A
     ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does)."""
     X, y = _check_xy(X, y)
     folds = blocked_folds(len(X), n_folds)
-    cap = _cap(iter_per_row, iter_cap_ratio, folds)
+    cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
     if fold_subset is not None:
         folds = [folds[i] for i in fold_subset]
-    cap.warmup = ITER_WARMUP_CANDIDATES * len(folds)
     names = _names(model, X.shape[1])
     lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
     t0, cpu0 = time.perf_counter(), time.process_time()
