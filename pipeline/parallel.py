@@ -385,8 +385,29 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
     in its heap again (docs/benchmarks.md, "Forked workers"). Any exception (a worker's, or Ctrl-C here) cancels
     what has not started and ends the workers before it propagates.
     """
+    from concurrent.futures import as_completed
+
+    shared = _active["workers"]
+    pool = _pool(jobs)
+    try:
+        futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+    except BaseException:
+        _terminate_workers(pool)  # as joblib does on an error; outputs are written atomically
+        if shared is not None:
+            shared.clear()
+        raise
+    finally:
+        if shared is None or shared.get("pool") is not pool:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _pool(jobs: int) -> Any:
+    """The forked ProcessPoolExecutor of ``jobs`` workers: the active local backend's (kept for the next fan-out),
+    or a new one (its caller shuts it down when no backend keeps it: ``_active["workers"]`` is None)."""
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import ProcessPoolExecutor
 
     try:
         import threadpoolctl  # noqa: F401  (imported once here rather than in each worker's set-up)
@@ -394,19 +415,36 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
         pass
     shared = _active["workers"]
     if shared is not None and shared.get("pool") is not None and shared["size"] >= jobs:
-        pool = shared["pool"]
-    else:
-        release_workers()
-        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
-                                   initializer=_forked_worker_init)
-        if shared is not None:
-            shared.update(pool=pool, size=jobs)
+        return shared["pool"]
+    release_workers()
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
+                               initializer=_forked_worker_init)
+    if shared is not None:
+        shared.update(pool=pool, size=jobs)
+    return pool
+
+
+def active_client() -> Any:
+    """The Dask client of the active backend, or None (local processes)."""
+    return _active["client"]
+
+
+@contextmanager
+def local_pool(jobs: int) -> Iterator[Any]:
+    """A ``concurrent.futures`` executor of ``jobs`` local workers for tasks submitted one by one
+    (:mod:`pipeline.rounds`): the forked pool the fan-outs share (:func:`_forked_map`), or joblib's reusable loky
+    executor where fork is not available. An exception here ends the forked workers before it propagates."""
+    if not _fork_pool_available():
+        from joblib.externals.loky import get_reusable_executor
+
+        yield get_reusable_executor(max_workers=jobs)
+        return
+    shared = _active["workers"]
+    pool = _pool(jobs)
     try:
-        futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+        yield pool
     except BaseException:
-        _terminate_workers(pool)  # as joblib does on an error; outputs are written atomically
+        _terminate_workers(pool)
         if shared is not None:
             shared.clear()
         raise

@@ -13,6 +13,12 @@ Two methods:
   success, halved on failure; Hooke-Jeeves moves), capped at ``max_evals`` candidates. A warm start
   that is still the best at the end is reported (``warm_start_kept``, ``note``) and logged.
 
+The fast and local searches decide in rounds (:mod:`pipeline.rounds`): the GP seeds, the exploration, each batch of
+expected-improvement proposals and each batch of the pattern search's poll are one round of independent tasks, one
+per candidate and fold, all under the iteration cap of the round's start; ``fast_search`` / ``local_search`` run one
+inline (or on ``n_jobs`` workers), the study's stages run all of theirs on one executor. The candidates tried do not
+depend on where the tasks run.
+
 Grids and seeds live on standardized inputs; C and epsilon are multiples of the target's SD (``y_scale``), so
 the same grid fits surge, sway and yaw. ``n_fits`` counts SVR fits (candidates x folds); the GP fit of the
 fast search is reported separately (``gp_fit_s``).
@@ -20,13 +26,14 @@ fast search is reported separately (``gp_fit_s``).
 
 from __future__ import annotations
 
+import functools
 import inspect
 import itertools
 import logging
 import math
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -38,10 +45,10 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 from sklearn.metrics import r2_score
-from threadpoolctl import threadpool_limits
 
 from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
+from pipeline.models.search_choice import kept_note, smoothest_within
 from pipeline.models.search_cost import (
     ITER_CAP_RATIO,
     ITER_FLOOR_PER_ROW,
@@ -55,13 +62,17 @@ from pipeline.models.search_cost import (
 )
 from pipeline.models.search_steps import model_steps, pattern_search
 from pipeline.models.svr import RBFSVR, WDSESVR, TwoWeightsSVR
+from pipeline.parallel import workers
+from pipeline.rounds import drive
 
 log = logging.getLogger(__name__)
 
 Progress = Callable[..., Any]  # progress(done, total, desc): see stages.common
+Rounds = Generator[Any, Any, "SearchResult"]  # a search as a coroutine of pipeline.rounds
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
-           "fast_search", "local_search", "search", "with_C_rows", "SearchResult", "SearchSettings"]
+           "fast_search", "fast_search_rounds", "local_search", "local_search_rounds", "search", "search_rounds",
+           "with_C_rows", "SearchResult", "SearchSettings"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -340,15 +351,76 @@ def _log_bounds(n_gammas: int, y_sd: float) -> tuple[np.ndarray, np.ndarray]:
     return np.log(lo), np.log(hi)
 
 
-def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n_jobs: int | None = 1,
+def _evaluator(model: str, names: list[str], X: np.ndarray, y: np.ndarray, folds: list[tuple[np.ndarray, np.ndarray]],
+               n_velocity: int, cap: IterationCap, bounds: tuple[np.ndarray, np.ndarray],
+               cache: dict[tuple[float, ...], float], trace: list[dict[str, Any]], *, fold_r2: bool = False,
+               from_key: bool = False, progress: Progress | None = None, budget: int = 0) -> Any:
+    """A search's ``evaluate(pairs)``: a generator that scores a round of ``(log-scale vector, phase)``
+    candidates (clipped to ``bounds``; those already in ``cache`` are not fitted again) with one task per
+    candidate and fold (:func:`fit_task`), all under the iteration cap of the round's start, and returns their
+    scores in order. Each new candidate goes to ``trace`` (with its ``round``, and its folds' R² when
+    ``fold_r2``) and ``cache``, in the order asked.
+    ``from_key``: the candidate's hyperparameters from its rounded key (the local search's), not the vector."""
+    lo, hi = bounds
+    rounds = [0]  # the rounds that fitted something: each new candidate's ``round`` in the trace
+
+    def evaluate(pairs: list[tuple[np.ndarray, str]]) -> Any:
+        keys, new = [], {}
+        for v, phase in pairs:
+            v = np.clip(v, lo, hi)
+            key = tuple(np.round(v, 6))
+            keys.append(key)
+            if key not in cache and key not in new:
+                new[key] = (_to_params(model, names, np.exp(np.array(key) if from_key else v)), phase)
+        if new:
+            max_iter = cap()
+            fits = yield [fit_task(model, params, X, y, fold, n_velocity, max_iter)
+                          for params, _ in new.values() for fold in folds]
+            for j, (key, (params, phase)) in enumerate(new.items()):
+                mine = fits[j * len(folds):(j + 1) * len(folds)]
+                cap.record(mine)
+                entry = candidate_entry(params, mine, max_iter, phase=phase, round=rounds[0])
+                if fold_r2:
+                    entry["fold_r2"] = [r2 for r2, _, _ in mine]
+                cache[key] = entry["score"]
+                trace.append(entry)
+                if progress is not None:
+                    progress(min(len(cache), budget), budget, f"{model} {phase}")
+            rounds[0] += 1
+        return [cache[k] for k in keys]
+
+    return evaluate
+
+
+def fit_task(model: str, params: dict[str, Any], X: np.ndarray, y: np.ndarray,
+             fold: tuple[np.ndarray, np.ndarray], n_velocity: int, max_iter: int | None) -> tuple[Any, tuple[Any, ...]]:
+    """One candidate's fit on one fold as a task of :mod:`pipeline.rounds`: ``(_fold_fit, its arguments)``."""
+    return _fold_fit, (make_svr(model, params, n_velocity, max_iter=max_iter), X, y, *fold)
+
+
+def _driven(rounds: Callable[..., Rounds]) -> Callable[..., SearchResult]:
+    """``rounds`` run to its end (:func:`pipeline.rounds.drive`): inline, or its tasks on ``n_jobs`` workers."""
+
+    @functools.wraps(rounds)
+    def run(*args: Any, **kw: Any) -> SearchResult:
+        n_jobs = kw.get("n_jobs", 1)
+        jobs = 1 if n_jobs in (None, 1) else workers(n_jobs)
+        return drive([rounds(*args, **kw)], jobs=jobs)[0]
+
+    run.__doc__ = f"{rounds.__name__} run to its end: inline, or its tasks on ``n_jobs`` workers.\n\n{rounds.__doc__}"
+    return run
+
+
+def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n_jobs: int | None = 1,
                 n_velocity: int = 3, max_evals: int = 30, gp_samples: int = 150, seed: int = 0,
                 initial_step: float = math.log(4.0), min_step: float = math.log(1.25),
                 warm_start: dict[str, Any] | None = None, max_fits: int | None = None,
                 iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
                 local: str = "model", model_share: float = 0.6, progress: Progress | None = None,
-                report_kept: bool = True, fold_subset: list[int] | None = None) -> SearchResult:
-    """GP-seeded adaptive pattern search on log scale (see module docstring).
+                report_kept: bool = True, fold_subset: list[int] | None = None) -> Rounds:
+    """GP-seeded adaptive pattern search on log scale (see module docstring), in rounds (a coroutine of
+    :mod:`pipeline.rounds`: :func:`fast_search` runs it; ``n_jobs`` is that function's).
 
     Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. Phases, each
     candidate tagged in the trace (``phase``): ``seed`` (GP ARD and isotropic), ``warm_start``, ``explore``
@@ -366,8 +438,8 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     tried and how close they came) and a warning is logged.
 
     ``smooth_tolerance`` > 0: return the smoothest candidate within that much R² of the best (see
-    :func:`_smoothest_within`) rather than the best itself. ``one_se``: the same within one standard error of
-    the best candidate's mean fold score (its fold scores' SD / sqrt(folds); the one-standard-error rule of
+    :func:`~pipeline.models.search_choice.smoothest_within`) rather than the best itself. ``one_se``: the same
+    within one standard error of the best candidate's mean fold score (its fold scores' SD / sqrt(folds); the one-standard-error rule of
     Breiman et al. 1984, Hastie et al. 2009 §7.10), or ``smooth_tolerance`` if that is larger.
 
     ``progress(done, total, desc)`` (optional) is called after each new candidate (``total``: the budget).
@@ -386,9 +458,8 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     if max_fits is not None:
         max_evals = max(1, max_fits // n_folds)
     rng = np.random.default_rng(seed)
-    t0, cpu0 = time.perf_counter(), time.process_time()
-    with threadpool_limits(1, user_api="blas"):  # GP fits on <= gp_samples points: BLAS threads only contend
-        seeds, gp_s = _gp_seed(model, X, y, n_velocity, gp_samples, seed)
+    t0 = time.perf_counter()
+    (seeds, gp_s), = yield [(_gp_seed, (model, X, y, n_velocity, gp_samples, seed))]
     phases = ["seed"] * len(seeds)
     if warm_start is not None:
         seeds.append(np.log(_expand(model, warm_start, X.shape[1], n_velocity)))
@@ -396,79 +467,63 @@ def fast_search(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int = 3, n
     lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
     cache: dict[tuple[float, ...], float] = {}
     trace: list[dict[str, Any]] = []
+    evaluate = _evaluator(model, names, X, y, folds, n_velocity, cap, (lo, hi), cache, trace,
+                          fold_r2=fold_subset is not None, progress=progress, budget=max_evals)
 
-    def evaluate(v: np.ndarray, phase: str) -> float:
-        v = np.clip(v, lo, hi)
-        key = tuple(np.round(v, 6))
-        if key not in cache:
-            params = _to_params(model, names, np.exp(v))
-            max_iter = cap()
-            fits = _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)
-            cap.record(fits)
-            entry = candidate_entry(params, fits, max_iter, phase=phase)
-            if fold_subset is not None:
-                entry["fold_r2"] = [r2 for r2, _, _ in fits]
-            cache[key] = entry["score"]
-            trace.append(entry)
-            if progress is not None:
-                progress(min(len(cache), max_evals), max_evals, f"{model} {phase}")
-        return cache[key]
-
-    scored = [(evaluate(x0, ph), k) for k, (x0, ph) in enumerate(zip(seeds, phases, strict=True))]
-    best, k_best = max(scored)
+    scores = yield from evaluate(list(zip(seeds, phases, strict=True)))
+    best, k_best = max((score, k) for k, score in enumerate(scores))
     x = np.clip(seeds[k_best], lo, hi)
     warm_key = tuple(np.round(np.clip(seeds[-1], lo, hi), 6)) if warm_start is not None else None
     if n_explore is None:
         n_explore = min(len(names), max(0, max_evals - len(cache)) // 4)
-    if n_explore > 0:  # a few candidates away from both seeds and warm start, around the best GP seed
-        gp_best = max(range(len(phases)), key=lambda k: scored[k][0] if phases[k] == "seed" else -np.inf)
+    n_explore = min(n_explore, max(0, max_evals - len(cache)))
+    if n_explore > 0:  # a few candidates away from both seeds and warm start, around the best GP seed: one round
+        gp_best = max(range(len(phases)), key=lambda k: scores[k] if phases[k] == "seed" else -np.inf)
         centre = np.clip(seeds[gp_best], lo, hi)
         unit = qmc.Sobol(len(names), scramble=True, seed=seed).random_base2(math.ceil(math.log2(n_explore)))
-        for u in unit[:n_explore]:
-            if len(cache) >= max_evals:
-                break
-            cand = np.clip(centre + (2.0 * u - 1.0) * math.log(10.0), lo, hi)
-            score = evaluate(cand, "explore")
+        cands = [np.clip(centre + (2.0 * u - 1.0) * math.log(10.0), lo, hi) for u in unit[:n_explore]]
+        for cand, score in zip(cands, (yield from evaluate([(c, "explore") for c in cands])), strict=True):
             if score > best:
                 x, best = cand, score
+    own_cpu = [gp_s]  # the GP seeds' and proposals' CPU: tasks of their own
     if local == "model":
-        with threadpool_limits(1, user_api="blas"):  # the same: a GP on the few candidates so far
-            x, best = model_steps(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share)
-    x, best, converged = pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step, min_step)
+        x, best = yield from model_steps(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share, own_cpu)
+    x, best, converged = yield from pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step,
+                                                   min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          len(cache) * len(folds), n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
+                          sum(t["n_fits"] for t in trace), n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
                           budget_exhausted=not converged, n_rows=len(X))
     if warm_key is not None:
         result.warm_start_score = float(cache[warm_key])
         if tuple(np.round(x, 6)) == warm_key:
             result.warm_start_kept = True
-            result.note = _kept_note(trace, cache[warm_key], n_folds)
+            result.note = kept_note(trace, cache[warm_key], n_folds)
             if report_kept:
                 log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
     tolerance = smooth_tolerance
     if one_se:  # the one-standard-error rule: the best candidate's fold scores say how sure its lead is
         tolerance = max(tolerance, next(t["se"] for t in trace if t["score"] == best))
     if tolerance > 0:
-        result.best_params, result.best_score = _smoothest_within(trace, best, tolerance)
+        result.best_params, result.best_score = smoothest_within(trace, best, tolerance)
     result.elapsed_s = time.perf_counter() - t0
     cost = cost_summary(trace, cap)
-    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)  # GP seeds, EI model steps
-    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
+    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + own_cpu[0], 4), **cost}
     log_capped(model, result.n_candidates, result.cost)
     return result
 
 
-def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, Any], n_folds: int = 3,
-                 n_jobs: int | None = 1, n_velocity: int = 3, max_evals: int = 8,
-                 iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
-                 initial_step: float = math.log(2.0),
-                 min_step: float = math.log(1.25), fold_subset: list[int] | None = None) -> SearchResult:
+def local_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, Any], n_folds: int = 3,
+                        n_jobs: int | None = 1, n_velocity: int = 3, max_evals: int = 8,
+                        iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
+                        initial_step: float = math.log(2.0),
+                        min_step: float = math.log(1.25), fold_subset: list[int] | None = None) -> Rounds:
     """A small search around ``start`` (another search's optimum, e.g. the tune stage's on the rows these are cut
     from): ``start`` scored, then the pattern search of :func:`fast_search` from it, steps of ``initial_step``
     (x2), no restarts, at most ``max_evals`` candidates in all. The nested CV's folds use it, so a fold re-tunes
     on its own training rows at a fraction of a whole search's cost. ``warm_start_kept``/``note`` say whether
     ``start`` stayed the best; ``budget_exhausted`` whether the budget ran out before the steps converged.
-    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does)."""
+    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does). A coroutine of
+    :mod:`pipeline.rounds` (:func:`local_search` runs it)."""
     X, y = _check_xy(X, y)
     folds = blocked_folds(len(X), n_folds)
     cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
@@ -476,76 +531,37 @@ def local_search(model: str, X: np.ndarray, y: np.ndarray, *, start: dict[str, A
         folds = [folds[i] for i in fold_subset]
     names = _names(model, X.shape[1])
     lo, hi = _log_bounds(len(names) - 2, float(np.std(y)))
-    t0, cpu0 = time.perf_counter(), time.process_time()
+    t0 = time.perf_counter()
     cache: dict[tuple[float, ...], float] = {}
     trace: list[dict[str, Any]] = []
-
-    def evaluate(v: np.ndarray, phase: str) -> float:
-        key = tuple(np.round(np.clip(v, lo, hi), 6))
-        if key not in cache:
-            params = _to_params(model, names, np.exp(np.array(key)))
-            max_iter = cap()
-            fits = _cv_fits(model, params, X, y, folds, n_jobs, n_velocity, max_iter)
-            cap.record(fits)
-            trace.append(candidate_entry(params, fits, max_iter, phase=phase))
-            cache[key] = trace[-1]["score"]
-        return cache[key]
-
+    evaluate = _evaluator(model, names, X, y, folds, n_velocity, cap, (lo, hi), cache, trace, from_key=True)
     x0 = np.clip(np.log(_expand(model, start, X.shape[1], n_velocity)), lo, hi)
-    start_score = evaluate(x0, "warm_start")
-    x, best, converged = pattern_search(evaluate, x0, start_score, lo, hi, np.random.default_rng(0),
-                                        max(1, max_evals), cache, initial_step, min_step, restarts=False)
+    start_score, = yield from evaluate([(x0, "warm_start")])
+    x, best, converged = yield from pattern_search(evaluate, x0, start_score, lo, hi, np.random.default_rng(0),
+                                                   max(1, max_evals), cache, initial_step, min_step, restarts=False)
     result = SearchResult(model, "local", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          len(cache) * len(folds), n_folds, time.perf_counter() - t0, trace=trace,
+                          sum(t["n_fits"] for t in trace), n_folds, time.perf_counter() - t0, trace=trace,
                           warm_start_score=float(start_score), budget_exhausted=not converged, n_rows=len(X))
     if tuple(np.round(x, 6)) == tuple(np.round(x0, 6)):
         result.warm_start_kept = True
-        result.note = _kept_note(trace, start_score, n_folds)
+        result.note = kept_note(trace, start_score, n_folds)
     cost = cost_summary(trace, cap)
-    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)
-    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
+    result.cost = {"cpu_s": cost["fits_cpu_s"], **cost}
     return result
 
 
-def _kept_note(trace: list[dict[str, Any]], warm_score: float, n_folds: int) -> str:
-    """Why the warm start survived: how many candidates of each phase were tried and how close they came."""
-    others = [t for t in trace if t.get("phase") != "warm_start"]
-    counts: dict[str, int] = {}
-    for t in others:
-        counts[t["phase"]] = counts.get(t["phase"], 0) + 1
-    tried = ", ".join(f"{n} {ph}" for ph, n in counts.items()) or "none"
-    if not others:
-        return f"no candidate besides the warm start fitted in the budget (R2 {warm_score:.4f})"
-    runner_up = max(t["score"] for t in others)
-    spread = warm_score - min(t["score"] for t in others)
-    why = ("the score is flat around it" if spread < 1e-3 else
-           "every other candidate scored lower: a local optimum the budget did not escape")
-    return (f"none of {len(others)} other candidates ({tried}; {n_folds}-fold CV) beat its tuning R2 "
-            f"{warm_score:.4f} (runner-up {runner_up:.4f}, worst {warm_score - spread:.4f}): {why}")
+fast_search = _driven(fast_search_rounds)
+local_search = _driven(local_search_rounds)
 
 
-def _gammas(params: dict[str, Any]) -> list[float]:
-    if "gammas" in params:
-        return list(params["gammas"])
-    return [v for k, v in params.items() if k.startswith("gamma")]
-
-
-def _smoothest_within(trace: list[dict[str, Any]], best: float, tolerance: float) -> tuple[dict[str, Any], float]:
-    """Regularized choice: of the candidates scoring within ``tolerance`` (R²) of the best, the smoothest kernel
-    (smallest sum of log gammas, then smallest C). The tuning block is short, so its CV score is a noisy estimate;
-    among near-ties the wider kernel extrapolates better to the rest of the data."""
-    near = [t for t in trace if t["score"] >= best - tolerance]
-    pick = min(near, key=lambda t: (float(np.sum(np.log(_gammas(t["params"])))), t["params"]["C"]))
-    return pick["params"], float(pick["score"])
-
-
-def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
-    """Dispatch to :func:`fast_search`, :func:`grid_search` (``method="paper_grid"``) or :func:`local_search`
-    (``"local"``) with the keywords ``kw`` of that function; one it does not take is refused (TypeError naming
-    it). The best parameters carry ``C_rows``: the mean training rows of the search's folds, the rows its C was
-    chosen on (see :func:`pipeline.models.svr.scaled_C`). Successive halving: :mod:`pipeline.models.search_halving`
-    (its ``search`` takes the halving's keywords too)."""
-    methods = {"fast": fast_search, "paper_grid": grid_search, "local": local_search}
+def search_rounds(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> Rounds:
+    """Dispatch to :func:`fast_search_rounds`, :func:`grid_search` (``method="paper_grid"``, not in rounds: its
+    candidates are one joblib fan-out) or :func:`local_search_rounds` (``"local"``) with the keywords ``kw`` of
+    that function; one it does not take is refused (TypeError naming it). The best parameters carry ``C_rows``:
+    the mean training rows of the search's folds, the rows its C was chosen on (see
+    :func:`pipeline.models.svr.scaled_C`). Successive halving: :mod:`pipeline.models.search_halving` (its
+    ``search_rounds`` takes the halving's keywords too). A coroutine of :mod:`pipeline.rounds`."""
+    methods = {"fast": fast_search_rounds, "paper_grid": grid_search, "local": local_search_rounds}
     if method not in methods:
         raise ModelError(f"unknown search method {method!r}; expected 'fast', 'paper_grid' or 'local'")
     takes = [n for n, a in inspect.signature(methods[method]).parameters.items()
@@ -556,8 +572,11 @@ def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw:
     if method == "paper_grid":
         res = grid_search(model, X, y, keep_trace=False, **kw)
     else:
-        res = methods[method](model, X, y, **kw)
+        res = yield from methods[method](model, X, y, **kw)
     return with_C_rows(res, len(X))
+
+
+search = _driven(search_rounds)
 
 
 def with_C_rows(res: SearchResult, n_rows: int) -> SearchResult:

@@ -28,36 +28,39 @@ import numpy as np
 from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
 from pipeline.models.search import (
+    Rounds,
     SearchResult,
     _cap,
     _check_xy,
-    _cv_fits,
+    _driven,
     _expand,
     _names,
-    _smoothest_within,
     _to_params,
-    fast_search,
+    fast_search_rounds,
+    fit_task,
     with_C_rows,
 )
-from pipeline.models.search import search as plain_search
+from pipeline.models.search import search_rounds as plain_search
+from pipeline.models.search_choice import smoothest_within
 from pipeline.models.search_cost import ITER_CAP_RATIO, ITER_PER_ROW, candidate_entry, cost_summary
 from pipeline.models.svr import scaled_C
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HALVING_KEYS", "fold_subset", "halving_search", "screen_index", "search"]
+__all__ = ["HALVING_KEYS", "fold_subset", "halving_search", "halving_search_rounds", "screen_index", "search",
+           "search_rounds"]
 
 HALVING_KEYS = ("screen_rows", "screen_folds", "survivors", "c_rate")  # search(): the halving's own keywords
 
 
-def search(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> SearchResult:
-    """:func:`pipeline.models.search.search`, or with ``method="fast"`` and ``screen_rows`` or ``screen_folds``
-    given, :func:`halving_search` (its best parameters with ``C_rows`` as well). The halving's keywords
-    (:data:`HALVING_KEYS`) are taken here; the others go to the search as they are."""
+def search_rounds(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast", **kw: Any) -> Rounds:
+    """:func:`pipeline.models.search.search_rounds`, or with ``method="fast"`` and ``screen_rows`` or
+    ``screen_folds`` given, :func:`halving_search_rounds` (its best parameters with ``C_rows`` as well). The
+    halving's keywords (:data:`HALVING_KEYS`) are taken here; the others go to the search as they are."""
     halving = {k: kw.pop(k) for k in HALVING_KEYS if k in kw}
     if method != "fast" or (halving.get("screen_rows") is None and halving.get("screen_folds") is None):
-        return plain_search(model, X, y, method, **kw)
-    return with_C_rows(halving_search(model, X, y, **halving, **kw), len(X))
+        return (yield from plain_search(model, X, y, method, **kw))
+    return with_C_rows((yield from halving_search_rounds(model, X, y, **halving, **kw)), len(X))
 
 
 def screen_index(n_rows: int, screen_rows: int) -> np.ndarray:
@@ -78,9 +81,9 @@ def fold_subset(n_folds: int, k: int) -> list[int]:
     return sorted({int((i + 0.5) * n_folds / k) for i in range(k)})
 
 
-def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int | None = None,
-                   screen_folds: int | None = None, survivors: int = 6, c_rate: float = 0.5,
-                   **kw: Any) -> SearchResult:
+def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int | None = None,
+                          screen_folds: int | None = None, survivors: int = 6, c_rate: float = 0.5,
+                          **kw: Any) -> Rounds:
     """The fast search's candidates screened on ``screen_rows`` rows and/or ``screen_folds`` of its folds, its
     ``survivors`` best (and the warm start) then scored on all rows of ``X`` and all folds; ``kw``:
     :func:`~pipeline.models.search.fast_search`'s keywords. With nothing to screen (no more rows than
@@ -89,7 +92,8 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
 
     The result's ``best_score`` and choice are the last rung's; its ``trace`` holds both rungs (``rung`` 0 and 1,
     each entry's ``n_rows``), ``halving`` says what each rung saw, ``warm_start_kept`` whether the warm start won
-    the last rung, ``budget_exhausted`` the screen's (its pattern search ran out of candidates)."""
+    the last rung, ``budget_exhausted`` the screen's (its pattern search ran out of candidates). A coroutine of
+    :mod:`pipeline.rounds` (:func:`halving_search` runs it): the survivors are one round."""
     X, y = _check_xy(X, y)
     n_folds, n_velocity = kw.get("n_folds", 3), kw.get("n_velocity", 3)
     if (screen_rows is not None and screen_rows < 2) or survivors < 1 or (screen_folds is not None
@@ -99,9 +103,9 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
     by_rows = screen_rows is not None and len(X) > screen_rows
     by_folds = screen_folds is not None and screen_folds < n_folds
     if not (by_rows or by_folds):
-        return fast_search(model, X, y, **kw)
-    t0, cpu0 = time.perf_counter(), time.process_time()
-    n_jobs, iter_per_row = kw.get("n_jobs", 1), kw.get("iter_per_row", ITER_PER_ROW)
+        return (yield from fast_search_rounds(model, X, y, **kw))
+    t0 = time.perf_counter()
+    iter_per_row = kw.get("iter_per_row", ITER_PER_ROW)
     idx = screen_index(len(X), screen_rows) if by_rows else np.arange(len(X))
     subset = fold_subset(n_folds, screen_folds) if by_folds else None
     rows_screen, rows_all = _train_rows(len(idx), n_folds), _train_rows(len(X), n_folds)
@@ -110,7 +114,7 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
         warm = {**warm, "C": scaled_C(warm["C"], warm.get("C_rows") or round(rows_all), round(rows_screen), c_rate)}
         warm.pop("C_rows", None)
         kw = {**kw, "warm_start": warm}
-    screen = fast_search(model, X[idx], y[idx], report_kept=False, fold_subset=subset, **kw)
+    screen = yield from fast_search_rounds(model, X[idx], y[idx], report_kept=False, fold_subset=subset, **kw)
 
     # the survivors: the screen's best distinct candidates in score order (the first of equal scores first), then
     # the warm start, so that the richer kernel is never chosen below the simpler one on all rows either
@@ -135,19 +139,26 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
         cap.record([(t["score"], 0.0, int(round(t["n_iter"] * rows_all / rows_screen)))])
     final: list[dict[str, Any]] = []
     n_new = 0
-    for key, seen in picked.items():
+    max_iter = cap()  # the screen's fits decide it: the same for every survivor
+    runs = []  # per survivor: its params, the screen's fold scores it keeps, the folds it fits now
+    for seen in picked.values():
         params = seen["params"]
         if by_rows:
             params = {**params, "C": scaled_C(params["C"], round(rows_screen), round(rows_all), c_rate)}
         kept = dict(zip(subset, seen["fold_r2"], strict=True)) if not by_rows and "fold_r2" in seen else {}
-        rest = [i for i in range(n_folds) if i not in kept]
-        max_iter = cap()
-        fits = dict(zip(rest, _cv_fits(model, params, X, y, [folds[i] for i in rest], n_jobs, n_velocity,
-                                       max_iter), strict=True))
+        runs.append((params, kept, [i for i in range(n_folds) if i not in kept]))
+    fits_all = yield [fit_task(model, params, X, y, folds[i], n_velocity, max_iter)
+                      for params, _, rest in runs for i in rest]  # the survivors: one round
+    at, last_round = 0, 1 + max((t.get("round", -1) for t in screen.trace), default=-1)
+    for key, (params, kept, rest) in zip(picked, runs, strict=True):
+        fits = dict(zip(rest, fits_all[at:at + len(rest)], strict=True))
+        at += len(rest)
+        seen = picked[key]
         new_cpu = [fits[i] for i in rest]
         n_new += len(rest)
         all_fits = [fits[i] if i in fits else (kept[i], 0.0, 0) for i in range(n_folds)]
-        entry = candidate_entry(params, all_fits, max_iter, phase="survivor", rung=1, n_rows=len(X))
+        entry = candidate_entry(params, all_fits, max_iter, phase="survivor", rung=1, n_rows=len(X),
+                                round=last_round)
         entry["cpu_s"] = round(float(sum(c for _, c, _ in new_cpu)), 6)  # the screen's fits are in its entry
         entry["n_fits"] = len(new_cpu)
         entry["n_iter"] = max([n for _, _, n in new_cpu] + [seen.get("n_iter", 0)])
@@ -159,7 +170,7 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
     if kw.get("one_se"):
         tolerance = max(tolerance, best["se"])
     if tolerance > 0:
-        best_params, best_score = _smoothest_within(final, best_score, tolerance)
+        best_params, best_score = smoothest_within(final, best_score, tolerance)
     chosen = next(e for e in final if e["params"] == best_params)
 
     trace = [{**t, "rung": 0, "n_rows": len(idx)} for t in screen.trace] + final
@@ -185,8 +196,11 @@ def halving_search(model: str, X: np.ndarray, y: np.ndarray, *, screen_rows: int
                            f"{screen.best_score:.4f}")
             log.warning("fast search %s kept its warm start unchanged: %s", model, result.note)
     cost = cost_summary(trace, cap)
-    own = time.process_time() - cpu0 - (cost["fits_cpu_s"] if n_jobs == 1 else 0.0)
-    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + max(own, 0.0), 4), **cost}
+    result.cost = {"cpu_s": round(cost["fits_cpu_s"] + screen.cost["cpu_s"] - screen.cost["fits_cpu_s"], 4), **cost}
     result.elapsed_s = time.perf_counter() - t0
     return result
+
+
+halving_search = _driven(halving_search_rounds)
+search = _driven(search_rounds)
 

@@ -1,8 +1,10 @@
 """The coupled study's independent units of work, run through one executor (:func:`pipeline.parallel.imap`).
 
-* tune: one task per output for the SVRs' warm-start chain (RBF -> 2-weights -> WDSE, each search started from the
-  simpler kernel's optimum), and one per gray box and output for its residual's chain. Chains do not depend on each
-  other, so the stage's critical path is one chain, not eighteen searches.
+* tune: one coroutine (:mod:`pipeline.rounds`) per output for the SVRs' warm-start chain (RBF -> 2-weights -> WDSE,
+  each search started from the simpler kernel's optimum), and one per gray box and output for its residual's chain.
+  Each asks for its searches' rounds of tasks (a GP's seeds or proposals; every candidate and fold of a round), and
+  the rounds of all chains go to one executor at once: the stage's critical path is one chain's rounds, each as
+  long as its slowest fit, not eighteen searches one after the other.
 * train: one task per model and CV fold (its scores and its test block's predictions, the conformal interval's
   out-of-fold residuals), and one per model's final fit (with its check on the test trials).
 
@@ -24,9 +26,10 @@ from typing import Any
 import numpy as np
 
 from pipeline.evaluate import MODEL_FAILURES, fit_fold, model_failure, regression_scores
-from pipeline.models.search import SearchResult, SearchSettings
-from pipeline.models.search_halving import search
+from pipeline.models.search import Rounds, SearchResult, SearchSettings
+from pipeline.models.search_halving import search_rounds
 from pipeline.parallel import imap, task_result, timed_task
+from pipeline.rounds import drive, run_inline
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +38,11 @@ def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs
                 progress: Callable[..., Any] | None = None) -> list[list[Any]]:
     """Run each chain of warm-started searches (``{"label", "models": [kernel, ...], "names": [each search's name
     on the progress bar, or None], "X", "y", "cache"}``; other keys are carried), each through the chain's
-    :class:`SearchCache` (a worker's copy starts empty); returns, per chain in order, its searches'
-    :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers
+    :class:`SearchCache`; returns, per chain in order, its searches'
+    :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers for the chains' tasks
     (1: inline, with each search's candidates on ``progress``; more, or -1 on a Dask cluster: ``progress`` moves as
     each chain ends)."""
-    settings = replace(settings, n_jobs=1)  # one level of parallelism: the chains
+    settings = replace(settings, n_jobs=1)  # the searches' tasks go to this function's executor
     items = [{**c, "X": np.ascontiguousarray(c["X"], dtype=float), "y": np.ascontiguousarray(c["y"], dtype=float),
               "settings": settings} for c in chains]
     if jobs == 1:  # each search that has a name (``names``, None: a warm start only) moves the bar by its candidates
@@ -51,13 +54,15 @@ def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs
                 k += name is not None
                 labels.append(None if name is None else _labelled(progress, f"{name} ({k}/{total})"))
             item["progress"] = labels
-    results: list[Any] = [None] * len(items)
-    for done, (index, timed) in enumerate(imap(timed_task(_run_chain, "tune"), items, jobs=jobs, shared=("X",)),
-                                          start=1):
-        results[index] = task_result(timed, "tune", items[index]["label"])
+    finished = [0]
+
+    def chain_done(index: int, _: Any) -> None:
+        finished[0] += 1
         if progress is not None and jobs > 1:
-            progress(done, len(items), f"{items[index]['label']} ({done}/{len(items)} chains)")
-    return results
+            progress(finished[0], len(items), f"{items[index]['label']} ({finished[0]}/{len(items)} chains)")
+
+    return drive([_run_chain(item) for item in items], jobs=jobs, stage="tune",
+                 labels=[item["label"] for item in items], on_done=chain_done)
 
 
 def _labelled(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
@@ -66,12 +71,15 @@ def _labelled(progress: Callable[..., Any] | None, label: str) -> Callable[..., 
     return lambda done, total=None, desc=None: progress(done, total, f"{label} {desc or ''}".rstrip())
 
 
-def _run_chain(item: dict[str, Any]) -> list[Any]:
+def _run_chain(item: dict[str, Any]) -> Any:
+    """A chain's searches in order, each warm-started from the one before: a coroutine of :mod:`pipeline.rounds`
+    returning their results."""
     cache = item.get("cache") or SearchCache()
     warm, out = None, []
     bars = item.get("progress") or [None] * len(item["models"])
     for model, bar in zip(item["models"], bars, strict=True):
-        res = cache.search(model, item["X"], item["y"], item["settings"], warm_start=warm, progress=bar)
+        res = yield from cache.search_rounds(model, item["X"], item["y"], item["settings"], warm_start=warm,
+                                             progress=bar)
         warm = res.best_params if item["settings"].method == "fast" else None
         out.append(res)
     return out
@@ -101,8 +109,15 @@ class SearchCache:
 
     def search(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
                warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None) -> SearchResult:
+        """:meth:`search_rounds` run inline."""
+        return run_inline(self.search_rounds(model, X, y, settings, warm_start=warm_start, progress=progress))
+
+    def search_rounds(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
+                      warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None
+                      ) -> Rounds:
         """:func:`~pipeline.models.search.search` with ``settings`` (and a simpler kernel's optimum as
-        ``warm_start``: fast search only), or the result of the same search run before."""
+        ``warm_start``: fast search only), or the result of the same search run before; a coroutine of
+        :mod:`pipeline.rounds`."""
         kw = settings.keywords()
         if warm_start is not None:
             kw["warm_start"] = warm_start
@@ -115,7 +130,7 @@ class SearchCache:
         key = h.hexdigest()
         result = self._results.get(key)
         if result is None:
-            result = search(model, X, y, settings.method, progress=progress, **kw)
+            result = yield from search_rounds(model, X, y, settings.method, progress=progress, **kw)
             self._results[key] = result
             while len(self._results) > self.kept:
                 del self._results[next(iter(self._results))]

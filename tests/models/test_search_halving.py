@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import pipeline.models.search as search_mod
-import pipeline.models.search_halving as halving_mod
 from pipeline.config.params import CoupledParams
 from pipeline.errors import ModelError
 from pipeline.evaluate import blocked_folds
@@ -137,20 +136,16 @@ def _bowl_fits(monkeypatch, tilt: float = 1.0):
     scored: list[int] = []
     slope = {0: -2 * tilt, 1: tilt, 2: -tilt, 3: tilt, 4: tilt}  # sums to 0 over 5 folds, +2 tilt over {1, 3}
 
-    def fake(model, params, X, y, folds, n_jobs, n_velocity, max_iter):
+    def fake(est, X, y, train, test):  # noqa: ANN001, ANN202  (a fold fit: R², CPU seconds, iterations)
         ys = float(np.std(y))
-        c = math.log(params["C"] / ys) - math.log(KNOWN_BEST["C"])
-        bowl = 0.95 - 0.02 * ((math.log(params["gamma"]) - math.log(KNOWN_BEST["gamma"])) ** 2 + c**2
-                              + (math.log(params["epsilon"] / ys) - math.log(KNOWN_BEST["epsilon"])) ** 2)
-        out = []
-        for _train, test in folds:
-            i = int(round(test[0] / len(test)))  # blocked folds: the test block's index
-            scored.append(i)
-            out.append((bowl + slope[i] * c * 0.02, 0.0, 1))
-        return out
+        c = math.log(est.C / ys) - math.log(KNOWN_BEST["C"])
+        bowl = 0.95 - 0.02 * ((math.log(est.gamma) - math.log(KNOWN_BEST["gamma"])) ** 2 + c**2
+                              + (math.log(est.epsilon / ys) - math.log(KNOWN_BEST["epsilon"])) ** 2)
+        i = int(round(test[0] / len(test)))  # blocked folds: the test block's index
+        scored.append(i)
+        return bowl + slope[i] * c * 0.02, 0.0, 1
 
-    monkeypatch.setattr(search_mod, "_cv_fits", fake)
-    monkeypatch.setattr(halving_mod, "_cv_fits", fake)
+    monkeypatch.setattr(search_mod, "_fold_fit", fake)
     return scored
 
 

@@ -214,13 +214,13 @@ def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
     params = CoupledParams(models=["rbf_svr", "two_weights_svr", "wdse_svr"], outputs=["udot_mps2"], max_evals=3,
                            folds=2, tuning="nested", fold_evals=None)
     ran: list[str] = []
-    real_search = tasks.search
+    real_search = tasks.search_rounds
 
-    def counted(model, X, y, method="fast", **kw):
+    def counted(model, X, y, method="fast", **kw):  # a search in rounds (pipeline.rounds), counted as it starts
         ran.append(model)
-        return real_search(model, X, y, method, **kw)
+        return (yield from real_search(model, X, y, method, **kw))
 
-    monkeypatch.setattr(tasks, "search", counted)
+    monkeypatch.setattr(tasks, "search_rounds", counted)
     memo = coupled.run_study(frame, params, n_jobs=1)  # one process: the folds share the run's cache
     # the tune stage's call (one chain), then per fold the three kernels' chains: 3 + 2 x 3, not 3 + 2 x (1 + 2 + 3)
     assert sorted(ran) == sorted(["rbf_svr", "two_weights_svr", "wdse_svr"] * (1 + params.folds))

@@ -66,11 +66,18 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     import pipeline.studies.decoupled as decoupled
     import pipeline.studies.tasks as tasks
 
+    real_drive = tasks.drive
+
+    def drive_spy(coros, *, jobs, **kw):  # noqa: ANN001, ANN202
+        calls.append((len(coros), jobs))
+        return real_drive(coros, jobs=jobs, **kw)
+
     monkeypatch.setattr(tasks, "imap", spy)
+    monkeypatch.setattr(tasks, "drive", drive_spy)
     monkeypatch.setattr(decoupled, "imap", spy)
     serial = _run(store_root, tmp_path / "serial")
-    # tune: 3 SVR chains + 3 gray-box residual chains; train: 4 models x (3 folds + the final fit); decoupled: 3
-    # DOFs x 5 models
+    # tune: 3 SVR chains + 3 gray-box residual chains (coroutines of rounds); train: 4 models x (3 folds + the final
+    # fit); decoupled: 3 DOFs x 5 models
     assert calls == [(6, 1), (16, 1), (15, 1)]
 
     calls.clear()
@@ -83,8 +90,17 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
         return real_fork(fn, items, jobs)
 
     monkeypatch.setattr(parallel, "_forked_map", fork_spy)
+    pooled_tasks: list[int] = []
+    real_pool = parallel.local_pool
+
+    def pool_spy(jobs):  # noqa: ANN001, ANN202  (the tune stage's rounds go to the same forked pool)
+        pooled_tasks.append(jobs)
+        return real_pool(jobs)
+
+    monkeypatch.setattr(parallel, "local_pool", pool_spy)
     pooled = _run(store_root, tmp_path / "pool")
-    assert calls == [(6, 2), (16, 2), (15, 2)] and forked == [6, 16, 15]  # every stage went through the pool
+    # every stage went through the pool: tune's rounds, train's and decoupled's tasks
+    assert calls == [(6, 2), (16, 2), (15, 2)] and forked == [16, 15] and pooled_tasks == [2]
 
     calls.clear()
     distributed = pytest.importorskip("distributed")

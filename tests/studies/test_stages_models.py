@@ -215,14 +215,14 @@ def test_graybox_residual_is_tuned_on_the_base_it_is_fitted_with(run_root, vehic
     shutil.copytree(root / "data/features", tmp_path / "data/features")
     params = study_params(models=["graybox"], search="fast")
     seen: list[np.ndarray] = []
-    real = tasks.search
+    real = tasks.search_rounds
 
-    def recording(model, X, y, *a, **kw):
+    def recording(model, X, y, *a, **kw):  # a search in rounds (pipeline.rounds), recorded as it starts
         seen.append(np.array(y))
-        return real(model, X, y, *a, **kw)
+        return (yield from real(model, X, y, *a, **kw))
 
-    monkeypatch.setattr(tasks, "search", recording)
-    monkeypatch.setenv("AUVID_JOBS", "1")  # the searches in this process, where they are recorded
+    monkeypatch.setattr(tasks, "search_rounds", recording)
+    monkeypatch.setenv("AUVID_JOBS", "1")  # inline: the chains one after the other, each search starting in order
     tune_stage.run(tmp_path, vehicle, params)
     cp = params.coupled
     tt = store.load(tmp_path, split="train_test")
