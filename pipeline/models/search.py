@@ -439,8 +439,9 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
 
     ``smooth_tolerance`` > 0: return the smoothest candidate within that much R² of the best (see
     :func:`~pipeline.models.search_choice.smoothest_within`) rather than the best itself. ``one_se``: the same
-    within one standard error of the best candidate's mean fold score (its fold scores' SD / sqrt(folds); the one-standard-error rule of
-    Breiman et al. 1984, Hastie et al. 2009 §7.10), or ``smooth_tolerance`` if that is larger.
+    within one standard error of the best candidate's mean fold score (its fold scores' SD / sqrt(folds); the
+    one-standard-error rule of Breiman et al. 1984, Hastie et al. 2009 §7.10), or ``smooth_tolerance`` if that is
+    larger.
 
     ``progress(done, total, desc)`` (optional) is called after each new candidate (``total``: the budget).
     ``report_kept=False``: no warning for a kept warm start (a halving screen's: its last rung decides).
