@@ -6,15 +6,16 @@
     nice python bench/span.py models --dask                           # ... and on a Dask LocalCluster of as many
 
 Each run is a whole ``auvid run`` process, started fresh, with ``AUVID_TASK_TRACE`` set: every stage and every task
-the stages hand to the executor (a log's ingest, a trial's sync / differentiate / derive, a search chain of tune, a
-CV fold or final fit of train) records its wall and CPU time (``pipeline.parallel.record_task``).
+the stages hand to the executor (a log's ingest, a trial's sync / differentiate / derive, each fit or GP of a search
+round of tune, a CV fold or final fit of train) records its wall and CPU time (``pipeline.parallel.record_task``).
 
 From the serial run (``AUVID_JOBS=1``: tasks one after the other, undisturbed):
 
 * work = the process's wall time: the stages' (every task and the stages' own serial parts: loading, writing) and
   the process's start and end outside them (imports, configs);
-* span = per stage, its serial part (its wall time less its tasks') plus its longest task, summed over the stages
-  (a stage starts when the one before it ends; its tasks depend on nothing else), plus the process's start and end;
+* span = per stage, its serial part (its wall time less its tasks') plus its longest chain of dependent tasks (a
+  search's rounds, each as long as its slowest task: ``longest_path``; a task that names no dependency starts with
+  its stage), summed over the stages (a stage starts when the one before it ends), plus the process's start and end;
 * work / span = the speed-up unlimited workers could give this run.
 
 Then the same run with ``AUVID_JOBS=N`` for each ``--workers`` N: wall time, CPU time of the whole process tree
@@ -46,18 +47,33 @@ from bench.parallel import KNOBS, _tree_cpu, clean, compile_sources, make_log, m
 MODEL_STAGES = ("tune", "train")
 
 
+def longest_path(tasks: list[dict[str, Any]]) -> float:
+    """The longest chain of dependent tasks, in wall seconds: a task starts when every task of the rounds it names
+    in ``deps`` has ended (``"<label> r<k>"`` names round k of a coroutine, :mod:`pipeline.rounds`; a task's own
+    name outside rounds), else at its stage's start. Records come in the order the serial run wrote them, each
+    after those it depends on."""
+    finish: dict[str, float] = {}
+    groups: dict[str, float] = defaultdict(float)
+    for r in tasks:
+        start = max((groups.get(d, finish.get(d, 0.0)) for d in r.get("deps", [])), default=0.0)
+        finish[r["task"]] = start + r["wall_s"]
+        group = r["task"].rsplit(" #", 1)[0]
+        groups[group] = max(groups[group], finish[r["task"]])
+    return max(finish.values(), default=0.0)
+
+
 def span_of(trace: list[dict[str, Any]]) -> dict[str, Any]:
     """Work, span and per-stage figures of one serial run's trace (JSON lines of ``record_task``)."""
     stages = [r for r in trace if r["stage"] == "run"]
-    tasks: dict[str, list[float]] = defaultdict(list)
+    tasks: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in trace:
         if r["stage"] != "run":
-            tasks[r["stage"]].append(r["wall_s"])
+            tasks[r["stage"]].append(r)
     rows, work, span = [], 0.0, 0.0
     for r in stages:
         own = tasks.get(r["task"], [])
-        serial_part = max(0.0, r["wall_s"] - sum(own))
-        longest = max(own, default=0.0)
+        serial_part = max(0.0, r["wall_s"] - sum(t["wall_s"] for t in own))
+        longest = longest_path(own)
         rows.append({"stage": r["task"], "wall_s": r["wall_s"], "tasks": len(own), "serial_s": serial_part,
                      "longest_task_s": longest, "span_s": serial_part + longest})
         work += r["wall_s"]
@@ -158,7 +174,7 @@ def main(argv: list[str] | None = None) -> None:
     shape["span_s"] += outside
     shape["work_over_span"] = shape["work_s"] / shape["span_s"]
     print(f"# {title}\n")
-    print("| stage | serial wall s | tasks | serial part s | longest task s | span s |")
+    print("| stage | serial wall s | tasks | serial part s | longest chain s | span s |")
     print("| --- | --- | --- | --- | --- | --- |")
     for r in shape["stages"]:
         print(f"| {r['stage']} | {r['wall_s']:.1f} | {r['tasks']} | {r['serial_s']:.1f} | {r['longest_task_s']:.1f} "
