@@ -189,7 +189,9 @@ class _executor:  # noqa: N801  (a context manager used as a function)
         return self.pool.submit(call_timed, fn, args)
 
     def _ship(self, value: Any) -> Any:
-        """A large array as a reference to its copy on the cluster (sent once per object)."""
+        """A large array as a reference to its copy on the cluster (sent once per object); a dict's values too."""
+        if isinstance(value, dict):
+            return {k: self._ship(v) for k, v in value.items()}
         nbytes = getattr(value, "nbytes", 0)
         if not isinstance(nbytes, int) or nbytes < SCATTER_BYTES:
             return value

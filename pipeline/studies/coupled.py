@@ -41,10 +41,11 @@ from pipeline.models.fossen import Fossen3DOF
 from pipeline.models.graybox import GrayBox
 from pipeline.models.manoeuvring import Abkowitz3DOF
 from pipeline.models.search import SVR_MODELS, SearchSettings, make_svr
-from pipeline.models.search_halving import fold_subset, search
+from pipeline.models.search_halving import fold_subset, search_rounds
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
+from pipeline.rounds import run_inline
 from pipeline.studies.intervals import interval_coverage, oof_intervals, target_sd
 from pipeline.studies.tasks import SearchCache, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
@@ -259,13 +260,21 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
 def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: dict[str, dict[str, Any]], *,
                noise_std: Sequence[float] | None = None, rigid_body_mass: np.ndarray | None = None
                ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+    """:func:`tune_local_rounds` run inline."""
+    return run_inline(tune_local_rounds(frame, model, params, start, noise_std=noise_std,
+                                        rigid_body_mass=rigid_body_mass))
+
+
+def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, start: dict[str, dict[str, Any]], *,
+                      noise_std: Sequence[float] | None = None, rigid_body_mass: np.ndarray | None = None) -> Any:
     """One model's hyperparameters re-tuned on ``frame`` (a CV fold's training rows) by a local search per output
     (:func:`pipeline.models.search.local_search`, at most ``params.fold_evals`` candidates) from ``start``
     (output -> the tune stage's hyperparameters). A gray-box model's residual is the one :func:`tune` forms: its
     base fitted on ``frame`` weighted by ``noise_std``. Returns ``(hyper, trace)`` as :func:`tune` for ``model``.
     It scores its candidates on the halving screen's folds (``params.screen_folds`` of the ``tuning_folds``, all
     when null): a few steps from an optimum chosen on all folds need no more than a screen does
-    (docs/models.md, 'Successive halving')."""
+    (docs/models.md, 'Successive halving'). A coroutine of :mod:`pipeline.rounds` (the outputs' searches one after
+    the other, each in rounds)."""
     data = _subsample(frame, params.max_samples)
     X = data[params.inputs].to_numpy(float)
     Y = data[params.outputs].to_numpy(float)
@@ -283,9 +292,9 @@ def tune_local(frame: pd.DataFrame, model: str, params: CoupledParams, start: di
     hyper: dict[str, dict[str, Any]] = {}
     trace: dict[str, Any] = {}
     for k, out in enumerate(params.outputs):
-        res = search(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds, n_jobs=1,
-                     n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset,
-                     iter_cap_ratio=params.iter_cap_ratio)
+        res = yield from search_rounds(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds,
+                                       n_jobs=1, n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals,
+                                       fold_subset=subset, iter_cap_ratio=params.iter_cap_ratio)
         hyper[out], trace[out] = res.best_params, res.to_dict()
     return hyper, trace
 
@@ -298,31 +307,41 @@ class NestedTuned(RegressorMixin, BaseEstimator):
     fold is cut from: ``X`` has no SD columns). ``cache``: the run's :class:`SearchCache`, shared by the folds (None:
     one per fit). ``start`` (output -> hyperparameters, the tune stage's): with the fast search and
     ``params.fold_evals`` set, the fold's search is :func:`tune_local` from it, not a whole :func:`tune`.
-    ``rigid_body_mass``: a ``graybox_fossen`` base's M_RB over (u, v, r).
+    ``rigid_body_mass``: a ``graybox_fossen`` base's M_RB over (u, v, r). ``preset`` (``(hyperparameters,
+    searches)``): the search :meth:`tune_rounds` ran on the same rows, fitted with no search of its own (the
+    train stage runs a fold's search in rounds, then its fit as one task: :mod:`pipeline.studies.tasks`).
     Fitted: ``hyperparameters_`` (output -> params), ``search_`` (output -> the fold's search as a dict),
     ``estimator_``."""
 
     def __init__(self, model: str = "wdse_svr", params: CoupledParams | None = None,
                  noise_std: Sequence[float] | None = None, cache: SearchCache | None = None,
-                 start: dict[str, dict[str, Any]] | None = None, rigid_body_mass: Any = None) -> None:
+                 start: dict[str, dict[str, Any]] | None = None, rigid_body_mass: Any = None,
+                 preset: tuple[dict[str, Any], dict[str, Any]] | None = None) -> None:
         self.model = model
         self.params = params
         self.noise_std = noise_std
         self.cache = cache
         self.start = start
         self.rigid_body_mass = rigid_body_mass
+        self.preset = preset
 
-    def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
+    def tune_rounds(self, X: np.ndarray, y: np.ndarray) -> Any:
+        """The search :meth:`fit` runs on these rows, as a coroutine of :mod:`pipeline.rounds` returning
+        ``(hyperparameters, searches)``: the local search from ``start`` in rounds, a whole search (no
+        ``start``, or ``fold_evals`` null) inline."""
         params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
         frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
         if self.start is not None and params.fold_evals is not None and params.search == "fast":
-            hyper, trace = tune_local(frame, self.model, params, self.start, noise_std=self.noise_std,
-                                      rigid_body_mass=self.rigid_body_mass)
-        else:
-            whole, searches = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache,
-                                   rigid_body_mass=self.rigid_body_mass)
-            hyper, trace = whole[self.model], searches[self.model]
+            return (yield from tune_local_rounds(frame, self.model, params, self.start, noise_std=self.noise_std,
+                                                 rigid_body_mass=self.rigid_body_mass))
+        whole, searches = tune(frame, params, n_jobs=1, noise_std=self.noise_std, cache=self.cache,
+                               rigid_body_mass=self.rigid_body_mass)
+        return whole[self.model], searches[self.model]
+
+    def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
+        params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
+        hyper, trace = self.preset if self.preset is not None else run_inline(self.tune_rounds(X, y))
         self.hyperparameters_ = hyper
         self.search_ = trace
         self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std,

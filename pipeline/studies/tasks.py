@@ -5,12 +5,14 @@
   Each asks for its searches' rounds of tasks (a GP's seeds or proposals; every candidate and fold of a round), and
   the rounds of all chains go to one executor at once: the stage's critical path is one chain's rounds, each as
   long as its slowest fit, not eighteen searches one after the other.
-* train: one task per model and CV fold (its scores and its test block's predictions, the conformal interval's
-  out-of-fold residuals), and one per model's final fit (with its check on the test trials).
+* train: one coroutine per model and CV fold: a nested fold's local searches in rounds, then one task for its fit,
+  scores and test block's predictions (the conformal interval's out-of-fold residuals); one task per model's final
+  fit (with its check on the test trials).
 
 Every task runs under one BLAS thread, inline or in a worker, and takes contiguous copies of its arrays: the same
 task gives the same bits serially, in a forked pool or on a Dask worker (``tests/studies/test_parallel_study.py``).
-Each task's wall and CPU time go to :func:`pipeline.parallel.record_task` (``bench/span.py`` reads them).
+Each task's wall and CPU time go to :func:`pipeline.parallel.record_task` with the round it waited for
+(``bench/span.py`` reads them).
 """
 
 from __future__ import annotations
@@ -24,11 +26,11 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from sklearn.base import clone
 
 from pipeline.evaluate import MODEL_FAILURES, fit_fold, model_failure, regression_scores
 from pipeline.models.search import Rounds, SearchResult, SearchSettings
 from pipeline.models.search_halving import search_rounds
-from pipeline.parallel import imap, task_result, timed_task
 from pipeline.rounds import drive, run_inline
 
 log = logging.getLogger(__name__)
@@ -148,19 +150,36 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     Returns per task in order ``{"fold": scores, "pred"}`` / ``{"estimator", "final", "pred"}`` (``pred``: the
     predictions of the fold's test rows / of ``X_test``), or ``{"failed": entry}`` when
     the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
-    ``on_task(index, result)`` as each task ends (completion order)."""
-    results: list[Any] = [None] * len(jobs_spec)
-    # a model's rows (X, y) are one object in each of its tasks, the test trials' in its final fit: sent once
-    for done, (index, timed) in enumerate(imap(timed_task(_run_train_task, "train"), list(jobs_spec), jobs=jobs,
-                                               shared=("X", "y")), start=1):
-        spec = jobs_spec[index]
-        what = f"fold {spec['fold'] + 1}/{spec['folds']}" if spec["kind"] == "fold" else "final fit"
-        results[index] = res = task_result(timed, "train", f"{spec['model']} {what}")
+    ``on_task(index, result)`` as each task ends (completion order). Each is a coroutine of
+    :mod:`pipeline.rounds`: a fold whose estimator searches its own hyperparameters (``tune_rounds``, the nested
+    CV's) runs that search in rounds, then its fit and scores as one task; the rest are one task each."""
+    names = [f"{s['model']} fold {s['fold'] + 1}/{s['folds']}" if s["kind"] == "fold" else f"{s['model']} final fit"
+             for s in jobs_spec]
+    finished = [0]
+
+    def task_done(index: int, res: dict[str, Any]) -> None:
+        finished[0] += 1
         if progress is not None:
-            progress(done, len(jobs_spec), f"{spec['model']} {what}")
+            progress(finished[0], len(jobs_spec), names[index])
         if on_task is not None:
             on_task(index, res)
-    return results
+
+    return drive([_train_rounds(dict(spec)) for spec in jobs_spec], jobs=jobs, stage="train", labels=names,
+                 on_done=task_done)
+
+
+def _train_rounds(spec: dict[str, Any]) -> Any:
+    est = spec["estimator"]
+    if spec["kind"] == "fold" and hasattr(est, "tune_rounds"):
+        X = np.ascontiguousarray(spec["X"], dtype=float)[spec["train"]]
+        y = np.ascontiguousarray(spec["y"], dtype=float)[spec["train"]]
+        try:
+            preset = yield from est.tune_rounds(X, y)
+        except MODEL_FAILURES as err:
+            return {"failed": model_failure(spec["model"], err)}
+        spec["estimator"] = clone(est).set_params(preset=preset)
+    done, = yield [(_run_train_task, (spec,))]
+    return done
 
 
 def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:

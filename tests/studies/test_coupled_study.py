@@ -134,18 +134,18 @@ def test_nested_tuning_searches_each_fold_on_its_training_rows_only(monkeypatch)
                        synthetic_frame(100, seed=1, trial="syn02", split="test")], ignore_index=True)
     params = CoupledParams(models=["rbf_svr", "mcfarland_whitcomb"], max_evals=3, folds=3, tuning="nested")
     searched: list[np.ndarray] = []
-    real_tune, real_local = coupled.tune, coupled.tune_local
+    real_tune, real_local = coupled.tune, coupled.tune_local_rounds
 
     def spy(rows, p, **kw):
         searched.append(rows[params.inputs].to_numpy(float))
         return real_tune(rows, p, **kw)
 
-    def spy_local(rows, model, p, start, **kw):  # a fold's local search from the tune stage's optimum
+    def spy_local(rows, model, p, start, **kw):  # a fold's local search from the tune stage's optimum, in rounds
         searched.append(rows[params.inputs].to_numpy(float))
-        return real_local(rows, model, p, start, **kw)
+        return (yield from real_local(rows, model, p, start, **kw))
 
     monkeypatch.setattr(coupled, "tune", spy)
-    monkeypatch.setattr(coupled, "tune_local", spy_local)
+    monkeypatch.setattr(coupled, "tune_local_rounds", spy_local)
     out = run_study(frame, params)
     train_test = frame[frame["split"] == "train_test"][params.inputs].to_numpy(float)
     assert len(searched) == 1 + params.folds  # the final model's search, then one per fold (rbf only: MW has none)
