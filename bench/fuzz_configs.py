@@ -13,7 +13,8 @@ that is neither loaded nor refused is printed with its edits.
 
     nice python bench/fuzz_configs.py --run --examples 300 --seed 3711   # and every config that loads is run
 
-``--run``: each config that loads runs ``auvid run`` on three 40-s simulated trials, written once, in a subprocess
+``--run``: each config that loads runs ``auvid run`` on three 40-s simulated trials (two MCAP, one a directory of CSV
+exports with a tank table, so the ``csv:`` options are read), written once, in a subprocess
 under CPU, address-space and wall limits (``tests/config/runs.py``: to ``derive``; to ``report`` with cheap
 untouched keys where a params edit touches the model sections). Run outcomes: ``refused`` (exit 2 naming file and
 key), ``ran-ok``, ``quarantine`` (exit 1), ``stage-failed`` (exit 3, one line); and the failures ``unnamed``,

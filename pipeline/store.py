@@ -23,7 +23,7 @@ import re
 import shutil
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import numpy as np
@@ -34,10 +34,25 @@ import pyarrow.parquet as pq
 
 from pipeline import SCHEMA_VERSION
 from pipeline.config.params import FeaturesParams
+from pipeline.derive import derived_columns
 from pipeline.errors import ConfigError, SchemaError
 from pipeline.layout import features_dir
 from pipeline.tableio import write_parquet
-from pipeline.vocabulary import ACCELERATION, ATTITUDE, SMOOTH, VELOCITY, force_columns
+from pipeline.vocabulary import (
+    ACCELERATION,
+    ATTITUDE,
+    DOFS,
+    SMOOTH,
+    VELOCITY,
+    accel_std_column,
+    cov_column,
+    force_columns,
+    meas_column,
+    std_column,
+)
+
+if TYPE_CHECKING:
+    from pipeline.config.vehicle import Vehicle
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +100,26 @@ def schema_document() -> dict[str, Any]:
         "pattern_columns": [{"pattern": p, "type": str(t), "description": d} for p, t, d in PATTERN_COLUMNS],
         "input_columns": {"type": "double", "description": INPUT_COLUMNS_DOC},
     }
+
+
+def store_columns(vehicle: Vehicle, method: str) -> list[str]:
+    """The columns every partition of the store holds, known from the vehicle config and ``differentiate.method``
+    before any stage runs (no data read): the kinematics table (velocities, smoothed velocities, accelerations,
+    their SDs and covariances, the measured velocities, attitude, ``depth_m`` if configured, the actuator
+    signals), then what the derive stage adds. A test runs the example's stages and compares; ``auvid run`` checks
+    ``coupled.inputs`` / ``outputs`` against it before its first stage."""
+    kalman = method == "kalman"
+    cols = ["t_ns", "segment", "split", *VELOCITY, *SMOOTH, *ACCELERATION]
+    if kalman:  # the smoother's SDs (the grid filters give none)
+        cols += [std_column(d) for d in DOFS] + [accel_std_column(d) for d in DOFS]
+    cols += [cov_column(d) for d in DOFS]
+    if kalman:
+        cols += [meas_column(d) for d in DOFS]
+    cols += ATTITUDE + (["depth_m"] if vehicle.sensors.depth is not None else []) + vehicle.actuator_signals()
+    cols += derived_columns(vehicle)
+    if kalman:  # derive's first-order SD of the damping target, from the smoother's SDs
+        cols += force_columns("d_std")
+    return cols
 
 
 def write_schema(directory: str | Path = "schemas") -> Path:

@@ -100,12 +100,34 @@ def _known_trials(args: argparse.Namespace, stages: list[str]) -> set[str]:
     return {trial_id(p) for p in [*logs, *discover_logs(root)]} | set(discover_trials(root)) | derived
 
 
+def _params_file(args: argparse.Namespace) -> Path | None:
+    """The params file the run loaded (``--params``, else the run directory's ``params.yaml`` if any)."""
+    return args.params or (Path(args.root) / "params.yaml" if (Path(args.root) / "params.yaml").exists() else None)
+
+
+def _check_model_columns(args: argparse.Namespace, stages: list[str], vehicle: Any, params: Any) -> None:
+    """``coupled.inputs`` / ``coupled.outputs`` naming a column the feature store will not have, found before the
+    first stage runs (the tune stage refused it only after ingest .. features), naming the store's columns. The
+    store's columns are known from the vehicle config and the differentiate method (:func:`store_columns`)."""
+    if "tune" not in stages and "train" not in stages:
+        return
+    from pipeline.store import store_columns
+
+    columns = [c for c in store_columns(vehicle, params.differentiate.method) if c != "split"]
+    for key in ("inputs", "outputs"):
+        unknown = [c for c in getattr(params.coupled, key) if c not in columns]
+        if unknown:
+            raise ConfigError(f"coupled.{key} names {unknown}, which the feature store of vehicle {vehicle.name!r} "
+                              f"will not have (differentiate.method {params.differentiate.method!r}); its columns: "
+                              f"{columns}", file=_params_file(args), field=f"coupled.{key}")
+
+
 def _check_test_trials(args: argparse.Namespace, stages: list[str], params: Any) -> None:
     """Config errors in ``features.test_trials`` found before the first stage runs, naming the trials there are: a
     name that matches none of the run's trials (the features stage would find it only after ingest..derive), and
     none at all in a run that reaches the simulate stage (which rolls the models out on an unseen trial: it would
     fail after the model stages' minutes)."""
-    where = args.params or (Path(args.root) / "params.yaml" if (Path(args.root) / "params.yaml").exists() else None)
+    where = _params_file(args)
     if "simulate" in stages and not params.features.test_trials:
         known = sorted(_known_trials(args, stages))
         raise ConfigError("features.test_trials is empty: the simulate stage rolls the models out on an unseen "
@@ -127,6 +149,7 @@ def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
     vehicle, params = _load(args, stages)
     params = _with_overrides(params, args)
     _check_test_trials(args, stages, params)
+    _check_model_columns(args, stages, vehicle, params)
     logs = list(getattr(args, "logs", None) or []) or None
     start = time.perf_counter()
     if getattr(args, "trial", None):

@@ -83,7 +83,8 @@ def load_params(path: str | Path | None) -> Params:
 
 def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: str | Path | None = None) -> None:
     """Params that name signals must name signals of the vehicle: ``differentiate.noise_sd`` keys are signals of
-    its streams (any trial's overrides included), ``differentiate.sigma_s_per_signal`` keys body-velocity columns.
+    its streams (any trial's overrides included), as are ``sync.interpolation`` and ``sync.max_gap_s`` keys (but
+    ``default``); ``differentiate.sigma_s_per_signal`` keys body-velocity columns.
     A misspelt key would otherwise be ignored and the noise estimated from the data without a word."""
     known = set(vehicle.signal_names())
     for trial in vehicle.trials:
@@ -96,6 +97,11 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
             raise ConfigError(f"differentiate.{key} names {unknown}, which are not "
                               + ("signals of the vehicle's streams" if key == "noise_sd" else "velocity columns")
                               + f"; known: {sorted(valid)}", file=params_path, field=f"differentiate.{key}")
+    for key, mapping in (("interpolation", params.sync.interpolation), ("max_gap_s", params.sync.max_gap_s)):
+        unknown = sorted(set(mapping) - known - {"default"})  # the sync stage refused it later, without the file
+        if unknown:
+            raise ConfigError(f"sync.{key} names {unknown}, which are not signals of the vehicle's streams; known: "
+                              f"{sorted(known)}", file=params_path, field=f"sync.{key}.{unknown[0]}")
     _warn_thrust_inputs(vehicle, params, params_path)
 
 

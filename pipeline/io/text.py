@@ -380,10 +380,10 @@ class TextLogReader:
             frame = self._tolerating_cut(name, lambda: pd.read_csv(  # type: ignore[call-overload]
                 self._source(name), nrows=0, **{**kwargs, **self._compression(name)}))
         except pd.errors.EmptyDataError as err:
-            raise IngestError("empty file (no header or data lines)", file=path) from err
+            raise IngestError("empty file (no header or data lines)", file=path, topic=name) from err
         except (ValueError, UnicodeError, OSError, EOFError, zlib.error) as err:
-            raise IngestError(f"cannot parse as delimited text: {err}{_bom_hint(err, kwargs['encoding'])}",
-                              file=path) from err
+            raise IngestError(f"{name}: cannot parse as delimited text: {err}{_bom_hint(err, kwargs['encoding'])}",
+                              file=path, topic=name) from err  # a trial directory's quarantine names the file
         raw = [str(c) for c in frame.columns]
         return raw, [c.strip() for c in raw]
 
@@ -406,7 +406,7 @@ class TextLogReader:
             frame = self._tolerating_cut(name, lambda: pd.read_csv(  # type: ignore[call-overload]
                 self._source(name), usecols=use, dtype=dtype, **{**kwargs, **self._compression(name)}))
         except (ValueError, UnicodeError, OSError, EOFError, zlib.error, pd.errors.ParserError) as err:
-            raise IngestError(f"cannot parse as delimited text: {err}{_bom_hint(err, kwargs['encoding'])}",
+            raise IngestError(f"{name}: cannot parse as delimited text: {err}{_bom_hint(err, kwargs['encoding'])}",
                               file=path, topic=name) from err
         frame.columns = [str(c).strip() for c in frame.columns]
         skip = (opts.skip_rows if opts else 0) + (1 if (opts is None or opts.header) else 0)

@@ -206,7 +206,9 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     (``wdse_svr/udot_mps2 (3/9)``). ``cache`` (optional): the run's :class:`SearchCache` (default: one of this call).
     """
     if len(tuning) == 0:
-        raise ModelError(f"{split} block is empty: nothing to tune on")
+        hint = (" (coupled.tuning: split tunes on the first features.tuning_fraction of each trial's time: raise "
+                "it, or use coupled.tuning: nested)") if split == "tuning" else ""
+        raise ModelError(f"{split} block is empty: nothing to tune on{hint}")
     if "split" in tuning.columns and set(tuning["split"].unique()) != {split}:
         raise ModelError(f"tune() on the {split} block got rows of split(s) {sorted(set(tuning['split']) - {split})}")
     _check_columns(tuning, [*params.inputs, *params.outputs], "tune")

@@ -34,6 +34,9 @@ streams:
       n1_rpm: {field: n1}
 """
 
+#: params naming the SVR inputs fakebot's feature store has (one thruster: the default names th1 .. th3)
+COUPLED_YAML = "coupled:\n  inputs: [u_mps, v_mps, r_radps, T_th1_N]\n"
+
 
 class FakeDag:
     """Fake stage modules writing tiny JSON files where the real ones write Parquet; records the calls."""
@@ -126,6 +129,6 @@ def make_run_dir(tmp_path: Path, trials: tuple[str, ...] = ("trial01", "trial02"
     for t in trials:
         (raw / f"{t}.mcap").write_text(f"log {t}")
     (root / "vehicle.yaml").write_text(VEHICLE_YAML)
-    if trials:  # a run that reaches simulate needs an unseen trial
-        (root / "params.yaml").write_text(f"features:\n  test_trials: [{trials[-1]}]\n")
+    # a run that reaches simulate needs an unseen trial, and one that reaches tune SVR inputs fakebot's store has
+    (root / "params.yaml").write_text(COUPLED_YAML + (f"features:\n  test_trials: [{trials[-1]}]\n" if trials else ""))
     return root

@@ -20,7 +20,7 @@ from pipeline.cli import common as cli_common
 from pipeline.cli import run as cli_run
 from pipeline.config import Params
 from stages import common
-from tests.cli.helpers import FakeDag, make_run_dir
+from tests.cli.helpers import COUPLED_YAML, FakeDag, make_run_dir
 from tests.io.test_ingest_stage import CSV_STREAMS, make_vehicle, write_csv_trial
 
 REPO = Path(__file__).resolve().parents[2]
@@ -69,13 +69,38 @@ def test_a_run_to_simulate_without_test_trials_is_refused_before_any_stage(
     dag = FakeDag().install(monkeypatch)
     root = make_run_dir(tmp_path)
     params = root / "params.yaml"
-    params.write_text("features:\n  tuning_fraction: 0.2\n")
+    params.write_text(COUPLED_YAML + "features:\n  tuning_fraction: 0.2\n")
     assert cli.main(["run", *_base(root), "--params", str(params), "-q"]) == cli_common.EXIT_USAGE
     err = capsys.readouterr().err
     assert str(params) in err and "features.test_trials" in err and "['trial01', 'trial02']" in err
     assert dag.calls == []
     assert cli.main(["run", *_base(root), "--params", str(params), "-q", "--to", "decoupled"]) == cli_common.EXIT_OK
     assert [stage for stage, _ in dag.calls][-1] == "decoupled"
+
+
+@pytest.mark.parametrize(("key", "value", "named"), [
+    ("inputs", "[u_mps, v_mps, r_radps, rot13]", "['rot13']"),
+    ("outputs", "[udot_mps2, auto]", "['auto']"),
+    ("inputs", "[u_mps, v_mps, r_radps, T_th1_N, split]", "['split']"),  # in the store, but not a number
+])
+def test_coupled_columns_the_store_will_not_have_are_refused_before_any_stage(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], key: str, value: str,
+        named: str) -> None:
+    """``coupled.inputs`` / ``outputs`` naming a column the feature store will not have: the tune stage refused it
+    with exit 3 after ingest .. features; the run now stops before its first stage, naming the params file, the key
+    and the store's columns (known from the vehicle config). A run that stops before tune goes on."""
+    dag = FakeDag().install(monkeypatch)
+    root = make_run_dir(tmp_path)
+    params = root / "params.yaml"
+    coupled = {"models": "[rbf_svr]", "inputs": "[u_mps, v_mps, r_radps, T_th1_N]", key: value}  # outputs: SVRs only
+    params.write_text("coupled:\n" + "".join(f"  {k}: {v}\n" for k, v in coupled.items())
+                      + "features:\n  test_trials: [trial02]\n")
+    assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert f"{params}: field 'coupled.{key}'" in err and named in err and "'T_th1_N'" in err and "'n1_rpm'" in err
+    assert dag.calls == [] and not (root / layout.SIGNALS).exists()
+    assert cli.main(["run", *_base(root), "-q", "--to", "features"]) == cli_common.EXIT_OK  # no tune: no check
+    assert cli.main(["run", *_base(root), "-q", "--from", "train"]) == cli_common.EXIT_USAGE
 
 
 def test_retrain_without_inbox_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -94,7 +119,8 @@ def _csv_root(tmp_path: Path, trials: tuple[str, ...] = ("trial01", "trial02")) 
 
 def _use_vehicle(monkeypatch: pytest.MonkeyPatch, streams: dict[str, Any]) -> None:
     monkeypatch.setenv("AUVID_JOBS", "1")
-    params = Params(features={"test_trials": ["trial02"]})  # a run that reaches simulate needs an unseen trial
+    # a run that reaches simulate needs an unseen trial, and one that reaches tune inputs its store has
+    params = Params(features={"test_trials": ["trial02"]}, coupled={"inputs": ["u_mps", "v_mps", "r_radps", "T_t1_N"]})
     monkeypatch.setattr(cli_run, "_load", lambda args, stages: (make_vehicle(streams), params))
 
 
@@ -314,7 +340,7 @@ def test_unknown_test_trial_is_a_config_error_before_any_stage(tmp_path: Path, m
     dag = FakeDag().install(monkeypatch)
     root = make_run_dir(tmp_path)
     params = root / "params.yaml"
-    params.write_text("features:\n  test_trials: [trial2]\n")
+    params.write_text(COUPLED_YAML + "features:\n  test_trials: [trial2]\n")
     assert cli.main(["run", *_base(root), "-q"]) == cli_common.EXIT_USAGE
     err = capsys.readouterr().err
     assert "config error" in err and "features.test_trials" in err and str(params) in err

@@ -2,8 +2,9 @@
 subprocess under CPU, address-space and wall limits, and its outcome classified. Shared by the in-suite run test
 (``tests/config/test_config_runs.py``) and the long campaign (``bench/fuzz_configs.py --run``).
 
-The raw logs (three 40-s simulated MCAP trials, ``trial03`` the test trial ``params.yaml`` names) are written once
-per campaign and hard-linked into each run directory (ingest never modifies them). A params config whose edits
+The raw logs (three 40-s simulated trials, ``trial03`` the test trial ``params.yaml`` names; ``trial02`` a directory
+of CSV exports with a tank table, read with the vehicle's ``csv:`` options, the others MCAP) are written once per
+campaign and hard-linked into each run directory (ingest never modifies them). A params config whose edits
 touch the model sections runs to ``report``, with the keys the edits did not touch made cheap (:data:`CHEAP`);
 every other config runs to ``derive``.
 
@@ -33,7 +34,7 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from tests.config.strategies import PARAMS, ROOT, VEHICLE, write
+from tests.config.strategies import CSV_TRIAL, PARAMS, ROOT, VEHICLE, write
 
 RUN_OUTCOMES = ["refused", "unnamed", "ran-ok", "quarantine", "stage-failed", "traceback", "hang", "memory",
                 "nonsense"]
@@ -52,10 +53,31 @@ _ALWAYS_FINITE = re.compile(r"^([uvwpqr](_smooth)?_(mps|radps)|[uvwpqr]dot_(mps2
 
 
 def raw_logs(directory: Path, duration_s: float = 40.0, seed: int = 1) -> list[Path]:
-    """The campaign's raw logs: three simulated trials (``trial01`` .. ``trial03``) written once."""
-    from pipeline.sim.example_logs import example
+    """The campaign's raw logs: three simulated trials (``trial01`` .. ``trial03``) written once; ``trial02``
+    (:data:`strategies.CSV_TRIAL`) as a directory of CSV exports, one per stream, with a ``tank.csv`` that the
+    vehicle's ``tank`` stream reads, as a user with logs of mixed formats has them."""
+    import pandas as pd
 
-    return example(directory, fmt="mcap", duration_s=duration_s, seed=seed, n_trials=3).trials
+    from pipeline.sim import generate_trial, load_example_vehicle
+    from pipeline.sim.example_logs import example
+    from pipeline.sim.writers import write_trial
+
+    logs = example(directory, fmt="mcap", duration_s=duration_s, seed=seed, n_trials=3).trials
+    i = [p.stem for p in logs].index(CSV_TRIAL)  # the same trial example() simulated, written as CSV instead
+    trial = generate_trial(load_example_vehicle(), duration_s=duration_s, seed=seed * 1000 + i,
+                           start_offset_s=3600.0 * i)
+    logs[i].unlink()
+    logs[i] = write_trial(trial, "csv", directory / CSV_TRIAL)
+    ahrs = pd.read_csv(logs[i] / "ahrs.csv")  # the quaternion the vehicle's ahrs_quat reads, beside the Euler angles
+    for axis in "xyzw":
+        ahrs[f"orientation.{axis}"] = trial.streams["ahrs"].fields[f"orientation.{axis}"]
+    ahrs.to_csv(logs[i] / "ahrs.csv", index=False, float_format="%.17g", lineterminator="\n")
+    t_s = np.arange(0.0, duration_s, 0.1)  # the tank's tracker: seconds since tank.csv.epoch_s, 10 Hz
+    tank = VEHICLE["streams"]["tank"]["csv"]
+    start_s = (trial.streams["ahrs"].header_ns[0] / 1e9) - tank["epoch_s"]
+    pd.DataFrame({"t": np.round(start_s + t_s, 3), "x": np.sin(0.1 * t_s)}).to_csv(
+        logs[i] / "tank.csv", index=False, lineterminator="\n")
+    return logs
 
 
 def touched(what: list[str]) -> list[tuple[str, ...]]:
@@ -100,8 +122,9 @@ def run_config(kind: str, doc: dict[str, Any], what: list[str], raw: list[Path],
     if work.exists():
         shutil.rmtree(work)
     (work / "run" / "data" / "raw").mkdir(parents=True)
-    for log in raw:
-        os.link(log, work / "run" / "data" / "raw" / log.name)
+    for log in raw:  # a CSV trial is a directory: its files linked one by one
+        target = work / "run" / "data" / "raw" / log.name
+        shutil.copytree(log, target, copy_function=os.link) if log.is_dir() else os.link(log, target)
     ppath, vpath = write(work / "params.yaml", params), write(work / "vehicle.yaml", vehicle)
     config = ppath if kind == "params" else vpath
     env = {**os.environ, "PYTHONPATH": str(ROOT), "AUVID_JOBS": "1", "OPENBLAS_NUM_THREADS": "1",

@@ -23,6 +23,7 @@ from hypothesis import strategies as st
 
 from pipeline.config import check_params_against_vehicle, load_params, load_vehicle
 from pipeline.errors import ConfigError
+from pipeline.sim.writers import csv_column
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS: dict[str, Any] = yaml.safe_load((ROOT / "params.yaml").read_text(encoding="utf-8"))
@@ -31,8 +32,24 @@ VEHICLE["streams"]["tank"] = {"file": "tank.csv", "clock": "column", "optional":
                               "csv": {"time_column": "t", "skip_rows": 0, "encoding": "utf-8", "delimiter": ",",
                                       "time_unit": "s", "time_origin": "relative", "epoch_s": 1.7e9},
                               "signals": {"x_tank_m": {"field": "x", "unit": "m"}}}
-VEHICLE["streams"]["fog"]["time"] = {"rate_hz": 50.0}
+VEHICLE["streams"]["fog"]["time"] = {"rate_hz": 100.0}  # the FOG's rate (read in the CSV trial)
 VEHICLE["trials"] = {"trial01": {"streams": {"fog": {"offset_s": 0.01}}}}
+#: The run campaign's trial of mixed formats: a directory of CSV exports (``pipeline.sim.writers``' csv layout, the
+#: AHRS quaternion as its four columns) with the ``tank`` table beside them, so ``csv:`` options are really read.
+CSV_TRIAL = "trial02"
+
+
+def _csv_override(name: str, stream: dict[str, Any]) -> dict[str, Any]:
+    """A topic stream read from its CSV export in :data:`CSV_TRIAL` (the writers' ``<stream>.csv``)."""
+    return {"topic": None, "file": f"{name}.csv", "clock": "column",
+            "csv": {"time_column": "log_ns" if stream["clock"] == "log" else "stamp_ns", "time_unit": "ns",
+                    "time_origin": "absolute"},
+            "signals": {signal: {**source, "field": csv_column(source["field"])}
+                        for signal, source in stream["signals"].items()}}
+
+
+VEHICLE["trials"][CSV_TRIAL] = {"streams": {name: _csv_override(name, stream)
+                                            for name, stream in VEHICLE["streams"].items() if "topic" in stream}}
 
 INF, NAN = math.inf, math.nan
 EXTREMES = [0, -1, 1, 0.0, -0.0, 1e-300, -1e-300, 5e-324, 1e300, -1e300, 1.7976931348623157e308, INF, -INF, NAN,

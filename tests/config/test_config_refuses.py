@@ -589,6 +589,25 @@ def test_params_naming_signals_the_vehicle_lacks_are_refused(tmp_path: Path, dif
     assert load_configs(tmp_path, DAGON, ok)[1].differentiate.noise_sd == {"dvl_x_mps": 0.02}
 
 
+@pytest.mark.parametrize(("sync", "field"), [
+    ({"max_gap_s": {"default": 0.5, "x": 0.2}}, "sync.max_gap_s.x"),
+    ({"interpolation": {"dvl_x_mp": "zoh"}}, "sync.interpolation.dvl_x_mp"),
+])
+def test_sync_settings_naming_signals_the_vehicle_lacks_are_refused_with_the_params_file(
+        tmp_path: Path, sync: dict[str, Any], field: str) -> None:
+    """Found by the run campaign (seed 3911): the sync stage refused a per-signal key that names no signal with exit
+    2, but without the params file; it is refused when the configs load, naming file and key."""
+    from stages.common import load_configs
+
+    params = _write(tmp_path, yaml.safe_dump({"sync": sync}), "params.yaml")
+    with pytest.raises(ConfigError, match="which are not signals of the vehicle's streams") as err:
+        load_configs(tmp_path, DAGON, params)
+    assert err.value.file == str(params) and err.value.field == field
+    ok = _write(tmp_path, yaml.safe_dump({"sync": {"max_gap_s": {"default": 0.5, "dvl_x_mps": 0.3},
+                                                   "interpolation": {"n1_rpm": "zoh"}}}), "ok.yaml")
+    assert load_configs(tmp_path, DAGON, ok)[1].sync.max_gap_s["dvl_x_mps"] == 0.3
+
+
 def test_thrust_inputs_of_thrusters_the_vehicle_lacks_are_said_when_the_configs_load(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     """The default coupled.inputs name DAGON's thrust columns (T_th1_N ...): a vehicle whose thrusters have other

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from tests.config.runs import GOOD, classify, nonsense, raw_logs, run_config, run_plan
-from tests.config.strategies import PARAMS, VEHICLE, outcome, random_edit, write
+from tests.config.strategies import CSV_TRIAL, PARAMS, VEHICLE, outcome, random_edit, write
 
 SEED = "suite-run-1"
 PER_KIND = 3  # configs that load, per kind: ~3 s each
@@ -51,8 +51,34 @@ def test_generated_configs_that_load_run_to_derive_without_traceback_hang_or_non
 
 
 def test_the_unedited_configs_run_ok(raw: list[Path], tmp_path: Path) -> None:
-    """The base of the campaign runs to the end with nothing to say: an outcome in a generated case is the edit's."""
+    """The base of the campaign runs to the end with nothing to say: an outcome in a generated case is the edit's.
+    Every trial reaches the derived tables, the CSV trial (its streams and the tank table) included."""
     assert run_config("vehicle", copy.deepcopy(VEHICLE), [], raw, tmp_path / "w", to="derive")[:2] == ("ran-ok", "")
+    data = tmp_path / "w" / "run" / "data"
+    assert sorted(p.stem for p in (data / "derived").glob("*.parquet")) == ["trial01", "trial02", "trial03"]
+    assert pq.read_table(data / "signals" / CSV_TRIAL / "tank.parquet").num_rows > 0
+
+
+@pytest.mark.parametrize(("path", "value", "file"), [
+    (("streams", "tank", "csv", "delimiter"), ";", "tank.csv"),
+    (("streams", "tank", "csv", "encoding"), "utf-16", "tank.csv"),
+    (("trials", CSV_TRIAL, "streams", "dvl", "csv", "skip_rows"), 3, "dvl.csv"),
+])
+def test_an_edit_of_a_csv_option_is_read_by_the_campaign(raw: list[Path], tmp_path: Path, path: tuple[str, ...],
+                                                          value: Any, file: str) -> None:
+    """The campaign's CSV trial is read with the edited options (with only MCAP trials, a CSV option was never
+    read): a file they make unreadable quarantines that trial, naming the file, and the others go on."""
+    doc = copy.deepcopy(VEHICLE)
+    target = doc
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = value
+    result, detail, _ = run_config("vehicle", doc, [".".join(path) + f" = {value!r}"], raw, tmp_path / "w",
+                                   to="ingest")
+    assert result == "quarantine", detail
+    entries = json.loads((tmp_path / "w" / "run" / "data" / "signals" / "quarantine.json").read_text())
+    assert [e["trial"] for e in entries["quarantined"]] == [CSV_TRIAL]
+    assert file in json.dumps(entries["quarantined"][0]), entries
 
 
 def test_a_params_edit_in_a_model_section_runs_to_report_with_untouched_keys_made_cheap() -> None:
@@ -127,5 +153,6 @@ def test_a_source_every_log_lacks_is_refused_naming_the_vehicle_file_and_key(
         doc["streams"][stream]["signals"] = {**doc["streams"][stream]["signals"], **value}
     else:
         doc["streams"][stream][key] = value
-    result, detail, _ = run_config("vehicle", doc, [f"streams.{stream}.{key} = x"], raw, tmp_path / "w", to="ingest")
-    assert result == "refused" and f"field '{named}'" in detail and "every log (3)" in detail, detail
+    mcap = [p for p in raw if p.is_file()]  # the CSV trial reads its own files (trials.trial02 overrides them)
+    result, detail, _ = run_config("vehicle", doc, [f"streams.{stream}.{key} = x"], mcap, tmp_path / "w", to="ingest")
+    assert result == "refused" and f"field '{named}'" in detail and "every log (2)" in detail, detail

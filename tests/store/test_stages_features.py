@@ -10,7 +10,7 @@ import pyarrow as pa
 import pytest
 
 from pipeline import physics, store
-from pipeline.config import Params, Vehicle
+from pipeline.config import Params, Vehicle, load_params
 from pipeline.config.params import SyncParams
 from pipeline.derive import derive
 from pipeline.estimation.differentiate import kinematics
@@ -205,6 +205,20 @@ def test_stages_end_to_end_quarantine_and_byte_identical_rerun(tmp_path: Path, n
     assert meta["inputs"][0]["file"] == "data/derived/01.parquet" and len(meta["inputs"][0]["sha256"]) == 64
     assert meta["params"] == {"tuning_fraction": 0.25, "test_trials": []}
     assert len(meta["config_hash"]) == 64 and len(meta["params_hash"]) == 64
+
+
+@pytest.mark.parametrize("method", ["kalman", "gaussian", "savgol"])
+def test_the_store_holds_exactly_the_columns_known_before_any_stage(tmp_path: Path, clean, vehicle: Vehicle,
+                                                                     method: str) -> None:
+    """``auvid run`` refuses ``coupled.inputs`` naming a column the store will not have before its first stage, from
+    :func:`store.store_columns` (the vehicle config and the method, no data): it must name what the stages write."""
+    _write_signals(tmp_path, "01", signal_tables(clean, vehicle))  # no drop-outs: segments long enough for any method
+    results = _run_all(tmp_path, vehicle, Params(differentiate={"method": method}))
+    assert not results["features"].quarantined and results["features"].outputs
+    written = set(store.dataset(tmp_path).schema.names) - {"vehicle", "trial"}
+    assert written == set(store.store_columns(vehicle, method))
+    for params in (Params(), load_params(Path(__file__).resolve().parents[2] / "params.yaml")):  # the defaults pass
+        assert {*params.coupled.inputs, *params.coupled.outputs} <= written
 
 
 def test_stage_main_with_trial_and_exit_codes(tmp_path: Path, noisy, vehicle: Vehicle) -> None:

@@ -10,7 +10,7 @@ from pipeline.models.card import load_model, save_model
 from pipeline.models.search import fast_search, grid_search, paper_grid
 from pipeline.report.coupled import table2, table3
 from pipeline.sim.synthetic import synthetic_frame
-from pipeline.studies.coupled import run_study
+from pipeline.studies.coupled import run_study, tune
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,6 @@ def test_fast_search_reproducible_and_grid_is_the_paper_grid():
 
 
 def test_tune_refuses_non_tuning_rows():
-    from pipeline.studies.coupled import tune
     frame = synthetic_frame(100, seed=0)
     with pytest.raises(ModelError, match="split"):
         tune(frame, CoupledParams())
@@ -229,3 +228,13 @@ def test_nested_folds_run_each_search_once_and_keep_its_result(monkeypatch):
     for model in params.models:
         assert memo["hyper"][model] == every["hyper"][model], model
         assert memo["results"][model]["summary"] == every["results"][model]["summary"], model
+
+
+def test_an_empty_tuning_block_names_the_keys_that_make_it() -> None:
+    """Found by the run campaign (seed 3911): ``features.tuning_fraction: 1e-298`` with ``coupled.tuning: split``
+    left no tuning row, and the tune stage said only that the block was empty."""
+    empty = pd.DataFrame({c: [] for c in ["u_mps", "v_mps", "r_radps", "udot_mps2", "split"]})
+    with pytest.raises(ModelError, match=r"features.tuning_fraction .* coupled.tuning: nested"):
+        tune(empty, CoupledParams(tuning="split"), split="tuning")
+    with pytest.raises(ModelError, match=r"^train_test block is empty: nothing to tune on$"):
+        tune(empty, CoupledParams(), split="train_test")
