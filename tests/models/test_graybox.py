@@ -108,9 +108,15 @@ def test_nested_cv_folds_weight_the_gray_box_base_as_the_final_model(monkeypatch
             return real(*a, **kw)
         return search
 
-    # a fold searches from the tune stage's result (tune_local) or, with fold_evals null, from scratch (tune)
+    def recording_rounds(real):  # the same for a search in rounds (pipeline.rounds)
+        def search(*a, **kw):
+            seen.append(kw.get("noise_std"))
+            return (yield from real(*a, **kw))
+        return search
+
+    # a fold searches from the tune stage's result (tune_local_rounds) or, with fold_evals null, from scratch (tune)
     monkeypatch.setattr(coupled, "tune", recording(coupled.tune))
-    monkeypatch.setattr(coupled, "tune_local", recording(coupled.tune_local))
+    monkeypatch.setattr(coupled, "tune_local_rounds", recording_rounds(coupled.tune_local_rounds))
     hyper = {o: {"gammas": [0.1] * 6, "C": 1.0, "epsilon": 0.01} for o in params.outputs}
     out = evaluate_models(frame, frame.iloc[:0], {"graybox": hyper}, params)
     expected = noise_std_from(frame)
