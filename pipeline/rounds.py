@@ -39,13 +39,21 @@ Coroutine = Generator[list[Task], list[Any], R]
 SCATTER_BYTES = 64_000
 
 
-def call_timed(fn: Callable[..., Any], args: tuple[Any, ...]) -> dict[str, Any]:
-    """``fn(*args)`` under one BLAS / OpenMP thread, with its start, wall and CPU time and the process's id."""
-    from threadpoolctl import threadpool_limits
+#: the worker processes whose BLAS / OpenMP pools are down to one thread for good (threadpoolctl costs ~2 ms a call:
+#: once per worker, not once per task)
+_ONE_THREAD: set[int] = set()
 
+
+def call_timed(fn: Callable[..., Any], args: tuple[Any, ...], limited: bool = False) -> dict[str, Any]:
+    """``fn(*args)`` under one BLAS / OpenMP thread (a worker's first task limits its process for good;
+    ``limited``: the caller holds the limit), with its start, wall and CPU time and the process's id."""
+    if not limited and os.getpid() not in _ONE_THREAD:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+        _ONE_THREAD.add(os.getpid())
     start, cpu0, t0 = time.time(), time.process_time(), time.perf_counter()
-    with threadpool_limits(1):
-        result = fn(*args)
+    result = fn(*args)
     return {"result": result, "start": start, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - cpu0, "pid": os.getpid()}
 
@@ -72,10 +80,13 @@ def drive(coros: Sequence[Coroutine[Any]], *, jobs: int, stage: str = "", labels
     labels = list(labels) if labels is not None else [str(k) for k in range(len(coros))]
     results: list[Any] = [None] * len(coros)
     if jobs == 1 or not coros:
-        for index, coro in enumerate(coros):
-            results[index] = _inline(coro, stage, labels[index])
-            if on_done is not None:
-                on_done(index, results[index])
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(1):  # this process's pools, given back after
+            for index, coro in enumerate(coros):
+                results[index] = _inline(coro, stage, labels[index])
+                if on_done is not None:
+                    on_done(index, results[index])
         return results
     with _executor(jobs) as (submit, wait_any, cancel):
         waiting: dict[Any, tuple[int, int]] = {}  # future -> (coroutine, position in its round)
@@ -144,7 +155,7 @@ def _inline(coro: Coroutine[Any], stage: str, label: str) -> Any:
         error, timed = None, []
         for fn, args in request:
             try:
-                timed.append(call_timed(fn, args))
+                timed.append(call_timed(fn, args, limited=True))
             except Exception as err:  # the task's own exception, thrown into its coroutine as a pool would
                 error = err
                 break

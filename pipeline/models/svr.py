@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin, clone
@@ -198,6 +199,12 @@ def wdse_gram(A: np.ndarray, B: np.ndarray, gammas: Sequence[float]) -> np.ndarr
     return np.exp(-np.einsum("ijk,k->ij", diff * diff, g))
 
 
+def _fit_output(est: BaseEstimator, X: np.ndarray, y: np.ndarray, k: int) -> BaseEstimator:
+    """A clone of ``est`` fitted on output ``k`` of ``y`` (a task of :meth:`PerOutputRegressor.output_tasks`)."""
+    y2 = y.reshape(-1, 1) if y.ndim == 1 else y
+    return clone(est).fit(X, y2[:, k])
+
+
 class PerOutputRegressor(RegressorMixin, BaseEstimator):
     """One single-output regressor per output column, each with its own hyperparameters.
 
@@ -215,6 +222,21 @@ class PerOutputRegressor(RegressorMixin, BaseEstimator):
             raise ValueError(f"{len(self.estimators)} estimators for {y2.shape[1]} outputs")
         self._y_1d = y.ndim == 1
         self.estimators_ = [clone(est).fit(X, y2[:, k]) for k, est in enumerate(self.estimators)]
+        return self
+
+    def output_tasks(self, X: np.ndarray, y: np.ndarray) -> list[tuple[Callable[..., Any], tuple[Any, ...]]]:
+        """:meth:`fit`'s work as one task per output (:mod:`pipeline.rounds`), each returning that output's fitted
+        estimator; :meth:`join` their results in order. ``X`` and ``y`` as :meth:`fit` takes them (float64, C
+        order): each task fits the same column view :meth:`fit` would, so the bits are :meth:`fit`'s."""
+        return [(_fit_output, (est, X, y, k)) for k, est in enumerate(self.estimators)]
+
+    def join(self, X: np.ndarray, y: np.ndarray, fitted: Sequence[BaseEstimator]) -> PerOutputRegressor:
+        """This regressor fitted from :meth:`output_tasks`' results (what :meth:`fit` would set)."""
+        X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64)
+        if len(fitted) != len(self.estimators) or len(self.estimators) != (1 if y.ndim == 1 else y.shape[1]):
+            raise ValueError(f"{len(fitted)} fitted of {len(self.estimators)} estimators for y {y.shape}")
+        self._y_1d = y.ndim == 1
+        self.estimators_ = list(fitted)
         return self
 
     def predict(self, X):

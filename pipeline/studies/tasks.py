@@ -152,7 +152,8 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
     ``on_task(index, result)`` as each task ends (completion order). Each is a coroutine of
     :mod:`pipeline.rounds`: a fold whose estimator searches its own hyperparameters (``tune_rounds``, the nested
-    CV's) runs that search in rounds, then its fit and scores as one task; the rest are one task each."""
+    CV's) runs that search in rounds, then its fit and scores as one task; a final fit of one regressor per output
+    (``output_tasks``) fits each output as a task, then scores the whole; the rest are one task each."""
     names = [f"{s['model']} fold {s['fold'] + 1}/{s['folds']}" if s["kind"] == "fold" else f"{s['model']} final fit"
              for s in jobs_spec]
     finished = [0]
@@ -178,6 +179,15 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
         except MODEL_FAILURES as err:
             return {"failed": model_failure(spec["model"], err)}
         spec["estimator"] = clone(est).set_params(preset=preset)
+    elif spec["kind"] == "final" and hasattr(est, "output_tasks"):  # one task per output, then its scores
+        X = np.ascontiguousarray(spec["X"], dtype=float)
+        y = np.ascontiguousarray(spec["y"], dtype=float)
+        whole = clone(est)
+        try:
+            spec["estimator"] = whole.join(X, y, (yield whole.output_tasks(X, y)))
+        except MODEL_FAILURES as err:
+            return {"failed": model_failure(spec["model"], err)}
+        spec["fitted"] = True
     done, = yield [(_run_train_task, (spec,))]
     return done
 
@@ -189,7 +199,7 @@ def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
             scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True)
             pred = scores.pop("test_pred")
             return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred}
-        est = spec["estimator"].fit(X, y)
+        est = spec["estimator"] if spec.get("fitted") else spec["estimator"].fit(X, y)
         final = pred = None
         if spec["X_test"] is not None:
             pred = est.predict(np.ascontiguousarray(spec["X_test"], dtype=float))

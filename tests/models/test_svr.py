@@ -72,6 +72,24 @@ def test_per_output_pickle_and_clone():
     assert model.estimators_[0].C == 1.0 and model.estimators_[1].gamma == 0.5
 
 
+def test_per_output_fitted_as_one_task_per_output_is_the_same_model_to_the_bit():
+    """The train stage fits a final model's outputs as separate tasks (output_tasks, then join): the joined model
+    predicts what fit's model predicts, bit for bit, and pickles to the same bytes."""
+    X, y = _data()
+    Y = np.ascontiguousarray(np.column_stack([y, -2 * y + X[:, 2], np.sin(X[:, 0])]))
+    model = PerOutputRegressor([WDSESVR(gammas=[0.1, 0.3, 2.0, 0.05, 0.2, 1.0], C=1.0, epsilon=0.01),
+                                RBFSVR(gamma=0.5, C=10.0), TwoWeightsSVR(gamma_velocity=0.3, gamma_actuator=0.02)])
+    whole = clone(model).fit(X, Y)
+    parts = clone(model)
+    tasks = parts.output_tasks(X, Y)
+    joined = parts.join(X, Y, [fn(*args) for fn, args in tasks])
+    assert len(tasks) == 3
+    np.testing.assert_array_equal(joined.predict(X), whole.predict(X))
+    assert pickle.dumps(joined) == pickle.dumps(whole)
+    with pytest.raises(ValueError, match="2 fitted of 3"):
+        clone(model).join(X, Y, [fn(*args) for fn, args in tasks[:2]])
+
+
 @pytest.mark.parametrize("make", [lambda **kw: RBFSVR(gamma=0.2, epsilon=0.05, **kw),
                                   lambda **kw: TwoWeightsSVR(gamma_velocity=0.3, gamma_actuator=0.02, **kw),
                                   lambda **kw: WDSESVR(gammas=[0.3, 2.0, 0.05, 1e-3, 0.1, 0.7], **kw)])
