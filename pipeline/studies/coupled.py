@@ -342,13 +342,16 @@ class NestedTuned(RegressorMixin, BaseEstimator):
         return whole[self.model], searches[self.model]
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
-        params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         hyper, trace = self.preset if self.preset is not None else run_inline(self.tune_rounds(X, y))
         self.hyperparameters_ = hyper
         self.search_ = trace
-        self.estimator_ = build_model(self.model, self.hyperparameters_, params, noise_std=self.noise_std,
-                                      rigid_body_mass=self.rigid_body_mass).fit(X, y)
+        self.estimator_ = self.built(hyper).fit(X, y)
         return self
+
+    def built(self, hyper: dict[str, Any]) -> Any:
+        """The unfitted estimator :meth:`fit` fits with these hyperparameters (:func:`build_model`)."""
+        params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
+        return build_model(self.model, hyper, params, noise_std=self.noise_std, rigid_body_mass=self.rigid_body_mass)
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         return self.estimator_.predict(X)

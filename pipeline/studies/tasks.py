@@ -21,6 +21,7 @@ import copy
 import hashlib
 import json
 import logging
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
@@ -152,8 +153,9 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
     ``on_task(index, result)`` as each task ends (completion order). Each is a coroutine of
     :mod:`pipeline.rounds`: a fold whose estimator searches its own hyperparameters (``tune_rounds``, the nested
-    CV's) runs that search in rounds, then its fit and scores as one task; a final fit of one regressor per output
-    (``output_tasks``) fits each output as a task, then scores the whole; the rest are one task each."""
+    CV's) runs that search in rounds; a fit of one regressor per output (``output_tasks``: a nested fold's, or a
+    final fit) fits each output as a task; then the fold's or the final fit's scores are one task; the rest are one
+    task each."""
     names = [f"{s['model']} fold {s['fold'] + 1}/{s['folds']}" if s["kind"] == "fold" else f"{s['model']} final fit"
              for s in jobs_spec]
     finished = [0]
@@ -169,6 +171,12 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
                  on_done=task_done)
 
 
+def _seconds(fn: Callable[..., Any], *args: Any) -> tuple[Any, float]:
+    """``fn(*args)`` and its wall seconds (a fold's fit time, summed over its outputs' tasks)."""
+    t0 = time.perf_counter()
+    return fn(*args), time.perf_counter() - t0
+
+
 def _train_rounds(spec: dict[str, Any]) -> Any:
     est = spec["estimator"]
     if spec["kind"] == "fold" and hasattr(est, "tune_rounds"):
@@ -176,9 +184,13 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
         y = np.ascontiguousarray(spec["y"], dtype=float)[spec["train"]]
         try:
             preset = yield from est.tune_rounds(X, y)
+            spec["estimator"] = clone(est).set_params(preset=preset)
+            inner = spec["estimator"].built(preset[0])
+            if hasattr(inner, "output_tasks"):  # the fold's fit, one task per output, as fit_fold would fit it
+                done = yield [(_seconds, (fn, *args)) for fn, args in inner.output_tasks(X, y)]
+                spec["fitted"] = (inner.join(X, y, [e for e, _ in done]), float(sum(s for _, s in done)))
         except MODEL_FAILURES as err:
             return {"failed": model_failure(spec["model"], err)}
-        spec["estimator"] = clone(est).set_params(preset=preset)
     elif spec["kind"] == "final" and hasattr(est, "output_tasks"):  # one task per output, then its scores
         X = np.ascontiguousarray(spec["X"], dtype=float)
         y = np.ascontiguousarray(spec["y"], dtype=float)
@@ -187,7 +199,7 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
             spec["estimator"] = whole.join(X, y, (yield whole.output_tasks(X, y)))
         except MODEL_FAILURES as err:
             return {"failed": model_failure(spec["model"], err)}
-        spec["fitted"] = True
+        spec["final_fitted"] = True
     done, = yield [(_run_train_task, (spec,))]
     return done
 
@@ -196,10 +208,11 @@ def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
     X, y = np.ascontiguousarray(spec["X"], dtype=float), np.ascontiguousarray(spec["y"], dtype=float)
     try:
         if spec["kind"] == "fold":  # its test block's predictions calibrate the conformal interval
-            scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True)
+            scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True,
+                              fitted=spec.get("fitted"))
             pred = scores.pop("test_pred")
             return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred}
-        est = spec["estimator"] if spec.get("fitted") else spec["estimator"].fit(X, y)
+        est = spec["estimator"] if spec.get("final_fitted") else spec["estimator"].fit(X, y)
         final = pred = None
         if spec["X_test"] is not None:
             pred = est.predict(np.ascontiguousarray(spec["X_test"], dtype=float))
