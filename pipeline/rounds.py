@@ -29,7 +29,7 @@ from pipeline import parallel
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Coroutine", "Task", "drive", "run_inline"]
+__all__ = ["Coroutine", "Task", "drive", "gather", "run_inline"]
 
 R = TypeVar("R")
 Task = tuple[Callable[..., Any], tuple[Any, ...]]
@@ -63,6 +63,39 @@ def _record(stage: str, label: str, round_: int, timed: Sequence[dict[str, Any]]
     for k, t in enumerate(timed):
         parallel.record_task(stage, f"{label} r{round_} #{k}", start=t["start"], wall_s=t["wall_s"],
                              cpu_s=t["cpu_s"], pid=t["pid"], deps=deps)
+
+
+def gather(coros: Sequence[Coroutine[Any]]) -> Coroutine[list[Any]]:
+    """Coroutines side by side as one: each round asks for the next round of every one not yet ended, together,
+    and hands each its own results; returns their values in order. Their rounds then cost the longest one's, not
+    the sum. A task's exception ends all of them (it cannot be told whose it was) and propagates."""
+    results: list[Any] = [None] * len(coros)
+    requests: dict[int, list[Task]] = {}
+
+    def step(index: int, sent: Any) -> None:
+        try:
+            requests[index] = coros[index].send(sent)
+        except StopIteration as stop:
+            results[index] = stop.value
+            requests.pop(index, None)
+
+    for index in range(len(coros)):
+        step(index, None)
+    while requests:
+        order = sorted(requests)
+        flat = [task for index in order for task in requests[index]]
+        try:
+            answers = yield flat
+        except BaseException:
+            for coro in coros:
+                coro.close()
+            raise
+        at = 0
+        for index in order:
+            n = len(requests[index])
+            step(index, answers[at:at + n])
+            at += n
+    return results
 
 
 def run_inline(coro: Coroutine[R], stage: str = "", label: str = "") -> R:

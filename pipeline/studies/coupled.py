@@ -45,7 +45,7 @@ from pipeline.models.search_halving import fold_subset, search_rounds
 from pipeline.models.svr import PerOutputRegressor
 from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
-from pipeline.rounds import run_inline
+from pipeline.rounds import gather, run_inline
 from pipeline.studies.intervals import interval_coverage, oof_intervals, target_sd
 from pipeline.studies.tasks import SearchCache, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
@@ -275,8 +275,8 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
     base fitted on ``frame`` weighted by ``noise_std``. Returns ``(hyper, trace)`` as :func:`tune` for ``model``.
     It scores its candidates on the halving screen's folds (``params.screen_folds`` of the ``tuning_folds``, all
     when null): a few steps from an optimum chosen on all folds need no more than a screen does
-    (docs/models.md, 'Successive halving'). A coroutine of :mod:`pipeline.rounds` (the outputs' searches one after
-    the other, each in rounds)."""
+    (docs/models.md, 'Successive halving'). A coroutine of :mod:`pipeline.rounds` (the outputs' searches side by
+    side, :func:`pipeline.rounds.gather`)."""
     data = _subsample(frame, params.max_samples)
     X = data[params.inputs].to_numpy(float)
     Y = data[params.outputs].to_numpy(float)
@@ -291,14 +291,12 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
     subset = None
     if params.screen_folds is not None and params.screen_folds < params.tuning_folds:
         subset = fold_subset(params.tuning_folds, params.screen_folds)
-    hyper: dict[str, dict[str, Any]] = {}
-    trace: dict[str, Any] = {}
-    for k, out in enumerate(params.outputs):
-        res = yield from search_rounds(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds,
-                                       n_jobs=1, n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals,
-                                       fold_subset=subset, iter_cap_ratio=params.iter_cap_ratio)
-        hyper[out], trace[out] = res.best_params, res.to_dict()
-    return hyper, trace
+    searches = [search_rounds(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds, n_jobs=1,
+                              n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset,
+                              iter_cap_ratio=params.iter_cap_ratio) for k, out in enumerate(params.outputs)]
+    done = yield from gather(searches)  # the outputs' searches side by side: their rounds together
+    return ({out: res.best_params for out, res in zip(params.outputs, done, strict=True)},
+            {out: res.to_dict() for out, res in zip(params.outputs, done, strict=True)})
 
 
 class NestedTuned(RegressorMixin, BaseEstimator):

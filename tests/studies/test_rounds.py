@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pipeline import parallel
-from pipeline.rounds import drive, run_inline
+from pipeline.rounds import drive, gather, run_inline
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -57,6 +57,18 @@ def test_many_coroutines_on_a_pool_decide_as_each_would_alone(monkeypatch: pytes
     with parallel.parallel_backend(None):  # the run's forked pool, as a stage has it
         pooled = drive([_descent(s, 6, 5) for s in starts], jobs=2)
     assert inline == alone and pooled == alone
+
+
+def test_gathered_coroutines_decide_as_each_alone_in_the_rounds_of_the_longest(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    alone = [run_inline(_descent(s, n, 3)) for s, n in ((2.0, 5), (-1.0, 2), (0.5, 3))]
+    trace = tmp_path / "trace.jsonl"
+    monkeypatch.setenv(parallel.ENV_TASK_TRACE, str(trace))
+    together = run_inline(gather([_descent(s, n, 3) for s, n in ((2.0, 5), (-1.0, 2), (0.5, 3))]), "tune", "g")
+    assert together == alone
+    rounds = [json.loads(line)["task"].split(" #")[0] for line in trace.read_text().splitlines()]
+    # 5 rounds (the longest one's), not 5 + 2 + 3; the first holds all three's 9 tasks
+    assert sorted(set(rounds)) == [f"g r{k}" for k in range(5)] and rounds.count("g r0") == 9
 
 
 def test_a_task_exception_is_thrown_into_its_own_coroutine() -> None:
