@@ -36,7 +36,7 @@ Task = tuple[Callable[..., Any], tuple[Any, ...]]
 Coroutine = Generator[list[Task], list[Any], R]
 
 #: arrays at least this large go to a Dask cluster once per object (scattered), not once per task
-SCATTER_BYTES = 8_000
+SCATTER_BYTES = 64_000
 
 
 #: the worker processes whose BLAS / OpenMP pools are down to one thread for good (threadpoolctl costs ~2 ms a call:
