@@ -387,20 +387,10 @@ def _forked_map(fn: Callable[[T], R], items: list[T], jobs: int) -> Iterator[tup
     """
     from concurrent.futures import as_completed
 
-    shared = _active["workers"]
-    pool = _pool(jobs)
-    try:
+    with local_pool(jobs) as pool:  # an error ends the workers, as joblib does; outputs are written atomically
         futures = {pool.submit(fn, item): index for index, item in enumerate(items)}
         for future in as_completed(futures):
             yield futures[future], future.result()
-    except BaseException:
-        _terminate_workers(pool)  # as joblib does on an error; outputs are written atomically
-        if shared is not None:
-            shared.clear()
-        raise
-    finally:
-        if shared is None or shared.get("pool") is not pool:
-            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _pool(jobs: int) -> Any:

@@ -153,6 +153,8 @@ def drive(coros: Sequence[Coroutine[Any]], *, jobs: int, stage: str = "", labels
                 advance(index)
             while waiting:
                 for future in wait_any(list(waiting)):
+                    if future not in waiting:  # its round was ended by another task's exception
+                        continue
                     index, k = waiting.pop(future)
                     state = rounds[index]
                     try:

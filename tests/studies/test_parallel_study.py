@@ -98,8 +98,8 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
 
     monkeypatch.setattr(parallel, "local_pool", pool_spy)
     pooled = _run(store_root, tmp_path / "pool")
-    # every stage went through the pool: tune's and train's rounds, decoupled's tasks
-    assert calls == [(6, 2), (16, 2), (15, 2)] and forked == [15] and pooled_tasks == [2, 2]
+    # every stage went through the one forked pool: tune's and train's rounds, decoupled's tasks (_forked_map)
+    assert calls == [(6, 2), (16, 2), (15, 2)] and forked == [15] and pooled_tasks == [2, 2, 2]
 
     calls.clear()
     distributed = pytest.importorskip("distributed")
