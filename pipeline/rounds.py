@@ -58,6 +58,11 @@ def call_timed(fn: Callable[..., Any], args: tuple[Any, ...], limited: bool = Fa
             "cpu_s": time.process_time() - cpu0, "pid": os.getpid()}
 
 
+def call_many(calls: list[Task]) -> list[dict[str, Any]]:
+    """:func:`call_timed` of each ``(fn, args)`` in order: several tasks of a round as one executor task."""
+    return [call_timed(fn, args) for fn, args in calls]
+
+
 def _record(stage: str, label: str, round_: int, timed: Sequence[dict[str, Any]]) -> None:
     deps = [f"{label} r{round_ - 1}"] if round_ else []
     for k, t in enumerate(timed):
@@ -122,7 +127,7 @@ def drive(coros: Sequence[Coroutine[Any]], *, jobs: int, stage: str = "", labels
                     on_done(index, results[index])
         return results
     with _executor(jobs) as (submit, wait_any, cancel):
-        waiting: dict[Any, tuple[int, int]] = {}  # future -> (coroutine, position in its round)
+        waiting: dict[Any, tuple[int, list[int]]] = {}  # future -> (coroutine, positions in its round)
         rounds: dict[int, dict[str, Any]] = {}
 
         def advance(index: int, sent: Any = None, error: BaseException | None = None) -> None:
@@ -143,8 +148,8 @@ def drive(coros: Sequence[Coroutine[Any]], *, jobs: int, stage: str = "", labels
                 state = rounds.setdefault(index, {"round": -1})
                 state.update(round=state["round"] + 1, timed=[None] * len(request), left=len(request))
                 if request:
-                    for k, (fn, args) in enumerate(request):
-                        waiting[submit(fn, args)] = (index, k)
+                    for group in submit.groups(len(request)):
+                        waiting[submit([request[k] for k in group])] = (index, group)
                     return
                 sent, error = [], None  # an empty round: answered at once
 
@@ -155,17 +160,18 @@ def drive(coros: Sequence[Coroutine[Any]], *, jobs: int, stage: str = "", labels
                 for future in wait_any(list(waiting)):
                     if future not in waiting:  # its round was ended by another task's exception
                         continue
-                    index, k = waiting.pop(future)
+                    index, group = waiting.pop(future)
                     state = rounds[index]
                     try:
-                        state["timed"][k] = future.result()
+                        for k, timed in zip(group, future.result(), strict=True):
+                            state["timed"][k] = timed
                     except BaseException as err:  # the task's own exception, thrown into its coroutine
                         for other in [f for f, (i, _) in waiting.items() if i == index]:
                             waiting.pop(other)
                             other.cancel()
                         advance(index, error=err)
                         continue
-                    state["left"] -= 1
+                    state["left"] -= len(group)
                     if state["left"] == 0:
                         if stage:
                             _record(stage, labels[index], state["round"], state["timed"])
@@ -202,20 +208,22 @@ def _inline(coro: Coroutine[Any], stage: str, label: str) -> Any:
 
 
 class _executor:  # noqa: N801  (a context manager used as a function)
-    """``(submit(fn, args) -> future, wait_any(futures) -> done futures, cancel(futures))`` on the active
-    backend: the Dask cluster's client, else the run's forked pool (or a loky pool)."""
+    """``(submit, wait_any(futures) -> done futures, cancel(futures))`` on the active backend: the Dask cluster's
+    client, else the run's forked pool (or a loky pool); ``submit(calls)`` sends a group of a round's tasks
+    (``submit.groups(n)``) as one executor task."""
 
     def __init__(self, jobs: int) -> None:
         self.jobs = jobs
         self.scattered: dict[int, tuple[Any, Any]] = {}
 
-    def __enter__(self) -> tuple[Callable[..., Any], Callable[..., Any], Callable[..., Any]]:
+    def __enter__(self) -> tuple[_executor, Callable[..., Any], Callable[..., Any]]:
         import concurrent.futures as cf
 
         self.client = parallel.active_client()
         self.local = None
         if self.client is not None:
             self.pool = self.client.get_executor(pure=False)
+            self.threads = max(1, sum(self.client.nthreads().values()))
         else:
             self.local = parallel.local_pool(self.jobs)
             self.pool = self.local.__enter__()
@@ -227,12 +235,19 @@ class _executor:  # noqa: N801  (a context manager used as a function)
             for future in futures:
                 future.cancel()
 
-        return self.submit, wait_any, cancel
+        return self, wait_any, cancel
 
-    def submit(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
+    def groups(self, n: int) -> list[list[int]]:
+        """A round's ``n`` tasks as executor tasks: one each locally; on a cluster, about two per worker thread
+        (a Dask task costs a few ms of scheduling, more than many of a search's fits)."""
+        size = 1 if self.client is None else max(1, -(-n // (2 * self.threads)))
+        return [list(range(k, min(n, k + size))) for k in range(0, n, size)]
+
+    def __call__(self, calls: list[Task]) -> Any:
+        """Submit ``calls`` (a group of :meth:`groups`) as one executor task; its future."""
         if self.client is not None:
-            args = tuple(self._ship(a) for a in args)
-        return self.pool.submit(call_timed, fn, args)
+            calls = [(fn, tuple(self._ship(a) for a in args)) for fn, args in calls]
+        return self.pool.submit(call_many, calls)
 
     def _ship(self, value: Any) -> Any:
         """A large array as a reference to its copy on the cluster (sent once per object); a dict's values too."""

@@ -133,3 +133,17 @@ def test_rounds_are_recorded_with_the_round_before_and_the_span_is_the_longest_c
                           *({"stage": "tune", **r} for r in made)])
     # serial part: 20 s less the tasks' 14 s; span 6 + 7
     assert shape["span_s"] == pytest.approx(13.0) and shape["work_over_span"] == pytest.approx(20.0 / 13.0)
+
+
+def test_a_round_goes_to_a_cluster_in_groups_of_about_two_per_worker_thread() -> None:
+    """A Dask task costs a few ms of scheduling, more than many of a search's fits: on a cluster a round's tasks
+    travel in groups (about two per worker thread, in order), locally one by one; every task is in one group."""
+    from pipeline.rounds import _executor
+
+    local = _executor(2)
+    local.client = None
+    assert local.groups(5) == [[0], [1], [2], [3], [4]]
+    cluster = _executor(-1)
+    cluster.client, cluster.threads = object(), 2
+    assert cluster.groups(10) == [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9]]
+    assert cluster.groups(3) == [[0], [1], [2]] and cluster.groups(0) == []
