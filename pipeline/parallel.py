@@ -272,13 +272,6 @@ def _indexed(fn: Callable[[T], R], index: int, item: T) -> tuple[int, R]:
     return index, fn(item)
 
 
-def _indexed_shared(fn: Callable[[Any], R], index: int, rest: dict[str, Any], keys: tuple[str, ...],
-                    *values: Any) -> tuple[int, R]:
-    """:func:`_indexed` of the item ``rest`` with ``keys`` set to ``values``: the values travel as the task's own
-    arguments, which joblib's dask backend sends to the cluster once per object, not once per task."""
-    return index, fn({**rest, **dict(zip(keys, values, strict=True))})
-
-
 def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, work_bytes: int | None = None,
          on_done: Callable[[int, int, int], Any] | None = None) -> list[R]:
     """``[fn(x) for x in items]`` in the active backend (:func:`imap`), results in input order.
@@ -296,13 +289,11 @@ def pmap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, w
 
 
 def imap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, work_bytes: int | None = None,
-         in_order: bool = False, shared: tuple[str, ...] = ()) -> Iterator[tuple[int, R]]:
+         in_order: bool = False) -> Iterator[tuple[int, R]]:
     """``(index, fn(items[index]))`` for every item, as each finishes (input order when inline or ``in_order``:
     a result then waits for those before it).
 
-    ``shared``: keys of dict items whose values (large arrays that several items hold, the same object in each)
-    are shipped once: on a Dask cluster they are scattered to the workers once per object and each task gets a
-    reference, where a task's own pickle would carry them every time.
+    (The model stages' tasks go through :mod:`pipeline.rounds`, which sends a large array to a cluster once.)
 
     Inline (no process start-up for nothing) for a single item, ``jobs == 1`` locally, or ``work_bytes`` (the
     input the items will read) below :data:`POOL_MIN_BYTES` locally (:func:`pool_pays`). Otherwise, locally:
@@ -325,11 +316,7 @@ def imap(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None, w
     else:
         import joblib
 
-        if shared and _active["scheduler"] is not None:
-            tasks = (joblib.delayed(_indexed_shared)(fn, i, {k: v for k, v in x.items() if k not in shared},
-                                                     shared, *(x[k] for k in shared)) for i, x in enumerate(items))
-        else:
-            tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
+        tasks = (joblib.delayed(_indexed)(fn, i, x) for i, x in enumerate(items))
         # one task per worker in flight, the next in input order as one ends (greedy list scheduling): a cluster's
         # scheduler handed everything at once may queue a long task behind another while a worker idles (the tune
         # stage's chains differ several times in cost); callers list the costliest first where they know it

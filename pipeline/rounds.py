@@ -19,15 +19,12 @@ asked for them: serial, pool and cluster give the same bits. Each task's time go
 
 from __future__ import annotations
 
-import logging
 import os
 import time
 from collections.abc import Callable, Generator, Sequence
 from typing import Any, TypeVar
 
 from pipeline import parallel
-
-log = logging.getLogger(__name__)
 
 __all__ = ["Coroutine", "Task", "drive", "gather", "run_inline"]
 

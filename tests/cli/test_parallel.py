@@ -343,20 +343,24 @@ def test_local_cluster_workers_keep_glibcs_memory() -> None:
     assert env is None and blas == "1"
 
 
-def _row_sum(item: dict) -> float:
-    return float(item["X"][item["k"]].sum() + item["k"])
+def _row_sum(X: object, k: int) -> float:
+    return float(X[k].sum() + k)
+
+
+def _row_sums(X: object, rows: int):  # noqa: ANN202  (a coroutine of pipeline.rounds: one round of tasks)
+    return (yield [(_row_sum, (X, k)) for k in range(rows)])
 
 
 def test_an_array_every_task_holds_goes_to_the_cluster_once(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``imap(..., shared=("X",))``: a study's rows, held by each of its tasks, are scattered to the cluster once
-    (joblib's dask backend scatters a task's own large arguments and reuses the future for the same object);
-    without it the array rides inside every task's pickled item. Results are the same either way."""
+    """A search's rows, held by each of its fit tasks (:mod:`pipeline.rounds`), are scattered to the cluster once
+    per object; an array below ``SCATTER_BYTES`` rides inside its tasks. Results are the same either way."""
     import numpy as np
     from distributed import Client
 
-    X = np.arange(64 * 1000, dtype=float).reshape(1000, 64)
-    items = [{"X": X, "k": k} for k in range(8)]
-    expected = [_row_sum(item) for item in items]
+    from pipeline import rounds
+
+    X = np.arange(64 * 1000, dtype=float).reshape(1000, 64)  # 512 kB
+    small = X[:4].copy()  # 2 kB
     scattered: list[object] = []
     real = Client.scatter
 
@@ -368,13 +372,9 @@ def test_an_array_every_task_holds_goes_to_the_cluster_once(monkeypatch: pytest.
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
         monkeypatch.setenv(parallel.ENV_SCHEDULER, cluster.scheduler_address)
         with parallel.backend():
-            got = dict(parallel.imap(_row_sum, items, jobs=-1, shared=("X",)))
-            assert [got[k] for k in range(8)] == expected
-            assert sum(s is X for s in scattered) == 1
-            scattered.clear()
-            got = dict(parallel.imap(_row_sum, items, jobs=-1))
-            assert [got[k] for k in range(8)] == expected
-            assert not any(s is X for s in scattered)
+            got = rounds.drive([_row_sums(X, 8), _row_sums(small, 4)], jobs=-1)
+    assert got == [[_row_sum(X, k) for k in range(8)], [_row_sum(small, k) for k in range(4)]]
+    assert sum(s is X for s in scattered) == 1 and not any(s is small for s in scattered)
 
 
 def test_starting_a_local_cluster_leaves_this_process_environment_as_it_was() -> None:
