@@ -22,8 +22,9 @@ Recognised topics (by message type, then by topic name where the type says too l
   ``.msg`` files): the servo outputs ``mavros_msgs/RCOut`` (``/mavros/rc/out``) as the motors' PWM, one thruster
   ``pwm_signal`` per motor; where they are not logged, the pilot's inputs (``OverrideRCIn``, ``/mavros/rc/override``,
   else ``RCIn``, ``/mavros/rc/in``) in ArduSub's channel order with a ``mixing`` block whose frame is a TODO (the
-  inputs are written, commented out, beside servo outputs); ``.../rel_alt`` (``std_msgs/Float64``, metres up) as
-  ``depth_m`` with ``sign: -1``, else ``VfrHud``'s ``altitude`` (commented out beside ``rel_alt``); a ``/mavros``
+  inputs are written, commented out, beside servo outputs; the vectored preset's matrix is shown as a comment);
+  ``.../rel_alt`` (``std_msgs/Float64``, metres up) as ``depth_m`` with ``sign: -1``, else ``VfrHud``'s
+  ``altitude`` (commented out beside ``rel_alt``); a ``/mavros``
   IMU in ROS axes (``convention: flu_enu``, rate signs [1, -1, -1]); ``local_position/velocity_body``
   (``TwistStamped``, body FLU) as ``sensors.velocity``; ``local_position/odom`` as any Odometry.
 
@@ -48,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cli.common import EXIT_OK, check_paths, user_definitions
+from pipeline.config.mixing import AXES, PRESETS
 from pipeline.config.schemas import copy_schema, schema_modeline
 from pipeline.errors import ConfigError
 from pipeline.io.inspect import inspect_log, topic_fields
@@ -287,8 +289,13 @@ def _mavros_stream(t: _Topic, kind: str, pilot: str | None, depth_topic: bool, t
     frame = _todo("ardusub_vectored (the BlueROV2, FRAME_CONFIG 1), or `matrix:` rows of "
                   "[roll, pitch, yaw, throttle, forward, lateral] per motor")
     inputs = ", ".join(f"{a}: {a}_s" for a in PILOT_AXES)
+    shown = [f"  #   motor {i}: {_v([int(x) if float(x).is_integer() else x for x in row])}"
+             for i, row in enumerate(PRESETS["ardusub_vectored"], start=1)]
     mixing = ["mixing:  # manual-mode trials only: a controller's additions are not in the pilot's inputs",
-              f"  frame: {frame}", f"  inputs: {{{inputs}}}", f"  outputs: {_v(pwm)}",
+              f"  frame: {frame}",
+              f"  # ardusub_vectored's factors per motor, [{', '.join(AXES)}] (AP_Motors6DOF); the thrusters'",
+              "  # directions must make forward push +X, lateral +Y, yaw +N, throttle up (checked when loaded):",
+              *shown, f"  inputs: {{{inputs}}}", f"  outputs: {_v(pwm)}",
               "  # directions: [1, 1, 1, 1, 1, 1]  # ArduSub's MOT_n_DIRECTION"]
     return _Stream(s, t, sig, what + " into motor PWMs (docs/user-guide.md 8.1)", mixing=mixing)
 

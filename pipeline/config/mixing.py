@@ -13,6 +13,10 @@ A (motors x 6) in ArduSub's factor order (``add_motor_raw_6dof``: roll, pitch, y
 Not modelled: an attitude or depth controller's own additions (stabilize, depth hold: use motor outputs, or
 manual-mode trials), the vectored frame's forward/vertical coupling limit (``MOT_FV_CPLNG_K``, when throttle and
 forward are given together), thrust linearization (``MOT_THST_EXPO``), output slew, RC dead zones.
+
+:func:`wrong_pushes` checks a frame against the thrusters' geometry: a full forward input must push the vehicle
+forward (+X), lateral right (+Y), throttle up (-Z) and yaw clockwise (+N), each motor taken as linear (thrust +1
+along its direction per full output); a reversed thruster direction or ``directions`` entry fails it.
 """
 
 from __future__ import annotations
@@ -39,6 +43,44 @@ PRESETS: dict[str, tuple[tuple[float, ...], ...]] = {
         (-1.0, 0.0, 0.0, -1.0, 0.0, 0.0),
     ),
 }
+
+#: The body force a full input of each checked pilot axis must make: (DOF index in u v w p q r, sign). Roll and
+#: pitch are not checked: a frame may have no such control (the vectored frame has no pitch).
+PUSHES: dict[str, tuple[int, float]] = {"forward": (0, 1.0), "lateral": (1, 1.0), "throttle": (2, -1.0),
+                                        "yaw": (5, 1.0)}
+_PUSH_WORDS = {"forward": "forward (+X)", "lateral": "to the right (+Y)", "throttle": "up (-Z)",
+               "yaw": "clockwise (+N)"}
+
+
+def axis_forces(a: np.ndarray, motor_directions: np.ndarray, positions_m: np.ndarray, directions: np.ndarray
+                ) -> np.ndarray:
+    """The generalized force (u v w p q r) of a full input of each pilot axis, (len(AXES), 6): the mixing matrix
+    ``a`` (motors x AXES) times the motors' ``motor_directions`` (1 / -1), each motor linear, through the allocation
+    of the thrusters at ``positions_m`` pushing along ``directions`` (motors x 3, normalized here)."""
+    d = np.asarray(directions, dtype=float)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    allocation = np.vstack([d.T, np.cross(np.asarray(positions_m, dtype=float), d).T])
+    return (allocation @ (np.asarray(motor_directions, dtype=float)[:, None] * a)).T
+
+
+def wrong_pushes(forces: np.ndarray) -> list[str]:
+    """What a frame gets wrong, from :func:`axis_forces`: one line per checked axis that pushes the wrong way."""
+    out = []
+    for axis, (dof, sign) in PUSHES.items():
+        f = forces[AXES.index(axis)]
+        if sign * f[dof] < -1e-6 * max(1.0, float(np.abs(f).max())):
+            tau = ", ".join(f"{x:.3g}" for x in f)
+            out.append(f"a full {axis} input pushes the vehicle the wrong way, not {_PUSH_WORDS[axis]}: "
+                       f"tau [u v w p q r] = [{tau}] per unit motor thrust")
+    return out
+
+
+def show(a: np.ndarray, names: list[str] | None = None) -> str:
+    """A mixing matrix as lines ``motor 1 (t1): roll 0, pitch 0, yaw 1, ...``."""
+    return "; ".join(f"motor {i + 1}{f' ({names[i]})' if names else ''}: "
+                     + ", ".join(f"{axis} {x:g}" for axis, x in zip(AXES, row, strict=True))
+                     for i, row in enumerate(np.asarray(a, dtype=float)))
+
 
 def factors(mixing: Mixing) -> np.ndarray:
     """The mixing matrix of a :class:`Mixing` (or a snapshot's view of one), motors x :data:`AXES`."""

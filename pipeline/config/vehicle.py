@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
-from pipeline.config import checks
+from pipeline.config import checks, mixing
 from pipeline.config.base import Frozen, Vec3
 from pipeline.config.rigid_body import RigidBody, rigid_body_mass
 from pipeline.config.sources import MESSAGE_DEFINITIONS_DOC, StreamSource, TrialOverride
@@ -465,6 +465,30 @@ class Vehicle(VehicleMethods, Frozen):
             checks.check_conditioned(mass, "the mass matrix M = M_RB + M_A")
         except ValueError as err:
             raise checks.KeyedError("added_mass", str(err)) from None
+        return self
+
+    @model_validator(mode="after")
+    def _mixing_pushes_its_axes(self) -> Vehicle:
+        """A stream's mixing frame and the thrusters driven by its outputs agree (:func:`mixing.wrong_pushes`):
+        forward input pushes forward, and so on; the frame's matrix is shown where they do not."""
+        by_signal = {t.input_signal: t for t in self.thrusters if t.input_kind == "pwm"}
+        for name, stream in self.streams.items():
+            if stream.mixing is None or not all(o in by_signal for o in stream.mixing.outputs):
+                continue
+            driven = [by_signal[o] for o in stream.mixing.outputs]
+            directions = np.asarray([t.direction for t in driven], dtype=float)
+            if not np.all(np.linalg.norm(directions, axis=1) > 0):
+                continue  # a zero direction: its own check names it
+            a = stream.mixing.factors()
+            wrong = mixing.wrong_pushes(mixing.axis_forces(
+                a, np.asarray(stream.mixing.directions or [1] * len(driven)),
+                np.asarray([t.position_m for t in driven]), directions))
+            if wrong:
+                raise checks.KeyedError(
+                    f"streams.{name}.mixing", "; ".join(wrong) + f". The frame {stream.mixing.frame or '(matrix)'} "
+                    f"mixes [{mixing.show(a, [t.name for t in driven])}]: reverse the thrusters' `direction` that "
+                    "disagree (a positive PWM's push, body FRD) or set the motor's `directions` entry to -1 "
+                    "(ArduSub's MOT_n_DIRECTION); docs/user-guide.md 8.3")
         return self
 
     @model_validator(mode="after")

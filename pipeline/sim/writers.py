@@ -3,10 +3,12 @@
 Formats (:data:`FORMATS`): ``mcap`` (ROS 2 CDR in MCAP via the ``mcap`` writer, ``ros2msg`` schemas),
 ``ros1`` (``rosbags.rosbag1.Writer``), ``ros2-sqlite3`` and ``ros2-mcap`` (``rosbags.rosbag2.Writer``, a bag
 directory), ``csv`` (a directory with one ``<stream>.csv`` per stream, time columns ``stamp_ns`` (header) and
-``log_ns``). The DVL message ``auv_msgs/msg/DVL`` and mavros's servo outputs ``mavros_msgs/msg/RCOut`` are
-registered from ``msgs/``, so each log embeds their definitions. A trial is anything with ``streams`` (a
-:class:`pipeline.sim.SimTrial`, or :class:`pipeline.sim.ardusub.HeaveTrial`: servo outputs and ``rel_alt``, no
-attitude). Messages are written in log-time order (ties: stream order), so the same trial gives the same bytes.
+``log_ns``). The DVL message ``auv_msgs/msg/DVL`` and mavros's ``mavros_msgs/msg/RCOut`` (servo outputs) and
+``OverrideRCIn`` (the pilot's RC override) are registered from ``msgs/``, so each log embeds their definitions;
+``definitions=False`` writes a ROS 2 bag without any, as bags before Iron are. A trial is anything with
+``streams`` (a :class:`pipeline.sim.SimTrial`, :class:`pipeline.sim.ardusub.HeaveTrial`: servo outputs and
+``rel_alt``, no attitude; :class:`pipeline.sim.ardusub_vectored.VectoredTrial`). Messages are written in log-time
+order (ties: stream order), so the same trial gives the same bytes.
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ FORMATS = ("mcap", "ros1", "ros2-sqlite3", "ros2-mcap", "csv")
 EXTENSIONS = {"mcap": ".mcap", "ros1": ".bag", "ros2-sqlite3": "", "ros2-mcap": "", "csv": ""}
 DVL_TYPE = "auv_msgs/msg/DVL"
 RC_OUT_TYPE = "mavros_msgs/msg/RCOut"
+OVERRIDE_TYPE = "mavros_msgs/msg/OverrideRCIn"
+#: the mavros types registered from ``msgs/`` (file name: the type's name)
+MAVROS_TYPES = (RC_OUT_TYPE, OVERRIDE_TYPE)
 _LIBRARY = "auvid-sim"
 
 
@@ -42,7 +47,12 @@ def dvl_msgdef() -> str:
 
 def rc_out_msgdef() -> str:
     """mavros's servo outputs (``pipeline/sim/msgs/RCOut.msg``; the same text in ROS 1 and ROS 2)."""
-    return resources.files("pipeline.sim").joinpath("msgs/RCOut.msg").read_text(encoding="utf-8")
+    return mavros_msgdef(RC_OUT_TYPE)
+
+
+def mavros_msgdef(msgtype: str) -> str:
+    """A mavros message's definition from ``pipeline/sim/msgs/`` (RCOut, OverrideRCIn)."""
+    return resources.files("pipeline.sim").joinpath(f"msgs/{msgtype.rsplit('/', 1)[1]}.msg").read_text(encoding="utf-8")
 
 
 @cache
@@ -52,7 +62,8 @@ def typestore(ros_version: int) -> Any:
 
     store = get_typestore(Stores.ROS1_NOETIC if ros_version == 1 else Stores.ROS2_HUMBLE)
     store.register(get_types_from_msg(dvl_msgdef(), DVL_TYPE))
-    store.register(get_types_from_msg(rc_out_msgdef(), RC_OUT_TYPE))
+    for msgtype in MAVROS_TYPES:
+        store.register(get_types_from_msg(mavros_msgdef(msgtype), msgtype))
     return store
 
 
@@ -97,6 +108,11 @@ def _messages(stream: Stream, store: Any, ros_version: int) -> list[Any]:
                                     velocity=np.asarray(stream.fields["velocity"][i], dtype=np.float64), effort=empty)
         elif stream.msgtype == RC_OUT_TYPE:
             msg = T[RC_OUT_TYPE](header=header(i), channels=np.asarray(stream.fields["channels"][i], dtype=np.uint16))
+        elif stream.msgtype == OVERRIDE_TYPE:  # no header
+            msg = T[OVERRIDE_TYPE](channels=np.asarray(stream.fields["channels"][i], dtype=np.uint16))
+        elif stream.msgtype == "geometry_msgs/msg/TwistStamped":
+            twist = T["geometry_msgs/msg/Twist"](linear=vec("twist.linear", i), angular=vec("twist.angular", i))
+            msg = T[stream.msgtype](header=header(i), twist=twist)
         elif stream.msgtype == "std_msgs/msg/Float64":  # no header: only its log time says when
             msg = T[stream.msgtype](data=float(f["data"][i]))
         else:
@@ -150,16 +166,27 @@ def _write_rosbag1(streams: dict[str, Stream], path: Path) -> None:
             writer.write(conns[name], log_ns, data)
 
 
-def _write_rosbag2(streams: dict[str, Stream], path: Path, storage: str) -> None:
+def _write_rosbag2(streams: dict[str, Stream], path: Path, storage: str, definitions: bool) -> None:
+    import sqlite3
+
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     store = typestore(2)
     rows = _serialized(streams, 2)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(path, version=9, storage_plugin=plugin) as writer:
-        conns = {name: writer.add_connection(s.topic, s.msgtype, typestore=store) for name, s in streams.items()}
+        bare = {} if definitions else {"msgdef": "", "rihs01": "RIHS01_" + "0" * 64}
+        conns = {name: writer.add_connection(s.topic, s.msgtype, typestore=store, **bare)
+                 for name, s in streams.items()}
         for log_ns, _, name, data in rows:
             writer.write(conns[name], log_ns, data)
+    if not definitions and storage == "sqlite3":
+        con = sqlite3.connect(next(path.glob("*.db3")))
+        try:  # a bag before Iron has no such table
+            con.execute("DROP TABLE message_definitions")
+            con.commit()
+        finally:
+            con.close()
 
 
 def csv_column(field: str) -> str:
@@ -233,11 +260,16 @@ def csv_vehicle(vehicle: Vehicle) -> Vehicle:
     return out
 
 
-def write_trial(trial: Any, fmt: str, path: str | Path, *, overwrite: bool = False) -> Path:
+def write_trial(trial: Any, fmt: str, path: str | Path, *, overwrite: bool = False, definitions: bool = True,
+                topics: tuple[str, ...] | None = None) -> Path:
     """Write ``trial`` (a :class:`pipeline.sim.SimTrial`) as ``fmt`` at ``path`` (a file for mcap/ros1, a
-    directory for ros2-* and csv). The path must not exist unless ``overwrite``."""
+    directory for ros2-* and csv). The path must not exist unless ``overwrite``. ``definitions=False`` (ROS 2 bags
+    only): no message definitions; ``topics``: only these streams' topics."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; known: {FORMATS}")
+    if not definitions and not fmt.startswith("ros2-"):
+        raise ValueError(f"definitions=False is for ROS 2 bags, not {fmt!r}")
+    streams = {k: s for k, s in trial.streams.items() if topics is None or s.topic in topics}
     path = Path(path)
     if path.exists():
         if not overwrite:
@@ -245,12 +277,12 @@ def write_trial(trial: Any, fmt: str, path: str | Path, *, overwrite: bool = Fal
         shutil.rmtree(path) if path.is_dir() else path.unlink()
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "mcap":
-        _write_mcap(trial.streams, path)
+        _write_mcap(streams, path)
     elif fmt == "ros1":
-        _write_rosbag1(trial.streams, path)
+        _write_rosbag1(streams, path)
     elif fmt in ("ros2-sqlite3", "ros2-mcap"):
-        _write_rosbag2(trial.streams, path, fmt.removeprefix("ros2-"))
+        _write_rosbag2(streams, path, fmt.removeprefix("ros2-"), definitions)
     else:
-        _write_csv(trial.streams, path, trial.sensors.ahrs_convention)
-    log.info("wrote %s trial (%d messages) to %s", fmt, sum(len(s) for s in trial.streams.values()), path)
+        _write_csv(streams, path, trial.sensors.ahrs_convention)
+    log.info("wrote %s trial (%d messages) to %s", fmt, sum(len(s) for s in streams.values()), path)
     return path
