@@ -26,9 +26,10 @@ from pipeline.config import Params, load_vehicle, todo_markers
 from pipeline.config.mixing import PRESETS
 from pipeline.io.msgdefs import load_user_types
 from pipeline.layout import stream_path
+from pipeline.sim.ardusub_vectored import DIRECTIONS
 from pipeline.tableio import read_parquet
 from stages import ingest as ingest_stage
-from tests.cli.test_rov_e2e import DIRECTIONS, POSITIONS, T200
+from tests.cli.test_rov_e2e import POSITIONS, T200
 from tests.fixturepaths import T200_CSV, shared_fixture
 
 T0_NS = 1_700_000_000_000_000_000
@@ -134,7 +135,8 @@ def write_bag(path: Path, servo_outputs: bool = True, only: tuple[str, ...] | No
 
 
 def fill(doc: dict[str, Any]) -> dict[str, Any]:
-    """Every TODO of the starter filled with the BlueROV2 walkthrough's constants."""
+    """Every TODO of the starter filled with the BlueROV2 walkthrough's constants; the thrusters' directions those of
+    the vectored frame (each pilot axis pushes its own axis: the config check of a mixing frame)."""
     table = {"table": T200.name, "table_pwm_column": "PWM (µs)", "table_thrust_column": "Force (Kg f)",
              "table_thrust_unit": "kgf", "table_voltage_column": "Voltage (V)", "voltage_V": 16.0}
     values = {"rigid_body.mass_kg": 11.5, "rigid_body.inertia_kgm2": np.diag([0.16] * 3).tolist(),

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from pipeline.config import Vehicle, parse
-from pipeline.config.mixing import PRESETS, mix_pwm
+from pipeline.config.mixing import AXES, PRESETS, axis_forces, mix_pwm, wrong_pushes
 from pipeline.errors import ConfigError
 from pipeline.ingest import ingest_log
+from pipeline.sim.ardusub_vectored import DIRECTIONS as VECTORED_DIRECTIONS
+from pipeline.sim.ardusub_vectored import POSITIONS as VECTORED_POSITIONS
 
 T0_MS = 1_700_000_000_000
 AXES_IN = ("pitch", "roll", "throttle", "yaw", "forward", "lateral")  # ArduSub's RC channels 1-6
@@ -118,3 +120,42 @@ def test_a_user_matrix_mixes_as_given(tmp_path: Path) -> None:
     np.testing.assert_allclose(table["m1_s"].to_numpy() * 1e6, [1800, 1900, 1900])  # 0.5 + 0.25; 1; 1 (clipped)
     np.testing.assert_allclose(table["m2_s"].to_numpy() * 1e6, [1600, 1900, 1900])
     np.testing.assert_allclose(table["m3_s"].to_numpy() * 1e6, 1500)
+
+
+def _geometry(vehicle: dict[str, Any], directions: np.ndarray) -> dict[str, Any]:
+    """The vehicle's thrusters placed as the BlueROV2's (pipeline.sim.ardusub_vectored) along ``directions``."""
+    for i, thr in enumerate(vehicle["thrusters"]):
+        thr["position_m"], thr["direction"] = VECTORED_POSITIONS[i].tolist(), directions[i].tolist()
+    return vehicle
+
+
+def test_the_vectored_frame_pushes_each_axis_with_the_bluerov2_geometry() -> None:
+    """B A for the BlueROV2's thrusters: each checked pilot axis pushes its own DOF alone (per unit motor thrust:
+    forward 4 x cos 45 deg = 2.83 N along +X, throttle 2 N up, yaw 4 x 0.189 m x ... about +N)."""
+    forces = axis_forces(np.asarray(PRESETS["ardusub_vectored"]), np.ones(6), VECTORED_POSITIONS, VECTORED_DIRECTIONS)
+    np.testing.assert_allclose(forces[AXES.index("forward")], [2 * np.sqrt(2), 0, 0, 0, 4 * 0.085 * np.sqrt(0.5), 0],
+                               atol=1e-12)
+    np.testing.assert_allclose(forces[AXES.index("lateral")], [0, 2 * np.sqrt(2), 0, -4 * 0.085 * np.sqrt(0.5), 0, 0],
+                               atol=1e-12)
+    np.testing.assert_allclose(forces[AXES.index("throttle")], [0, 0, -2, 0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(forces[AXES.index("yaw")], [0, 0, 0, 0, 0, 4 * (0.156 + 0.111) * np.sqrt(0.5)],
+                               atol=1e-12)
+    assert wrong_pushes(forces) == []
+    parse(Vehicle, _geometry(_vehicle(VECTORED), VECTORED_DIRECTIONS))  # accepted
+
+
+@pytest.mark.parametrize(("flip", "axes"), [(range(4), ["forward", "lateral", "yaw"]), ([4, 5], ["throttle"])],
+                         ids=["horizontal", "vertical"])
+def test_thrusters_that_push_against_the_frame_are_refused_with_the_matrix_shown(flip: Any, axes: list[str]) -> None:
+    """Reversed thruster directions: forward input would drive the vehicle backward. The error names the stream's
+    mixing, each axis pushed the wrong way, and the frame's matrix; the motors' `directions` -1 undo it."""
+    directions = VECTORED_DIRECTIONS.copy()
+    directions[list(flip)] *= -1
+    with pytest.raises(ConfigError) as err:
+        parse(Vehicle, _geometry(_vehicle(VECTORED), directions))
+    assert err.value.field == "streams.log.mixing"
+    message = str(err.value)
+    assert sorted(a for a in AXES if f"a full {a} input pushes the vehicle the wrong way" in message) == sorted(axes)
+    assert "motor 1 (t1): roll 0, pitch 0, yaw 1, throttle 0, forward -1, lateral 1" in message
+    motor_directions = [-1 if i in flip else 1 for i in range(6)]
+    parse(Vehicle, _geometry(_vehicle({**VECTORED, "directions": motor_directions}), directions))
