@@ -39,7 +39,7 @@ from pipeline.sim.trial import EPOCH_NS
 OVERRIDE_TYPE = "mavros_msgs/msg/OverrideRCIn"
 IMU_TYPE = "sensor_msgs/msg/Imu"
 TWIST_TYPE = "geometry_msgs/msg/TwistStamped"
-DOFS = ("u", "v", "w", "r")
+SIM_DOFS = ("u", "v", "w", "r")  # the simulated DOFs (the vehicle is held level)
 #: ArduSub's RC channels 1-6 (RCMAP defaults): the override's channels[0..5]
 CHANNELS = ("pitch", "roll", "throttle", "yaw", "forward", "lateral")
 #: the vectored frame (FRAME_CONFIG 1), motors x (roll, pitch, yaw, throttle, forward, lateral)
@@ -171,9 +171,9 @@ def vectored_trial(duration_s: float = 60.0, seed: int = 0, vehicle: VectoredTru
     xdot = np.array([f(row, tq) for row, tq in zip(x.tolist(), tau_list, strict=True)])
     t_ns = EPOCH_NS + np.rint(t * 1e9).astype(np.int64)
     truth = pd.DataFrame({"t_ns": t_ns, "x_m": x[:, 0], "y_m": x[:, 1], "depth_m": x[:, 2], "yaw_rad": x[:, 3],
-                          **{f"{d}_mps" if d != "r" else "r_radps": x[:, 4 + i] for i, d in enumerate(DOFS)},
-                          **{f"{d}dot": xdot[:, 4 + i] for i, d in enumerate(DOFS)},
-                          **{f"tau_{d}": tau[:, i] for i, d in enumerate(DOFS)},
+                          **{f"{d}_mps" if d != "r" else "r_radps": x[:, 4 + i] for i, d in enumerate(SIM_DOFS)},
+                          **{f"{d}dot": xdot[:, 4 + i] for i, d in enumerate(SIM_DOFS)},
+                          **{f"tau_{d}": tau[:, i] for i, d in enumerate(SIM_DOFS)},
                           **{f"pwm{i + 1}_us": pwm[:, i] for i in range(6)}})
     streams = _streams(truth, x, xdot, t_ns, rc_rows, pilot, servo, v, step_s, rng)
     return VectoredTrial(truth, streams, v, seed, duration_s)

@@ -26,7 +26,7 @@ import yaml
 from pipeline.cli import main
 from pipeline.config import todo_markers
 from pipeline.sim.ardusub import thrust_N, thrust_table_csv
-from pipeline.sim.ardusub_vectored import DIRECTIONS, POSITIONS, VectoredTruth, allocation, vectored_trial
+from pipeline.sim.ardusub_vectored import DIRECTIONS, FACTORS, POSITIONS, VectoredTruth, allocation, vectored_trial
 from pipeline.sim.writers import MAVROS_TYPES, mavros_msgdef, write_trial
 from pipeline.tableio import read_parquet
 
@@ -75,7 +75,8 @@ def init_and_run(home: Path, bag: str, monkeypatch: pytest.MonkeyPatch) -> dict[
     """``auvid init`` on the bag, its TODOs filled, ``auvid run --to features``: the starter and the features."""
     monkeypatch.chdir(home)
     assert main(["init", f"dives/{bag}", "--msgs", "msgs", "--name", "bluerov2", "-o", f"{bag}.yaml"]) == 0
-    doc = yaml.safe_load(Path(f"{bag}.yaml").read_text(encoding="utf-8"))
+    text = Path(f"{bag}.yaml").read_text(encoding="utf-8")
+    doc = yaml.safe_load(text)
     values = dict(FILLED)
     if bag == "manual01":
         values["streams.rc_override.mixing.frame"] = "ardusub_vectored"
@@ -86,7 +87,7 @@ def init_and_run(home: Path, bag: str, monkeypatch: pytest.MonkeyPatch) -> dict[
     common = ["--root", f"runs/{bag}", "--vehicle", f"{bag}.yaml", "--params", "params.yaml", "-q"]
     assert main(["run", *common, "--to", "features", f"dives/{bag}"]) == 0
     part = next(Path(f"runs/{bag}/data/features").rglob("*.parquet"))
-    return {"doc": doc, "common": common, "features": read_parquet(part)[0].to_pandas()}
+    return {"doc": doc, "text": text, "common": common, "features": read_parquet(part)[0].to_pandas()}
 
 
 @pytest.fixture(scope="module")
@@ -107,6 +108,8 @@ def test_init_maps_servo_outputs_where_logged_else_the_override_mixed(runs: dict
     assert servo["streams"]["rc_out"]["topic"] == "/mavros/rc/out" and "rc_override" not in servo["streams"]
     mixing = manual["streams"]["rc_override"]["mixing"]
     assert mixing["frame"] == "ardusub_vectored" and mixing["outputs"] == [f"pwm{k}_s" for k in range(1, 7)]
+    shown = [line.split(": ", 1)[1] for line in runs["manual01"]["text"].splitlines() if "#   motor " in line]
+    assert [json.loads(row) for row in shown] == FACTORS.tolist()  # the preset's matrix, shown beside the TODO
     for doc in (servo, manual):
         assert doc["sensors"]["depth"] == "depth_m" and doc["sensors"]["velocity"]["axes"] == "flu"
         assert doc["sensors"]["attitude"]["convention"] == "flu_enu"
