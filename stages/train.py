@@ -1,10 +1,11 @@
 """Train and evaluate the coupled 3-DOF models: blocked CV on train_test, final check on the test trial(s).
 
-Writes per model a joblib + model card under data/models/coupled/, and Table III (md + JSON), per-fold scores,
-the Fig. 4-like box plot and metrics.json under data/evaluation/coupled/. Each model's files and its rows of the
-tables are written as soon as that model finishes; a model that fails is logged, named in Table III and
-metrics.json (``{model: {"failed": reason}}``) and in the result's quarantine list (exit code 1), and the others
-go on (a stale joblib of it from an earlier run is removed, so the simulate stage cannot pick it up).
+Writes per model a joblib + model card under data/models/coupled/, and Table III (md + JSON), per-fold scores and
+metrics.json under data/evaluation/coupled/ (the report draws Fig. 4, the folds' box plot, from the scores). Each
+model's files and its rows of the tables are written as soon as that model finishes; a model that fails is logged,
+named in Table III and metrics.json (``{model: {"failed": reason}}``) and in the result's quarantine list (exit code
+1), and the others go on (a stale joblib of it from an earlier run is removed, so the simulate stage cannot pick
+it up).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from pipeline.config.params import EXPLICIT_MODELS
 from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
-from pipeline.report.coupled import fold_boxplot, table3
+from pipeline.report.coupled import table3
 from pipeline.studies.coupled import metrics, rigid_body_uvr, train_columns, train_stage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, stage_main
@@ -79,8 +80,6 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     results, failed = in_order(results), in_order(failed)
     outputs = [path for paths in in_order(saved).values() for path in paths]
     outputs += write_tables(results, failed, cp.outputs, out_eval)
-    fold_boxplot(results, cp.outputs, out_eval / "fold_test_r2.png")
-    outputs.append(out_eval / "fold_test_r2.png")
     quarantined = [{**entry, "file": str(out_models / f"{model}.joblib"),
                     "reason": f"model {model!r} failed ({entry['error']}): {entry['reason']}"}
                    for model, entry in failed.items()]

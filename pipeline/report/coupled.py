@@ -9,7 +9,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from pipeline.report.verdicts import coupled_train_failed, label
+from pipeline.report.verdicts import label
 from pipeline.units import axis_label
 
 MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_svr": "WDSE-SVR",
@@ -145,19 +145,3 @@ def fold_figure(scores: dict[str, dict[str, list[float]]], outputs: Sequence[str
         ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     return fig, off_scale
-
-
-def fold_boxplot(results: dict[str, Any], outputs: Sequence[str], target: Any) -> None:
-    """Fig. 4 as the train stage writes it (PNG): :func:`fold_figure` with the models whose mean CV train R² is
-    below 0 marked failed."""
-    import matplotlib.pyplot as plt
-
-    from pipeline.tableio import atomic_path
-
-    scores = fold_scores({m: r["folds"] for m, r in results.items()}, outputs)
-    failed = {(m, o): "train R² < 0" for m, r in results.items() for o in outputs
-              if coupled_train_failed({"cv": r.get("summary")}, o)}
-    fig, _ = fold_figure(scores, outputs, failed)
-    with atomic_path(target) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
-    plt.close(fig)

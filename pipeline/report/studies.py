@@ -287,21 +287,19 @@ def ranking_note(best: dict[str, tuple[str, float]], hyper_doc: dict[str, Any] |
 
 def fold_figure(root: Path, t3: Any, outputs: Sequence[str], used: set[str], figs: dict[str, bytes],
                 marks: verdicts.Marks | None) -> str:
-    """Fig. 4 drawn again from fold_scores.json with the report's verdicts (failed models red, an axis clipped at
-    R² −1 with each model cut off named); the train stage's PNG where there are no fold scores."""
+    """Fig. 4 drawn from fold_scores.json with the report's verdicts (failed models red, an axis clipped at R² −1
+    with each model cut off named); nothing where there are no fold scores."""
     folds = read(root, f"{COUPLED}/fold_scores.json", used)
     scores = report_coupled.fold_scores(folds, outputs) if isinstance(folds, dict) else {}
     caption = "Fig. 4 — test R² per CV fold (paper 000): one box per model and output; higher is better"
     if not scores:
-        data = png(root, f"{COUPLED}/fold_test_r2.png", used, figs, "coupled_fold_test_r2.png")
-        return H.image(data, "fold test R² per model", caption) if data else ""
+        return ""
     t3 = t3 if isinstance(t3, dict) else {}
     failed = {(m, o): coupled_verdict(t3.get(m), marks, m, o) for m in scores for o in outputs
               if coupled_failed(t3.get(m), marks, m, o)}
     fig, off_scale = report_coupled.fold_figure(scores, outputs, failed)
     data = figures.png_bytes(fig)
     figs["coupled_fold_test_r2.png"] = data
-    used.add(f"{COUPLED}/fold_test_r2.png")  # drawn again here, with the verdicts
     marked = sorted({f"{label(m)} on {OUTPUT_LABELS.get(o, o)}" for m, o in failed})
     caption += ("; red: failed (" + "; ".join(marked) + ")" if marked else "")
     caption += ("; off scale (axis clipped at R² −1): " + "; ".join(off_scale) if off_scale else "")

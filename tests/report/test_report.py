@@ -105,7 +105,6 @@ def study_dir(run_dir: Path) -> Path:
                                 "gertler_hagen": {"failed": {"error": "ModelError", "reason": "singular <x>"}}})
     (ev / "table3.md").write_text("| Model | Output | R2 |\n| --- | --- | ---: |\n| RBF-SVR | udot_mps2 | 0.7 |\n")
     _write(ev / "fold_scores.json", {"rbf_svr": [{"fold": 0, "test": {"udot_mps2": {"r2": 0.7}}}]})
-    (ev / "fold_test_r2.png").write_bytes(_png())
     curve = {"train_sizes": [40, 220, 400], "test_mae_mean": [3.0, 0.8, 0.7], "train_mae_mean": [0.5, 0.7, 0.7]}
     cv = {"test_mae_mean": 0.7, "test_mae_sd": 0.1, "test_r2_mean": 0.94, "test_r2_sd": 0.02, "train_mae_mean": 0.68}
     _write(run_dir / "data/evaluation/decoupled/metrics.json", {"results": {

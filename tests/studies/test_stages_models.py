@@ -58,7 +58,7 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
     for name in ("table2.md", "table2.json", "table3.md", "table3.json", "fold_scores.json", "metrics.json",
                  "search_trace.json"):
         assert (ev / name).stat().st_size > 0, name
-    assert (ev / "fold_test_r2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (ev / "fold_test_r2.png").exists()  # Fig. 4 is the report's, drawn from fold_scores.json
     assert "WDSE-SVR" in (ev / "table3.md").read_text() and "gamma_T_th3_N" in (ev / "table2.md").read_text()
     hyper = json.loads((md / "hyperparameters.json").read_text())
     assert hyper["n_tuning_rows"] > 0 and set(hyper["hyperparameters"]) == {*MODELS[:3], "graybox"}
