@@ -424,13 +424,14 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
 
     Budget: ``max_evals`` candidates, or ``max_fits`` SVR fits (candidates x folds) when given. Phases, each
     candidate tagged in the trace (``phase``): ``seed`` (GP ARD and isotropic), ``warm_start``, ``explore``
-    (``n_explore`` scrambled-Sobol points within a decade of the best seed, deterministic; default a quarter of
-    the budget left after the seeds, at most one per hyperparameter), ``model`` (``local="model"``, the default:
-    ``model_share`` of the remaining budget on expected-improvement steps of a GP fitted to the scores so far,
-    see :func:`pipeline.models.search_steps.model_steps`), ``local`` (pattern search from the best point, one step size
-    per coordinate: a step that improves is extended and its size doubled, a coordinate on which both directions
-    fail halves its step; after each sweep a Hooke-Jeeves move along the sweep's displacement) and ``restart``
-    (random log-scale perturbations of the best once every step is below ``min_step``), so the budget is used.
+    (``n_explore`` scrambled-Sobol points within a decade of the first GP seed, the ARD one, deterministic, scored
+    in the seeds' round; default a quarter of the budget left after the seeds, at most one per hyperparameter),
+    ``model`` (``local="model"``, the default: ``model_share`` of the remaining budget on expected-improvement steps
+    of a GP fitted to the scores so far, see :func:`pipeline.models.search_steps.model_steps`), ``local`` (pattern
+    search from the best point, one step size per coordinate: a step that improves is extended and its size doubled,
+    a coordinate on which both directions fail halves its step; after each sweep a Hooke-Jeeves move along the
+    sweep's displacement) and ``restart`` (random log-scale perturbations of the best once every step is below
+    ``min_step``), so the budget is used.
 
     ``warm_start``: best hyperparameters of a simpler variant (RBF for 2-weights, 2-weights for WDSE), added
     as a seed, so that the richer kernel's tuning score is never below the simpler one's. When it is still the
@@ -471,21 +472,21 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
     evaluate = _evaluator(model, names, X, y, folds, n_velocity, cap, (lo, hi), cache, trace,
                           fold_r2=fold_subset is not None, progress=progress, budget=max_evals)
 
-    scores = yield from evaluate(list(zip(seeds, phases, strict=True)))
-    best, k_best = max((score, k) for k, score in enumerate(scores))
-    x = np.clip(seeds[k_best], lo, hi)
-    warm_key = tuple(np.round(np.clip(seeds[-1], lo, hi), 6)) if warm_start is not None else None
     if n_explore is None:
-        n_explore = min(len(names), max(0, max_evals - len(cache)) // 4)
-    n_explore = min(n_explore, max(0, max_evals - len(cache)))
-    if n_explore > 0:  # a few candidates away from both seeds and warm start, around the best GP seed: one round
-        gp_best = max(range(len(phases)), key=lambda k: scores[k] if phases[k] == "seed" else -np.inf)
-        centre = np.clip(seeds[gp_best], lo, hi)
+        n_explore = min(len(names), max(0, max_evals - len(seeds)) // 4)
+    n_explore = min(n_explore, max(0, max_evals - len(seeds)))
+    explore: list[np.ndarray] = []
+    if n_explore > 0:  # a few candidates away from both seeds and warm start, around the ARD seed: same round
         unit = qmc.Sobol(len(names), scramble=True, seed=seed).random_base2(math.ceil(math.log2(n_explore)))
-        cands = [np.clip(centre + (2.0 * u - 1.0) * math.log(10.0), lo, hi) for u in unit[:n_explore]]
-        for cand, score in zip(cands, (yield from evaluate([(c, "explore") for c in cands])), strict=True):
-            if score > best:
-                x, best = cand, score
+        centre = np.clip(seeds[0], lo, hi)
+        explore = [np.clip(centre + (2.0 * u - 1.0) * math.log(10.0), lo, hi) for u in unit[:n_explore]]
+    scores = yield from evaluate([*zip(seeds, phases, strict=True), *((c, "explore") for c in explore)])
+    best, k_best = max((score, k) for k, score in enumerate(scores[:len(seeds)]))
+    x = np.clip(seeds[k_best], lo, hi)
+    for cand, score in zip(explore, scores[len(seeds):], strict=True):
+        if score > best:
+            x, best = cand, score
+    warm_key = tuple(np.round(np.clip(seeds[-1], lo, hi), 6)) if warm_start is not None else None
     own_cpu = [gp_s]  # the GP seeds' and proposals' CPU: tasks of their own
     if local == "model":
         x, best = yield from model_steps(evaluate, x, best, lo, hi, max_evals, cache, seed, model_share, own_cpu)

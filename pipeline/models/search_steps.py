@@ -66,10 +66,10 @@ def propose(V: np.ndarray, f: np.ndarray, x: np.ndarray, best: float, lo: np.nda
 def model_steps(evaluate: Evaluate, x: np.ndarray, best: float, lo: np.ndarray, hi: np.ndarray, max_evals: int,
                 cache: dict[tuple[float, ...], float], seed: int, share: float = 0.6,
                 cpu: list[float] | None = None) -> Generator[Any, Any, tuple[np.ndarray, float]]:
-    """Model-based steps: ``share`` of the remaining budget in rounds of :data:`BATCH` candidates, each round
-    proposed by :func:`propose` on everything scored so far. ``cpu`` (optional): the proposals' CPU is added
-    to its first element."""
-    n_steps = int(share * max(0, max_evals - len(cache)))
+    """Model-based steps: ``share`` of the remaining budget, rounded to whole rounds of :data:`BATCH` candidates,
+    each round proposed by :func:`propose` on everything scored so far. ``cpu`` (optional): the proposals' CPU is
+    added to its first element."""
+    n_steps = BATCH * int(round(share * max(0, max_evals - len(cache)) / BATCH))  # whole rounds only
     done = round_ = 0
     while done < n_steps and len(cache) < max_evals:
         q = min(BATCH, n_steps - done, max_evals - len(cache))

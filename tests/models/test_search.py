@@ -183,7 +183,7 @@ def test_the_relative_cap_holds_each_fit_near_the_median_of_the_fits_before_it(m
 
     monkeypatch.setattr(search_module, "_fold_fit", spy)
     monkeypatch.setattr(search_module, "ITER_FLOOR_PER_ROW", 1.0)  # the floor: 160 iterations on these folds
-    ratio, kw = 2.0, {"max_evals": 16, "n_folds": 3, "iter_per_row": None}
+    ratio, kw = 2.0, {"max_evals": 20, "n_folds": 3, "iter_per_row": None}
     capped = fast_search("rbf_svr", X, y, iter_cap_ratio=ratio, **kw)
     # the fits in trace order, three folds a candidate; a round's candidates run at once, under the cap of the
     # rounds before it
