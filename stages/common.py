@@ -65,6 +65,15 @@ class StageResult:
         return EXIT_QUARANTINED if self.quarantined else EXIT_OK
 
 
+def skipped_result(name: str, directories: list[Path], stages: tuple[str, ...], reason: str) -> StageResult:
+    """The result of a stage with nothing to do on this run: its output directories hold only the marker saying
+    why (:mod:`pipeline.skips`), its summary ``{"skipped": reason}`` (the CLI prints it)."""
+    from pipeline.skips import write_skip
+
+    log.info("stage %s skipped: %s", name, reason)  # the CLI and stage_main print it
+    return StageResult(name, outputs=write_skip(directories, stages, reason), summary={"skipped": reason})
+
+
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--root", type=Path, default=Path("."), help="run directory holding data/ (default: .)")
     parser.add_argument("--vehicle", type=Path, default=Path("vehicle.yaml"), help="vehicle config YAML")
@@ -119,6 +128,9 @@ def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | Non
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if result.summary.get("skipped"):
+        print(f"{name}: skipped: {result.summary['skipped']}")
+        return result.exit_code
     print(f"{name}: {len(result.outputs)} output(s), {len(result.quarantined)} quarantined")
     for entry in result.quarantined:
         print(f"  quarantined {entry.get('file')}: {entry.get('reason')}", file=sys.stderr)

@@ -23,13 +23,14 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import layout, store
-from pipeline.config import Params, Vehicle
+from pipeline.config import Params, Vehicle, coupled_skip_reason
 from pipeline.errors import ModelError
 from pipeline.report.rollout import bridging_markdown, plot_bridging, plot_free_runs
 from pipeline.rollout import TrialRollout, part_progress, rollout_trial
+from pipeline.skips import clear_skip
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json, write_parquet
 from pipeline.vocabulary import VELOCITY_COLUMNS, acceleration_column
-from stages.common import StageResult, stage_main
+from stages.common import StageResult, skipped_result, stage_main
 
 NAME = "simulate"
 log = logging.getLogger(__name__)
@@ -124,6 +125,12 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     remove_stale_temps(root / layout.SIMULATION, recursive=True)
     dofs = list(params.decoupled.dofs)
     test = store.load(root, vehicle=vehicle.name, split="test")
+    if test.empty and coupled_skip_reason(vehicle, params) is not None:
+        # the decoupled study alone (a heave-only ROV): its damping and B - W need no unseen trial, its free runs do
+        return skipped_result(NAME, [root / layout.SIMULATION], (NAME,), (
+            "no unseen trial (features.test_trials is empty): the free runs roll the damping models out on a trial "
+            "they were not fitted on; name one of the run's trials in features.test_trials to have them"))
+    clear_skip([root / layout.SIMULATION])
     if test.empty:
         raise ModelError(f"no test-split rows for vehicle {vehicle.name!r} (set features.test_trials)",
                          file=layout.features_dir(root))

@@ -18,15 +18,16 @@ from typing import Any
 from urllib.parse import quote
 
 from pipeline import store
-from pipeline.config import Params, Vehicle
+from pipeline.config import Params, Vehicle, coupled_skip_reason
 from pipeline.config.params import EXPLICIT_MODELS
 from pipeline.errors import ModelError
 from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
 from pipeline.report.coupled import table3
+from pipeline.skips import clear_skip
 from pipeline.studies.coupled import metrics, rigid_body_uvr, train_columns, train_stage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
-from stages.common import StageResult, stage_main
+from stages.common import StageResult, skipped_result, stage_main
 from stages.tune import hyperparameters_path
 
 log = logging.getLogger(__name__)
@@ -35,10 +36,15 @@ NAME = "train"
 
 def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
     """Blocked CV, final check, models with cards, tables and figures (coupled study, paper 000). ``progress``:
-    CV folds and final fits (stages.common)."""
+    CV folds and final fits (stages.common). Skipped, as the tune stage, on a vehicle without the study's DOFs."""
     root = Path(root)
-    for directory in (root / MODELS / "coupled", root / EVALUATION / "coupled"):
+    directories = [root / MODELS / "coupled", root / EVALUATION / "coupled"]
+    for directory in directories:
         remove_stale_temps(directory)
+    reason = coupled_skip_reason(vehicle, params)
+    if reason is not None:
+        return skipped_result(NAME, directories, ("tune", "train"), reason)
+    clear_skip(directories)
     cp = params.coupled
     hp = hyperparameters_path(root)
     if not hp.exists() and any(m not in EXPLICIT_MODELS for m in cp.models):
@@ -78,6 +84,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     train_stage(tt, te, tuning_keys, hyper, cp, vehicle=vehicle.name, data_lineage=data_lineage, failures=failed,
                 on_model=finished, progress=progress, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
     results, failed = in_order(results), in_order(failed)
+    (out_eval / "fold_test_r2.png").unlink(missing_ok=True)  # an older version's Fig. 4: the report draws it now
     outputs = [path for paths in in_order(saved).values() for path in paths]
     outputs += write_tables(results, failed, cp.outputs, out_eval)
     quarantined = [{**entry, "file": str(out_models / f"{model}.joblib"),

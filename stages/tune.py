@@ -9,13 +9,14 @@ from pathlib import Path
 from typing import Any
 
 from pipeline import layout, store
-from pipeline.config import Params, Vehicle
+from pipeline.config import Params, Vehicle, coupled_skip_reason
 from pipeline.layout import EVALUATION, MODELS
 from pipeline.report.coupled import table2
+from pipeline.skips import clear_skip
 from pipeline.studies.coupled import model_inputs, rigid_body_uvr, tune_columns, tune_stage, tuning_block
 from pipeline.studies.coverage import study_coverage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
-from stages.common import StageResult, stage_main
+from stages.common import StageResult, skipped_result, stage_main
 
 log = logging.getLogger(__name__)
 NAME = "tune"
@@ -28,9 +29,15 @@ def hyperparameters_path(root: Path) -> Path:
 def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., Any] | None = None) -> StageResult:
     """Search SVR hyperparameters (coupled study, paper 000): on the train_test block, the rows the final models
     are fitted on (``coupled.tuning: nested``, the default), or on the tuning split (``split``, the papers').
-    ``progress``: each search's candidates (stages.common)."""
-    for directory in (Path(root) / MODELS / "coupled", Path(root) / EVALUATION / "coupled"):
+    ``progress``: each search's candidates (stages.common). A vehicle without the study's DOFs (a heave-only ROV)
+    skips it: :func:`pipeline.config.coupled_skip_reason`, :mod:`pipeline.skips`."""
+    directories = [Path(root) / MODELS / "coupled", Path(root) / EVALUATION / "coupled"]
+    for directory in directories:
         remove_stale_temps(directory)
+    reason = coupled_skip_reason(vehicle, params)
+    if reason is not None:
+        return skipped_result(NAME, directories, ("tune", "train"), reason)
+    clear_skip(directories)
     cp = params.coupled
     coverage = write_json(_coverage(root, vehicle, params), layout.coverage_path(root))
     columns = tune_columns(cp, set(store.dataset(root).schema.names))

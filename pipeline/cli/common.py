@@ -82,6 +82,9 @@ def print_stage(stage: str, result: Any, seconds: float) -> None:
     if result is None:
         print(f"[{stage}] ...", flush=True)
         return
+    if result.summary.get("skipped"):
+        print(f"[{stage}] skipped: {result.summary['skipped']}", flush=True)
+        return
     line = f"[{stage}] {len(result.outputs)} output(s) in {seconds:.1f} s"
     if result.quarantined:
         line += f", {len(result.quarantined)} quarantined"

@@ -59,6 +59,11 @@ def _summary(command: str, stages: list[str], results: list[Any], seconds: float
             parts.append(f"{r.stage}: {len(names)} quarantined ({', '.join(names)})")
         if salvaged(r):
             parts.append(f"{r.stage}: {len(salvaged(r))} salvaged ({', '.join(salvaged(r))})")
+    skipped: dict[str, list[str]] = {}
+    for r in results:
+        if r.summary.get("skipped"):
+            skipped.setdefault(str(r.summary["skipped"]), []).append(r.stage)
+    parts += [f"{', '.join(names)} skipped: {reason}" for reason, names in skipped.items()]
     if report is not None:
         parts.append(f"report: {report}")
     status = "done" if code == EXIT_OK else "done with quarantined inputs or failed models"
@@ -109,8 +114,10 @@ def _check_model_columns(args: argparse.Namespace, stages: list[str], vehicle: A
     """``coupled.inputs`` / ``coupled.outputs`` naming a column the feature store will not have, found before the
     first stage runs (the tune stage refused it only after ingest .. features), naming the store's columns. The
     store's columns are known from the vehicle config and the differentiate method (:func:`store_columns`)."""
-    if "tune" not in stages and "train" not in stages:
-        return
+    from pipeline.config import coupled_skip_reason
+
+    if "tune" not in stages and "train" not in stages or coupled_skip_reason(vehicle, params) is not None:
+        return  # the stages skip the study (and say why)
     from pipeline.store import store_columns
 
     columns = [c for c in store_columns(vehicle, params.differentiate.method) if c != "split"]
@@ -122,13 +129,17 @@ def _check_model_columns(args: argparse.Namespace, stages: list[str], vehicle: A
                               f"{columns}", file=_params_file(args), field=f"coupled.{key}")
 
 
-def _check_test_trials(args: argparse.Namespace, stages: list[str], params: Any) -> None:
+def _check_test_trials(args: argparse.Namespace, stages: list[str], vehicle: Any, params: Any) -> None:
     """Config errors in ``features.test_trials`` found before the first stage runs, naming the trials there are: a
     name that matches none of the run's trials (the features stage would find it only after ingest..derive), and
     none at all in a run that reaches the simulate stage (which rolls the models out on an unseen trial: it would
-    fail after the model stages' minutes)."""
+    fail after the model stages' minutes) unless the vehicle has only the decoupled study (a heave-only ROV:
+    simulate then skips, saying why)."""
+    from pipeline.config import coupled_skip_reason
+
     where = _params_file(args)
-    if "simulate" in stages and not params.features.test_trials:
+    if ("simulate" in stages and not params.features.test_trials
+            and coupled_skip_reason(vehicle, params) is None):
         known = sorted(_known_trials(args, stages))
         raise ConfigError("features.test_trials is empty: the simulate stage rolls the models out on an unseen "
                           "trial; name one of this run's trials there" + (f" (its trials: {known})" if known else "")
@@ -148,7 +159,7 @@ def cmd_stages(args: argparse.Namespace, stages: list[str]) -> int:
     _check_inputs(args, stages)
     vehicle, params = _load(args, stages)
     params = _with_overrides(params, args)
-    _check_test_trials(args, stages, params)
+    _check_test_trials(args, stages, vehicle, params)
     _check_model_columns(args, stages, vehicle, params)
     logs = list(getattr(args, "logs", None) or []) or None
     start = time.perf_counter()

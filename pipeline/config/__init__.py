@@ -19,19 +19,27 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from pipeline.config.hashing import config_hash
-    from pipeline.config.loading import check_params_against_vehicle, load_params, load_vehicle, parse, todo_markers
+    from pipeline.config.loading import (
+        check_params_against_vehicle,
+        coupled_skip_reason,
+        load_params,
+        load_vehicle,
+        parse,
+        todo_markers,
+    )
     from pipeline.config.params import EXPLICIT_MODELS, Params
     from pipeline.config.schemas import write_schemas
     from pipeline.config.vehicle import THRUST_COLUMN, Vehicle, thrust_column
 
 #: Each exported name -> the submodule defining it.
-_WHERE = {"config_hash": "hashing", "check_params_against_vehicle": "loading", "load_params": "loading",
-          "load_vehicle": "loading", "parse": "loading", "todo_markers": "loading", "EXPLICIT_MODELS": "params",
-          "Params": "params", "write_schemas": "schemas", "THRUST_COLUMN": "vehicle", "Vehicle": "vehicle",
-          "thrust_column": "vehicle"}
+_WHERE = {"config_hash": "hashing", "check_params_against_vehicle": "loading", "coupled_skip_reason": "loading",
+          "load_params": "loading", "load_vehicle": "loading", "parse": "loading", "todo_markers": "loading",
+          "EXPLICIT_MODELS": "params", "Params": "params", "write_schemas": "schemas", "THRUST_COLUMN": "vehicle",
+          "Vehicle": "vehicle", "thrust_column": "vehicle"}
 
 __all__ = ["EXPLICIT_MODELS", "THRUST_COLUMN", "Params", "Vehicle", "check_params_against_vehicle", "config_hash",
-           "load_params", "load_vehicle", "parse", "thrust_column", "todo_markers", "write_schemas"]
+           "coupled_skip_reason", "load_params", "load_vehicle", "parse", "thrust_column", "todo_markers",
+           "write_schemas"]
 
 
 def __getattr__(name: str) -> Any:

@@ -14,9 +14,10 @@ from pipeline.config.params import EXPLICIT_MODELS, Params
 from pipeline.config.vehicle import THRUST_COLUMN, Vehicle, thrust_column
 from pipeline.config.yamlload import load_yaml
 from pipeline.errors import ConfigError
-from pipeline.vocabulary import VELOCITY
+from pipeline.vocabulary import DOFS, VELOCITY, acceleration_column
 
-__all__ = ["check_params_against_vehicle", "load_params", "load_vehicle", "parse", "todo_markers"]
+__all__ = ["check_params_against_vehicle", "coupled_skip_reason", "load_params", "load_vehicle", "parse",
+           "todo_markers"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -105,12 +106,29 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
     _warn_thrust_inputs(vehicle, params, params_path)
 
 
+def coupled_skip_reason(vehicle: Vehicle, params: Params) -> str | None:
+    """Why the coupled study (stages tune and train) has nothing to learn on this vehicle, or None when it runs:
+    its outputs (``coupled.outputs``, the accelerations u̇ v̇ ṙ by default) are all of DOFs the vehicle's sensors do
+    not measure (a heave-only ROV measures w alone; the others are 0 in its store). One measured output DOF is
+    enough for the study to run as configured."""
+    modelled = [d for d in DOFS if acceleration_column(d) in params.coupled.outputs]
+    measured = vehicle.sensors.dofs()
+    if not modelled or set(modelled) & set(measured):
+        return None
+    return (f"the vehicle {vehicle.name!r} has no {'/'.join(modelled)} DOFs (its sensors measure "
+            f"{', '.join(measured) or 'none'} only), and the coupled study needs them: it learns "
+            f"{', '.join(params.coupled.outputs)} (coupled.outputs) from their velocities; the damping of "
+            f"{', '.join(measured) or 'the measured DOFs'} is the decoupled stage's")
+
+
 def _warn_thrust_inputs(vehicle: Vehicle, params: Params, params_path: str | Path | None) -> None:
     """``coupled.inputs`` naming the thrust of a thruster the vehicle does not have (the default names DAGON's
     th1 th2 th3) is said when the configs load, not only when the tune stage, after ingest ... features, refuses
     it. A warning, not an error: a run that never reaches the coupled models must not be stopped by them."""
     if not set(params.coupled.models) - set(EXPLICIT_MODELS):
         return
+    if coupled_skip_reason(vehicle, params) is not None:
+        return  # the tune and train stages skip (and say why): their inputs do not matter
     columns = [thrust_column(t.name) for t in vehicle.thrusters]
     unknown = [c for c in params.coupled.inputs if THRUST_COLUMN.match(c) and c not in columns]
     if unknown:

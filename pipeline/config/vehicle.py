@@ -370,6 +370,12 @@ class Sensors(Frozen):
                 "`components: [z]`, allows)"))
         return self
 
+    def dofs(self) -> tuple[str, ...]:
+        """The body DOFs the sensors measure, in u v w p q r order: the velocity source's, then each rate given
+        (the others are 0 in the kinematics table; a heave-only ROV measures w alone)."""
+        rates = tuple(d for d, s in zip("pqr", (self.rates.p, self.rates.q, self.rates.r), strict=True) if s)
+        return self.linear_velocity().dofs + rates
+
     def linear_velocity(self) -> LinearVelocity:
         if self.dvl is not None:
             d = self.dvl

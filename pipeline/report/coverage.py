@@ -13,6 +13,7 @@ from typing import Any
 from pipeline import layout
 from pipeline.report import html as H
 from pipeline.report import verdicts
+from pipeline.skips import read_skip
 from pipeline.units import SUFFIXES
 
 log = logging.getLogger(__name__)
@@ -104,6 +105,10 @@ def _input_rows(entry: dict[str, Any]) -> list[dict[str, Any]]:
 def section(root: Path) -> tuple[str, str, set[str]]:
     """The section's HTML, the headline's warning (or ""), and the file used."""
     doc, rel = read(root)
+    skipped = read_skip(layout.coverage_path(root).parent) if doc is None else None
+    if skipped is not None:
+        return (f"<p class='muted'>No extrapolation diagnostics: the coupled study was skipped: "
+                f"{H.esc(skipped['skipped'])}.</p>", "", set())
     if doc is None:
         return ("<p class='muted'>No extrapolation diagnostics (data/evaluation/coupled/coverage.json: the tune "
                 "stage writes it).</p>", "", set())

@@ -16,7 +16,7 @@ from pipeline import layout
 from pipeline.report import figures, verdicts
 from pipeline.report import html as H
 from pipeline.report.rollout import bridging_figure
-from pipeline.report.studies import VELOCITY_UNIT, Part, dof_key, href, label, png, read
+from pipeline.report.studies import VELOCITY_UNIT, Part, dof_key, href, label, png, read, skipped_part
 
 
 def simulation_doc(root: Path) -> dict[str, Any]:
@@ -106,6 +106,9 @@ def _bridging_rows(rows: list[dict[str, Any]], marks: verdicts.Marks) -> list[di
 def section(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = None) -> Part:
     """The free runs and bridging of every unseen trial (``marks``: the verdicts on the models' free runs)."""
     marks = marks or {}
+    skipped = skipped_part(root, [layout.SIMULATION], "The free runs were")
+    if skipped is not None:
+        return skipped
     part = Part()
     used = part.used
     base = root / layout.SIMULATION

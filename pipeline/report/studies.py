@@ -19,6 +19,7 @@ from pipeline import layout
 from pipeline.report import coupled as report_coupled
 from pipeline.report import figures, verdicts
 from pipeline.report import html as H
+from pipeline.skips import SKIPPED, read_skip
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,8 @@ class Part:
     verdicts: list[str] = field(default_factory=list)  # "model on output (why)": failed, left out of "best"
     bands: list[str] = field(default_factory=list)  # "model: 2σ band over-confident on v (...)": marked only
     outputs: list[str] = field(default_factory=list)  # the coupled study's outputs
+    skipped: str = ""  # why the study's stages had nothing to do on this run (pipeline.skips), or ""
+    buoyancy: list[str] = field(default_factory=list)  # "B − W = 2.034 ± 0.044 N (1 SD) ...": heave with a constant
 
 
 def label(model: str) -> str:
@@ -306,7 +309,25 @@ def fold_figure(root: Path, t3: Any, outputs: Sequence[str], used: set[str], fig
     return H.image(data, "fold test R² per model", caption)
 
 
+def skipped_part(root: Path, directories: Sequence[str], what: str) -> Part | None:
+    """The section of a study whose stages skipped (the marker in the first of ``directories``, run-relative),
+    saying why; None when they ran."""
+    doc = read_skip(root / directories[0])
+    if doc is None:
+        return None
+    part = Part(skipped=doc["skipped"])
+    part.used |= {f"{d}/{SKIPPED}" for d in directories}
+    stages = [str(s) for s in doc.get("stages") or []]
+    named = f" (stage{'s' if len(stages) > 1 else ''} {', '.join(stages)})" if stages else ""
+    part.html = (f"<p class='warn'>{H.esc(what)} skipped{H.esc(named)}"
+                 + f": {H.esc(doc['skipped'])}.</p>" + H.links([(href(f"{directories[0]}/{SKIPPED}"), SKIPPED)]))
+    return part
+
+
 def coupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = None) -> Part:
+    skipped = skipped_part(root, [COUPLED, f"{layout.MODELS}/coupled"], "The coupled study (paper 000) was")
+    if skipped is not None:
+        return skipped
     part = Part()
     used = part.used
     hyper_doc = read(root, f"{layout.MODELS}/coupled/hyperparameters.json", used)
@@ -400,6 +421,8 @@ def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None =
                 curves.setdefault(dof, {})[label(model) + (" (failed)" if bad else "")] = r["learning_curve"]
             if verdicts.damping_train_failed(r):
                 part.verdicts.append(f"{label(model)} on {dof} (train R² {r['cv']['train_r2_mean']:.3g})")
+        part.buoyancy += [buoyancy_line(dof, model, r["net_buoyancy"]) for model, r in per_model.items()
+                          if isinstance(r, dict) and isinstance(r.get("net_buoyancy"), dict)]
         best = verdicts.best_damping(per_model, dof, marks)  # least squares, the reference, competes too
         ls = verdicts.number(((per_model.get("ls") or {}).get("cv") or {}).get("test_mae_mean")) if isinstance(
             per_model.get("ls"), dict) else None
@@ -409,6 +432,7 @@ def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None =
                                    "and its blocked-CV scores on the train_test rows; MAE of the damping d_i(ν_i); "
                                    "verdict: train R² below 0, a free run that failed on the DOF (left out of "
                                    "“best”) or a 2σ band outside 90–98 % coverage")]
+    parts += [f"<p class='box'>{H.esc(line)}</p>" for line in part.buoyancy]
     if failed:
         part.failed = [{"study": "decoupled", "model": f"{f['DOF']}/{f['model']}", "reason": f["reason"]}
                        for f in failed]
@@ -442,6 +466,21 @@ def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None =
     parts.append(H.links([(href(r), Path(r).name) for r in rels if (root / r).is_file()]))
     part.html = "".join(parts)
     return part
+
+
+def buoyancy_line(dof: str, model: str, b: dict[str, Any]) -> str:
+    """The net buoyancy a heave model with a constant found (``decoupled.intercept``; the study's
+    ``net_buoyancy``): B − W with its SD when the config's B − W is known, else the constant alone."""
+    sd = verdicts.number(b.get("sd_N"))
+    pm = "" if sd is None else f" ± {sd:.3f}"
+    const = verdicts.number(b.get("intercept_N"))
+    const_text = "—" if const is None else f"{const:.3f} N"
+    total, configured = verdicts.number(b.get("B_minus_W_N")), verdicts.number(b.get("configured_N"))
+    if total is None or configured is None:
+        return (f"Net buoyancy ({dof}, {label(model)} with a constant): the fitted constant {const_text}{pm} (1 SD); "
+                "B − W unknown: the vehicle config gives no weight and buoyancy to add it to.")
+    return (f"Net buoyancy ({dof}, {label(model)} with a constant): B − W = {total:.3f}{pm} N (1 SD), the vehicle "
+            f"config's {configured:.3f} N plus the fitted constant {const_text}; positive floats up.")
 
 
 def dof_key(dof: str) -> tuple[int, str]:

@@ -78,6 +78,9 @@ def headline(coupled_part: Part, decoupled_part: Part, sim_part: Part, quarantin
                               for h in sorted(decoupled_part.headline, key=lambda h: dof_key(h["dof"]))],
                              caption="Damping models (paper 001): per DOF the lowest CV test MAE among all models, "
                                      "least squares (the reference) included, and LS's beside it"))
+    parts += [f"<p>{H.esc(line)}</p>" for line in decoupled_part.buoyancy]
+    parts += [f"<p class='muted'>{H.esc(what)} skipped: {H.esc(p.skipped)}.</p>"
+              for what, p in (("Coupled models (paper 000)", coupled_part), ("Free runs", sim_part)) if p.skipped]
     failures = coupled_part.verdicts + decoupled_part.verdicts + sim_part.verdicts
     if failures:
         parts.append(f"<p class='warn'><b>Failed, left out of “best”:</b> {H.esc('; '.join(failures))}.</p>")
