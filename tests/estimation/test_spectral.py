@@ -17,7 +17,14 @@ import pytest
 from pipeline.config.params import DifferentiateParams
 from pipeline.errors import ConfigError
 from pipeline.estimation.smoother import Measurements, smooth
-from pipeline.estimation.spectral import PEAK_LIMIT, SHARE_LIMIT, band_limit, check_targets, spectrum
+from pipeline.estimation.spectral import (
+    PEAK_LIMIT,
+    SHARE_LIMIT,
+    band_limit,
+    check_targets,
+    remove_disturbances,
+    spectrum,
+)
 from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
 from pipeline.vocabulary import ACCELERATION, DAMPING_COLUMNS, DOFS, SMOOTH, TAU_COLUMNS, VELOCITY
 
@@ -179,3 +186,34 @@ def test_the_derive_stage_writes_the_check_beside_the_derived_table(ringing, tmp
     first = report_path(tmp_path, "zigzag1").read_bytes()
     stage.run(tmp_path, vehicle, Params())
     assert report_path(tmp_path, "zigzag1").read_bytes() == first
+
+
+def test_disturbances_are_removed_by_default_from_the_dof_that_carries_them(ringing) -> None:
+    """differentiate.disturbances: remove (the default): the ringing found in u̇ against the actuators is named
+    and removed from u alone by the check's low-pass (it lies well below 2.3 Hz); sway and yaw are untouched."""
+    table, known = ringing
+    params = DifferentiateParams()
+    assert params.disturbances == "remove"
+    cleaned, removed = remove_disturbances(table, params, ["n1_rpm"])
+    [found] = removed
+    assert found["dof"] == "u" and found["target"] == "udot_mps2"
+    assert found["frequency_hz"] == pytest.approx(RING_HZ, abs=0.02)
+    assert found["share"] == pytest.approx(known, abs=0.03)
+    assert found["max_hz"] is not None and found["max_hz"] < 0.8 * RING_HZ and found["notch_hz"] == []
+    assert "u̇ carried a narrow-band disturbance at 2.30 Hz" in found["text"]
+    assert found["columns"] == ["u_mps", "u_smooth_mps", "udot_mps2"]
+    for col in ("v_mps", "vdot_mps2", "r_radps", "rdot_radps2"):
+        assert np.array_equal(cleaned[col], table[col]), col
+    rep = check_targets(_with_damping(cleaned), "zigzag1", ["n1_rpm"])
+    assert rep["warnings"] == []
+    clean, _ = _trial(0, 0.0)
+    mid = slice(200, -200)
+    err = cleaned["udot_mps2"].to_numpy()[mid] - clean["udot_mps2"].to_numpy()[mid]
+    assert 1 - np.var(err) / np.var(clean["udot_mps2"].to_numpy()[mid]) > 0.95
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_clean_trial_loses_nothing_to_the_disturbance_removal(seed: int) -> None:
+    table, _ = _trial(seed, 0.0)
+    same, removed = remove_disturbances(table, DifferentiateParams(), ["n1_rpm"])
+    assert removed == [] and same is table
