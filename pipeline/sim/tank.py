@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.rk4 import rk4_step
+
 __all__ = ["M", "nudot", "simulate_zigzag", "steady_u"]
 
 #: The ship's mass matrix (rigid body plus added mass, diagonal), as the guide's ship.yaml gives it
@@ -33,6 +35,10 @@ def nudot(nu: np.ndarray, n_rpm: np.ndarray | float, delta: np.ndarray | float) 
     yaw = -1.0 * stern_Y - (m22 - m11) * u * v - (15 * r + 20 * r * np.abs(r))
     zero = np.zeros_like(surge)
     return np.stack([surge / m11, sway / m22, zero, zero, zero, yaw / m66], axis=-1)
+
+
+def _rhs(nu: np.ndarray, inputs: tuple[float, float]) -> np.ndarray:
+    return nudot(nu, *inputs)
 
 
 def steady_u(n_rpm: float) -> float:
@@ -85,13 +91,10 @@ def simulate_zigzag(seed: int, duration_s: float = 150.0, rudder_rate_degps: flo
                          np.rad2deg(r) + noise[3], np.rad2deg(delta), n_rpm / 60])
             acc = nudot(nu, n_rpm, delta)
             truth.append([acc[0], acc[1], acc[5]])
-        k1 = nudot(nu, n_rpm, delta)  # RK4 in nu, heading and position by the same steps
-        k2 = nudot(nu + h / 2 * k1, n_rpm, delta)
-        k3 = nudot(nu + h / 2 * k2, n_rpm, delta)
-        k4 = nudot(nu + h * k3, n_rpm, delta)
+        nu_next = rk4_step(_rhs, nu, (n_rpm, delta), h)  # heading and position from the step's start
         psi += h * nu[5]
         pos += h * np.array([nu[0] * np.cos(psi) - nu[1] * np.sin(psi), nu[0] * np.sin(psi) + nu[1] * np.cos(psi)])
-        nu = nu + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        nu = nu_next
     preamble = "Towing tank run, zig-zag 20°/20°\nship model 1:25\nrudder in °, heading in °\nunits: s m m/s °\n"
     body = "\n".join("  ".join([f"{row[0]:.3g}"] + [f"{x:.6f}" for x in row[1:]]) for row in rows)
     return preamble + body + "\n", np.array(truth)
