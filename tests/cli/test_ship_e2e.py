@@ -11,6 +11,7 @@ the first's envelope.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -78,6 +79,8 @@ def test_a_ship_zigzag_runs_from_raw_tables_to_coupled_models_with_rudder_and_pr
                          (derive_stage, {}), (features_stage, {})):
         result = stage.run(tmp_path, vehicle, params, **extra)
         assert not result.quarantined, (stage.NAME, result.quarantined)
+    for trial in ("z1", "z2"):  # a clean zig-zag: nothing taken for a disturbance and removed
+        assert json.loads(layout.estimation_report_path(tmp_path, trial).read_text())["disturbances"] == []
 
     rows = store.load(tmp_path)
     assert {"rudder_rad", "n_prop_rpm"} <= set(rows.columns)
