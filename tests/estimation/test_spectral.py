@@ -41,12 +41,12 @@ def _with_damping(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _trial(seed: int, amp_mps: float) -> tuple[pd.DataFrame, float]:
+def _trial(seed: int, amp_mps: float, ring_hz: float = RING_HZ) -> tuple[pd.DataFrame, float]:
     """The derived-like table of a 300-s trial with ``amp_mps`` of 2.3-Hz ringing on the measured surge, and the
     ringing's known share of the u̇ target's variance (the smoother is linear at its process noise, ungated)."""
     df = synthetic_trial(SyntheticPlant(), 300.0, 20.0, seed=seed)
     t = df["t_ns"].to_numpy()
-    ring = amp_mps * np.sin(2 * np.pi * RING_HZ * t / 1e9 + 0.3)
+    ring = amp_mps * np.sin(2 * np.pi * ring_hz * t / 1e9 + 0.3)
     out = df[["t_ns", "segment", "n1_rpm", "roll_rad", "pitch_rad", "yaw_rad", *(TAU_COLUMNS[d] for d in DOFS)]].copy()
     for j in range(len(DOFS)):
         out[VELOCITY[j]] = out[SMOOTH[j]] = out[ACCELERATION[j]] = 0.0
@@ -217,3 +217,18 @@ def test_a_clean_trial_loses_nothing_to_the_disturbance_removal(seed: int) -> No
     table, _ = _trial(seed, 0.0)
     same, removed = remove_disturbances(table, DifferentiateParams(), ["n1_rpm"])
     assert removed == [] and same is table
+
+
+def test_a_disturbance_next_to_the_band_is_notched_not_low_passed() -> None:
+    """At 0.8 Hz, just above the check's band (0.6 Hz here), the low-pass (1.25 times the band) would not clear the
+    peak: the remedy is a notch there, and u̇ ends no longer flagged and closer to the clean trial's."""
+    table, _ = _trial(0, 0.03, ring_hz=0.8)
+    cleaned, [found] = remove_disturbances(table, DifferentiateParams(), ["n1_rpm"])
+    assert found["max_hz"] is None and found["notch_hz"] == [pytest.approx(0.8, abs=0.02)]
+    assert "removed from u by notches at [0.8" in found["text"]
+    after = check_targets(cleaned, "zigzag1", ["n1_rpm"], targets="accelerations", log_warnings=False)
+    assert not after["dofs"]["u"]["targets"]["udot_mps2"]["flagged"]
+    clean = _trial(0, 0.0)[0]["udot_mps2"].to_numpy()[200:-200]
+    before_err = np.var(table["udot_mps2"].to_numpy()[200:-200] - clean)
+    after_err = np.var(cleaned["udot_mps2"].to_numpy()[200:-200] - clean)
+    assert after_err < 0.2 * before_err
