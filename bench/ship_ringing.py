@@ -11,9 +11,11 @@ differentiate.disturbances=keep``). ``auvid run --to train`` then runs in-proces
 
 Printed per seed: each target's R² against the truth over z2's feature rows; the **ceiling** (the true model at
 the same estimated inputs: u, v, r from the smoother, the logged propeller speed and rudder, against the same
-truth); each SVR's final R² against the truth and its gap to the ceiling; and the sentences the report shows: the
-disturbances the differentiate stage removed and the derive stage's spectral check. ``--quick`` adds the guide's quick-pass keys (3 folds, 6 candidates,
-300 tuning rows).
+truth); each model's final R² against the truth and its gap to the ceiling; and the sentences the report shows: the
+disturbances the differentiate stage removed and the derive stage's spectral check. ``--quick`` adds the guide's
+quick-pass keys (3 folds, 6 candidates, 300 tuning rows). ``--lift``: the rudder of ship.yaml gets a lift model
+of the simulator's rudder force (``control_surfaces[].lift``), so that tau carries it (with ``--set
+'coupled.models=[gertler_hagen, ...]'``).
 
     nice python bench/ship_ringing.py 0 1 2
     nice python bench/ship_ringing.py --set differentiate.disturbances=keep 0
@@ -70,14 +72,20 @@ def ship_params(overrides: dict[str, object], quick: bool = False) -> dict:
 
 
 def write_campaign(root: Path, seed: int, ring_mps: float, ring_hz: float, duration_s: float,
-                   params: dict) -> dict[str, np.ndarray]:
+                   params: dict, lift: bool = False) -> dict[str, np.ndarray]:
     """The raw tables of z1 and z2 under ``root/tank``, ship.yaml and params.yaml; the truths per trial."""
     truths = {}
     for k, trial in ((1, "z1"), (2, "z2")):
         text, truths[trial] = simulate_zigzag(10 * seed + k, duration_s, ring_mps=ring_mps, ring_hz=ring_hz)
         (root / "tank" / trial).mkdir(parents=True)
         (root / "tank" / trial / "run01.dat").write_bytes(text.encode("cp1252"))
-    (root / "ship.yaml").write_text(guide_block(GUIDE, "yaml", "# ship.yaml"))
+    vehicle = guide_block(GUIDE, "yaml", "# ship.yaml")
+    if lift:  # the simulator's rudder: 40 delta u|u| N at 1 m aft = 1/2 rho A C_La with A C_La = 0.08 m^2
+        rudder = "  - {name: rudder, angle_signal: rudder_rad}"
+        assert rudder in vehicle
+        vehicle = vehicle.replace(rudder, rudder[:-1] + ", lift: {area_m2: 0.032, lift_slope_per_rad: 2.5, "
+                                  "position_m: [-1.0, 0, 0], density_kg_m3: 1000.0}}")
+    (root / "ship.yaml").write_text(vehicle)
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     return truths
 
@@ -113,7 +121,7 @@ def one_seed(seed: int, args: argparse.Namespace, overrides: dict[str, object]) 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         truths = write_campaign(root, seed, args.ring_mps, args.ring_hz, args.duration,
-                                ship_params(overrides, args.quick))
+                                ship_params(overrides, args.quick), args.lift)
         run = root / "runs"
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
@@ -133,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ring-hz", type=float, default=2.0)
     parser.add_argument("--duration", type=float, default=150.0)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--lift", action="store_true", help="the rudder with its lift model in ship.yaml")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=YAML")
     args = parser.parse_args(argv)
     overrides = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
