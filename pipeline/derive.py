@@ -5,7 +5,8 @@
 - ``T_<thruster>_N``: thrust of each thruster (config order) from its input signal, by
   :func:`pipeline.physics.thrusts`: propeller speed (rpm; ``k n|n|`` or the interpolated thrust table), PWM (the
   table's PWM column) or a measured thrust (as it is);
-- ``tau_*``: generalized forces tau = B T (allocation matrix B);
+- ``tau_*``: generalized forces tau = B T (allocation matrix B), plus the force of each control surface with a
+  ``lift`` model (:func:`pipeline.physics.surface_forces`, from the smoothed velocities; not in tau's SD);
 - ``Mnudot_*`` = M nu_dot, ``Cnu_*`` = C(nu) nu, ``g_*`` = g(eta) from roll and pitch;
 - ``d_*`` = tau - M nu_dot - C(nu) nu - g(eta), the damping target.
 
@@ -86,6 +87,11 @@ def derive(kin: pd.DataFrame, vehicle: Vehicle) -> pd.DataFrame:
     M = physics.mass_matrix(vehicle)
     T = physics.thrusts(vehicle, speeds)
     tau = T @ physics.allocation_matrix(vehicle).T
+    lifting = [c for c in vehicle.control_surfaces if c.lift is not None]
+    if lifting:  # rudders and fins with a lift model: their force is part of tau
+        angles = np.column_stack([kin[c.angle_signal].to_numpy(dtype=float) if c.lift is not None
+                                  else np.zeros(len(kin)) for c in vehicle.control_surfaces])
+        tau = tau + physics.surface_forces(vehicle, nu, angles, T)
     m_nudot = nudot @ M.T
     c_nu = physics.coriolis_force(M, nu)
     g = physics.restoring_force(vehicle, attitude[:, 0], attitude[:, 1])

@@ -332,6 +332,39 @@ def generalized_forces(vehicle: Vehicle, speeds_rpm: np.ndarray) -> np.ndarray:
     return thrusts(vehicle, speeds_rpm) @ allocation_matrix(vehicle).T
 
 
+def surface_forces(vehicle: Vehicle, nu: np.ndarray, angles_rad: np.ndarray, thrusts_N: np.ndarray) -> np.ndarray:
+    """The generalized forces (n, 6) of the control surfaces that have a ``lift`` model; zero for the others.
+
+    Per surface at r = ``position_m``: the inflow along x, u_R = u + q z - r y, with U_R^2 = u_R^2 (plus
+    8 T / (rho pi D^2) of the thrust T of the thruster it sits ``behind``, when T > 0: momentum theory's far-wake
+    slipstream); the cross-flow along its axis, w_c = v + r x - p z (axis y) or w + p y - q x (axis z); the angle
+    of attack alpha = delta - atan2(w_c, U_R) (the cross-flow turns the inflow against a positive deflection); the
+    lift L = 1/2 rho A C_La alpha U_R^2 along the axis, and its moment r x L. Linear in alpha (no stall): keep the
+    angles within the lift slope's range. ``angles_rad`` (n, surfaces) and ``thrusts_N`` (n, thrusters) in config
+    order (Fossen 2011, *Handbook of Marine Craft Hydrodynamics and Motion Control*, §9.5, rudder forces)."""
+    nu = np.atleast_2d(np.asarray(nu, dtype=float))
+    out = np.zeros((nu.shape[0], 6))
+    u, v, w, p, q, r = nu.T
+    names = [t.name for t in vehicle.thrusters]
+    for i, surface in enumerate(vehicle.control_surfaces):
+        lift = surface.lift
+        if lift is None:
+            continue
+        x, y, z = lift.position_m
+        u_r = u + q * z - r * y
+        speed2 = u_r * u_r
+        if lift.behind is not None:
+            thrust = np.maximum(np.asarray(thrusts_N, dtype=float)[:, names.index(lift.behind)], 0.0)
+            speed2 = speed2 + 8.0 * thrust / (lift.density_kg_m3 * np.pi * float(lift.slipstream_diameter_m) ** 2)
+        cross = v + r * x - p * z if lift.axis == "y" else w + p * y - q * x
+        alpha = np.asarray(angles_rad, dtype=float)[:, i] - np.arctan2(cross, np.sqrt(speed2))
+        force = 0.5 * lift.density_kg_m3 * lift.area_m2 * lift.lift_slope_per_rad * alpha * speed2
+        axis = np.array([0.0, 1.0, 0.0]) if lift.axis == "y" else np.array([0.0, 0.0, 1.0])
+        out[:, :3] += force[:, None] * axis
+        out[:, 3:] += force[:, None] * np.cross([x, y, z], axis)
+    return out
+
+
 def damping_target(M: np.ndarray, tau: np.ndarray, nudot: np.ndarray, nu: np.ndarray, g: np.ndarray) -> np.ndarray:
     """d = tau - M nu_dot - C(nu) nu - g(eta), (n, 6)."""
     M = np.asarray(M, dtype=float)

@@ -46,6 +46,8 @@ def run(root: Path, vehicle: Vehicle, params: Params, trial: str | None = None) 
         write_json({"trial": name, **report}, layout.estimation_report_path(root, name))
         result.outputs += [target, layout.estimation_report_path(root, name)]
         result.summary[name] = {"samples": len(frame), "usable_fraction": round(report["usable_fraction"], 4)}
+        for found in report.get("disturbances", []):
+            log.warning("differentiate %s: %s", name, found["text"])
         log.info("differentiate %s: %d samples kept (%.0f %% of the grid)", name, len(frame),
                  100 * report["usable_fraction"])
     return result

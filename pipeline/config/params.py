@@ -163,6 +163,12 @@ class DifferentiateParams(Frozen):
         "segment to the velocities and accelerations on the grid, after the method (every method). The derive "
         "stage's spectral check (data/derived/<trial>.spectra.json, the report) names the frequency of a "
         "disturbance the actuators cannot have caused (a carriage or shaft vibration).")
+    disturbances: Literal["remove", "keep"] = Field(
+        "remove", description="remove: where the spectral check, run on each trial's accelerations against the "
+        "actuator signals, finds a narrow-band disturbance no actuator explains (a carriage or shaft vibration), "
+        "that DOF's velocities and acceleration are low-passed just above the actuators' band (or notched at the "
+        "peaks where the band reaches them); the estimation report and the run's report name it. keep: left as "
+        "they are (the derive stage's check still warns). Not applied when notch_hz or max_hz is set.")
     notch_width_hz: float = Field(0.2, ge=0.001, le=5.0, description="Each notch's -3 dB width (Hz, 0.001 to 5).")
     max_hz: float | None = Field(
         None, description="A band limit (Hz): a zero-phase 4th-order Butterworth low-pass applied with the "

@@ -134,13 +134,36 @@ class Thruster(Frozen):
         return "speed" if self.speed_signal is not None else "pwm" if self.pwm_signal is not None else "thrust"
 
 
+class SurfaceLift(Frozen):
+    """A rudder's or fin's lift, L = 1/2 rho A C_La alpha U_R^2, along ``axis`` at ``position_m``
+    (pipeline.physics.surface_forces; docs/models.md)."""
+
+    area_m2: float = Field(gt=0, le=1e3, description="Its planform area (m^2).")
+    lift_slope_per_rad: float = Field(gt=0, le=10.0, description="dC_L/d(alpha) per rad (a rudder of aspect ratio "
+                                      "1-2: about 2-3).")
+    position_m: Vec3 = Field(description="Its centre of pressure in the body frame (m).")
+    axis: Literal["y", "z"] = Field("y", description="The lift's body axis: y for a rudder, z for a diving plane; a "
+                                    "positive angle lifts along +axis.")
+    behind: str | None = Field(None, description="The thruster whose slipstream it sits in: its thrust T adds "
+                               "8 T / (rho pi D^2) to U_R^2 (momentum theory's far wake).")
+    slipstream_diameter_m: float | None = Field(None, gt=0, le=100.0, description="That propeller's diameter D (m).")
+    density_kg_m3: float = Field(1025.0, ge=900.0, le=1100.0, description="The water's density (kg/m^3).")
+
+    @model_validator(mode="after")
+    def _slipstream(self) -> SurfaceLift:
+        if (self.behind is None) != (self.slipstream_diameter_m is None):
+            raise ValueError("behind and slipstream_diameter_m go together: the thruster and its propeller's diameter")
+        return self
+
+
 class ControlSurface(Frozen):
     """A rudder, fin or plane: its deflection angle is an input of the learned models (raw, as a feature column);
-    it adds nothing to the generalized forces tau."""
+    with ``lift`` its force is added to the generalized forces tau, else it adds nothing to them."""
 
     name: str
     angle_signal: str = Field(description="Signal carrying the deflection angle (name it <name>_rad; ingest converts "
                               "`unit: deg`).")
+    lift: SurfaceLift | None = Field(None, description="Its lift model; none: the angle is a model input only.")
 
     @model_validator(mode="after")
     def _angle(self) -> ControlSurface:
@@ -523,6 +546,11 @@ class Vehicle(VehicleMethods, Frozen):
                 raise KeyedError(f"control_surfaces.{i}.angle_signal",
                                  f"control_surfaces[{i}].angle_signal {surface.angle_signal!r} is not a configured "
                                  f"signal; known: {sorted(known)}")
+            if surface.lift is not None and surface.lift.behind is not None and surface.lift.behind not in {
+                    t.name for t in self.thrusters}:
+                raise KeyedError(f"control_surfaces.{i}.lift.behind",
+                                 f"control_surfaces[{i}].lift.behind {surface.lift.behind!r} is not a thruster; "
+                                 f"thrusters: {[t.name for t in self.thrusters]}")
         parts: list[tuple[str, Thruster | ControlSurface]] = (
             [(f"thrusters.{i}", t) for i, t in enumerate(self.thrusters)]
             + [(f"control_surfaces.{i}", c) for i, c in enumerate(self.control_surfaces)])

@@ -10,7 +10,10 @@ the same pair (the contract: ``docs/contracts.md``):
   (:mod:`pipeline.estimation.gaussian`, :mod:`pipeline.estimation.savgol`).
 
 Then, where ``notch_hz`` or ``max_hz`` is set, :func:`pipeline.estimation.spectral.band_limit` filters the
-velocities and accelerations per segment (zero-phase), and the report's ``band_limit`` says what was applied.
+velocities and accelerations per segment (zero-phase), and the report's ``band_limit`` says what was applied;
+otherwise, by default (``disturbances: remove``), :func:`pipeline.estimation.spectral.remove_disturbances` removes
+the narrow-band disturbances the spectral check finds in an acceleration, and the report's ``disturbances`` names
+each (frequency, share, what was applied).
 """
 
 from __future__ import annotations
@@ -54,6 +57,10 @@ def differentiate(synced: pd.DataFrame, vehicle: Vehicle, params: DifferentiateP
     if params.notch_hz or params.max_hz is not None:  # the user's band limit, after any method, on the grid
         from pipeline.estimation.spectral import band_limit
         table, report["band_limit"] = band_limit(table, params)
+    elif params.disturbances == "remove":  # what no actuator explains, found and removed per DOF
+        from pipeline.estimation.spectral import remove_disturbances
+        actuators = vehicle.actuator_signals() if vehicle is not None else []
+        table, report["disturbances"] = remove_disturbances(table, params, actuators)
     return table, report
 
 

@@ -37,8 +37,8 @@ from pipeline.vocabulary import ACCELERATION, DAMPING_COLUMNS, DOFS, SMOOTH, TAU
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BAND_FACTOR", "INPUT_SHARE", "PEAK_LIMIT", "SHARE_LIMIT", "band_limit", "check_targets", "report_path",
-           "spectrum"]
+__all__ = ["BAND_FACTOR", "INPUT_SHARE", "PEAK_LIMIT", "SHARE_LIMIT", "band_limit", "check_targets",
+           "remove_disturbances", "report_path", "spectrum"]
 
 #: The input band: below it the DOF's inputs put all but this share of their variance
 INPUT_SHARE = 0.02
@@ -158,24 +158,32 @@ def _label(column: str) -> str:
     return column
 
 
+def _low_pass_hz(band_hz: float, peaks: list[dict[str, float]]) -> float | None:
+    """A low-pass between the band and the lowest peak: 1.25 times the band, in 0.1-Hz steps up; None where that
+    does not lie below 0.8 times the lowest peak."""
+    max_hz = math.ceil(12.5 * band_hz - 1e-9) / 10
+    return max_hz if not peaks or max_hz < 0.8 * min(p["frequency_hz"] for p in peaks) else None
+
+
 def _remedy(band_hz: float, peaks: list[dict[str, float]]) -> str:
     """The params keys that would remove what lies above the band: notches at the peaks, or a low-pass between
-    the band and the lowest peak (1.25 times the band, in 0.1-Hz steps up)."""
-    max_hz = math.ceil(12.5 * band_hz - 1e-9) / 10
+    the band and the lowest peak."""
+    max_hz = _low_pass_hz(band_hz, peaks)
     if peaks:
-        lowest = min(p["frequency_hz"] for p in peaks)
         notches = ", ".join(f"{p['frequency_hz']:.2f}" for p in sorted(peaks, key=lambda p: p["frequency_hz"]))
         advice = f"consider `differentiate.notch_hz: [{notches}]`"
-        return advice + (f" or `differentiate.max_hz: {max_hz:g}`" if max_hz < 0.8 * lowest else "")
+        return advice + (f" or `differentiate.max_hz: {max_hz:g}`" if max_hz is not None else "")
     return f"consider `differentiate.max_hz: {max_hz:g}` (or a smoother method)"
 
 
-def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None = None) -> dict[str, Any]:
+def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None = None, *,
+                  targets: str = "all", log_warnings: bool = True) -> dict[str, Any]:
     """Per measured DOF, the band of its inputs and each target's share of variance above :data:`BAND_FACTOR` times
     it, and narrow-band peaks there; ``warnings``: one sentence per flagged target, with the remedy. The inputs of
     a DOF are its generalized force ``tau_<dof>`` and every column of ``actuators`` present (thrusts, actuator
     signals: through the coupling any actuator moves every DOF; a rudder the thrust map does not see), the widest
-    band of them."""
+    band of them. ``targets="accelerations"``: the accelerations alone (no damping target, no warning logged
+    unless ``log_warnings``)."""
     rows, dt_s = _segments(derived)
     out: dict[str, Any] = {"trial": trial, "grid_step_s": dt_s, "input_share": INPUT_SHARE,
                            "share_limit": SHARE_LIMIT, "peak_limit": PEAK_LIMIT, "dofs": {}, "warnings": []}
@@ -195,7 +203,7 @@ def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None
         band_hz = BAND_FACTOR * widest
         entry: dict[str, Any] = {"inputs": names, "input_band_hz": widest, "band_hz": band_hz,
                                  "input_share_above": _share_above(freq, psd, band_hz), "targets": {}}
-        for col in (acc, DAMPING_COLUMNS[dof]):
+        for col in (acc, DAMPING_COLUMNS[dof]) if targets == "all" else (acc,):
             if col not in derived.columns:
                 continue
             x = derived[col].to_numpy(dtype=float)
@@ -217,7 +225,8 @@ def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None
                 out["warnings"].append({"target": col, "share_above_band": share,
                                         "unexplained_above_band": unexplained, "band_hz": band_hz,
                                         "peak_hz": peaks[0]["frequency_hz"] if peaks else None, "text": text})
-                log.warning("%s", text)
+                if log_warnings:
+                    log.warning("%s", text)
         out["dofs"][dof] = entry
     return out
 
@@ -244,11 +253,12 @@ def _sos(params: DifferentiateParams, dt_s: float) -> tuple[np.ndarray, int]:
     return np.vstack(sections), int(math.ceil(3 * tau_s / dt_s))
 
 
-def band_limit(kin: pd.DataFrame, params: DifferentiateParams) -> tuple[pd.DataFrame, dict[str, Any]]:
+def band_limit(kin: pd.DataFrame, params: DifferentiateParams,
+               dofs: tuple[str, ...] = DOFS) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The kinematics table with ``params.notch_hz`` notches and the ``params.max_hz`` low-pass applied, zero-phase,
     per segment, to each DOF's velocity, smoothed velocity and acceleration; and what was applied. Unchanged (and
-    an empty report) when neither is set. SD columns are kept: filtering removes variance, so they stay an upper
-    bound."""
+    an empty report) when neither is set. ``dofs``: only these DOFs' columns. SD columns are kept: filtering
+    removes variance, so they stay an upper bound."""
     if not params.notch_hz and params.max_hz is None:
         return kin, {}
     from scipy import signal
@@ -256,7 +266,8 @@ def band_limit(kin: pd.DataFrame, params: DifferentiateParams) -> tuple[pd.DataF
     rows, dt_s = _segments(kin)
     sos, pad = _sos(params, dt_s)
     out = kin.copy()
-    columns = [c for c in (*VELOCITY, *SMOOTH, *ACCELERATION) if c in out.columns]
+    columns = [c for j, dof in enumerate(DOFS) if dof in dofs
+               for c in (VELOCITY[j], SMOOTH[j], ACCELERATION[j]) if c in out.columns]
     for col in columns:
         x = out[col].to_numpy(dtype=float).copy()
         for r in rows:
@@ -265,3 +276,36 @@ def band_limit(kin: pd.DataFrame, params: DifferentiateParams) -> tuple[pd.DataF
         out[col] = x
     return out, {"notch_hz": list(params.notch_hz), "notch_width_hz": params.notch_width_hz,
                  "max_hz": params.max_hz, "columns": columns}
+
+
+def remove_disturbances(kin: pd.DataFrame, params: DifferentiateParams,
+                        actuators: list[str]) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
+    """The kinematics table with each narrow-band disturbance the check finds in an acceleration removed from that
+    DOF's velocity, smoothed velocity and acceleration (``differentiate.disturbances: remove``, the default); and
+    one entry per DOF treated. A DOF is treated where its acceleration is flagged against ``actuators`` and holds
+    a peak above the band: by the check's low-pass (1.25 times the band) where it lies below the lowest peak, else
+    by notches at the peaks (``notch_width_hz`` wide). The low-pass first: the smoother fitted its process noise
+    to the disturbance too, so the target also carries broadband noise above the band that a notch leaves."""
+    try:
+        rep = check_targets(kin, "", actuators, targets="accelerations", log_warnings=False)
+    except SchemaError:  # no segment long enough for a spectrum: nothing to find
+        return kin, []
+    out, removed = kin, []
+    for dof, entry in rep["dofs"].items():
+        acc = ACCELERATION[DOFS.index(dof)]
+        found = entry["targets"][acc]
+        if not (found["flagged"] and found["peaks"]):
+            continue
+        max_hz = _low_pass_hz(entry["band_hz"], found["peaks"])
+        notches = [] if max_hz is not None else sorted(round(p["frequency_hz"], 2) for p in found["peaks"])
+        step = params.model_copy(update={"notch_hz": notches, "max_hz": max_hz})
+        out, applied = band_limit(out, step, dofs=(dof,))
+        peak = found["peaks"][0]
+        how = f"a {max_hz:g}-Hz low-pass" if max_hz is not None else f"notches at {notches} Hz"
+        removed.append({"dof": dof, "target": acc, "frequency_hz": peak["frequency_hz"], "share": peak["share"],
+                        "band_hz": entry["band_hz"], "max_hz": max_hz, "notch_hz": notches,
+                        "columns": applied["columns"],
+                        "text": (f"{_label(acc)} carried a narrow-band disturbance at {peak['frequency_hz']:.2f} Hz "
+                                 f"({100 * peak['share']:.0f} % of its variance) that no actuator explains: "
+                                 f"removed from {dof} by {how} (`differentiate.disturbances: keep` leaves it)")})
+    return out, removed

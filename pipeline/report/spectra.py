@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.estimation.spectral import report_path
+from pipeline.layout import estimation_report_path
 from pipeline.report import html as H
 from pipeline.report.names import signal_label
 
@@ -26,8 +27,10 @@ def _read(path: Path) -> dict[str, Any] | None:
 
 
 def section(root: Path, trials: list[str], metrics: dict[str, Any]) -> str:
-    """One table over every trial's targets, the warnings (with their remedy) above it; '' without any check."""
+    """One table over every trial's targets, the disturbances the differentiate stage removed and the check's
+    warnings (with their remedy) above it; '' without any check."""
     rows, warnings, limit, peak = [], [], 0.0, 0.0
+    removed = _removed(root, trials, metrics)
     for trial in trials:
         path = report_path(root, trial)
         doc = _read(path) if path.exists() else None
@@ -51,7 +54,7 @@ def section(root: Path, trials: list[str], metrics: dict[str, Any]) -> str:
     if not rows:
         return ""
     parts = ["<h3>Targets against what the actuators can do</h3>"]
-    parts += [f"<p class='warn'>{H.esc(text)}</p>" for text in warnings]
+    parts += [f"<p class='warn'>{H.esc(text)}</p>" for text in removed + warnings]
     parts.append(H.table(rows, caption=(
         "Each target's variance above twice the band where its inputs (its tau, the thrusts and actuator signals) "
         "put 98 % of theirs; a target is marked check where more than "
@@ -59,3 +62,17 @@ def section(root: Path, trials: list[str], metrics: dict[str, Any]) -> str:
         f"holds more than {100 * peak:.0f} % (a vibration the smoother passed on: differentiate.notch_hz / "
         "max_hz remove it; docs/estimation.md)")))
     return "".join(parts)
+
+
+def _removed(root: Path, trials: list[str], metrics: dict[str, Any]) -> list[str]:
+    """The differentiate stage's removed disturbances (``differentiate.disturbances: remove``), one sentence each;
+    ``metrics["disturbances_removed"]``: trial -> target -> frequency (Hz)."""
+    out = []
+    for trial in trials:
+        path = estimation_report_path(root, trial)
+        doc = _read(path) if path.exists() else None
+        for found in (doc or {}).get("disturbances") or []:
+            out.append(f"{trial}: {found.get('text', '')}")
+            metrics.setdefault("disturbances_removed", {}).setdefault(trial, {})[found.get("target", "")] = round(
+                float(found.get("frequency_hz", 0.0)), 4)
+    return out

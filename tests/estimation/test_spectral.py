@@ -17,7 +17,14 @@ import pytest
 from pipeline.config.params import DifferentiateParams
 from pipeline.errors import ConfigError
 from pipeline.estimation.smoother import Measurements, smooth
-from pipeline.estimation.spectral import PEAK_LIMIT, SHARE_LIMIT, band_limit, check_targets, spectrum
+from pipeline.estimation.spectral import (
+    PEAK_LIMIT,
+    SHARE_LIMIT,
+    band_limit,
+    check_targets,
+    remove_disturbances,
+    spectrum,
+)
 from pipeline.sim.synthetic import SyntheticPlant, synthetic_trial
 from pipeline.vocabulary import ACCELERATION, DAMPING_COLUMNS, DOFS, SMOOTH, TAU_COLUMNS, VELOCITY
 
@@ -34,12 +41,12 @@ def _with_damping(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _trial(seed: int, amp_mps: float) -> tuple[pd.DataFrame, float]:
+def _trial(seed: int, amp_mps: float, ring_hz: float = RING_HZ) -> tuple[pd.DataFrame, float]:
     """The derived-like table of a 300-s trial with ``amp_mps`` of 2.3-Hz ringing on the measured surge, and the
     ringing's known share of the u̇ target's variance (the smoother is linear at its process noise, ungated)."""
     df = synthetic_trial(SyntheticPlant(), 300.0, 20.0, seed=seed)
     t = df["t_ns"].to_numpy()
-    ring = amp_mps * np.sin(2 * np.pi * RING_HZ * t / 1e9 + 0.3)
+    ring = amp_mps * np.sin(2 * np.pi * ring_hz * t / 1e9 + 0.3)
     out = df[["t_ns", "segment", "n1_rpm", "roll_rad", "pitch_rad", "yaw_rad", *(TAU_COLUMNS[d] for d in DOFS)]].copy()
     for j in range(len(DOFS)):
         out[VELOCITY[j]] = out[SMOOTH[j]] = out[ACCELERATION[j]] = 0.0
@@ -179,3 +186,49 @@ def test_the_derive_stage_writes_the_check_beside_the_derived_table(ringing, tmp
     first = report_path(tmp_path, "zigzag1").read_bytes()
     stage.run(tmp_path, vehicle, Params())
     assert report_path(tmp_path, "zigzag1").read_bytes() == first
+
+
+def test_disturbances_are_removed_by_default_from_the_dof_that_carries_them(ringing) -> None:
+    """differentiate.disturbances: remove (the default): the ringing found in u̇ against the actuators is named
+    and removed from u alone by the check's low-pass (it lies well below 2.3 Hz); sway and yaw are untouched."""
+    table, known = ringing
+    params = DifferentiateParams()
+    assert params.disturbances == "remove"
+    cleaned, removed = remove_disturbances(table, params, ["n1_rpm"])
+    [found] = removed
+    assert found["dof"] == "u" and found["target"] == "udot_mps2"
+    assert found["frequency_hz"] == pytest.approx(RING_HZ, abs=0.02)
+    assert found["share"] == pytest.approx(known, abs=0.03)
+    assert found["max_hz"] is not None and found["max_hz"] < 0.8 * RING_HZ and found["notch_hz"] == []
+    assert "u̇ carried a narrow-band disturbance at 2.30 Hz" in found["text"]
+    assert found["columns"] == ["u_mps", "u_smooth_mps", "udot_mps2"]
+    for col in ("v_mps", "vdot_mps2", "r_radps", "rdot_radps2"):
+        assert np.array_equal(cleaned[col], table[col]), col
+    rep = check_targets(_with_damping(cleaned), "zigzag1", ["n1_rpm"])
+    assert rep["warnings"] == []
+    clean, _ = _trial(0, 0.0)
+    mid = slice(200, -200)
+    err = cleaned["udot_mps2"].to_numpy()[mid] - clean["udot_mps2"].to_numpy()[mid]
+    assert 1 - np.var(err) / np.var(clean["udot_mps2"].to_numpy()[mid]) > 0.95
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_clean_trial_loses_nothing_to_the_disturbance_removal(seed: int) -> None:
+    table, _ = _trial(seed, 0.0)
+    same, removed = remove_disturbances(table, DifferentiateParams(), ["n1_rpm"])
+    assert removed == [] and same is table
+
+
+def test_a_disturbance_next_to_the_band_is_notched_not_low_passed() -> None:
+    """At 0.8 Hz, just above the check's band (0.6 Hz here), the low-pass (1.25 times the band) would not clear the
+    peak: the remedy is a notch there, and u̇ ends no longer flagged and closer to the clean trial's."""
+    table, _ = _trial(0, 0.03, ring_hz=0.8)
+    cleaned, [found] = remove_disturbances(table, DifferentiateParams(), ["n1_rpm"])
+    assert found["max_hz"] is None and found["notch_hz"] == [pytest.approx(0.8, abs=0.02)]
+    assert "removed from u by notches at [0.8" in found["text"]
+    after = check_targets(cleaned, "zigzag1", ["n1_rpm"], targets="accelerations", log_warnings=False)
+    assert not after["dofs"]["u"]["targets"]["udot_mps2"]["flagged"]
+    clean = _trial(0, 0.0)[0]["udot_mps2"].to_numpy()[200:-200]
+    before_err = np.var(table["udot_mps2"].to_numpy()[200:-200] - clean)
+    after_err = np.var(cleaned["udot_mps2"].to_numpy()[200:-200] - clean)
+    assert after_err < 0.2 * before_err
