@@ -13,8 +13,8 @@ Printed per seed: each target's R² against the truth over z2's feature rows; th
 the same estimated inputs: u, v, r from the smoother, the logged propeller speed and rudder, against the same
 truth); each model's final R² against the truth and its gap to the ceiling; and the sentences the report shows: the
 disturbances the differentiate stage removed and the derive stage's spectral check. ``--quick`` adds the guide's
-quick-pass keys (3 folds, 6 candidates, 300 tuning rows). ``--lift``: the rudder of ship.yaml gets a lift model
-of the simulator's rudder force (``control_surfaces[].lift``), so that tau carries it (with ``--set
+quick-pass keys (3 folds, 6 candidates, 300 tuning rows). The guide's rudder has a lift model of the simulator's rudder
+force (``control_surfaces[].lift``), so that tau carries it; ``--no-lift`` drops it (compare with ``--set
 'coupled.models=[gertler_hagen, ...]'``).
 
     nice python bench/ship_ringing.py 0 1 2
@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import io
 import json
+import re
 import sys
 import tempfile
 import time
@@ -72,7 +73,7 @@ def ship_params(overrides: dict[str, object], quick: bool = False) -> dict:
 
 
 def write_campaign(root: Path, seed: int, ring_mps: float, ring_hz: float, duration_s: float,
-                   params: dict, lift: bool = False) -> dict[str, np.ndarray]:
+                   params: dict, lift: bool = True) -> dict[str, np.ndarray]:
     """The raw tables of z1 and z2 under ``root/tank``, ship.yaml and params.yaml; the truths per trial."""
     truths = {}
     for k, trial in ((1, "z1"), (2, "z2")):
@@ -80,11 +81,12 @@ def write_campaign(root: Path, seed: int, ring_mps: float, ring_hz: float, durat
         (root / "tank" / trial).mkdir(parents=True)
         (root / "tank" / trial / "run01.dat").write_bytes(text.encode("cp1252"))
     vehicle = guide_block(GUIDE, "yaml", "# ship.yaml")
-    if lift:  # the simulator's rudder: 40 delta u|u| N at 1 m aft = 1/2 rho A C_La with A C_La = 0.08 m^2
-        rudder = "  - {name: rudder, angle_signal: rudder_rad}"
-        assert rudder in vehicle
-        vehicle = vehicle.replace(rudder, rudder[:-1] + ", lift: {area_m2: 0.032, lift_slope_per_rad: 2.5, "
-                                  "position_m: [-1.0, 0, 0], density_kg_m3: 1000.0}}")
+    # the guide's rudder has the simulator's force as its lift model: 40 delta u|u| N at 1 m aft = 1/2 rho A C_La
+    # with A C_La = 0.08 m^2; --no-lift drops it (the rudder an input of the learned models only)
+    plain, lifted = re.subn(r",\n\s+lift: \{[^}]*\}\}", "}", vehicle)
+    assert lifted == 1, "the guide's ship.yaml has no rudder lift model"
+    if not lift:
+        vehicle = plain
     (root / "ship.yaml").write_text(vehicle)
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     return truths
@@ -141,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ring-hz", type=float, default=2.0)
     parser.add_argument("--duration", type=float, default=150.0)
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--lift", action="store_true", help="the rudder with its lift model in ship.yaml")
+    parser.add_argument("--no-lift", dest="lift", action="store_false",
+                        help="the rudder without the lift model the guide's ship.yaml gives it")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=YAML")
     args = parser.parse_args(argv)
     overrides = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from pipeline import layout, physics, registry
-from pipeline.config import Params, Vehicle, config_hash, load_params, load_vehicle
+from pipeline.config import Params, Vehicle, config_hash, load_params, load_vehicle, measured_dofs
 from pipeline.errors import ModelError
 from pipeline.rollout import CoupledDynamics, DecoupledDynamics, rollout
 from pipeline.vocabulary import TAU_COLUMNS, VELOCITY_COLUMNS, acceleration_column
@@ -239,7 +239,7 @@ def _configs(run: Path, vehicle: str | Path | Vehicle | None, params: str | Path
         if vehicle is not None and found is None:
             raise LoadError("vehicle config not found", file=vehicle)
         vehicle = load_vehicle(found) if found is not None else None
-    return vehicle, params
+    return vehicle, params if vehicle is None else measured_dofs(vehicle, params)
 
 
 def load(root_or_version: str | Path, *, version: str | None = None, alias: str | None = None,

@@ -37,7 +37,7 @@ from typing import Any
 import yaml
 
 from pipeline import __version__, layout, registry
-from pipeline.config import Params, config_hash, load_params, load_vehicle, parse
+from pipeline.config import Params, config_hash, load_params, load_vehicle, measured_dofs, parse
 from pipeline.config.checks import SAFE_NAME, SAFE_NAME_RULE
 from pipeline.errors import PipelineError
 from pipeline.registry import LOCK_FILE, LockBusy, exclusive_lock
@@ -241,7 +241,7 @@ def _retrain_locked(options: RetrainOptions, root: Path) -> RetrainOutcome:
     _cleanup(root, data)
     vehicle = load_vehicle(options.vehicle_path)
     params_path = options.params_path or (root / "params.yaml" if (root / "params.yaml").exists() else None)
-    params = load_params(params_path)
+    params = measured_dofs(vehicle, load_params(params_path), params_path)
 
     skipped: list[dict[str, Any]] = []
     hashes = {p: file_sha256(p) for p in inbox_logs(options.inbox, skipped)}

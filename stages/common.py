@@ -85,19 +85,20 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 def load_configs(root: Path, vehicle_path: Path, params_path: Path | None, *,
                  snapshot: bool = False) -> tuple[Vehicle, Params]:
     """The vehicle config and params (default: ``<root>/params.yaml`` if there), validated and checked against each
-    other. ``snapshot`` (a run of ingest alone): files validated before by the same code are read back from their
-    snapshot, without pydantic (:mod:`pipeline.config.snapshot`); ingest takes the views as it takes the models."""
+    other; ``decoupled.dofs`` those the vehicle measures (:func:`pipeline.config.measured_dofs`). ``snapshot`` (a
+    run of ingest alone): files validated before by the same code are read back from their snapshot, without
+    pydantic (:mod:`pipeline.config.snapshot`); ingest takes the views as it takes the models."""
     if params_path is None and (root / "params.yaml").exists():
         params_path = root / "params.yaml"
     if snapshot:
         from pipeline.config.snapshot import load_for_ingest
 
         return load_for_ingest(vehicle_path, params_path)
-    from pipeline.config import check_params_against_vehicle, load_params, load_vehicle
+    from pipeline.config import check_params_against_vehicle, load_params, load_vehicle, measured_dofs
 
     vehicle, params = load_vehicle(vehicle_path), load_params(params_path)
     check_params_against_vehicle(vehicle, params, params_path)
-    return vehicle, params
+    return vehicle, measured_dofs(vehicle, params, params_path)
 
 
 def stage_main(name: str, run: Callable[..., StageResult], argv: list[str] | None = None,

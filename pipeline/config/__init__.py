@@ -24,6 +24,7 @@ if TYPE_CHECKING:
         coupled_skip_reason,
         load_params,
         load_vehicle,
+        measured_dofs,
         parse,
         todo_markers,
     )
@@ -33,13 +34,13 @@ if TYPE_CHECKING:
 
 #: Each exported name -> the submodule defining it.
 _WHERE = {"config_hash": "hashing", "check_params_against_vehicle": "loading", "coupled_skip_reason": "loading",
-          "load_params": "loading", "load_vehicle": "loading", "parse": "loading", "todo_markers": "loading",
-          "EXPLICIT_MODELS": "params", "Params": "params", "write_schemas": "schemas", "THRUST_COLUMN": "vehicle",
-          "Vehicle": "vehicle", "thrust_column": "vehicle"}
+          "load_params": "loading", "load_vehicle": "loading", "measured_dofs": "loading", "parse": "loading",
+          "todo_markers": "loading", "EXPLICIT_MODELS": "params", "Params": "params", "write_schemas": "schemas",
+          "THRUST_COLUMN": "vehicle", "Vehicle": "vehicle", "thrust_column": "vehicle"}
 
 __all__ = ["EXPLICIT_MODELS", "THRUST_COLUMN", "Params", "Vehicle", "check_params_against_vehicle", "config_hash",
-           "coupled_skip_reason", "load_params", "load_vehicle", "parse", "thrust_column", "todo_markers",
-           "write_schemas"]
+           "coupled_skip_reason", "load_params", "load_vehicle", "measured_dofs", "parse", "thrust_column",
+           "todo_markers", "write_schemas"]
 
 
 def __getattr__(name: str) -> Any:

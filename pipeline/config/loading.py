@@ -16,8 +16,8 @@ from pipeline.config.yamlload import load_yaml
 from pipeline.errors import ConfigError
 from pipeline.vocabulary import DOFS, VELOCITY, acceleration_column
 
-__all__ = ["check_params_against_vehicle", "coupled_skip_reason", "load_params", "load_vehicle", "parse",
-           "todo_markers"]
+__all__ = ["check_params_against_vehicle", "coupled_skip_reason", "load_params", "load_vehicle", "measured_dofs",
+           "parse", "todo_markers"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -104,6 +104,35 @@ def check_params_against_vehicle(vehicle: Vehicle, params: Params, params_path: 
             raise ConfigError(f"sync.{key} names {unknown}, which are not signals of the vehicle's streams; known: "
                               f"{sorted(known)}", file=params_path, field=f"sync.{key}.{unknown[0]}")
     _warn_thrust_inputs(vehicle, params, params_path)
+
+
+def measured_dofs(vehicle: Vehicle, params: Params, params_path: str | Path | None = None) -> Params:
+    """``params`` with ``decoupled.dofs`` the vehicle's sensors measure (a DOF they do not is 0 in its store, and
+    its damping would be fitted on a column of zeros). Left at its default (u v r, a horizontal vehicle's): the
+    default's DOFs the sensors measure, or, where the velocity source measures neither u nor v (a heave-only ROV's
+    depth), the DOFs it measures (w); logged when that differs from the default, and the params unchanged (the same
+    object) when not. Set by the user: a DOF the sensors do not measure is a ConfigError naming the key."""
+    p = params.decoupled
+    measured = vehicle.sensors.dofs()
+    if "dofs" in p.model_fields_set:
+        for i, dof in enumerate(p.dofs):
+            if dof not in measured:
+                raise ConfigError(f"decoupled.dofs names {dof}, which the vehicle {vehicle.name!r} does not measure "
+                                  f"(its sensors measure {', '.join(measured) or 'none'} only): its damping would be "
+                                  f"fitted on a column of zeros; list only measured DOFs", file=params_path,
+                                  field=f"decoupled.dofs.{i}")
+        return params
+    linear = vehicle.sensors.linear_velocity().dofs
+    dofs = [d for d in p.dofs if d in measured] if {"u", "v"} & set(linear) else list(linear)
+    if dofs == list(p.dofs):
+        return params
+    if not dofs:
+        raise ConfigError(f"the vehicle {vehicle.name!r} measures none of the decoupled study's DOFs: set "
+                          f"decoupled.dofs", file=params_path, field="decoupled.dofs")
+    log.info("decoupled.dofs left at its default (%s): the vehicle %r measures %s only, so the decoupled study "
+             "takes %s", ", ".join(p.dofs), vehicle.name, ", ".join(measured) or "none", ", ".join(dofs))
+    # model_copy marks dofs as set (the other keys keep their state), so a second call changes nothing
+    return params.model_copy(update={"decoupled": p.model_copy(update={"dofs": dofs})})
 
 
 def coupled_skip_reason(vehicle: Vehicle, params: Params) -> str | None:

@@ -86,6 +86,13 @@ def test_a_ship_zigzag_runs_from_raw_tables_to_coupled_models_with_rudder_and_pr
     assert {"rudder_rad", "n_prop_rpm"} <= set(rows.columns)
     assert rows["rudder_rad"].abs().max() == pytest.approx(np.deg2rad(20.0), rel=1e-6)
     assert rows["n_prop_rpm"].max() > 700  # rev/s converted at ingest
+    # the guide's rudder lift model reaches tau: 1/2 rho A C_La = 40 N/rad/(m/s)^2 at 1 m aft, the angle of attack
+    # the rudder angle less the cross-flow's v - r over u (the propeller pushes along x: no sway force, no moment)
+    u, v, r, delta = (rows[c].to_numpy() for c in ("u_mps", "v_mps", "r_radps", "rudder_rad"))
+    lift = 40.0 * (delta - np.arctan2(v - r, np.abs(u))) * u * u
+    assert np.std(lift) > 1.0  # the zig-zags' rudder force, not a constant
+    np.testing.assert_allclose(rows["tau_v_N"], lift, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(rows["tau_r_Nm"], -lift, rtol=1e-9, atol=1e-9)
     # the earth-frame rates were rotated into u, v: the accelerations match the simulator's truth
     for trial in ("z1", "z2"):
         part = rows[rows["trial"] == trial]
