@@ -78,36 +78,45 @@ def _segments(frame: pd.DataFrame) -> tuple[list[np.ndarray], float]:
 
 
 def _windows(x: np.ndarray, rows: list[np.ndarray], dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """The Hann-windowed FFTs of ``x`` (one row per window, every segment long enough), their frequencies (Hz) and
-    the scale that makes mean |X|^2 a one-sided PSD per Hz (bins 1..-2 doubled by the caller)."""
+    """The Hann-windowed FFTs of ``x`` (one row per window, every segment long enough; windows overlap by half),
+    their frequencies (Hz) and the scale that makes mean |X|^2 a one-sided PSD per Hz (bins 1..-2 doubled by the
+    caller). One FFT call per segment, over all its windows."""
     nper = min(int(round(WINDOW_S / dt_s)), max(len(r) for r in rows))
     window = np.hanning(nper)
+    step = max(nper // 2, 1)
     pieces = []
     for r in rows:
-        xs = x[r]
-        for start in range(0, len(r) - nper + 1, max(nper // 2, 1)):
-            piece = xs[start:start + nper]
-            pieces.append(np.fft.rfft((piece - piece.mean()) * window))
-    return np.asarray(pieces), np.fft.rfftfreq(nper, dt_s), 1.0 / (np.sum(window**2) / dt_s)
+        if len(r) < nper:
+            continue
+        frames = np.lib.stride_tricks.sliding_window_view(x[r], nper)[::step]
+        pieces.append(np.fft.rfft((frames - frames.mean(axis=1, keepdims=True)) * window, axis=1))
+    spec = np.concatenate(pieces) if pieces else np.zeros((0, nper // 2 + 1), dtype=complex)
+    return spec, np.fft.rfftfreq(nper, dt_s), 1.0 / (np.sum(window**2) / dt_s)
+
+
+def _psd(spec: np.ndarray, scale: float) -> np.ndarray:
+    psd = np.mean(np.abs(spec) ** 2, axis=0) * scale
+    psd[1:-1] *= 2  # one-sided
+    return psd
 
 
 def spectrum(x: np.ndarray, rows: list[np.ndarray], dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Welch power spectral density of ``x`` over the segments ``rows`` (frequencies in Hz, PSD per Hz)."""
     spec, freq, scale = _windows(x, rows, dt_s)
-    psd = np.mean(np.abs(spec) ** 2, axis=0) * scale
-    psd[1:-1] *= 2  # one-sided
-    return freq, psd
+    return freq, _psd(spec, scale)
+
+
+def _coherence(sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+    pxx, pyy = np.mean(np.abs(sx) ** 2, axis=0), np.mean(np.abs(sy) ** 2, axis=0)
+    pxy = np.abs(np.mean(sx * np.conj(sy), axis=0)) ** 2
+    den = pxx * pyy
+    return np.divide(pxy, den, out=np.zeros_like(den), where=den > 0)
 
 
 def coherence(x: np.ndarray, y: np.ndarray, rows: list[np.ndarray], dt_s: float) -> np.ndarray:
     """Welch magnitude-squared coherence of ``x`` and ``y`` per frequency bin: the share of x's power there that a
     linear filter of y explains (0 where either has none)."""
-    sx, _, _ = _windows(x, rows, dt_s)
-    sy, _, _ = _windows(y, rows, dt_s)
-    pxx, pyy = np.mean(np.abs(sx) ** 2, axis=0), np.mean(np.abs(sy) ** 2, axis=0)
-    pxy = np.abs(np.mean(sx * np.conj(sy), axis=0)) ** 2
-    den = pxx * pyy
-    return np.divide(pxy, den, out=np.zeros_like(den), where=den > 0)
+    return _coherence(_windows(x, rows, dt_s)[0], _windows(y, rows, dt_s)[0])
 
 
 def _band(freq: np.ndarray, psd: np.ndarray) -> float:
@@ -185,6 +194,7 @@ def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None
     band of them. ``targets="accelerations"``: the accelerations alone (no damping target, no warning logged
     unless ``log_warnings``)."""
     rows, dt_s = _segments(derived)
+    windows: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     out: dict[str, Any] = {"trial": trial, "grid_step_s": dt_s, "input_share": INPUT_SHARE,
                            "share_limit": SHARE_LIMIT, "peak_limit": PEAK_LIMIT, "dofs": {}, "warnings": []}
     for dof, acc in zip(DOFS, ACCELERATION, strict=True):
@@ -194,10 +204,13 @@ def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None
                  if c in derived.columns and np.ptp(derived[c].to_numpy(dtype=float)) > 0]
         if not names:
             continue
-        inputs = {name: derived[name].to_numpy(dtype=float) for name in names}
+        for name in names:  # each input's windows once per trial: every DOF shares the actuators
+            if name not in windows:
+                windows[name] = _windows(derived[name].to_numpy(dtype=float), rows, dt_s)
         bands = []
-        for name, x in inputs.items():
-            freq, psd = spectrum(x, rows, dt_s)
+        for name in names:
+            spec, freq, scale = windows[name]
+            psd = _psd(spec, scale)
             bands.append((_band(freq, psd), name, psd))
         widest, _, psd = max(bands, key=lambda b: b[0])
         band_hz = BAND_FACTOR * widest
@@ -206,9 +219,9 @@ def check_targets(derived: pd.DataFrame, trial: str, actuators: list[str] | None
         for col in (acc, DAMPING_COLUMNS[dof]) if targets == "all" else (acc,):
             if col not in derived.columns:
                 continue
-            x = derived[col].to_numpy(dtype=float)
-            freq, psd = spectrum(x, rows, dt_s)
-            explained = np.max([coherence(x, y, rows, dt_s) for y in inputs.values()], axis=0)
+            spec, freq, scale = _windows(derived[col].to_numpy(dtype=float), rows, dt_s)
+            psd = _psd(spec, scale)
+            explained = np.max([_coherence(spec, windows[name][0]) for name in names], axis=0)
             share = _share_above(freq, psd, band_hz)
             above = freq > band_hz  # the share of the target's whole variance above the band that no input explains
             unexplained = float((psd * (1.0 - explained))[above].sum() / psd[1:].sum()) if psd[1:].sum() > 0 else 0.0
