@@ -135,11 +135,12 @@ def _check_test_trials(args: argparse.Namespace, stages: list[str], vehicle: Any
     none at all in a run that reaches the simulate stage (which rolls the models out on an unseen trial: it would
     fail after the model stages' minutes) unless the vehicle has only the decoupled study (a heave-only ROV:
     simulate then skips, saying why)."""
-    from pipeline.config import coupled_skip_reason
-
     where = _params_file(args)
-    if ("simulate" in stages and not params.features.test_trials
-            and coupled_skip_reason(vehicle, params) is None):
+    if "simulate" in stages and not params.features.test_trials:
+        from pipeline.config import coupled_skip_reason  # pydantic's loading module: not on ingest's path
+
+        if coupled_skip_reason(vehicle, params) is not None:
+            return
         known = sorted(_known_trials(args, stages))
         raise ConfigError("features.test_trials is empty: the simulate stage rolls the models out on an unseen "
                           "trial; name one of this run's trials there" + (f" (its trials: {known})" if known else "")
