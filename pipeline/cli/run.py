@@ -114,9 +114,11 @@ def _check_model_columns(args: argparse.Namespace, stages: list[str], vehicle: A
     """``coupled.inputs`` / ``coupled.outputs`` naming a column the feature store will not have, found before the
     first stage runs (the tune stage refused it only after ingest .. features), naming the store's columns. The
     store's columns are known from the vehicle config and the differentiate method (:func:`store_columns`)."""
-    from pipeline.config import coupled_skip_reason
+    if "tune" not in stages and "train" not in stages:
+        return
+    from pipeline.config import coupled_skip_reason  # pydantic's loading module: not on ingest's path
 
-    if "tune" not in stages and "train" not in stages or coupled_skip_reason(vehicle, params) is not None:
+    if coupled_skip_reason(vehicle, params) is not None:
         return  # the stages skip the study (and say why)
     from pipeline.store import store_columns
 
