@@ -7,7 +7,8 @@ propeller inflow, which the static tau of the feature store does not carry). Fit
 then the residual model on ``(X_res, y - base.predict(X_base))`` of the same rows.
 
 Per output the residual is kept only where a blocked CV says it helps (:func:`residual_verdict`: the residual
-search's CV R² on the residual target above a threshold, by default 0, the score of a constant): elsewhere that
+search's CV R² on the residual target above a threshold, by default 0, the score of a constant, by more than its
+standard error over the folds): elsewhere that
 output is the base's prediction alone (``residual_outputs``, the outputs that keep it).
 
 With the coupled study's columns ``X = [u v r tau_u tau_v tau_r T1 T2 T3]`` (the union of the explicit and the SVR
@@ -33,37 +34,46 @@ log = logging.getLogger(__name__)
 __all__ = ["GrayBox", "kept_outputs", "residual_record", "residual_verdict", "residual_verdicts"]
 
 
-def residual_verdict(cv_r2: float | None, threshold: float | None) -> tuple[bool, str]:
+def residual_verdict(cv_r2: float | None, threshold: float | None, se: float | None = None) -> tuple[bool, str]:
     """Whether a gray box keeps its residual on an output, and why, from the residual search's blocked-CV R² on
-    the residual target: kept where it is above ``threshold`` (None: always kept, as is a residual with no score);
-    R² 0 is a constant's, so at or below 0 the CV says the residual is predicted no better than by its mean and the
-    base alone is the output."""
+    the residual target and its standard error over the folds (``se``; None: 0): kept where the R² exceeds
+    ``threshold`` by more than one SE (None: always kept, as is a residual with no score). R² 0 is a constant's;
+    the SE margin is there because the search keeps the best of its candidates, and on a residual of white noise
+    that best lands a little above 0 by chance (tests/models/test_graybox.py)."""
     if cv_r2 is None or threshold is None:
         return True, "kept" + ("" if cv_r2 is None else f" (CV R² {cv_r2:.3f})")
-    if cv_r2 > threshold:
-        return True, f"kept (CV R² {cv_r2:.3f})"
-    return False, f"dropped (CV R² {cv_r2:.3f} ≤ {threshold:g})"
+    se = 0.0 if se is None or not np.isfinite(se) else float(se)
+    score = f"CV R² {cv_r2:.3f} ± {se:.3f}"
+    if cv_r2 - se > threshold:
+        return True, f"kept ({score})"
+    return False, f"dropped ({score}: not above {threshold:g} by 1 SE)"
 
 
 def residual_record(search: Any, threshold: float | None) -> dict[str, Any]:
     """A residual search's chosen hyperparameters (``search``: its :class:`pipeline.models.search.SearchResult`)
-    with its blocked-CV R² on the residual (``residual_cv_r2``) and the verdict it gives (``residual``), as the
-    tuned hyperparameters of one gray-box output record them."""
-    return {**search.best_params, "residual_cv_r2": float(search.best_score),
-            "residual": residual_verdict(float(search.best_score), threshold)[1]}
+    with its blocked-CV R² on the residual (``residual_cv_r2``), that score's SE over the folds (``residual_cv_se``,
+    the chosen candidate's in the search's trace) and the verdict they give (``residual``), as the tuned
+    hyperparameters of one gray-box output record them."""
+    score = float(search.best_score)
+    chosen = [t for t in search.trace if t.get("score") == score]  # the chosen candidate's entry (last rung's)
+    se = float(chosen[-1].get("se", 0.0)) if chosen else 0.0
+    return {**search.best_params, "residual_cv_r2": score, "residual_cv_se": se,
+            "residual": residual_verdict(score, threshold, se)[1]}
 
 
 def residual_verdicts(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None
                       ) -> dict[str, str]:
     """Per output, :func:`residual_verdict`'s words for the ``residual_cv_r2`` the tuned ``hyper`` records
     (absent, as in files tuned before the rule: kept): the model card's ``residual``."""
-    return {out: residual_verdict(hyper[out].get("residual_cv_r2"), threshold)[1] for out in outputs}
+    return {out: residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))[1]
+            for out in outputs}
 
 
 def kept_outputs(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None) -> list[int]:
     """The outputs (indices into ``outputs``) whose residual is kept: :func:`residual_verdict` of each output's
     recorded ``residual_cv_r2`` (absent, as in files tuned before the rule: kept)."""
-    return [k for k, out in enumerate(outputs) if residual_verdict(hyper[out].get("residual_cv_r2"), threshold)[0]]
+    return [k for k, out in enumerate(outputs)
+            if residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))[0]]
 
 
 class GrayBox(RegressorMixin, BaseEstimator):
