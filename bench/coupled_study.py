@@ -184,6 +184,9 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
             out["failed"] = {m: v["failed"] for m, v in metrics.items() if isinstance(v, dict) and "failed" in v}
         else:
             fitted, out["failed"] = final_models(root, params, vehicle), {}
+        hyper = json.loads((root / "data/models/coupled/hyperparameters.json").read_text())["hyperparameters"]
+        out["residual"] = {m: {o: h.get("residual") for o, h in per_out.items()}  # a gray box's: kept or dropped
+                           for m, per_out in hyper.items() if any("residual" in h for h in per_out.values())}
         out["intervals"] = {}
         for model, (est, cols) in sorted(fitted.items()):
             pred = est.predict(test[cols].to_numpy(float))
@@ -251,6 +254,9 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
         mean = [np.mean([p[o] for p in per_seed]) for o in OUTPUTS]
         worst = [np.min([p[o] for p in per_seed]) for o in OUTPUTS]
         print(f"| {name} | " + " | ".join(f"{v:.3f}" for v in mean + worst) + " |")
+    for r in results:  # a gray box's residual per output: kept or dropped, with the CV R² that decided
+        for m, verdicts in (r.get("residual") or {}).items():
+            print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial s3's MEASURED targets inside each model's 90 % interval "
               "(one half-width: the method; normalized by the target's SD: the alternative), mean / worst over seeds")

@@ -278,6 +278,12 @@ class CoupledParams(Frozen):
     smooth_tolerance: float = Field(
         0.0, description="Fast search: pick the smoothest kernel (smallest gammas) scoring within this much "
         "tuning R² of the best (0: the best). Regularizes the choice on a short tuning block.", ge=0, le=1.0)
+    residual_min_cv_r2: float | None = Field(
+        0.0, description="Gray-box models: per output, the residual WDSE-SVR is kept only where its search's "
+        "blocked-CV R² on the base's residual is above this by more than its standard error over the folds (0: "
+        "better than a constant); elsewhere that output is "
+        "the explicit base alone. The nested CV's folds apply it to their own search's score. null: always kept "
+        "(docs/models.md, 'Gray box').", le=1.0)
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")

@@ -6,6 +6,11 @@ McFarland-Whitcomb, :mod:`pipeline.models.explicit`) carries the physics and ext
 propeller inflow, which the static tau of the feature store does not carry). Fit: the base on ``(X_base, y)``,
 then the residual model on ``(X_res, y - base.predict(X_base))`` of the same rows.
 
+Per output the residual is kept only where a blocked CV says it helps (:func:`residual_verdict`: the residual
+search's CV R² on the residual target above a threshold, by default 0, the score of a constant, by more than its
+standard error over the folds): elsewhere that
+output is the base's prediction alone (``residual_outputs``, the outputs that keep it).
+
 With the coupled study's columns ``X = [u v r tau_u tau_v tau_r T1 T2 T3]`` (the union of the explicit and the SVR
 inputs, velocities first, as the simulate stage needs), ``base_columns = (0..5)``, ``residual_columns =
 (0, 1, 2, 6, 7, 8)``.
@@ -26,23 +31,75 @@ from pipeline.models.svr import WDSESVR, PerOutputRegressor
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GrayBox"]
+__all__ = ["GrayBox", "kept_outputs", "residual_record", "residual_verdict", "residual_verdicts"]
+
+
+def residual_verdict(cv_r2: float | None, threshold: float | None, se: float | None = None) -> tuple[bool, str]:
+    """Whether a gray box keeps its residual on an output, and why, from the residual search's blocked-CV R² on
+    the residual target and its standard error over the folds (``se``; None: 0): kept where the R² exceeds
+    ``threshold`` by more than one SE (None: always kept, as is a residual with no score). R² 0 is a constant's;
+    the SE margin is there because the search keeps the best of its candidates, and on a residual of white noise
+    that best lands a little above 0 by chance (tests/models/test_graybox.py)."""
+    if cv_r2 is None or threshold is None:
+        return True, "kept" + ("" if cv_r2 is None else f" (CV R² {cv_r2:.3f})")
+    se = 0.0 if se is None or not np.isfinite(se) else float(se)
+    score = f"CV R² {cv_r2:.3f} ± {se:.3f}"
+    if cv_r2 - se > threshold:
+        return True, f"kept ({score})"
+    return False, f"dropped ({score}: not above {threshold:g} by 1 SE)"
+
+
+def residual_record(search: Any, threshold: float | None) -> dict[str, Any]:
+    """A residual search's chosen hyperparameters (``search``: its :class:`pipeline.models.search.SearchResult`)
+    with its blocked-CV R² on the residual (``residual_cv_r2``), that score's SE over the folds (``residual_cv_se``,
+    the chosen candidate's in the search's trace) and the verdict they give (``residual``), as the tuned
+    hyperparameters of one gray-box output record them."""
+    score = float(search.best_score)
+    chosen = [t for t in search.trace if t.get("score") == score]  # the chosen candidate's entry (last rung's)
+    se = float(chosen[-1].get("se", 0.0)) if chosen else 0.0
+    return {**search.best_params, "residual_cv_r2": score, "residual_cv_se": se,
+            "residual": residual_verdict(score, threshold, se)[1]}
+
+
+def residual_verdicts(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None
+                      ) -> dict[str, str]:
+    """Per output, :func:`residual_verdict`'s words for the ``residual_cv_r2`` the tuned ``hyper`` records
+    (absent, as in files tuned before the rule: kept): the model card's ``residual``."""
+    return {out: residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))[1]
+            for out in outputs}
+
+
+def kept_outputs(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None) -> list[int]:
+    """The outputs (indices into ``outputs``) whose residual is kept: :func:`residual_verdict` of each output's
+    recorded ``residual_cv_r2`` (absent, as in files tuned before the rule: kept)."""
+    return [k for k, out in enumerate(outputs)
+            if residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))[0]]
 
 
 class GrayBox(RegressorMixin, BaseEstimator):
     """Explicit ``base`` + ``residual`` regressor on the base's residual (3 outputs).
 
-    ``base=None``: ``McFarlandWhitcomb()``; ``residual=None``: a default WDSE-SVR per output;
-    ``base_columns=None``: the first 6 columns; ``residual_columns=None``: every column.
-    Fitted: ``base_`` and ``residual_`` (fitted clones).
+    ``base=None``: ``McFarlandWhitcomb()``; ``residual=None``: a default WDSE-SVR per kept output;
+    ``base_columns=None``: the first 6 columns; ``residual_columns=None``: every column; ``residual_outputs``: the
+    outputs (column indices of ``y``) whose residual is learnt, the others being the base's prediction alone (None:
+    every output; a given ``residual`` then has one output per kept output, in order).
+    Fitted: ``base_`` and ``residual_`` (fitted clones; ``residual_`` None where no output keeps a residual).
     """
 
     def __init__(self, base: Any = None, residual: Any = None, base_columns: Sequence[int] | None = None,
-                 residual_columns: Sequence[int] | None = None) -> None:
+                 residual_columns: Sequence[int] | None = None,
+                 residual_outputs: Sequence[int] | None = None) -> None:
         self.base = base
         self.residual = residual
         self.base_columns = base_columns
         self.residual_columns = residual_columns
+        self.residual_outputs = residual_outputs
+
+    def _kept(self, n_out: int) -> list[int]:
+        kept = list(range(n_out)) if self.residual_outputs is None else [int(k) for k in self.residual_outputs]
+        if any(not 0 <= k < n_out for k in kept) or len(set(kept)) != len(kept):
+            raise ValueError(f"GrayBox: residual_outputs {kept} not distinct outputs of y's {n_out}")
+        return kept
 
     def _columns(self, n_features: int) -> tuple[list[int], list[int]]:
         base = list(range(6)) if self.base_columns is None else [int(c) for c in self.base_columns]
@@ -58,35 +115,54 @@ class GrayBox(RegressorMixin, BaseEstimator):
         base = McFarlandWhitcomb() if self.base is None else self.base
         self.base_ = clone(base).fit(X[:, base_cols], y)
         resid = y - self.base_.predict(X[:, base_cols])
-        n_out = 1 if resid.ndim == 1 else resid.shape[1]
-        residual = PerOutputRegressor([WDSESVR() for _ in range(n_out)]) if self.residual is None else self.residual
-        self.residual_ = clone(residual).fit(X[:, res_cols], resid)
-        log.debug("GrayBox: base %s, residual RMS %s", type(self.base_).__name__,
-                  np.sqrt(np.mean(np.square(resid), axis=0)))
+        resid2 = resid.reshape(-1, 1) if resid.ndim == 1 else resid
+        self.kept_outputs_ = self._kept(resid2.shape[1])
+        self.residual_ = None
+        if self.kept_outputs_:
+            residual = (PerOutputRegressor([WDSESVR() for _ in self.kept_outputs_]) if self.residual is None
+                        else self.residual)
+            self.residual_ = clone(residual).fit(X[:, res_cols], resid2[:, self.kept_outputs_])
+        log.debug("GrayBox: base %s, residual RMS %s, residual kept on outputs %s", type(self.base_).__name__,
+                  np.sqrt(np.mean(np.square(resid), axis=0)), self.kept_outputs_)
         return self
 
+    def _add_residual(self, out: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """``out`` (the base's prediction) with the residual's added on the kept outputs; the others untouched."""
+        out = np.array(out, dtype=float)
+        view = out.reshape(len(out), -1)
+        view[:, self.kept_outputs_] += np.asarray(residual, dtype=float).reshape(len(out), -1)
+        return out
+
     def predict(self, X):
-        check_is_fitted(self, "residual_")
+        check_is_fitted(self, "kept_outputs_")
         X = validate_data(self, X, reset=False, dtype=np.float64)
         base_cols, res_cols = self._columns(X.shape[1])
-        return self.base_.predict(X[:, base_cols]) + self.residual_.predict(X[:, res_cols])
+        out = self.base_.predict(X[:, base_cols])
+        if self.residual_ is None:
+            return out
+        return self._add_residual(out, self.residual_.predict(X[:, res_cols]))
 
     def fast_predictor(self) -> Callable[[np.ndarray], np.ndarray] | None:
         """``predict`` of the fitted gray box as its parts' fast predictors (each part's ``fast_predictor()``:
         the explicit base's arithmetic and the residual SVRs' numpy sums, :meth:`PerOutputRegressor.fast_predictor`)
         without scikit-learn's per-call checks, for rollouts; equal to ``predict`` to float rounding. None before
         ``fit`` or where either part offers none."""
-        parts = [getattr(getattr(self, name, None), "fast_predictor", None) for name in ("base_", "residual_")]
+        if not hasattr(self, "kept_outputs_"):
+            return None
+        names = ("base_", "residual_") if self.residual_ is not None else ("base_",)
+        parts = [getattr(getattr(self, name, None), "fast_predictor", None) for name in names]
         if not all(callable(p) for p in parts):
             return None
-        base, residual = (p() for p in parts)
-        if base is None or residual is None:
+        fast = [p() for p in parts]
+        if any(f is None for f in fast):
             return None
+        base, residual = fast[0], (fast[1] if len(fast) > 1 else None)
         base_cols, res_cols = self._columns(self.n_features_in_)
 
         def predict(X: np.ndarray) -> np.ndarray:
             X = np.asarray(X, dtype=float)
-            return base(X[:, base_cols]) + residual(X[:, res_cols])
+            out = base(X[:, base_cols])
+            return out if residual is None else self._add_residual(out, residual(X[:, res_cols]))
 
         return predict
 

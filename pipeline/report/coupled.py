@@ -20,7 +20,9 @@ MODEL_LABELS = {"rbf_svr": "RBF-SVR", "two_weights_svr": "2-weights-SVR", "wdse_
 
 
 def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], inputs: Sequence[str]) -> str:
-    """Table II-like markdown: chosen hyperparameters per model and output (gammas on standardized inputs)."""
+    """Table II-like markdown: chosen hyperparameters per model and output (gammas on standardized inputs); a gray
+    box's residual kept or dropped per output, with the CV R² that decided (:func:`pipeline.models.graybox.
+    residual_verdict`)."""
     lines = ["| Regressor | Hyperparameter | " + " | ".join(outputs) + " |",
              "| --- | --- | " + " | ".join("---:" for _ in outputs) + " |"]
     for model, per_out in hyper.items():
@@ -36,6 +38,8 @@ def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], 
         for k, (name, vals) in enumerate(rows):
             label = MODEL_LABELS.get(model, model) if k == 0 else ""
             lines.append(f"| {label} | {name} | " + " | ".join(f"{v:.3g}" for v in vals) + " |")
+        if all("residual" in per_out[o] for o in outputs):  # a gray box: its residual kept or dropped per output
+            lines.append("|  | residual | " + " | ".join(per_out[o]["residual"] for o in outputs) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -157,7 +157,10 @@ def _table2(doc: dict[str, Any], outputs: Sequence[str], inputs: Sequence[str]) 
                          **{OUTPUT_LABELS.get(o, o): (per_out.get(o) or {}).get(name) for o in outputs}})
     return H.table(rows, caption="Table II — hyperparameters (paper 000): the SVRs' hyperparameters per output "
                                  "(γ on standardized inputs; C and ε in the output's unit; C as chosen on C_rows "
-                                 "rows, a fit on n rows uses C·(C_rows/n)^coupled.c_rate)")
+                                 "rows, a fit on n rows uses C·(C_rows/n)^coupled.c_rate); a gray box's "
+                                 "residual: kept on an output only where its search's blocked-CV R² on the "
+                                 "base's residual is above coupled.residual_min_cv_r2, else that output is the "
+                                 "base alone")
 
 
 def coupled_verdict(entry: Any, marks: verdicts.Marks | None, model: str, output: str | None = None) -> str:

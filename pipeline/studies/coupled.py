@@ -38,7 +38,7 @@ from pipeline.evaluate import (
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.fossen import Fossen3DOF
-from pipeline.models.graybox import GrayBox
+from pipeline.models.graybox import GrayBox, kept_outputs, residual_record, residual_verdicts
 from pipeline.models.manoeuvring import Abkowitz3DOF
 from pipeline.models.search import SVR_MODELS, SearchSettings, make_svr
 from pipeline.models.search_halving import fold_subset, search_rounds
@@ -152,11 +152,12 @@ def build_model(model: str, hyper: dict[str, Any] | None, params: CoupledParams,
         res_cols = [cols.index(c) for c in params.inputs]
         n_velocity = params.n_velocity_inputs()
         base = _explicit(GRAYBOX_MODELS[model], noise_std, train, rigid_body_mass, params)
-        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[out], n_velocity, params.c_rate,
-                                                max_rows=params.svr_max_rows) for out in params.outputs])
+        kept = kept_outputs(hyper, params.outputs, params.residual_min_cv_r2)  # where the CV says it helps
+        residual = PerOutputRegressor([make_svr("wdse_svr", hyper[params.outputs[k]], n_velocity, params.c_rate,
+                                                max_rows=params.svr_max_rows) for k in kept])
         n_base = len(_base_inputs(GRAYBOX_MODELS[model], params))
         return GrayBox(base=base, residual=residual, base_columns=tuple(range(n_base)),
-                       residual_columns=tuple(res_cols))
+                       residual_columns=tuple(res_cols), residual_outputs=tuple(kept))
     n_velocity = params.n_velocity_inputs()
     return PerOutputRegressor([make_svr(model, hyper[out], n_velocity, params.c_rate, max_rows=params.svr_max_rows)
                                for out in params.outputs])
@@ -251,7 +252,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
                 continue  # a gray box's residual keeps its WDSE; the simpler kernels were its warm starts
             name = owner or model
             log.info("tuned %s / %s: R2 %.4f with %d fits", name, out, res.best_score, res.n_fits)
-            hyper[name][out] = res.best_params
+            hyper[name][out] = res.best_params if owner is None else residual_record(res, params.residual_min_cv_r2)
             trace[name][out] = res.to_dict()
     for model in set(order) - set(wanted):  # warm starts only
         log.info("%s searched as the warm start of a richer kernel only", model)
@@ -295,7 +296,8 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
                               n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset,
                               iter_cap_ratio=params.iter_cap_ratio) for k, out in enumerate(params.outputs)]
     done = yield from gather(searches)  # the outputs' searches side by side: their rounds together
-    return ({out: res.best_params for out, res in zip(params.outputs, done, strict=True)},
+    return ({out: residual_record(res, params.residual_min_cv_r2) if model in GRAYBOX_MODELS else res.best_params
+             for out, res in zip(params.outputs, done, strict=True)},
             {out: res.to_dict() for out, res in zip(params.outputs, done, strict=True)})
 
 
@@ -539,6 +541,8 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
     if model not in EXPLICIT_MODELS:  # each SVR fitted on at most this many of the rows (evenly spaced in time)
         card["trained_on"]["svr_max_rows"] = params.svr_max_rows
     estimator = result["estimator"]
+    if model in GRAYBOX_MODELS:  # per output: its residual kept or dropped, and the CV R² that decided
+        card["residual"] = residual_verdicts(hyper[model], params.outputs, params.residual_min_cv_r2)
     if hasattr(estimator, "coefficients"):
         card["coefficients"] = estimator.coefficients()
     if hasattr(estimator, "selected_terms_"):  # fossen: the backward elimination's rounds

@@ -125,3 +125,102 @@ def test_nested_cv_folds_weight_the_gray_box_base_as_the_final_model(monkeypatch
         np.testing.assert_array_equal(np.asarray(fold_noise, float), np.asarray(expected, float))
     np.testing.assert_array_equal(np.asarray(out["graybox"]["estimator"].base_.noise_std, float),
                                   np.asarray(expected, float))
+
+
+# -- the residual kept per output only where the blocked CV says it helps (issue 33 item 3) ------------------------
+
+def _in_family_frame(extra: float, seed: int = 3) -> tuple:
+    """Rows of a synthetic trial whose targets are exactly a McFarland-Whitcomb model of its inputs plus white noise
+    (30 % of each target's SD), plus ``extra`` x SD(udot) x cos(2 u / SD(u)): a smooth term in u that the family
+    (odd in each velocity, no constant) cannot carry. Returns (tuning, train, test) blocks of one and the same
+    truth; the test block is another trial."""
+    from pipeline.models.explicit import McFarlandWhitcomb
+
+    params = CoupledParams(models=["mcfarland_whitcomb"])
+    cols = model_inputs("mcfarland_whitcomb", params)
+    src = synthetic_frame(900, rate_hz=2.0, seed=seed, noise=0.0)
+    truth = McFarlandWhitcomb(solver="ols").fit(src[cols].to_numpy(float), src[params.outputs].to_numpy(float))
+    blocks = []
+    for k, frame in enumerate((src, synthetic_frame(600, rate_hz=2.0, seed=seed + 1, noise=0.0, split="test",
+                                                    trial="syn02"))):
+        y = truth.predict(frame[cols].to_numpy(float))
+        sd = y.std(axis=0)
+        y[:, 0] += extra * sd[0] * np.cos(2.0 * frame["u_mps"].to_numpy() / src["u_mps"].std())
+        rng = np.random.default_rng(100 + k)
+        frame = frame.copy()
+        frame[params.outputs] = y + 0.3 * sd * rng.normal(size=y.shape)
+        blocks.append(frame)
+    src, test = blocks
+    return src[src["split"] == "tuning"], src[src["split"] == "train_test"], test
+
+
+def _fit_both(tuning, train, test, **kw):
+    """The gray box and its base McFarland-Whitcomb, tuned and built as the study does; their test predictions."""
+    params = CoupledParams(models=["graybox", "mcfarland_whitcomb"], max_evals=8, tuning_folds=3, **kw)
+    hyper, trace = tune(tuning, params)
+    pred = {}
+    for model in params.models:
+        cols = model_inputs(model, params)
+        est = build_model(model, hyper.get(model), params, train=train).fit(train[cols].to_numpy(float),
+                                                                            train[params.outputs].to_numpy(float))
+        pred[model] = (est, est.predict(test[cols].to_numpy(float)))
+    return params, hyper, trace, pred
+
+
+def test_a_residual_of_white_noise_is_dropped_and_the_gray_box_is_its_base():
+    """Truth exactly in the base's family plus white noise: the residual carries nothing to learn, its search's
+    blocked-CV R² is within one SE of 0 (the best of the search's candidates: a little above 0 by chance) on every
+    output, so every residual is dropped and the gray box predicts exactly what its base McFarland-Whitcomb
+    predicts, bit for bit; the tuned record says so."""
+    params, hyper, trace, pred = _fit_both(*_in_family_frame(extra=0.0))
+    gray = pred["graybox"][0]
+    for out in params.outputs:
+        rec = hyper["graybox"][out]
+        assert rec["residual_cv_r2"] == trace["graybox"][out]["best_score"], rec
+        assert rec["residual_cv_r2"] - rec["residual_cv_se"] <= 0.0 and rec["residual_cv_r2"] < 0.02, rec
+        assert rec["residual"] == (f"dropped (CV R² {rec['residual_cv_r2']:.3f} ± {rec['residual_cv_se']:.3f}: "
+                                   "not above 0 by 1 SE)")
+    assert gray.kept_outputs_ == [] and gray.residual_ is None
+    np.testing.assert_array_equal(pred["graybox"][1], pred["mcfarland_whitcomb"][1])
+    X = np.zeros((4, 9)) + 0.1
+    np.testing.assert_array_equal(gray.fast_predictor()(X), gray.base_.fast_predictor()(X[:, list(range(6))]))
+
+
+def test_a_smooth_residual_is_kept_where_it_is_and_beats_the_base():
+    """The same truth plus a smooth term in u on udot only: udot's residual search scores well above 0 and its
+    residual is kept; the gray box then beats its base on udot on the unseen trial, and on every output is at least
+    its base (the dropped outputs are the base's exact predictions)."""
+    tuning, train, test = _in_family_frame(extra=1.0)
+    params, hyper, _, pred = _fit_both(tuning, train, test)
+    gray = pred["graybox"][0]
+    cv = {o: hyper["graybox"][o]["residual_cv_r2"] for o in params.outputs}
+    assert cv["udot_mps2"] > 0.3 and 0 in gray.kept_outputs_, cv
+    rec = hyper["graybox"]["udot_mps2"]
+    assert rec["residual"] == f"kept (CV R² {cv['udot_mps2']:.3f} ± {rec['residual_cv_se']:.3f})"
+    y = test[params.outputs].to_numpy(float)
+    r2 = {m: np.array([s["r2"] for s in regression_scores(y, p, params.outputs).values()])
+          for m, (_, p) in pred.items()}
+    assert r2["graybox"][0] > r2["mcfarland_whitcomb"][0] + 0.1, r2
+    for k in set(range(3)) - set(gray.kept_outputs_):
+        np.testing.assert_array_equal(pred["graybox"][1][:, k], pred["mcfarland_whitcomb"][1][:, k])
+    # null threshold: every residual kept, whatever its score (the rule before issue 33)
+    always = build_model("graybox", hyper["graybox"], params.model_copy(update={"residual_min_cv_r2": None}))
+    assert always.residual_outputs == (0, 1, 2)
+
+
+def test_nested_folds_apply_the_rule_to_their_own_search():
+    """A nested CV fold's gray box keeps or drops each residual on its own local search's CV R² (recorded beside
+    its hyperparameters), not the tune stage's."""
+    from pipeline.studies.coupled import NestedTuned
+
+    tuning, train, _ = _in_family_frame(extra=0.0)
+    params = CoupledParams(models=["graybox"], max_evals=8, tuning_folds=3, fold_evals=3)
+    hyper, _ = tune(tuning, params)
+    start = {o: {**h, "residual_cv_r2": 1.0} for o, h in hyper["graybox"].items()}  # a stage that said "keep"
+    cols = model_inputs("graybox", params)
+    fold = NestedTuned("graybox", params, start=start).fit(train[cols].to_numpy(float),
+                                                           train[params.outputs].to_numpy(float))
+    own = {o: fold.search_[o]["best_score"] for o in params.outputs}
+    assert all(fold.hyperparameters_[o]["residual_cv_r2"] == own[o] for o in params.outputs)
+    se = {o: fold.hyperparameters_[o]["residual_cv_se"] for o in params.outputs}
+    assert fold.estimator_.kept_outputs_ == [k for k, o in enumerate(params.outputs) if own[o] - se[o] > 0], own

@@ -41,6 +41,6 @@ def test_ship_study_manoeuvring_family_and_its_gray_box():
     final = {m: np.array([out["results"][m]["final"][o]["r2"] for o in params.outputs])
              for m in params.models}
     assert np.all(final["abkowitz"] >= 0.9), final
-    assert np.all(final["graybox_abkowitz"] >= final["abkowitz"] - 0.002), final
+    assert np.all(final["graybox_abkowitz"] >= final["abkowitz"]), final  # each residual kept only where it helps
     base = out["results"]["abkowitz"]["estimator"]
     assert set(base.selected_terms_) >= {"Y_d", "Y_Td", "N_d", "N_Td", "X_T"}

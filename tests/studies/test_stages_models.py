@@ -73,6 +73,12 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
         assert all(len(e["sha256"]) == 64 for e in lineage)
         assert card["trained_on"]["trials"] == ["s1", "s2"] and card["scores"]["final_check_trials"] == ["s3"]
         assert card["versions"]["scikit-learn"] and hasattr(est, "predict")
+    # the gray box's card says per output whether its residual was kept, as the tuned record and the fit do
+    gray = hyper["hyperparameters"]["graybox"]
+    _, card = load_model(md / "graybox.joblib")
+    assert card["residual"] == {o: gray[o]["residual"] for o in gray}
+    kept = [k for k, o in enumerate(card["outputs"]) if card["residual"][o].startswith("kept")]
+    assert load_model(md / "graybox.joblib")[0].kept_outputs_ == kept
     metrics = res["train"].summary["metrics"]
     assert set(metrics) == set(MODELS)
     assert all(np.isfinite(v["final_r2"]) for m in metrics.values() for v in m.values())
