@@ -25,7 +25,7 @@ from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
 from pipeline.report.coupled import table3
 from pipeline.skips import clear_skip
-from pipeline.studies.coupled import metrics, rigid_body_uvr, train_columns, train_stage
+from pipeline.studies.coupled import rigid_body_uvr, train_columns, train_stage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, skipped_result, stage_main
 from stages.tune import hyperparameters_path
@@ -106,6 +106,20 @@ def write_tables(results: dict[str, Any], failed: dict[str, dict[str, str]], out
     return [out_eval / "table3.md", write_json(doc, out_eval / "table3.json"),
             write_json(folds, out_eval / "fold_scores.json"), write_json(timings, out_eval / "timings.json"),
             write_json(metrics(results, failed), out_eval / "metrics.json")]
+
+
+def metrics(results: dict[str, Any], failed: dict[str, dict[str, str]]) -> dict[str, Any]:
+    """metrics.json: per model and output the CV test R² (mean, SD) and the final check's, the 90 % interval's
+    typical half-width and its share of the test trials' targets inside; the failed models' reasons."""
+    out: dict[str, Any] = {
+        m: {o: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
+                "final_r2": (r["final"] or {}).get(o, {}).get("r2"),
+                "interval_half_width": (r.get("interval") or {}).get(o, {}).get("half_width"),
+                "final_interval_coverage": (r["final"] or {}).get(o, {}).get("interval_coverage")}
+            for o, s in r["summary"].items()}
+        for m, r in results.items()}
+    out.update({m: {"failed": f"{e['error']}: {e['reason']}"} for m, e in failed.items()})
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "noise_std_from", "rigid_body_uvr",
            "tune", "tune_local", "search_settings", "tuning_block", "tune_columns", "tune_stage",
-           "build_model", "model_inputs", "model_card", "metrics",
+           "build_model", "model_inputs", "model_card",
            "evaluate_models", "run_study", "train_columns", "train_stage"]
 
 #: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
@@ -557,20 +557,6 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
                               "free_run_cost": None if cost is None else {"wtls": cost[0], "refined": cost[1]},
                               "horizon_s": params.refine_horizon_s}
     return card
-
-
-def metrics(results: dict[str, Any], failed: dict[str, dict[str, str]]) -> dict[str, Any]:
-    """metrics.json: per model and output the CV test R² (mean, SD) and the final check's, the 90 % interval's
-    typical half-width and its share of the test trials' targets inside; the failed models' reasons."""
-    out: dict[str, Any] = {
-        m: {o: {"cv_test_r2": s["test_r2"]["mean"], "cv_test_r2_sd": s["test_r2"]["sd"],
-                "final_r2": (r["final"] or {}).get(o, {}).get("r2"),
-                "interval_half_width": (r.get("interval") or {}).get(o, {}).get("half_width"),
-                "final_interval_coverage": (r["final"] or {}).get(o, {}).get("interval_coverage")}
-            for o, s in r["summary"].items()}
-        for m, r in results.items()}
-    out.update({m: {"failed": f"{e['error']}: {e['reason']}"} for m, e in failed.items()})
-    return out
 
 
 def train_stage(train_test: pd.DataFrame, test: pd.DataFrame, tuning_keys: pd.DataFrame,
