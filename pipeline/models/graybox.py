@@ -8,8 +8,8 @@ then the residual model on ``(X_res, y - base.predict(X_base))`` of the same row
 
 Per output the residual is kept only where a blocked CV says it helps (:func:`residual_verdict`: the residual
 search's CV R² on the residual target above a threshold, by default 0, the score of a constant, by more than its
-standard error over the folds): elsewhere that
-output is the base's prediction alone (``residual_outputs``, the outputs that keep it).
+standard error over the folds): elsewhere that output is the base's prediction alone (``residual_outputs``, the
+outputs that keep it).
 
 With the coupled study's columns ``X = [u v r tau_u tau_v tau_r T1 T2 T3]`` (the union of the explicit and the SVR
 inputs, velocities first, as the simulate stage needs), ``base_columns = (0..5)``, ``residual_columns =
@@ -61,19 +61,23 @@ def residual_record(search: Any, threshold: float | None) -> dict[str, Any]:
             "residual": residual_verdict(score, threshold, se)[1]}
 
 
+def _recorded_verdicts(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None
+                       ) -> list[tuple[bool, str]]:
+    """:func:`residual_verdict` of each output's recorded ``residual_cv_r2`` and ``residual_cv_se`` (absent, as in
+    files tuned before the rule: kept)."""
+    return [residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))
+            for out in outputs]
+
+
 def residual_verdicts(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None
                       ) -> dict[str, str]:
-    """Per output, :func:`residual_verdict`'s words for the ``residual_cv_r2`` the tuned ``hyper`` records
-    (absent, as in files tuned before the rule: kept): the model card's ``residual``."""
-    return {out: residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))[1]
-            for out in outputs}
+    """Per output, the verdict's words for the tuned ``hyper``: the model card's ``residual``."""
+    return {out: why for out, (_, why) in zip(outputs, _recorded_verdicts(hyper, outputs, threshold), strict=True)}
 
 
 def kept_outputs(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None) -> list[int]:
-    """The outputs (indices into ``outputs``) whose residual is kept: :func:`residual_verdict` of each output's
-    recorded ``residual_cv_r2`` (absent, as in files tuned before the rule: kept)."""
-    return [k for k, out in enumerate(outputs)
-            if residual_verdict(hyper[out].get("residual_cv_r2"), threshold, hyper[out].get("residual_cv_se"))[0]]
+    """The outputs (indices into ``outputs``) whose residual the tuned ``hyper`` keeps."""
+    return [k for k, (kept, _) in enumerate(_recorded_verdicts(hyper, outputs, threshold)) if kept]
 
 
 class GrayBox(RegressorMixin, BaseEstimator):
