@@ -9,8 +9,8 @@ Two presets (``--preset``, default both): the simulator's default ("gentle": thr
 periods 6-45 s) and "hard" (one sine per thruster, periods 5-18 s, a tether-like disturbance, Hall-counter
 thruster speeds, rate-sensor biases), each with its own seeds (``pipeline.sim.PRESET_SEED_OFFSET``).
 Trials s1 and s2 are tuned and cross-validated on, s3 is the unseen test trial. They go through the real stages
-(ingest ... features, tune, train) with the repository's
-``params.yaml`` (the shipped defaults; ``--params`` for another file).
+(ingest ... features, tune, train) with the code's defaults, what a user gets (``--params FILE`` for
+others; the repository's ``params.yaml`` is the example's, sized for two cores, not the defaults).
 
 On the test trial every model's prediction is scored (R²) against the simulator's true accelerations, next to
 the **ceiling**: the simulator's true model evaluated at the same estimated inputs the models see (velocities
@@ -204,13 +204,14 @@ def main() -> None:
     ap.add_argument("--preset", nargs="+", choices=PRESETS, default=list(PRESETS),
                     help="simulator presets (default both: the gentle default and the hard one, each its own seeds)")
     ap.add_argument("--duration", type=float, default=480.0)
-    ap.add_argument("--params", type=Path, default=ROOT / "params.yaml")
+    ap.add_argument("--params", type=Path, default=None,
+                    help="a params file (default: none, the code's defaults; the test trial is always s3)")
     ap.add_argument("--models", nargs="+", default=None)
     ap.add_argument("--no-inflow", action="store_true",
                     help="no inflow loss (the truth's linear and cubic damping stay outside the explicit families)")
     ap.add_argument("--json", type=Path, default=None, help="also write the per-seed results here")
     ap.add_argument("--max-samples", type=int, default=None,
-                    help="coupled.max_samples for this run (the tuning subsample; default: the params file's)")
+                    help="coupled.max_samples for this run (the tuning subsample; default: the params')")
     ap.add_argument("--no-cv", action="store_true",
                     help="skip the train stage's CV folds: fit the final models as it does (same test scores)")
     ap.add_argument("--intervals", action="store_true",
@@ -222,7 +223,7 @@ def main() -> None:
         ap.error("--intervals needs the train stage's CV folds: drop --no-cv")
     if args.oracle and args.models and "wdse_svr" not in args.models:
         ap.error("--oracle bounds the WDSE-SVR: add wdse_svr to --models")
-    params = Params.model_validate(yaml.safe_load(args.params.read_text()) or {})
+    params = Params.model_validate(yaml.safe_load(args.params.read_text()) or {} if args.params else {})
     if args.max_samples is not None:
         params = params.model_copy(update={"coupled": params.coupled.model_copy(
             update={"max_samples": args.max_samples})})

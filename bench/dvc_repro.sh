@@ -20,7 +20,8 @@ echo "== 2. second dvc repro: nothing to do"
 dvc repro 2>&1 | tee "$scratch/second.log" | tail -3
 if grep -q "Running stage" "$scratch/second.log"; then echo "FAIL: second repro ran stages" >&2; exit 1; fi
 echo "== 3. change differentiate.gate_sigmas: only downstream reruns"
-sed -i 's/^  gate_sigmas: 5.0$/  gate_sigmas: 4.0/' params.yaml
+sed -i "s/^differentiate: {}$/differentiate: {gate_sigmas: 4.0}/" params.yaml
+grep -q "gate_sigmas: 4.0" params.yaml || { echo "FAIL: could not edit params.yaml" >&2; exit 1; }
 dvc repro 2>&1 | tee "$scratch/third.log" | grep -E "^Running stage" || true
 for stage in example ingest sync; do
     if grep -q "Running stage '$stage'" "$scratch/third.log"; then echo "FAIL: $stage reran" >&2; exit 1; fi

@@ -1,12 +1,12 @@
 """The embedded example: a DAGON-like vehicle simulated by ``pipeline.sim``, laid out as a run directory.
 
 ``prepare(out)`` writes ``out/data/raw/<trial>.mcap`` (the simulated trial logs), ``out/vehicle.yaml`` (the
-vehicle config the simulator wrote for its logs) and ``out/params.yaml`` (small, fast settings that still
-exercise every stage), and returns where they are. Both configs start with the ``# yaml-language-server:
-$schema=./<kind>.schema.json`` line that ``auvid init`` writes, naming a copy of the package's JSON Schema beside
-them (``out/vehicle.schema.json``, ``out/params.schema.json``), so that an editor validates and completes them
-wherever the run directory goes. ``auvid demo`` then runs the DAG on it; ``dvc.yaml``'s
-``example`` stage calls the same function for the repository's own run directory.
+vehicle config the simulator wrote for its logs) and ``out/params.yaml`` (what the example changes from the
+defaults: small, fast settings that still exercise every stage), and returns where they are. Both configs start
+with the ``# yaml-language-server: $schema=./<kind>.schema.json`` line that ``auvid init`` writes, naming a copy
+of the package's JSON Schema beside them (``out/vehicle.schema.json``, ``out/params.schema.json``), so that an
+editor validates and completes them wherever the run directory goes. ``auvid demo`` then runs the DAG on it;
+``dvc.yaml``'s ``example`` stage calls the same function for the repository's own run directory.
 """
 
 from __future__ import annotations
@@ -41,17 +41,16 @@ class DemoSetup:
 
 
 def demo_params(trials: list[str]) -> dict[str, Any]:
-    """Params for the example: every stage, every model, sized to finish in minutes on two cores."""
+    """What the example changes from the code's defaults (every key has one): a 10-Hz grid, the last trial held
+    out, and the studies and free runs sized to finish in minutes on two cores. Every stage and every model runs.
+    The repository's ``params.yaml`` holds the same keys (tests/cli/test_dvc.py checks it)."""
     test = [trials[-1]] if len(trials) >= 2 else []
     params = {
-        "ingest": {"salvage": True},
-        "sync": {"rate_hz": 10.0, "min_segment_s": 5.0},
-        "differentiate": {"method": "kalman"},
-        "features": {"tuning_fraction": 0.2, "test_trials": test},
-        "coupled": {"folds": 3, "search": "fast", "max_samples": 600, "seed": 0},
-        "decoupled": {"folds": 3, "search": "fast", "gp_max_samples": 200, "max_samples": 600, "curve_points": 3,
-                      "seed": 0},
-        "simulate": {"horizons_s": [1.0, 5.0, 10.0], "outage_windows_s": [10.0, 30.0], "band_samples": 8},
+        "sync": {"rate_hz": 10.0},
+        "features": {"test_trials": test},
+        "coupled": {"folds": 3},
+        "decoupled": {"folds": 3, "gp_max_samples": 200, "max_samples": 600, "curve_points": 3},
+        "simulate": {"outage_windows_s": [10.0, 30.0], "band_samples": 8},
     }
     # Keys another version of the params model does not know are left out (the model evolves per stage).
     for section, values in params.items():

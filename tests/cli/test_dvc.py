@@ -108,6 +108,22 @@ def test_params_keys_exist_in_the_schema_and_in_params_yaml() -> None:
                 assert section in params_doc, f"{full}: section {section!r} missing from params.yaml"
 
 
+def test_params_yaml_holds_only_what_the_example_changes() -> None:
+    """The repository's params.yaml is the example's: the keys ``auvid demo`` writes (none at its default), so a
+    benchmark or a DVC run from the repository runs the code's defaults wherever the example does not differ."""
+    from pipeline.demo import demo_params
+
+    doc = yaml.safe_load((REPO / "params.yaml").read_text())
+    trials = ["trial01", "trial02", "trial03"]
+    assert doc["features"]["test_trials"] == trials[-1:]
+    example = demo_params(trials)
+    assert {s: v for s, v in doc.items() if v} == example
+    defaults = Params().model_dump()
+    for section, values in doc.items():
+        for key, value in values.items():
+            assert value != defaults[section][key], f"params.yaml: {section}.{key} is the default ({value!r})"
+
+
 def test_deps_are_produced_upstream_or_tracked_inputs() -> None:
     produced: dict[str, str] = {}
     tracked = set(subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True,

@@ -26,7 +26,8 @@ from pipeline.errors import ConfigError
 from pipeline.sim.writers import csv_column
 
 ROOT = Path(__file__).resolve().parents[2]
-PARAMS: dict[str, Any] = yaml.safe_load((ROOT / "params.yaml").read_text(encoding="utf-8"))
+#: The example's params (the repository's params.yaml) with every key spelled out: the campaigns edit a whole config.
+PARAMS: dict[str, Any] = load_params(ROOT / "params.yaml").model_dump(mode="json")
 VEHICLE: dict[str, Any] = yaml.safe_load((ROOT / "pipeline" / "sim" / "dagon.yaml").read_text(encoding="utf-8"))
 VEHICLE["streams"]["tank"] = {"file": "tank.csv", "clock": "column", "optional": True,
                               "csv": {"time_column": "t", "skip_rows": 0, "encoding": "utf-8", "delimiter": ",",
