@@ -1,4 +1,4 @@
-"""A run of ``bench/long_trials.py`` (after ``auvid run``): its final SVRs and gray box with the tune stage at
+"""A run of ``bench/long_trials.py`` (after ``auvid run``): its final SVRs and gray boxes with the tune stage at
 ``coupled.max_samples`` 600 (the run's own) and 1200 (tuned again on a copy), R² on the unseen trial t2 against
 the differentiate targets and against the simulator's truth.
 
@@ -18,7 +18,7 @@ import pandas as pd
 from pipeline import store
 from pipeline.config import Params
 from pipeline.config.loading import load_vehicle
-from pipeline.studies.coupled import build_model, model_inputs
+from pipeline.studies.coupled import build_model, model_inputs, rigid_body_uvr
 from stages import tune
 
 OUT = ["udot_mps2", "vdot_mps2", "rdot_radps2"]
@@ -44,9 +44,10 @@ def main(src: Path, copy: Path) -> None:
         tt = store.load(root, split="train_test")
         te = store.load(root, split="test").sort_values("t_ns")
         a_true = truth.loc[te["t_ns"].to_numpy()][OUT].to_numpy()
-        for m in ("rbf_svr", "two_weights_svr", "wdse_svr", "graybox"):
+        for m in [m for m in cp.models if m in hyper]:  # the tuned ones: the SVRs and the gray boxes
             cols = model_inputs(m, cp)
-            est = build_model(m, hyper[m], cp, train=tt).fit(tt[cols].to_numpy(float), tt[OUT].to_numpy(float))
+            est = build_model(m, hyper[m], cp, train=tt, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
+            est.fit(tt[cols].to_numpy(float), tt[OUT].to_numpy(float))
             p = est.predict(te[cols].to_numpy(float))
             res.setdefault(m, {})[n] = {o: (round(r2(p[:, j], te[o].to_numpy()), 4),
                                             round(r2(p[:, j], a_true[:, j]), 4)) for j, o in enumerate(OUT)}

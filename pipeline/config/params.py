@@ -213,11 +213,11 @@ class CoupledParams(Frozen):
     outputs: list[str] = Field(default_factory=lambda: ["udot_mps2", "vdot_mps2", "rdot_radps2"], min_length=1)
     models: list[str] = Field(
         default_factory=lambda: ["rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb",
-                                 "graybox"],
-        description="The papers' five models, and graybox (McFarland-Whitcomb plus a WDSE-SVR on its residual; "
-        "docs/models.md); graybox_gh is the same on Gertler-Hagen. fossen: Fossen's 3-DOF model (M_RB from the "
-        "vehicle, added mass, linear + |nu|nu damping, terms selected by held-out free-run error); graybox_fossen: "
-        "the gray box on it.", min_length=1)
+                                 "fossen", "graybox_fossen"],
+        description="The papers' five models, fossen (Fossen's 3-DOF model: M_RB from the vehicle, added mass, "
+        "linear + |nu|nu damping, terms selected by held-out free-run error) and graybox_fossen (it plus a "
+        "WDSE-SVR on its residual; docs/models.md). graybox and graybox_gh: the gray box on McFarland-Whitcomb "
+        "or Gertler-Hagen.", min_length=1)
     folds: int = Field(5, ge=2, le=100)
     search: Literal["paper_grid", "fast"] = "fast"
     max_samples: int | None = Field(

@@ -107,6 +107,6 @@ def test_explicit_models_with_other_outputs_than_udot_vdot_rdot_are_refused(tmp_
     with pytest.raises(ConfigError) as info:
         load_params(path)
     assert info.value.file == str(path) and info.value.field == "coupled.outputs"
-    assert "['gertler_hagen', 'mcfarland_whitcomb', 'graybox']" in str(info.value)
+    assert "['gertler_hagen', 'mcfarland_whitcomb', 'fossen', 'graybox_fossen']" in str(info.value)
     doc["coupled"]["models"] = ["rbf_svr", "wdse_svr"]  # the SVRs predict each output on its own: any set loads
     load_params(write(tmp_path / "params.yaml", doc))

@@ -16,10 +16,11 @@ import pytest
 
 from pipeline import store
 from pipeline.config import Params, Vehicle
+from pipeline.config.params import CoupledParams
 from pipeline.errors import ModelError
 from pipeline.models.card import load_model
 from pipeline.sim import load_example_vehicle
-from pipeline.studies.coupled import evaluate_models
+from pipeline.studies.coupled import GRAYBOX_MODELS, evaluate_models
 from stages import train as train_stage
 from stages import tune as tune_stage
 from tests.studies.helpers import coupled_store
@@ -49,7 +50,8 @@ def run_root(tmp_path_factory, vehicle: Vehicle) -> tuple[Path, dict]:
     return root, {"tune": tuned, "train": trained, "seconds": time.perf_counter() - t0}
 
 
-MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr", "gertler_hagen", "mcfarland_whitcomb", "graybox")
+MODELS = tuple(CoupledParams().models)  # the defaults: the three SVRs, the explicit models, one gray box
+(GRAYBOX,) = [m for m in MODELS if m in GRAYBOX_MODELS]
 
 
 def test_outputs_tables_figure_and_model_cards(run_root) -> None:
@@ -61,7 +63,7 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
     assert not (ev / "fold_test_r2.png").exists()  # Fig. 4 is the report's, drawn from fold_scores.json
     assert "WDSE-SVR" in (ev / "table3.md").read_text() and "gamma_T_th3_N" in (ev / "table2.md").read_text()
     hyper = json.loads((md / "hyperparameters.json").read_text())
-    assert hyper["n_tuning_rows"] > 0 and set(hyper["hyperparameters"]) == {*MODELS[:3], "graybox"}
+    assert hyper["n_tuning_rows"] > 0 and set(hyper["hyperparameters"]) == {*MODELS[:3], GRAYBOX}
     # nested (the default): searched on the train_test block, the rows the final models are fitted on
     n_train_test = len(store.load(root, split="train_test", columns=["t_ns"]))
     assert hyper["tuned_on"] == "train_test" and hyper["n_tuning_rows"] == n_train_test
@@ -74,11 +76,11 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
         assert card["trained_on"]["trials"] == ["s1", "s2"] and card["scores"]["final_check_trials"] == ["s3"]
         assert card["versions"]["scikit-learn"] and hasattr(est, "predict")
     # the gray box's card says per output whether its residual was kept, as the tuned record and the fit do
-    gray = hyper["hyperparameters"]["graybox"]
-    _, card = load_model(md / "graybox.joblib")
+    gray = hyper["hyperparameters"][GRAYBOX]
+    _, card = load_model(md / f"{GRAYBOX}.joblib")
     assert card["residual"] == {o: gray[o]["residual"] for o in gray}
     kept = [k for k, o in enumerate(card["outputs"]) if card["residual"][o].startswith("kept")]
-    assert load_model(md / "graybox.joblib")[0].kept_outputs_ == kept
+    assert load_model(md / f"{GRAYBOX}.joblib")[0].kept_outputs_ == kept
     metrics = res["train"].summary["metrics"]
     assert set(metrics) == set(MODELS)
     assert all(np.isfinite(v["final_r2"]) for m in metrics.values() for v in m.values())
