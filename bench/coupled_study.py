@@ -78,7 +78,7 @@ from pipeline.sim import (  # noqa: E402
     load_truth,
     write_trial,
 )
-from pipeline.sim.regime import distinct_regime, draw_regime  # noqa: E402
+from pipeline.sim.regime import family_trials  # noqa: E402
 from pipeline.sim.vehicle import Dynamics  # noqa: E402
 
 OUTPUTS = ("udot_mps2", "vdot_mps2", "rdot_radps2")
@@ -160,16 +160,15 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
         root = Path(tmp)
         (root / "data/raw").mkdir(parents=True)
         trials = {}
+        first = PRESET_SEED_OFFSET[preset] + 100 * seed + 1
+        family = family_trials(first) if preset == "family" else None  # s3's regime differs from s1's and s2's
         for k, name in enumerate(("s1", "s2", "s3")):
-            sim_seed = PRESET_SEED_OFFSET[preset] + 100 * seed + k + 1
-            if preset == "family":
-                drawn = sim_seed
-                if name == "s3":  # the test trial's regime differs from both training trials'
-                    sim_seed, _ = distinct_regime(sim_seed, [trials[n].regime for n in ("s1", "s2")])
-                regime = draw_regime(sim_seed)
-                out.setdefault("regimes", {})[name] = {"sim_seed": sim_seed, "redrawn_from": drawn
-                                                       if drawn != sim_seed else None, "regime": regime.describe(),
-                                                       **dataclasses.asdict(regime)}
+            sim_seed = first + k
+            if family is not None:
+                sim_seed, regime = family[k]
+                out.setdefault("regimes", {})[name] = {
+                    "sim_seed": sim_seed, "redrawn_from": first + k if sim_seed != first + k else None,
+                    "regime": regime.describe(), **dataclasses.asdict(regime)}
             trial = generate_trial(vehicle, duration_s, seed=sim_seed,
                                    truth=truth, warmup_s=30.0, start_offset_s=1000.0 * k, preset=preset)
             write_trial(trial, "mcap", root / f"data/raw/{name}.mcap")

@@ -13,7 +13,8 @@ counted off a Hall sensor. :func:`draw_regime` draws one such regime as a pure f
 - always the hard preset's rate-sensor biases (gyros, FOG, the Earth's rate).
 
 :func:`distinct_regime` is the benchmark's rule for a test trial: redraw (seed + k * :data:`REDRAW_STEP`, k = 1,
-2, ...) until its regime's :meth:`Regime.kind` is none of the training trials'.
+2, ...) until its regime's :meth:`Regime.kind` is none of the training trials'; :func:`family_trials` gives the
+seeds and regimes of a benchmark's training and test trials by that rule.
 """
 
 from __future__ import annotations
@@ -95,3 +96,10 @@ def distinct_regime(seed: int, training: Iterable[Regime], max_redraws: int = 10
         if regime.kind() not in taken:
             return candidate, regime
     raise ValueError(f"no regime outside the training trials' {sorted(taken)} in {max_redraws} redraws of {seed}")
+
+
+def family_trials(first_seed: int, n_train: int = 2) -> list[tuple[int, Regime]]:
+    """(simulator seed, regime) of ``n_train`` training trials (seeds ``first_seed``, ``first_seed + 1``, ...) and
+    one test trial after them whose regime differs from every training trial's (:func:`distinct_regime`)."""
+    train = [(first_seed + k, draw_regime(first_seed + k)) for k in range(n_train)]
+    return [*train, distinct_regime(first_seed + n_train, [r for _, r in train])]
