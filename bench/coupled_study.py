@@ -287,6 +287,8 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
         per = [r for r in results if m in r["models"]]
         gaps = [[r["ceiling"][o] - r["models"][m][o] for r in per] for o in OUTPUTS]
         print(f"| {m} | " + " | ".join(f"{np.mean(g):.3f} / {np.max(g):.3f}" for g in gaps) + " |")
+    print("ceiling per seed (a low one, where an unknown force drives the accelerations, makes its gaps say little): "
+          + "; ".join(f"seed {r['seed']} " + " / ".join(f"{r['ceiling'][o]:.3f}" for o in OUTPUTS) for r in results))
     for r in results:  # the family preset: each trial's regime
         for name, reg in r.get("regimes", {}).items():
             print(f"seed {r['seed']} {name}{' (test)' if name == 's3' else ''}: {regime_line(reg)}")
