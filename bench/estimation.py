@@ -196,10 +196,11 @@ def speed(duration_s: float, repeat: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", nargs="+", choices=PRESETS, default=list(PRESETS),
-                    help="simulator presets to score (default both); quality only, the timing uses gentle")
+    ap.add_argument("--preset", nargs="+", choices=PRESETS, default=["gentle", "hard"],
+                    help="simulator presets to score (default gentle and hard; 'family': a regime per trial); "
+                         "quality only, the timing uses gentle")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4],
-                    help="seed indices: gentle K is simulator seed K, hard K is seed 3200 + K")
+                    help="seed indices: gentle K is simulator seed K, hard K is seed 3200 + K, family K 6400 + K")
     ap.add_argument("--duration", type=float, default=480.0)
     ap.add_argument("--methods", nargs="+", default=["kalman", "gaussian"])
     ap.add_argument("--speed-duration", type=float, default=3600.0)

@@ -1,14 +1,18 @@
 """One simulated trial: the 6-DOF vehicle integrated under its commands (:mod:`pipeline.sim.vehicle`), the truth
 table at the integration rate and the sensor streams (:mod:`pipeline.sim.sensors`), and the packaged DAGON vehicle.
 
-Two presets of excitation, disturbance and sensors (``generate_trial(..., preset=...)``):
+Three presets of excitation, disturbance and sensors (``generate_trial(..., preset=...)``):
 
 - ``"gentle"`` (the default, what the demo and every existing output use): three summed sines per horizontal
   thruster, periods 6-45 s, 2600 rpm; no disturbance; :class:`SensorOptions` defaults.
 - ``"hard"``, a trial that outruns its sensors: :meth:`Controls.hard` (one sinusoid per thruster, periods 5-18 s,
   1800 rpm), :meth:`Disturbance.hard` (a tether-like Ornstein-Uhlenbeck force in surge, sway and yaw) and
   :meth:`SensorOptions.hard` (Hall-counter thruster speeds, gyro and FOG biases with the Earth's rate).
-  Benchmarks draw its trials from their own seeds, :data:`PRESET_SEED_OFFSET` (seed k -> 3200 + k).
+- ``"family"``: each trial draws its own regime from its seed (:func:`pipeline.sim.regime.draw_regime`: 1-3
+  sines per thruster, periods 5-45 s, half or full thrust, the tether on or off, Hall-counter speeds on or off,
+  the hard preset's rate biases), recorded as ``SimTrial.regime``.
+
+Benchmarks draw each preset's trials from its own seeds, :data:`PRESET_SEED_OFFSET` (hard: seed k -> 3200 + k).
 """
 
 from __future__ import annotations
@@ -25,15 +29,16 @@ from pipeline import physics
 from pipeline.config import load_vehicle
 from pipeline.config.vehicle import Vehicle
 from pipeline.sim.disturbance import Disturbance
+from pipeline.sim.regime import Regime, draw_regime
 from pipeline.sim.sensors import SensorOptions, Stream, dvl_rotation, make_streams, rate_bias
 from pipeline.sim.truth import SimTruth, load_truth
 from pipeline.sim.vehicle import Commander, Controls, Dynamics, integrate
 from pipeline.vocabulary import DOFS, acceleration_column, force_columns, velocity_column
 
-PRESETS = ("gentle", "hard")
+PRESETS = ("gentle", "hard", "family")
 #: Benchmark seed k of a preset is simulator seed ``PRESET_SEED_OFFSET[preset] + k``: the presets' trials never
 #: share a seed (and so never share command phases or sensor noise).
-PRESET_SEED_OFFSET = {"gentle": 0, "hard": 3200}
+PRESET_SEED_OFFSET = {"gentle": 0, "hard": 3200, "family": 6400}
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +58,7 @@ class SimTrial:
     sensors: SensorOptions = field(default_factory=SensorOptions)
     preset: str = "gentle"
     disturbance: Disturbance | None = None
+    regime: Regime | None = None  # the "family" preset's draw; None for the others
 
 
 def example_vehicle_path(fmt: str = "mcap") -> Path:
@@ -144,15 +150,21 @@ def generate_trial(
     depth/pitch hold; ``sensors``: rates, noise, stamps, dropouts; ``start_offset_s``: trial start after
     :data:`EPOCH_NS`; ``warmup_s``: seconds simulated (same commands) before the trial starts and dropped, so
     that a trial begins already in motion rather than from rest (as a logged run cut out of a longer mission).
-    ``preset``: ``"gentle"`` or ``"hard"`` (module docstring); it fills ``controls``, ``sensors`` and
-    ``disturbance`` where they are not given (``"gentle"``: no disturbance). The disturbance is drawn from its own
-    child of the seed, so the commands and sensor noise of a trial do not depend on it.
+    ``preset``: ``"gentle"``, ``"hard"`` or ``"family"`` (module docstring); it fills ``controls``, ``sensors``
+    and ``disturbance`` where they are not given (``"gentle"``: no disturbance; ``"family"``: the seed's regime,
+    ``SimTrial.regime``). The disturbance is drawn from its own child of the seed, so the commands and sensor
+    noise of a trial do not depend on it (nor on the regime, drawn from another child).
     """
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {PRESETS}, not {preset!r}")
     hard = preset == "hard"
     vehicle = vehicle if vehicle is not None else load_example_vehicle()
     truth = truth if truth is not None else load_truth()
+    regime = draw_regime(seed) if preset == "family" else None
+    if regime is not None:
+        controls = controls or regime.controls()
+        sensors = sensors or regime.sensors()
+        disturbance = disturbance if disturbance is not None else regime.disturbance_model()
     controls = controls or (Controls.hard() if hard else Controls())
     sensors = sensors or (SensorOptions.hard() if hard else SensorOptions())
     if disturbance is None and hard:
@@ -194,6 +206,6 @@ def generate_trial(
     nu_dot = table[[acceleration_column(dof) for dof in DOFS]].to_numpy()
     streams = make_streams({**states, "t_ns": t_ns, "grid_hz": rate_hz, "nu_dot": nu_dot}, mount, sensors,
                            rng_sensor)
-    log.info("simulated %s for %.1f s (seed %d): %d truth rows, %s", vehicle.name, duration_s, seed, len(table),
-             {k: len(s) for k, s in streams.items()})
-    return SimTrial(table, streams, vehicle, truth, seed, duration_s, sensors, preset, disturbance)
+    log.info("simulated %s for %.1f s (seed %d%s): %d truth rows, %s", vehicle.name, duration_s, seed,
+             f", {regime.describe()}" if regime else "", len(table), {k: len(s) for k, s in streams.items()})
+    return SimTrial(table, streams, vehicle, truth, seed, duration_s, sensors, preset, disturbance, regime)
