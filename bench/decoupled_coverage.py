@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import tempfile
 import time
@@ -133,7 +134,8 @@ def free_run_bands(study: object, test: object, vehicle: object, dof: str) -> di
 
     params = Params(decoupled={"dofs": [dof]})
     models = {r.model: {dof: r.estimator} for r in study.results}
-    errors = {r.model: {dof: ForceError.from_dict(r.interval["force_error"])} for r in study.results}
+    key = os.environ.get("AUVID_FORCE_ERROR", "force_error")  # force_error_integrated: the alternative
+    errors = {r.model: {dof: ForceError.from_dict(r.interval[key])} for r in study.results}
     frame = test.reset_index(drop=True)
     out: dict[str, dict[str, float]] = {}
     for key, given in (("run", errors), ("run_latent", None)):

@@ -83,19 +83,30 @@ def test_out_of_fold_residuals_give_the_disturbance_sd_and_time_constant(fitted)
         assert e["step_s"] == pytest.approx(DT_S) and e["rows"] == 3200
 
 
-@pytest.mark.parametrize("model", ["ls", "gp"])
-def test_band_with_the_force_error_covers_fresh_trials_measured_velocity(fitted, model) -> None:
-    runs = [free_runs(fitted[model], trial(seed)) for seed in (2, 3, 4)]
-    assert 0.90 <= coverage(runs) <= 0.98, (model, coverage(runs))
+def test_band_with_the_force_error_covers_fresh_trials_measured_velocity(fitted) -> None:
+    runs = [free_runs(fitted["ls"], trial(seed)) for seed in (2, 3, 4)]
+    assert 0.90 <= coverage(runs) <= 0.98, coverage(runs)
     for r in runs:  # the summary reports the same share per trial
         assert 0.85 <= r.summary()["band_coverage"]["u"] <= 0.99
 
 
-def test_without_the_force_error_the_band_misses(fitted) -> None:
-    """The GP's posterior functions alone (the band before the force error) are far too narrow; LS has no band."""
+def test_gp_band_adds_its_posterior_functions_to_the_force_error(fitted) -> None:
+    """The GP's members carry both: wider than the force error alone (here its posterior, inflated for the
+    targets' correlated errors, is wide: docs/models.md, "Free-run bands")."""
+    fresh = [trial(seed) for seed in (2, 3)]
+    both = coverage([free_runs(fitted["gp"], fr) for fr in fresh])
+    assert 0.90 <= both and both >= coverage([free_runs(fitted["gp"], fr, force_error=False) for fr in fresh])
+
+
+def test_without_the_force_error_or_its_correlation_the_band_misses(fitted) -> None:
+    """No force error: LS has no band. A white force error of the same SD averages out over the vehicle's time
+    constant: its band is far too narrow, so the AR(1)'s time constant matters."""
     fresh = [trial(seed) for seed in (2, 3, 4)]
-    assert coverage([free_runs(fitted["gp"], fr, force_error=False) for fr in fresh]) < 0.6
     assert free_runs(fitted["ls"], fresh[0], force_error=False).band is None
+    white = dict(fitted["ls"].interval["force_error"], time_constant_s=0.0)
+    ls = fitted["ls"]
+    runs = [free_runs(type(ls)(**{**vars(ls), "interval": {"force_error": white}}), fr) for fr in fresh]
+    assert coverage(runs) < 0.6, coverage(runs)
 
 
 def test_band_is_the_same_bytes_for_the_same_seed(fitted) -> None:
