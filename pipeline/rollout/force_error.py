@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ForceError", "fit_ar1", "fit_integrated"]
+__all__ = ["ForceError", "fit_ar1"]
 
 #: a lag-1 correlation at or above this is clipped (a time constant of ~1000 steps): a random walk has no SD
 MAX_LAG1 = 0.999
@@ -81,28 +81,3 @@ def fit_ar1(residuals: np.ndarray, t_ns: np.ndarray) -> ForceError:
     tc = -step_ns * 1e-9 / math.log(rho) if rho > 0 else 0.0
     return ForceError(sd, tc, lag1=lag1, step_s=step_ns * 1e-9, rows=int(e.size), pairs=int(pair.sum()))
 
-
-def fit_integrated(residuals: np.ndarray, t_ns: np.ndarray, max_lag: int = 400) -> ForceError:
-    """The AR(1) with the residuals' RMS and their *integrated* correlation time instead of the lag-1 one:
-    ``T = step (1/2 + sum_k rho_k)`` over the lags until the autocorrelation first falls below 0.05, so that its
-    power at zero frequency (what a free run integrates) is the residuals'. Rows as :func:`fit_ar1`."""
-    base = fit_ar1(residuals, t_ns)
-    if base.step_s is None or base.pairs == 0:
-        return base
-    e = np.asarray(residuals, dtype=float)
-    t = np.asarray(t_ns, dtype=np.int64)
-    ok = np.isfinite(e)
-    e, t = e[ok], t[ok]
-    gap = np.diff(t)
-    cut = np.flatnonzero(~((gap > 0) & (gap <= 1.5 * base.step_s * 1e9))) + 1
-    chunks = [c for c in np.split(e, cut) if c.size > 1]
-    total = sum(float(np.sum(c * c)) for c in chunks)
-    rho_sum = 0.0
-    for k in range(1, max_lag + 1):
-        num = sum(float(np.sum(c[:-k] * c[k:])) for c in chunks if c.size > k)
-        rho = num / total
-        if rho < 0.05:
-            break
-        rho_sum += rho
-    return ForceError(base.sd, base.step_s * (0.5 + rho_sum), lag1=base.lag1, step_s=base.step_s, rows=base.rows,
-                      pairs=base.pairs)

@@ -59,7 +59,7 @@ from pipeline.evaluate import (
 from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
 from pipeline.parallel import imap, task_result, timed_task, workers
 from pipeline.physics import weight_buoyancy_N
-from pipeline.rollout.force_error import fit_ar1, fit_integrated
+from pipeline.rollout.force_error import fit_ar1
 from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS, force_column
 
 log = logging.getLogger(__name__)
@@ -285,7 +285,6 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
     if t_ns is not None:
         order = np.concatenate(list(test_folds))
         out["force_error"] = fit_ar1(signed, np.asarray(t_ns)[order]).as_dict()
-        out["force_error_integrated"] = fit_integrated(signed, np.asarray(t_ns)[order]).as_dict()
     return out
 
 
