@@ -4,10 +4,11 @@ Per regime kind (sines, thrust level, tether, Hall speeds) the first simulator s
 (``pipeline.sim.regime``): one trial, and the R² of the TRUE model without the unknown force, at the TRUE inputs
 (velocities, attitude, thruster speeds), against the true accelerations (u̇, v̇, ṙ). 1 where nothing unknown acts;
 below, the share the tether leaves unexplained: the ceiling of ``bench/coupled_study.py`` cannot exceed it.
-``--tether-scale``: the tether's SDs times (amplitude / 2600 rpm) ** 2, i.e. in proportion to the thrust.
+The family's tether is scaled to the thrust (``Regime.disturbance_model``); ``--hard-tether``: the hard preset's
+tether unscaled at every thrust, as the family first drew it.
 
     python bench/regime_share.py                        # seeds 6400-6599: the family's validation range
-    python bench/regime_share.py --tether-scale
+    python bench/regime_share.py --hard-tether
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.sim import Disturbance, generate_trial, load_example_vehicle, load_truth  # noqa: E402
-from pipeline.sim.regime import AMPLITUDES_RPM, draw_regime  # noqa: E402
+from pipeline.sim.regime import draw_regime  # noqa: E402
 from pipeline.sim.vehicle import Dynamics  # noqa: E402
 from pipeline.vocabulary import DOFS, acceleration_column, velocity_column  # noqa: E402
 
@@ -32,7 +33,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs=2, default=[6400, 6600], metavar=("FIRST", "END"))
     ap.add_argument("--duration", type=float, default=300.0)
-    ap.add_argument("--tether-scale", action="store_true")
+    ap.add_argument("--hard-tether", action="store_true")
     args = ap.parse_args()
     vehicle = load_example_vehicle()
     dyn = Dynamics(vehicle, load_truth())
@@ -43,9 +44,8 @@ def main() -> None:
     for _kind, seed in sorted(first.items()):
         regime = draw_regime(seed)
         dist = None
-        if args.tether_scale and regime.disturbance:
-            scale = (regime.amplitude_rpm / max(AMPLITUDES_RPM)) ** 2
-            dist = Disturbance(sd=tuple(scale * sd for sd in Disturbance.hard().sd))
+        if args.hard_tether and regime.disturbance:
+            dist = Disturbance.hard()
         t = generate_trial(vehicle, args.duration, seed=seed, preset="family", rate_hz=50.0, warmup_s=30.0,
                            disturbance=dist).truth
         nu = t[[velocity_column(d) for d in DOFS]].to_numpy()

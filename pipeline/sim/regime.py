@@ -8,7 +8,8 @@ counted off a Hall sensor. :func:`draw_regime` draws one such regime as a pure f
 - ``n_sines``: 1, 2 or 3 summed sines per horizontal thruster, each period drawn uniformly in
   :data:`PERIOD_RANGE_S` (5-45 s) by the commander, as in every preset;
 - ``amplitude_rpm``: half or full of the gentle preset's 2600 rpm (:data:`AMPLITUDES_RPM`);
-- ``disturbance``: the hard preset's tether-like force (:meth:`Disturbance.hard`) or none;
+- ``disturbance``: the hard preset's tether-like force (:meth:`Disturbance.hard`) scaled to the regime's thrust,
+  × (amplitude / 2600 rpm)² (a tether's drag grows as the speed squared, which the thrust sets), or none;
 - ``hall``: Hall-counter thruster speeds (:meth:`SensorOptions.hard`) or the default sampled ones;
 - always the hard preset's rate-sensor biases (gyros, FOG, the Earth's rate).
 
@@ -74,7 +75,12 @@ class Regime:
                                    thrusters=default.thrusters)
 
     def disturbance_model(self) -> Disturbance | None:
-        return Disturbance.hard() if self.disturbance else None
+        """The tether at this regime's thrust: the hard preset's SDs × (amplitude / full amplitude)²; or none."""
+        if not self.disturbance:
+            return None
+        hard = Disturbance.hard()
+        scale = (self.amplitude_rpm / max(AMPLITUDES_RPM)) ** 2
+        return Disturbance(sd=tuple(scale * sd for sd in hard.sd), time_constant_s=hard.time_constant_s)
 
 
 def draw_regime(seed: int) -> Regime:

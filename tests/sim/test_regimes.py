@@ -21,6 +21,7 @@ from pipeline.sim import (
     load_example_vehicle,
     load_truth,
 )
+from pipeline.sim.disturbance import Disturbance
 from pipeline.sim.regime import (
     AMPLITUDES_RPM,
     REDRAW_STEP,
@@ -156,8 +157,8 @@ def test_commands_are_the_drawn_sines(vehicle: Vehicle, n_sines: int) -> None:
 def test_switches_make_the_trial(vehicle: Vehicle) -> None:
     on = generate_trial(vehicle, 20.0, seed=first_seed(disturbance=True, hall=True), preset="family")
     off = generate_trial(vehicle, 20.0, seed=first_seed(disturbance=False, hall=False), preset="family")
-    # the tether: the hard preset's force, or none
-    assert on.truth[force_columns("dist")].to_numpy()[:, [0, 1]].std(axis=0).min() > 0.5
+    # the tether: a force in surge and sway (its size: the next test), or none
+    assert on.truth[force_columns("dist")].to_numpy()[:, [0, 1]].std(axis=0).min() > 0.1
     assert (off.truth[force_columns("dist")].to_numpy() == 0.0).all() and off.disturbance is None
     # Hall-counter speeds: 10-Hz windows in counts of 60 / (7 x 0.1) rpm; else the default 20-Hz sampled speeds
     assert on.sensors.thruster_counter_ppr == 7 and off.sensors.thruster_counter_ppr is None
@@ -169,6 +170,19 @@ def test_switches_make_the_trial(vehicle: Vehicle) -> None:
     for trial in (on, off):
         assert trial.sensors.fog_bias_radps == 2e-4 and trial.sensors.earth_rate_latitude_deg == 45.0
         assert trial.truth["fog_bias_r_radps"].abs().min() > 1e-4
+
+
+def test_the_tether_scales_with_the_thrust(vehicle: Vehicle) -> None:
+    """A tether's drag grows as the speed squared, which the thrust sets: at half the amplitude (a quarter of the
+    thrust) the family's tether is a quarter of the hard preset's, at full amplitude the hard preset's own."""
+    hard = np.array(Disturbance.hard().sd)
+    for amplitude, scale in ((2600.0, 1.0), (1300.0, 0.25)):
+        trial = generate_trial(vehicle, 600.0, seed=first_seed(disturbance=True, amplitude_rpm=amplitude),
+                               preset="family", rate_hz=10.0, warmup_s=1.0)
+        np.testing.assert_allclose(trial.disturbance.sd, scale * hard, rtol=1e-12)
+        force = trial.truth[force_columns("dist")].to_numpy()
+        # an OU force of 30 s over 600 s: its sample SD within ~35 % of the stationary one
+        np.testing.assert_allclose(force[:, [0, 1, 5]].std(axis=0), scale * hard[[0, 1, 5]], rtol=0.4)
 
 
 def test_a_test_regime_differs_from_the_training_ones() -> None:
