@@ -286,7 +286,8 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(frame),
                          frame, rigid_body_mass, params)
         cols = _base_inputs(GRAYBOX_MODELS[model], params)
-        base.fit(frame[cols].to_numpy(float), frame[params.outputs].to_numpy(float))
+        # a task, not the driver's work: a Fossen base selects its terms by free runs (seconds a fit)
+        (base,) = yield [(_fit, (base, frame[cols].to_numpy(float), frame[params.outputs].to_numpy(float)))]
         Y = Y - base.predict(data[cols].to_numpy(float))
         svr = "wdse_svr"
     subset = None
@@ -299,6 +300,11 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
     return ({out: residual_record(res, params.residual_min_cv_r2) if model in GRAYBOX_MODELS else res.best_params
              for out, res in zip(params.outputs, done, strict=True)},
             {out: res.to_dict() for out, res in zip(params.outputs, done, strict=True)})
+
+
+def _fit(estimator: Any, X: np.ndarray, y: np.ndarray) -> Any:
+    """``estimator.fit(X, y)``, as a task of :mod:`pipeline.rounds`."""
+    return estimator.fit(X, y)
 
 
 class NestedTuned(RegressorMixin, BaseEstimator):

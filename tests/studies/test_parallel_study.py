@@ -26,7 +26,7 @@ TIMED = {"search_trace.json", "timings.json", "timings.png"}  # wall / CPU secon
 def _params() -> Params:
     return Params(features={"test_trials": ["s3"]},
                   coupled={"folds": 3, "max_evals": 4, "max_samples": 150,
-                           "models": ["rbf_svr", "wdse_svr", "mcfarland_whitcomb", "graybox"]},
+                           "models": ["rbf_svr", "wdse_svr", "fossen", "graybox_fossen"]},
                   decoupled={"folds": 3, "max_samples": 300, "gp_max_samples": 60, "curve_points": 2})
 
 
@@ -116,7 +116,7 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     assert any(name.endswith("wdse_svr.joblib") for name in serial)
     assert any(name.endswith("u_gp.joblib") for name in serial)
     metrics = json.loads(serial["evaluation/coupled/metrics.json"])
-    assert set(metrics) == {"rbf_svr", "wdse_svr", "mcfarland_whitcomb", "graybox"}
+    assert set(metrics) == {"rbf_svr", "wdse_svr", "fossen", "graybox_fossen"}
     # the conformal intervals (from the folds' out-of-fold predictions, gathered in any order) are among the bytes
     assert all(0 < m[o]["final_interval_coverage"] <= 1 for m in metrics.values() for o in m)
     for other in (pooled, on_dask):
