@@ -1,0 +1,126 @@
+"""The actuator stream's clock offset, found per trial from how well the vehicle's model explains the motion.
+
+A thruster speed logged ``delta`` late (a Hall counter stamps the mean speed over its counting window at the
+window's end: half a window late) puts an error of about delta times the input's rate of change into the model's
+acceleration a(t) = M^-1 (tau - ...) of :mod:`pipeline.estimation.forced`: an error that follows the thrust, slow
+and correlated, which neither the white input error e nor the smooth unknown b describes. The signals alone do not
+show a delay; the motion does. The estimate is a profile likelihood, as for the velocity sensor's misalignment
+(:mod:`pipeline.estimation.dvl_alignment`): tau(t + delta) for each delta of a grid (the thrust map is pointwise,
+so shifting tau is shifting the actuator signals before it is formed; between grid steps tau is interpolated
+linearly), each DOF that took the model smoothed with its final pass's input so shifted and its process noises,
+their log-likelihoods summed; a parabola through the best grid point and its neighbours gives delta and its SD
+(the curvature: the observed information). The likelihood of one DOF under several inputs costs one factorization
+(:func:`pipeline.estimation.smoother.logliks`: an input moves the mean, not the covariance), and the profile runs
+on the trial's middle stretch (``window_s``), so it costs a few banded solves per DOF whatever the trial's length.
+
+The estimate is combined with a prior on the configured offset (the stream's ``offset_s``, already applied to the
+stamps at ingest: a zero-mean Gaussian of SD ``differentiate.actuator_offset_sd_s``; precisions add), and the
+posterior is applied (tau shifted, the passes run again) where it lies further from the configured offset than
+its own SD.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from pipeline.estimation.forced import ForceModel, input_at
+from pipeline.estimation.smoother import Measurements, Smoothed, logliks
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ClockOffset", "estimate_actuator_offset", "shifted"]
+
+
+@dataclass(frozen=True)
+class ClockOffset:
+    """The actuator stream's clock offset (seconds, how late its stamps are after the configured offset): the
+    trial's own estimate and SD (the profile likelihood; None where there is none), whether the trial alone pins
+    it down (``identifiable``), the estimate combined with the prior (``posterior_s``, ``posterior_sd_s``), and
+    whether that was applied (``applied``: further from the configured offset than its own SD)."""
+
+    estimate_s: float | None
+    sd_s: float | None
+    identifiable: bool
+    reason: str | None = None
+    dofs: tuple[str, ...] = ()
+    posterior_s: float = 0.0
+    posterior_sd_s: float = 0.0
+    applied: bool = False
+
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["dofs"] = list(self.dofs)
+        return out
+
+    def with_prior(self, prior_sd_s: float) -> ClockOffset:
+        """Combined with a zero-mean prior of SD ``prior_sd_s`` on the configured offset (Gaussian: precisions
+        add); without a likelihood the posterior is the prior; a prior SD of 0 keeps the configured offset."""
+        if prior_sd_s <= 0:
+            return replace(self, posterior_s=0.0, posterior_sd_s=0.0, applied=False)
+        if self.estimate_s is None or self.sd_s is None:
+            return replace(self, posterior_s=0.0, posterior_sd_s=prior_sd_s, applied=False)
+        weight = prior_sd_s**2 / (prior_sd_s**2 + self.sd_s**2)
+        mean = weight * self.estimate_s
+        sd = float(np.sqrt(weight) * self.sd_s)
+        return replace(self, posterior_s=float(mean), posterior_sd_s=sd, applied=bool(abs(mean) > sd))
+
+
+def shifted(model: ForceModel, offset_s: float, h_s: float) -> ForceModel:
+    """``model`` with its actuator forces read ``offset_s`` later: tau(t + offset) (and their noise variance),
+    linear between grid steps, the ends held. A stream logged ``offset_s`` late is undone by this."""
+    n = model.tau.shape[0]
+    at = np.clip(np.arange(n) + offset_s / h_s, 0.0, n - 1.0)
+    k = np.minimum(np.floor(at).astype(np.int64), max(n - 2, 0))
+    frac = (at - k)[:, None]
+
+    def move(x: np.ndarray) -> np.ndarray:
+        return x[k] * (1.0 - frac) + x[np.minimum(k + 1, n - 1)] * frac
+
+    noise = None if model.noise_var is None else move(model.noise_var)
+    return replace(model, tau=move(model.tau), noise_var=noise)
+
+
+def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements], results: dict[str, Smoothed],
+                             inputs: dict[str, np.ndarray | None], model: ForceModel, dofs: tuple[str, ...], *,
+                             span_s: float = 0.15, points: int = 7, window_s: float = 300.0,
+                             max_sd_s: float = 0.05) -> ClockOffset:
+    """The profile likelihood of the actuator stream's clock offset (see the module docstring). ``meas``: each
+    DOF's measurements as the passes got them; ``results``, ``inputs``: the passes' chosen results and the inputs
+    they used (None: kinematic); ``dofs``: the model's DOF order. Offsets from ``-span_s`` to ``span_s``
+    (``points`` of them), on the middle ``window_s`` seconds of the grid."""
+    took = [dof for dof in meas if inputs.get(dof) is not None]
+    if not took:
+        return ClockOffset(None, None, False, "no DOF took the vehicle's model: the actuators' timing does not "
+                                              "enter the estimates")
+    h_s = (int(grid_ns[1]) - int(grid_ns[0])) / 1e9
+    steps = min(grid_ns.size, max(int(window_s / h_s), 3))
+    lo = (grid_ns.size - steps) // 2
+    cut = slice(lo, lo + steps)
+    grid = grid_ns[cut]
+    offsets = np.linspace(-span_s, span_s, points)
+    change = [((shifted(model, d, h_s).tau - model.tau) @ model.M_inv.T)[cut] for d in offsets]
+    total = np.zeros(points)
+    for dof in took:
+        j = dofs.index(dof)
+        m = meas[dof].subset(results[dof].kept)
+        a = inputs[dof][cut]
+        shifts = [input_at(grid, a + c[:, j], m.t_ns, m.order)[0] for c in change]
+        try:
+            total += logliks(grid, m, shifts, q=results[dof].q, s=results[dof].s)
+        except ValueError:  # too few measurements in the window: this DOF says nothing here
+            continue
+    best = int(np.argmax(total))
+    near = slice(max(best - 2, 0), min(best + 3, points))
+    a2, a1, _ = np.polyfit(offsets[near], total[near] - total[best], 2)
+    if a2 >= 0:
+        return ClockOffset(None, None, False, "the likelihood has no maximum in the actuators' offset", tuple(took))
+    estimate, sd = float(-a1 / (2 * a2)), float(np.sqrt(-1.0 / (2 * a2)))
+    if abs(estimate) > span_s:
+        return ClockOffset(None, None, False, f"the likelihood's maximum lies beyond ±{span_s} s", tuple(took))
+    if sd > max_sd_s:
+        return ClockOffset(estimate, sd, False, f"SD {sd:.2g} s above {max_sd_s} s: the trial's thrust does not "
+                           "pin the actuators' timing down", tuple(took))
+    return ClockOffset(estimate, sd, True, None, tuple(took))
