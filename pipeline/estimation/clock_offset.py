@@ -85,7 +85,7 @@ def shifted(model: ForceModel, offset_s: float, h_s: float) -> ForceModel:
 
 def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements], results: dict[str, Smoothed],
                              inputs: dict[str, np.ndarray | None], model: ForceModel, dofs: tuple[str, ...], *,
-                             span_s: float = 0.15, points: int = 7, window_s: float = 300.0,
+                             span_s: float = 0.3, points: int = 13, window_s: float = 300.0,
                              max_sd_s: float = 0.05) -> ClockOffset:
     """The profile likelihood of the actuator stream's clock offset (see the module docstring). ``meas``: each
     DOF's measurements as the passes got them; ``results``, ``inputs``: the passes' chosen results and the inputs
