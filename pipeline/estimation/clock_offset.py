@@ -5,13 +5,15 @@ window's end: half a window late) puts an error of about delta times the input's
 acceleration a(t) = M^-1 (tau - ...) of :mod:`pipeline.estimation.forced`: an error that follows the thrust, slow
 and correlated, which neither the white input error e nor the smooth unknown b describes. The signals alone do not
 show a delay; the motion does. The estimate is a profile likelihood, as for the velocity sensor's misalignment
-(:mod:`pipeline.estimation.dvl_alignment`): tau(t + delta) for each delta of a grid (the thrust map is pointwise,
-so shifting tau is shifting the actuator signals before it is formed; between grid steps tau is interpolated
-linearly), each DOF that took the model smoothed with its final pass's input so shifted and its process noises,
-their log-likelihoods summed; a parabola through the best grid point and its neighbours gives delta and its SD
-(the curvature: the observed information). The likelihood of one DOF under several inputs costs one factorization
-(:func:`pipeline.estimation.smoother.logliks`: an input moves the mean, not the covariance), and the profile runs
-on the trial's middle stretch (``window_s``), so it costs a few banded solves per DOF whatever the trial's length.
+(:mod:`pipeline.estimation.dvl_alignment`): tau(t + delta) for each delta of a grid (the thrust map is pointwise, so
+shifting tau is shifting the actuator signals before it is formed; between grid steps tau is interpolated linearly),
+each DOF that took the model smoothed with its final pass's input so shifted (the damping fitted again on the
+shifted thrust: fitted on the late one, it takes up part of the delay's error and pulls the estimate towards 0) and
+its process noises, their log-likelihoods summed; a parabola through the best grid point and its two neighbours
+gives delta and its SD (the curvature: the observed information); a best point at the grid's edge gives none. The
+likelihood of one DOF under several inputs costs one factorization (:func:`pipeline.estimation.smoother.logliks`: an
+input moves the mean, not the covariance), and the profile runs on the trial's middle stretch (``window_s``), so it
+costs a few banded solves per DOF whatever the trial's length.
 
 The estimate is combined with a prior on the configured offset (the stream's ``offset_s``, already applied to the
 stamps at ingest: a zero-mean Gaussian of SD ``differentiate.actuator_offset_sd_s``; precisions add), and the
@@ -26,7 +28,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from pipeline.estimation.forced import ForceModel, input_at
+from pipeline.estimation.forced import ForceModel, covered, fit_damping, input_at
 from pipeline.estimation.smoother import Measurements, Smoothed, logliks
 
 log = logging.getLogger(__name__)
@@ -84,13 +86,15 @@ def shifted(model: ForceModel, offset_s: float, h_s: float) -> ForceModel:
 
 
 def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements], results: dict[str, Smoothed],
-                             inputs: dict[str, np.ndarray | None], model: ForceModel, dofs: tuple[str, ...], *,
-                             span_s: float = 0.3, points: int = 13, window_s: float = 300.0,
-                             max_sd_s: float = 0.05) -> ClockOffset:
+                             inputs: dict[str, np.ndarray | None], chosen: dict[str, int], model: ForceModel,
+                             dofs: tuple[str, ...], *, span_s: float = 0.25, points: int = 21,
+                             window_s: float = 300.0, max_sd_s: float = 0.05) -> ClockOffset:
     """The profile likelihood of the actuator stream's clock offset (see the module docstring). ``meas``: each
-    DOF's measurements as the passes got them; ``results``, ``inputs``: the passes' chosen results and the inputs
-    they used (None: kinematic); ``dofs``: the model's DOF order. Offsets from ``-span_s`` to ``span_s``
-    (``points`` of them), on the middle ``window_s`` seconds of the grid."""
+    DOF's measurements as the passes got them; ``results``, ``inputs``, ``chosen``: the passes' chosen results,
+    the inputs they used (None: kinematic) and which pass (1: thrust alone; 2 on: with Coriolis and the fitted
+    damping, refitted here for each offset: fitted on the late thrust, the damping takes up part of the delay's
+    error and would pull the estimate towards 0); ``dofs``: the model's DOF order. Offsets from ``-span_s`` to
+    ``span_s`` (``points`` of them), on the middle ``window_s`` seconds of the grid."""
     took = [dof for dof in meas if inputs.get(dof) is not None]
     if not took:
         return ClockOffset(None, None, False, "no DOF took the vehicle's model: the actuators' timing does not "
@@ -100,26 +104,43 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
     lo = (grid_ns.size - steps) // 2
     cut = slice(lo, lo + steps)
     grid = grid_ns[cut]
+    index = {dof: dofs.index(dof) for dof in results}
+    nu = np.zeros((steps, len(dofs)))
+    nudot = np.zeros_like(nu)
+    for dof, res in results.items():
+        nu[:, index[dof]], nudot[:, index[dof]] = res.x[cut], res.xdot[cut]
+    kept = {dof: meas[dof].subset(results[dof].kept) for dof in meas}
+    rows = covered(grid_ns, {d: kept[d] for d in kept if d in "uvw"} or kept, max_gap_s=0.5)[cut]
+    g = model.g[cut] if model.g.shape[0] == grid_ns.size else model.g
     offsets = np.linspace(-span_s, span_s, points)
-    change = [((shifted(model, d, h_s).tau - model.tau) @ model.M_inv.T)[cut] for d in offsets]
+    per_offset = []
+    for d in offsets:
+        late = replace(model, tau=shifted(model, d, h_s).tau[cut], g=g, noise_var=None)
+        damped = late.acceleration(nu, fit_damping(late, nu, nudot, rows, sorted(index.values())))
+        per_offset.append((late.acceleration(), damped))
     total = np.zeros(points)
+    scored = []
     for dof in took:
-        j = dofs.index(dof)
-        m = meas[dof].subset(results[dof].kept)
-        a = inputs[dof][cut]
-        shifts = [input_at(grid, a + c[:, j], m.t_ns, m.order)[0] for c in change]
+        j = index[dof]
+        m = kept[dof]
+        shifts = [input_at(grid, (plain if chosen.get(dof, 2) == 1 else damped)[:, j], m.t_ns, m.order)[0]
+                  for plain, damped in per_offset]
         try:
             total += logliks(grid, m, shifts, q=results[dof].q, s=results[dof].s)
         except ValueError:  # too few measurements in the window: this DOF says nothing here
             continue
+        scored.append(dof)
+    took = scored
+    if not took:
+        return ClockOffset(None, None, False, "too few measurements in the profile's window")
     best = int(np.argmax(total))
-    near = slice(max(best - 2, 0), min(best + 3, points))
+    if best in (0, points - 1):
+        return ClockOffset(None, None, False, f"the likelihood's maximum lies at ±{span_s} s or beyond", tuple(took))
+    near = slice(best - 1, best + 2)  # the best offset and its neighbours
     a2, a1, _ = np.polyfit(offsets[near], total[near] - total[best], 2)
     if a2 >= 0:
         return ClockOffset(None, None, False, "the likelihood has no maximum in the actuators' offset", tuple(took))
     estimate, sd = float(-a1 / (2 * a2)), float(np.sqrt(-1.0 / (2 * a2)))
-    if abs(estimate) > span_s:
-        return ClockOffset(None, None, False, f"the likelihood's maximum lies beyond ±{span_s} s", tuple(took))
     if sd > max_sd_s:
         return ClockOffset(estimate, sd, False, f"SD {sd:.2g} s above {max_sd_s} s: the trial's thrust does not "
                            "pin the actuators' timing down", tuple(took))

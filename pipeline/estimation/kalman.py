@@ -140,7 +140,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
         raise SyncError(f"cannot smooth {err}", field=str(err).split(":")[0]) from err
     offset = None
     if model is not None:
-        offset = estimate_actuator_offset(grid, meas, results, inputs, model, DOFS).with_prior(
+        offset = estimate_actuator_offset(grid, meas, results, inputs, passes["chosen"], model, DOFS).with_prior(
             params.actuator_offset_sd_s)
         if offset.applied:  # the thrust read that much later, the passes run again
             log.info("actuators: clock offset %.3f s (SD %.3f) found and applied", offset.posterior_s,
