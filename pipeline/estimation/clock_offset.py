@@ -27,13 +27,15 @@ import logging
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+import pandas as pd
 
 from pipeline.estimation.forced import ForceModel, covered, fit_damping, input_at
 from pipeline.estimation.smoother import Measurements, Smoothed, logliks
+from pipeline.sync import valid_column
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClockOffset", "estimate_actuator_offset", "shifted"]
+__all__ = ["ClockOffset", "estimate_actuator_offset", "read_later", "shift_columns", "shifted"]
 
 
 @dataclass(frozen=True)
@@ -70,19 +72,42 @@ class ClockOffset:
         return replace(self, posterior_s=float(mean), posterior_sd_s=sd, applied=bool(abs(mean) > sd))
 
 
+def read_later(x: np.ndarray, steps: float) -> np.ndarray:
+    """``x`` (samples along axis 0 of a uniform grid) read ``steps`` grid steps later: x(t + steps h), linear
+    between grid steps, the ends held; exact at whole steps."""
+    n = x.shape[0]
+    at = np.clip(np.arange(n) + steps, 0.0, n - 1.0)
+    k = np.minimum(np.floor(at).astype(np.int64), max(n - 2, 0))
+    frac = at - k
+    frac = frac.reshape((n,) + (1,) * (x.ndim - 1))
+    return x[k] * (1.0 - frac) + x[np.minimum(k + 1, n - 1)] * frac
+
+
 def shifted(model: ForceModel, offset_s: float, h_s: float) -> ForceModel:
     """``model`` with its actuator forces read ``offset_s`` later: tau(t + offset) (and their noise variance),
-    linear between grid steps, the ends held. A stream logged ``offset_s`` late is undone by this."""
-    n = model.tau.shape[0]
-    at = np.clip(np.arange(n) + offset_s / h_s, 0.0, n - 1.0)
-    k = np.minimum(np.floor(at).astype(np.int64), max(n - 2, 0))
-    frac = (at - k)[:, None]
+    by :func:`read_later`. A stream logged ``offset_s`` late is undone by this."""
+    noise = None if model.noise_var is None else read_later(model.noise_var, offset_s / h_s)
+    return replace(model, tau=read_later(model.tau, offset_s / h_s), noise_var=noise)
 
-    def move(x: np.ndarray) -> np.ndarray:
-        return x[k] * (1.0 - frac) + x[np.minimum(k + 1, n - 1)] * frac
 
-    noise = None if model.noise_var is None else move(model.noise_var)
-    return replace(model, tau=move(model.tau), noise_var=noise)
+def shift_columns(table: pd.DataFrame, synced: pd.DataFrame, columns: list[str], offset_s: float, h_s: float
+                  ) -> np.ndarray:
+    """The actuator signals ``columns`` of ``synced`` read ``offset_s`` later (:func:`read_later`) into ``table``
+    (same grid), so that what the later stages form from them (derive's tau) has the timing the smoother found.
+    Returns where every one is valid after the shift: both samples it is read between valid (``valid_column``
+    flags of ``synced``; a column without one counts as valid)."""
+    steps = offset_s / h_s
+    n = len(synced)
+    at = np.clip(np.arange(n) + steps, 0.0, n - 1.0)
+    lo, hi = np.floor(at).astype(np.int64), np.minimum(np.ceil(at).astype(np.int64), n - 1)
+    ok = np.ones(n, dtype=bool)
+    for col in columns:
+        table[col] = read_later(synced[col].to_numpy(dtype=float), steps)
+        flag = valid_column(col)
+        if flag in synced.columns:
+            valid = synced[flag].to_numpy(dtype=bool)
+            ok &= valid[lo] & valid[hi]
+    return ok
 
 
 def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements], results: dict[str, Smoothed],

@@ -47,7 +47,7 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
-from pipeline.estimation.clock_offset import estimate_actuator_offset, shifted
+from pipeline.estimation.clock_offset import estimate_actuator_offset, shift_columns, shifted
 from pipeline.estimation.dvl_alignment import estimate_misalignment, turned, widen_for_misalignment
 from pipeline.estimation.forced import excitation_report, force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
@@ -196,6 +196,9 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
             results[dof].x_sd = np.sqrt(results[dof].x_sd**2 + est.sd_radps**2)
 
     usable = _other_required_valid(synced, vehicle)
+    if offset is not None and offset.applied:  # derive forms tau from these: the timing the smoother found
+        usable &= shift_columns(body, synced, list(dict.fromkeys(t.input_signal for t in vehicle.thrusters)),
+                                offset.posterior_s, h_s)
     for dof, res in results.items():
         limit = params.max_velocity_sd_mps if VEL_UNIT[dof] == "mps" else params.max_rate_sd_radps
         usable &= res.x_sd <= limit
