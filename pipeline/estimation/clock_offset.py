@@ -92,21 +92,20 @@ def shifted(model: ForceModel, offset_s: float, h_s: float) -> ForceModel:
 
 def shift_columns(table: pd.DataFrame, synced: pd.DataFrame, columns: list[str], offset_s: float, h_s: float
                   ) -> np.ndarray:
-    """The actuator signals ``columns`` of ``synced`` read ``offset_s`` later (:func:`read_later`) into ``table``
-    (same grid), so that what the later stages form from them (derive's tau) has the timing the smoother found.
-    Returns where every one is valid after the shift: both samples it is read between valid (``valid_column``
-    flags of ``synced``; a column without one counts as valid)."""
-    steps = offset_s / h_s
+    """The actuator signals ``columns`` of ``synced`` read ``offset_s`` later into ``table`` (same grid), so that
+    what the later stages form from them (derive's tau) has the timing the smoother found. Moved by the nearest
+    whole number of grid steps, the ends held: interpolating between steps would smooth a counter's steps, whose
+    noise derive estimates from the signal itself for tau's SD. Returns where every one is valid after the move
+    (``valid_column`` flags of ``synced``; a column without one counts as valid)."""
+    steps = int(np.rint(offset_s / h_s))
     n = len(synced)
-    at = np.clip(np.arange(n) + steps, 0.0, n - 1.0)
-    lo, hi = np.floor(at).astype(np.int64), np.minimum(np.ceil(at).astype(np.int64), n - 1)
+    rows = np.clip(np.arange(n) + steps, 0, n - 1)
     ok = np.ones(n, dtype=bool)
     for col in columns:
-        table[col] = read_later(synced[col].to_numpy(dtype=float), steps)
+        table[col] = synced[col].to_numpy()[rows]
         flag = valid_column(col)
         if flag in synced.columns:
-            valid = synced[flag].to_numpy(dtype=bool)
-            ok &= valid[lo] & valid[hi]
+            ok &= synced[flag].to_numpy(dtype=bool)[rows]
     return ok
 
 

@@ -130,14 +130,14 @@ def test_logliks_are_the_smoothers_own_for_each_input() -> None:
     assert got[0] > got[1] > got[2]                          # the true input is the likeliest
 
 
-def test_shift_columns_reads_the_actuators_later_and_keeps_only_samples_read_between_valid_ones() -> None:
+def test_shift_columns_moves_the_actuators_by_whole_steps_with_their_validity() -> None:
     n = 8
     valid = [True] * 5 + [False] + [True] * 2
     synced = pd.DataFrame({"n1_rpm": np.arange(n, dtype=float) * 10, valid_column("n1_rpm"): valid})
     table = pd.DataFrame({"n1_rpm": np.zeros(n)})
-    ok = shift_columns(table, synced, ["n1_rpm"], 1.5 * H_S, H_S)
-    np.testing.assert_allclose(table["n1_rpm"], [15, 25, 35, 45, 55, 65, 70, 70])
-    np.testing.assert_array_equal(ok, [True, True, True, False, False, True, True, True])
+    ok = shift_columns(table, synced, ["n1_rpm"], 1.6 * H_S, H_S)       # the nearest whole steps: 2
+    np.testing.assert_array_equal(table["n1_rpm"], [20, 30, 40, 50, 60, 70, 70, 70])
+    np.testing.assert_array_equal(ok, [True, True, True, False, True, True, True, True])
 
 
 @pytest.fixture(scope="module")
@@ -170,8 +170,8 @@ def test_hall_counter_speeds_on_the_hard_preset_are_found_late_and_read_later(ha
     assert 0.05 <= found["posterior_s"] <= 0.2
     assert report["model"]["passes_before_actuator_offset"]   # the passes ran again
     rows = np.searchsorted(synced["t_ns"].to_numpy(), kin["t_ns"].to_numpy())
-    later = read_later(synced["n1_rpm"].to_numpy(dtype=float), found["posterior_s"] / H_S)
-    np.testing.assert_allclose(kin["n1_rpm"].to_numpy(), later[rows])
+    later = read_later(synced["n1_rpm"].to_numpy(dtype=float), round(found["posterior_s"] / H_S))
+    np.testing.assert_array_equal(kin["n1_rpm"].to_numpy(), later[rows])
     off, off_report = differentiate(synced, vehicle, params.model_copy(update={"actuator_offset_sd_s": 0.0}), tables)
     assert not off_report["actuator_clock_offset"]["applied"]
     truth = trial.truth.set_index("t_ns")
