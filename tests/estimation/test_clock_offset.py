@@ -82,6 +82,15 @@ def test_without_a_delay_the_estimate_is_within_its_sd_of_zero_and_nothing_is_ap
     assert not found.applied
 
 
+def test_a_delay_beyond_the_profiles_span_is_not_claimed() -> None:
+    grid, meas, model, _ = _plant(10, late_s=0.08, duration_s=240.0)
+    best, inputs, report = smooth_passes(grid, meas, model, passes=3, process_noise={}, gate=5.0, dofs=DOFS)
+    found = estimate_actuator_offset(grid, meas, best, inputs, report["chosen"], model, DOFS, span_s=0.05,
+                                     points=5).with_prior(0.1)
+    assert found.estimate_s is None and "0.05 s or beyond" in found.reason
+    assert not found.applied
+
+
 def test_without_the_model_nothing_is_claimed() -> None:
     grid, meas, model, _ = _plant(9, late_s=0.08, duration_s=60.0)
     plain, inputs, report = smooth_passes(grid, meas, model, passes=0, process_noise={}, gate=5.0, dofs=DOFS)
