@@ -11,9 +11,12 @@ each DOF that took the model smoothed with its final pass's input so shifted (th
 shifted thrust: fitted on the late one, it takes up part of the delay's error and pulls the estimate towards 0) and
 its process noises, their log-likelihoods summed; a parabola through the best grid point and its two neighbours
 gives delta and its SD (the curvature: the observed information); a best point at the grid's edge gives none. The
-likelihood of one DOF under several inputs costs one factorization (:func:`pipeline.estimation.smoother.logliks`: an
-input moves the mean, not the covariance), and the profile runs on the trial's middle stretch (``window_s``), so it
-costs a few banded solves per DOF whatever the trial's length.
+curvature assumes the model right; its misfit (a damping the fit lacks, a tether) is slow and correlated and moves
+the estimate further than that SD says, so the window is cut into ``segments`` stretches smoothed apart and the SD
+is the larger of the curvature's and the sandwich's (the stretches' slopes at the estimate, their spread over the
+total curvature; a batch-means variance). The likelihood of one DOF under several inputs costs one factorization
+(:func:`pipeline.estimation.smoother.logliks`: an input moves the mean, not the covariance), and the profile runs on
+the trial's middle stretch (``window_s``), so it costs a few banded solves per DOF whatever the trial's length.
 
 The estimate is combined with a prior on the configured offset (the stream's ``offset_s``, already applied to the
 stamps at ingest: a zero-mean Gaussian of SD ``differentiate.actuator_offset_sd_s``; precisions add), and the
@@ -112,13 +115,14 @@ def shift_columns(table: pd.DataFrame, synced: pd.DataFrame, columns: list[str],
 def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements], results: dict[str, Smoothed],
                              inputs: dict[str, np.ndarray | None], chosen: dict[str, int], model: ForceModel,
                              dofs: tuple[str, ...], *, span_s: float = 0.25, points: int = 21,
-                             window_s: float = 300.0, max_sd_s: float = 0.05) -> ClockOffset:
+                             window_s: float = 300.0, segments: int = 6, max_sd_s: float = 0.05) -> ClockOffset:
     """The profile likelihood of the actuator stream's clock offset (see the module docstring). ``meas``: each
     DOF's measurements as the passes got them; ``results``, ``inputs``, ``chosen``: the passes' chosen results,
     the inputs they used (None: kinematic) and which pass (1: thrust alone; 2 on: with Coriolis and the fitted
     damping, refitted here for each offset: fitted on the late thrust, the damping takes up part of the delay's
     error and would pull the estimate towards 0); ``dofs``: the model's DOF order. Offsets from ``-span_s`` to
-    ``span_s`` (``points`` of them), on the middle ``window_s`` seconds of the grid."""
+    ``span_s`` (``points`` of them), on the middle ``window_s`` seconds of the grid, cut into ``segments``
+    stretches smoothed apart for the SD's sandwich (module docstring)."""
     took = [dof for dof in meas if inputs.get(dof) is not None]
     if not took:
         return ClockOffset(None, None, False, "no DOF took the vehicle's model: the actuators' timing does not "
@@ -142,21 +146,24 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
         late = replace(model, tau=shifted(model, d, h_s).tau[cut], g=g, noise_var=None)
         damped = late.acceleration(nu, fit_damping(late, nu, nudot, rows, sorted(index.values())))
         per_offset.append((late.acceleration(), damped))
-    total = np.zeros(points)
-    scored = []
+    bounds = np.linspace(0, steps, segments + 1).astype(np.int64)
+    parts = np.zeros((segments, points))
+    scored = set()
     for dof in took:
         j = index[dof]
         m = kept[dof]
-        shifts = [input_at(grid, (plain if chosen.get(dof, 2) == 1 else damped)[:, j], m.t_ns, m.order)[0]
-                  for plain, damped in per_offset]
-        try:
-            total += logliks(grid, m, shifts, q=results[dof].q, s=results[dof].s)
-        except ValueError:  # too few measurements in the window: this DOF says nothing here
-            continue
-        scored.append(dof)
-    took = scored
+        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            inputs_k = [(plain if chosen.get(dof, 2) == 1 else damped)[a:b, j] for plain, damped in per_offset]
+            try:
+                parts[k] += logliks(grid[a:b], m, [input_at(grid[a:b], x, m.t_ns, m.order)[0] for x in inputs_k],
+                                    q=results[dof].q, s=results[dof].s)
+            except ValueError:  # too few measurements in this stretch: it says nothing here
+                continue
+            scored.add(dof)
+    took = [dof for dof in took if dof in scored]
     if not took:
         return ClockOffset(None, None, False, "too few measurements in the profile's window")
+    total = parts.sum(axis=0)
     best = int(np.argmax(total))
     if best in (0, points - 1):
         return ClockOffset(None, None, False, f"the likelihood's maximum lies at ±{span_s} s or beyond", tuple(took))
@@ -165,6 +172,10 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
     if a2 >= 0:
         return ClockOffset(None, None, False, "the likelihood has no maximum in the actuators' offset", tuple(took))
     estimate, sd = float(-a1 / (2 * a2)), float(np.sqrt(-1.0 / (2 * a2)))
+    # the sandwich: each stretch's slope at the estimate, their spread against the total curvature
+    slopes = [np.polyval(np.polyder(np.polyfit(offsets[near], part[near], 2)), estimate) for part in parts]
+    robust = float(np.sqrt(segments / (segments - 1) * np.sum(np.square(slopes)))) / (-2 * a2)
+    sd = max(sd, robust)
     if sd > max_sd_s:
         return ClockOffset(estimate, sd, False, f"SD {sd:.2g} s above {max_sd_s} s: the trial's thrust does not "
                            "pin the actuators' timing down", tuple(took))
