@@ -174,7 +174,7 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
     estimate, sd = float(-a1 / (2 * a2)), float(np.sqrt(-1.0 / (2 * a2)))
     # the sandwich: each stretch's slope at the estimate, their spread against the total curvature
     slopes = [np.polyval(np.polyder(np.polyfit(offsets[near], part[near], 2)), estimate) for part in parts]
-    robust = float(np.sqrt(segments / (segments - 1) * np.sum(np.square(slopes)))) / (-2 * a2)
+    robust = float(np.sqrt(segments / (segments - 1) * np.sum(np.square(slopes))) / (-2 * a2))
     sd = max(sd, robust)
     if sd > max_sd_s:
         return ClockOffset(estimate, sd, False, f"SD {sd:.2g} s above {max_sd_s} s: the trial's thrust does not "
