@@ -20,8 +20,8 @@ the trial's middle stretch (``window_s``), so it costs a few banded solves per D
 
 The estimate is combined with a prior on the configured offset (the stream's ``offset_s``, already applied to the
 stamps at ingest: a zero-mean Gaussian of SD ``differentiate.actuator_offset_sd_s``; precisions add), and the
-posterior is applied (tau shifted, the passes run again) where it lies further from the configured offset than
-its own SD.
+posterior is applied (tau shifted, the passes run again) where it lies more than two of its own SDs
+(``APPLY_SDS``) from the configured offset.
 """
 
 from __future__ import annotations
@@ -32,13 +32,18 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import pandas as pd
 
-from pipeline.estimation.forced import ForceModel, covered, fit_damping, input_at
+from pipeline import physics
+from pipeline.estimation.forced import ForceModel, covered, damping_features, input_at
 from pipeline.estimation.smoother import Measurements, Smoothed, logliks
 from pipeline.sync import valid_column
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClockOffset", "estimate_actuator_offset", "read_later", "shift_columns", "shifted"]
+#: The posterior is applied where it lies this many SDs from the configured offset: applying costs a second set of
+#: passes, and a no-delay trial's estimate within 2 SD of 0 changes nothing material (docs/benchmarks.md)
+APPLY_SDS = 2.0
+
+__all__ = ["APPLY_SDS", "ClockOffset", "estimate_actuator_offset", "read_later", "shift_columns", "shifted"]
 
 
 @dataclass(frozen=True)
@@ -46,7 +51,7 @@ class ClockOffset:
     """The actuator stream's clock offset (seconds, how late its stamps are after the configured offset): the
     trial's own estimate and SD (the profile likelihood; None where there is none), whether the trial alone pins
     it down (``identifiable``), the estimate combined with the prior (``posterior_s``, ``posterior_sd_s``), and
-    whether that was applied (``applied``: further from the configured offset than its own SD)."""
+    whether that was applied (``applied``: further from the configured offset than ``APPLY_SDS`` of its SDs)."""
 
     estimate_s: float | None
     sd_s: float | None
@@ -64,7 +69,8 @@ class ClockOffset:
 
     def with_prior(self, prior_sd_s: float) -> ClockOffset:
         """Combined with a zero-mean prior of SD ``prior_sd_s`` on the configured offset (Gaussian: precisions
-        add); without a likelihood the posterior is the prior; a prior SD of 0 keeps the configured offset."""
+        add), applied beyond ``APPLY_SDS`` of its SDs; without a likelihood the posterior is the prior; a prior SD
+        of 0 keeps the configured offset."""
         if prior_sd_s <= 0:
             return replace(self, posterior_s=0.0, posterior_sd_s=0.0, applied=False)
         if self.estimate_s is None or self.sd_s is None:
@@ -72,7 +78,7 @@ class ClockOffset:
         weight = prior_sd_s**2 / (prior_sd_s**2 + self.sd_s**2)
         mean = weight * self.estimate_s
         sd = float(np.sqrt(weight) * self.sd_s)
-        return replace(self, posterior_s=float(mean), posterior_sd_s=sd, applied=bool(abs(mean) > sd))
+        return replace(self, posterior_s=float(mean), posterior_sd_s=sd, applied=bool(abs(mean) > APPLY_SDS * sd))
 
 
 def read_later(x: np.ndarray, steps: float) -> np.ndarray:
@@ -140,12 +146,23 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
     kept = {dof: meas[dof].subset(results[dof].kept) for dof in meas}
     rows = covered(grid_ns, {d: kept[d] for d in kept if d in "uvw"} or kept, max_gap_s=0.5)[cut]
     g = model.g[cut] if model.g.shape[0] == grid_ns.size else model.g
+    base = physics.damping_target(model.M, np.zeros((steps, len(dofs))), nudot, nu, g)  # d = tau + base
+    coriolis = physics.coriolis_force(model.M, nu)
+    fitted = sorted(index.values())
+    # the damping's least squares, fixed but for its target (tau moves with the offset): one pseudo-inverse each
+    fits = [(j, X, np.linalg.pinv(X[rows])) for j in fitted
+            if rows.sum() > (X := damping_features(nu, j, fitted)).shape[1]]
     offsets = np.linspace(-span_s, span_s, points)
     per_offset = []
     for d in offsets:
-        late = replace(model, tau=shifted(model, d, h_s).tau[cut], g=g, noise_var=None)
-        damped = late.acceleration(nu, fit_damping(late, nu, nudot, rows, sorted(index.values())))
-        per_offset.append((late.acceleration(), damped))
+        at = np.clip(np.arange(lo, lo + steps) + d / h_s, 0.0, grid_ns.size - 1.0)
+        k0 = np.minimum(np.floor(at).astype(np.int64), max(grid_ns.size - 2, 0))
+        frac = (at - k0)[:, None]
+        tau = model.tau[k0] * (1.0 - frac) + model.tau[np.minimum(k0 + 1, grid_ns.size - 1)] * frac
+        damping = np.zeros_like(tau)
+        for j, X, pinv in fits:
+            damping[:, j] = X @ (pinv @ (tau[rows, j] + base[rows, j]))
+        per_offset.append(((tau - g) @ model.M_inv.T, (tau - g - coriolis - damping) @ model.M_inv.T))
     bounds = np.linspace(0, steps, segments + 1).astype(np.int64)
     parts = np.zeros((segments, points))
     scored = set()
@@ -153,10 +170,11 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
         j = index[dof]
         m = kept[dof]
         for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            part = m.subset((m.t_ns >= grid[a]) & (m.t_ns <= grid[b - 1]))
             inputs_k = [(plain if chosen.get(dof, 2) == 1 else damped)[a:b, j] for plain, damped in per_offset]
             try:
-                parts[k] += logliks(grid[a:b], m, [input_at(grid[a:b], x, m.t_ns, m.order)[0] for x in inputs_k],
-                                    q=results[dof].q, s=results[dof].s)
+                parts[k] += logliks(grid[a:b], part, [input_at(grid[a:b], x, part.t_ns, part.order)[0]
+                                                      for x in inputs_k], q=results[dof].q, s=results[dof].s)
             except ValueError:  # too few measurements in this stretch: it says nothing here
                 continue
             scored.add(dof)

@@ -99,13 +99,13 @@ def test_without_the_model_nothing_is_claimed() -> None:
     assert not found.applied and found.posterior_sd_s == 0.1
 
 
-def test_the_prior_on_the_configured_offset_is_combined_by_precisions_and_applied_only_beyond_its_sd() -> None:
-    trial = ClockOffset(estimate_s=0.06, sd_s=0.03, identifiable=True)
+def test_the_prior_on_the_configured_offset_is_combined_by_precisions_and_applied_only_beyond_two_sds() -> None:
+    trial = ClockOffset(estimate_s=0.09, sd_s=0.03, identifiable=True)
     post = trial.with_prior(0.04)                           # weight 16 / 25 = 0.64
-    assert post.posterior_s == pytest.approx(0.0384) and post.posterior_sd_s == pytest.approx(0.024)
-    assert post.applied
-    weak = ClockOffset(estimate_s=0.01, sd_s=0.02, identifiable=True).with_prior(0.1)
-    assert not weak.applied                                 # 0.0096 < 0.0196
+    assert post.posterior_s == pytest.approx(0.0576) and post.posterior_sd_s == pytest.approx(0.024)
+    assert post.applied                                     # 2.4 SDs from the configured offset
+    weak = ClockOffset(estimate_s=0.06, sd_s=0.03, identifiable=True).with_prior(0.04)
+    assert weak.posterior_s == pytest.approx(0.0384) and not weak.applied   # 1.6 SDs: kept as configured
     exact = trial.with_prior(0.0)
     assert exact.posterior_s == 0.0 and exact.posterior_sd_s == 0.0 and not exact.applied
 
