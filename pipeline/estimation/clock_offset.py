@@ -120,7 +120,7 @@ def shift_columns(table: pd.DataFrame, synced: pd.DataFrame, columns: list[str],
 
 def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements], results: dict[str, Smoothed],
                              inputs: dict[str, np.ndarray | None], chosen: dict[str, int], model: ForceModel,
-                             dofs: tuple[str, ...], *, span_s: float = 0.25, points: int = 21,
+                             dofs: tuple[str, ...], *, span_s: float = 0.25, points: int = 11,
                              window_s: float = 300.0, segments: int = 6, max_sd_s: float = 0.05) -> ClockOffset:
     """The profile likelihood of the actuator stream's clock offset (see the module docstring). ``meas``: each
     DOF's measurements as the passes got them; ``results``, ``inputs``, ``chosen``: the passes' chosen results,
@@ -143,8 +143,12 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
     nudot = np.zeros_like(nu)
     for dof, res in results.items():
         nu[:, index[dof]], nudot[:, index[dof]] = res.x[cut], res.xdot[cut]
-    kept = {dof: meas[dof].subset(results[dof].kept) for dof in meas}
-    rows = covered(grid_ns, {d: kept[d] for d in kept if d in "uvw"} or kept, max_gap_s=0.5)[cut]
+    kept = {}
+    for dof in meas:  # the kept measurements within the window, of the DOFs scored or covering the damping's rows
+        if dof in took or dof in "uvw":
+            m = meas[dof].subset(results[dof].kept)
+            kept[dof] = m.subset((m.t_ns >= grid[0]) & (m.t_ns <= grid[-1]))
+    rows = covered(grid, {d: kept[d] for d in kept if d in "uvw"} or kept, max_gap_s=0.5)
     g = model.g[cut] if model.g.shape[0] == grid_ns.size else model.g
     base = physics.damping_target(model.M, np.zeros((steps, len(dofs))), nudot, nu, g)  # d = tau + base
     coriolis = physics.coriolis_force(model.M, nu)
@@ -152,46 +156,56 @@ def estimate_actuator_offset(grid_ns: np.ndarray, meas: dict[str, Measurements],
     # the damping's least squares, fixed but for its target (tau moves with the offset): one pseudo-inverse each
     fits = [(j, X, np.linalg.pinv(X[rows])) for j in fitted
             if rows.sum() > (X := damping_features(nu, j, fitted)).shape[1]]
-    offsets = np.linspace(-span_s, span_s, points)
-    per_offset = []
-    for d in offsets:
-        at = np.clip(np.arange(lo, lo + steps) + d / h_s, 0.0, grid_ns.size - 1.0)
-        k0 = np.minimum(np.floor(at).astype(np.int64), max(grid_ns.size - 2, 0))
-        frac = (at - k0)[:, None]
-        tau = model.tau[k0] * (1.0 - frac) + model.tau[np.minimum(k0 + 1, grid_ns.size - 1)] * frac
-        damping = np.zeros_like(tau)
-        for j, X, pinv in fits:
-            damping[:, j] = X @ (pinv @ (tau[rows, j] + base[rows, j]))
-        per_offset.append(((tau - g) @ model.M_inv.T, (tau - g - coriolis - damping) @ model.M_inv.T))
     bounds = np.linspace(0, steps, segments + 1).astype(np.int64)
-    parts = np.zeros((segments, points))
-    scored = set()
-    for dof in took:
-        j = index[dof]
-        m = kept[dof]
-        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
-            part = m.subset((m.t_ns >= grid[a]) & (m.t_ns <= grid[b - 1]))
-            inputs_k = [(plain if chosen.get(dof, 2) == 1 else damped)[a:b, j] for plain, damped in per_offset]
-            try:
-                parts[k] += logliks(grid[a:b], part, [input_at(grid[a:b], x, part.t_ns, part.order)[0]
-                                                      for x in inputs_k], q=results[dof].q, s=results[dof].s)
-            except ValueError:  # too few measurements in this stretch: it says nothing here
-                continue
-            scored.add(dof)
+    scored: set[str] = set()
+
+    def profile(offsets: np.ndarray) -> np.ndarray:
+        """Log-likelihoods (segments, offsets), summed over the DOFs that took the model."""
+        per_offset = []
+        for d in offsets:
+            at = np.clip(np.arange(lo, lo + steps) + d / h_s, 0.0, grid_ns.size - 1.0)
+            k0 = np.minimum(np.floor(at).astype(np.int64), max(grid_ns.size - 2, 0))
+            frac = (at - k0)[:, None]
+            tau = model.tau[k0] * (1.0 - frac) + model.tau[np.minimum(k0 + 1, grid_ns.size - 1)] * frac
+            damping = np.zeros_like(tau)
+            for j, X, pinv in fits:
+                damping[:, j] = X @ (pinv @ (tau[rows, j] + base[rows, j]))
+            per_offset.append(((tau - g) @ model.M_inv.T, (tau - g - coriolis - damping) @ model.M_inv.T))
+        parts = np.zeros((segments, len(offsets)))
+        for dof in took:
+            j = index[dof]
+            for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+                part = kept[dof].subset((kept[dof].t_ns >= grid[a]) & (kept[dof].t_ns <= grid[b - 1]))
+                xs = [(plain if chosen.get(dof, 2) == 1 else damped)[a:b, j] for plain, damped in per_offset]
+                try:
+                    parts[k] += logliks(grid[a:b], part, [input_at(grid[a:b], x, part.t_ns, part.order)[0]
+                                                          for x in xs], q=results[dof].q, s=results[dof].s)
+                except ValueError:  # too few measurements in this stretch: it says nothing here
+                    continue
+                scored.add(dof)
+        return parts
+
+    coarse = np.linspace(-span_s, span_s, points)
+    coarse_parts = profile(coarse)
+    total = coarse_parts.sum(axis=0)
     took = [dof for dof in took if dof in scored]
     if not took:
         return ClockOffset(None, None, False, "too few measurements in the profile's window")
-    total = parts.sum(axis=0)
     best = int(np.argmax(total))
     if best in (0, points - 1):
         return ClockOffset(None, None, False, f"the likelihood's maximum lies at ±{span_s} s or beyond", tuple(took))
-    near = slice(best - 1, best + 2)  # the best offset and its neighbours
-    a2, a1, _ = np.polyfit(offsets[near], total[near] - total[best], 2)
+    # refined: the best coarse offset and its neighbours half a coarse step away
+    half = (coarse[1] - coarse[0]) / 2
+    offsets = coarse[best] + np.array([-half, 0.0, half])
+    fine = profile(offsets[[0, 2]])
+    parts = np.stack([fine[:, 0], coarse_parts[:, best], fine[:, 1]], axis=1)
+    total = parts.sum(axis=0)
+    a2, a1, _ = np.polyfit(offsets, total - total[1], 2)
     if a2 >= 0:
         return ClockOffset(None, None, False, "the likelihood has no maximum in the actuators' offset", tuple(took))
     estimate, sd = float(-a1 / (2 * a2)), float(np.sqrt(-1.0 / (2 * a2)))
     # the sandwich: each stretch's slope at the estimate, their spread against the total curvature
-    slopes = [np.polyval(np.polyder(np.polyfit(offsets[near], part[near], 2)), estimate) for part in parts]
+    slopes = [np.polyval(np.polyder(np.polyfit(offsets, part, 2)), estimate) for part in parts]
     robust = float(np.sqrt(segments / (segments - 1) * np.sum(np.square(slopes))) / (-2 * a2))
     sd = max(sd, robust)
     if sd > max_sd_s:
