@@ -118,6 +118,11 @@ class DifferentiateParams(Frozen):
         2.0, ge=0, le=30, description="kalman: how well the velocity sensor's configured mount yaw is known (SD, "
         "deg): the prior the trial's misalignment estimate is combined with; the combined estimate is undone and "
         "its SD widens u's and v's bands (pipeline.estimation.dvl_alignment). 0: the configured mount is exact.")
+    actuator_offset_sd_s: float = Field(
+        0.1, ge=0, le=1, description="kalman: how well the actuator streams' configured clock offset (offset_s) is "
+        "known (SD, s): the prior the trial's own estimate of their timing is combined with; the combined offset "
+        "is applied to the thrust where it exceeds its SD (pipeline.estimation.clock_offset). 0: the configured "
+        "offset is exact.")
     rate_bias: Literal["estimate", "none"] = Field(
         "estimate", description="kalman: estimate: per rate signal (FOG, gyros), a constant bias (its own plus the "
         "Earth's rate) from the logged attitude, subtracted before the smoother and its variance added to the "

@@ -40,7 +40,7 @@ from pipeline.estimation.smoother import Measurements, Smoothed, smooth, smoothe
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ForceModel", "force_model", "fit_damping", "input_at", "smooth_with_input"]
+__all__ = ["ForceModel", "covered", "fit_damping", "force_model", "input_at", "smooth_with_input"]
 
 
 @dataclass(frozen=True)
@@ -171,7 +171,7 @@ def smooth_with_input(grid_ns: np.ndarray, meas: Measurements, a: np.ndarray | N
 _MODELS = ("kinematic", "thrust", "thrust, Coriolis and fitted damping")
 
 
-def _covered(grid_ns: np.ndarray, meas: dict[str, Measurements], max_gap_s: float) -> np.ndarray:
+def covered(grid_ns: np.ndarray, meas: dict[str, Measurements], max_gap_s: float) -> np.ndarray:
     """Grid samples within ``max_gap_s`` of a measurement of every DOF: where the first pass's estimates are
     measured, not bridged, and the damping fit may use them."""
     ok = np.ones(grid_ns.size, dtype=bool)
@@ -221,7 +221,7 @@ def smooth_passes(grid_ns: np.ndarray, meas: dict[str, Measurements], model: For
         index = {dof: dofs.index(dof) for dof in [*best, *context]}
         if model.noise_var is not None:
             noise_var = {dof: model.noise_var[:, index[dof]] for dof in best}
-        rows = _covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
+        rows = covered(grid_ns, {d: kept[d] for d in best if d in "uvw"} or kept, max_gap_s=0.5)
         active = list(best)
         for k in range(1, passes + 1):
             if k == 1:

@@ -47,6 +47,7 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
+from pipeline.estimation.clock_offset import estimate_actuator_offset, shift_columns, shifted
 from pipeline.estimation.dvl_alignment import estimate_misalignment, turned, widen_for_misalignment
 from pipeline.estimation.forced import excitation_report, force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
@@ -101,6 +102,7 @@ def _passes_report(passes: dict, results: dict[str, Smoothed]) -> dict[str, Any]
     return {"force_model": passes["force_model"],
             "passes": passes["passes"],
             "passes_after_misalignment": passes.get("after_misalignment"),
+            "passes_before_actuator_offset": passes.get("before_offset"),
             "chosen_pass": {dof: passes["chosen"][dof] for dof in results if dof in passes["chosen"]}}
 
 
@@ -136,6 +138,19 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
                                                 dofs=DOFS)
     except ValueError as err:
         raise SyncError(f"cannot smooth {err}", field=str(err).split(":")[0]) from err
+    offset = None
+    if model is not None:
+        offset = estimate_actuator_offset(grid, meas, results, inputs, passes["chosen"], model, DOFS).with_prior(
+            params.actuator_offset_sd_s)
+        if offset.applied:  # the thrust read that much later, the passes run again
+            log.info("actuators: clock offset %.3f s (SD %.3f) found and applied", offset.posterior_s,
+                     offset.posterior_sd_s)
+            model = shifted(model, offset.posterior_s, h_s)
+            before = passes["passes"]
+            results, inputs, passes = smooth_passes(grid, meas, model, passes=params.model_passes,
+                                                    process_noise=params.process_noise,
+                                                    gate=params.gate_sigmas, dofs=DOFS)
+            passes["before_offset"] = before
     misalignment = None
     if model is not None and "u" in meas and "v" in meas and not source.differentiated:
         misalignment = estimate_misalignment(grid, meas["u"], meas["v"], results["u"], results["v"],
@@ -181,6 +196,9 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
             results[dof].x_sd = np.sqrt(results[dof].x_sd**2 + est.sd_radps**2)
 
     usable = _other_required_valid(synced, vehicle)
+    if offset is not None and offset.applied:  # derive forms tau from these: the timing the smoother found
+        usable &= shift_columns(body, synced, list(dict.fromkeys(t.input_signal for t in vehicle.thrusters)),
+                                offset.posterior_s, h_s)
     for dof, res in results.items():
         limit = params.max_velocity_sd_mps if VEL_UNIT[dof] == "mps" else params.max_rate_sd_radps
         usable &= res.x_sd <= limit
@@ -226,6 +244,8 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     }
     report["model"] = _passes_report(passes, results)
     report["excitation"] = excitation_report(grid, model, meas, passes["passes"])
+    if offset is not None:
+        report["actuator_clock_offset"] = offset.as_dict()
     if misalignment is not None:
         report["velocity_misalignment"] = misalignment.as_dict()
     if accelerometer is not None:

@@ -39,7 +39,7 @@ from scipy.optimize import minimize_scalar
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Measurements", "Smoothed", "smooth", "smoothed_variances", "white_jerk"]
+__all__ = ["Measurements", "Smoothed", "logliks", "smooth", "smoothed_variances", "white_jerk"]
 
 _PHI = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
 _QT = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
@@ -184,9 +184,8 @@ class _Problem:
         diag[0] += _PRIOR_PRECISION * np.eye(3)
         return diag, -W @ _PHI
 
-    def solve(self, q: float, s: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
-        """Posterior mean z (N, 3), -2 log-likelihood (+ const), information blocks."""
-        info, vec, r = self.information(q, s)
+    def _factor(self, info: np.ndarray, q: float, s: float) -> np.ndarray:
+        """The banded Cholesky factor of A (the process model's precision plus the measurements' ``info``)."""
         diag, sub = self.prior_blocks(q, s)
         D = diag + info
         n3 = 3 * self.n
@@ -197,9 +196,30 @@ class _Problem:
         for row in range(3):
             for col in range(3):
                 ab[3 + row - col, col: n3 - 3: 3] = sub[row, col]
-        cb = cholesky_banded(ab, lower=True, check_finite=False)
-        b = vec.reshape(-1)
-        z = cho_solve_banded((cb, True), b, check_finite=False)
+        return cholesky_banded(ab, lower=True, check_finite=False)
+
+    def solve(self, q: float, s: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
+        """Posterior mean z (N, 3), -2 log-likelihood (+ const), information blocks."""
+        info, vec, r = self.information(q, s)
+        z, m2ll = self._posterior(self._factor(info, q, s), vec, r, q, s, self.y)
+        return z, m2ll, info
+
+    def solve_many(self, q: float, s: float, ys: list[np.ndarray]) -> list[float]:
+        """-2 log-likelihoods (+ const) of several value vectors at the same stamps, variances and kept set (the
+        same measurements less different known inputs): one factorization, one banded solve each."""
+        info, _, r = self.information(q, s)
+        cb = self._factor(info, q, s)
+        w = np.where(self.keep, 1.0 / r, 0.0)
+        out = []
+        for y in ys:
+            vec = np.stack([np.bincount(self.k, weights=w * (self.H[:, a] * y), minlength=self.n)
+                            for a in range(3)], axis=1)
+            out.append(self._posterior(cb, vec, r, q, s, y)[1])
+        return out
+
+    def _posterior(self, cb: np.ndarray, vec: np.ndarray, r: np.ndarray, q: float, s: float, y: np.ndarray
+                   ) -> tuple[np.ndarray, float]:
+        z = cho_solve_banded((cb, True), vec.reshape(-1), check_finite=False)
         keep = self.keep
         zz = z.reshape(self.n, 3)
         logdet_A = 2.0 * float(np.sum(np.log(cb[0])))
@@ -207,16 +227,16 @@ class _Problem:
         logdet_prior = -(self.n - 1) * logdet_Q + 3 * np.log(_PRIOR_PRECISION)
         # y'R^-1 y - b'A^-1 b, written as the posterior's residual and process terms (no cancellation of large
         # numbers when the signal is far larger than its noise)
-        e = self.residuals(zz)
+        e = self.residuals(zz, y)
         w = zz[1:] - zz[:-1] @ _PHI.T
         quad = (float(np.sum(e[keep] ** 2 / r[keep])) + float(np.sum((w @ W) * w))
                 + _PRIOR_PRECISION * float(zz[0] @ zz[0]))
-        m2ll = float(np.sum(np.log(r[keep]))) + quad + logdet_A - logdet_prior
-        return z.reshape(self.n, 3), m2ll, info
+        return zz, float(np.sum(np.log(r[keep]))) + quad + logdet_A - logdet_prior
 
-    def residuals(self, z: np.ndarray) -> np.ndarray:
+    def residuals(self, z: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
         zk = z[self.k]
-        return self.y - (self.H[:, 0] * zk[:, 0] + self.H[:, 1] * zk[:, 1] + self.H[:, 2] * zk[:, 2])
+        fit = self.H[:, 0] * zk[:, 0] + self.H[:, 1] * zk[:, 1] + self.H[:, 2] * zk[:, 2]
+        return (self.y if y is None else y) - fit
 
 
 def _fit_q(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> float:
@@ -333,6 +353,19 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
     kept[kept] = problem.keep
     return Smoothed(x=z[:, 0], xdot=z[:, 1] / h, q=q_fit, loglik=-0.5 * m2ll, used=int(problem.keep.sum()),
                     gated=int((~problem.keep).sum()), info=info, h_s=h, xddot=z[:, 2] / h**2, kept=kept, s=s_fit)
+
+
+def logliks(grid_ns: np.ndarray, meas: Measurements, shifts: list[np.ndarray], *, q: float, s: float = 0.0
+            ) -> np.ndarray:
+    """Log-likelihoods of ``meas`` less each of ``shifts`` (per measurement: a known input at its stamp), with
+    the process noises ``q`` and ``s`` given and no gate: what :func:`smooth` returns as ``loglik`` for each, from
+    one factorization (a known input moves the mean, not the covariance), so a profile over inputs costs one
+    banded solve per input."""
+    problem = _Problem(np.asarray(grid_ns, dtype=np.int64), meas)
+    if problem.y.size < 3:
+        raise ValueError(f"the smoother needs at least 3 measurements within the grid, got {problem.y.size}")
+    ys = [problem.y - np.asarray(shift, dtype=float)[problem.inside] for shift in shifts]
+    return -0.5 * np.asarray(problem.solve_many(q, s, ys))
 
 
 def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_intervals: float = 40.0,

@@ -239,6 +239,14 @@ def _model_tables(rep: dict[str, Any]) -> list[str]:
                        "estimate": mis.get("posterior_deg"), "SD": mis.get("posterior_sd_deg"), "unit": "deg",
                        "subtracted": mis.get("applied"), "note": "undone" if mis.get("applied") else
                        "kept as configured; its error widens u's and v's bands"})
+    clock = rep.get("actuator_clock_offset")
+    if clock:
+        errors.append({"sensor error": "actuator clock offset (trial alone)", "estimate": clock.get("estimate_s"),
+                       "SD": clock.get("sd_s"), "unit": "s", "subtracted": False, "note": clock.get("reason") or ""})
+        errors.append({"sensor error": "actuator clock offset (with the configured offset's prior)",
+                       "estimate": clock.get("posterior_s"), "SD": clock.get("posterior_sd_s"), "unit": "s",
+                       "subtracted": clock.get("applied"), "note": "thrust read that much later" if
+                       clock.get("applied") else "kept as configured"})
     if errors:
         parts.append(H.table(errors, caption="Sensor errors estimated from the trial"))
     excitation = [{"DOF": d, "band the velocity sensor resolves [Hz]": v.get("resolved_band_hz"),

@@ -282,6 +282,7 @@ def test_report_shows_noise_usable_fraction_and_the_band(realistic, tmp_path) ->
     assert "Smoother passes" in html and "(kept)" in html and "fitted damping" in html
     assert "Sensor errors estimated from the trial" in html and "r_fog_radps bias" in html
     assert "velocity sensor yaw misalignment" in html
+    assert "actuator clock offset" in html and "actuator_clock_offset" in report
     assert "band the velocity sensor resolves" in html
     for dof in "uv":
         band = report["excitation"][dof]
