@@ -47,7 +47,7 @@ from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
 from pipeline.rounds import gather, run_inline
 from pipeline.studies.intervals import interval_coverage, oof_intervals, target_sd
-from pipeline.studies.tasks import SearchCache, train_tasks, tune_chains
+from pipeline.studies.tasks import SearchCache, fitted, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
 
 log = logging.getLogger(__name__)
@@ -234,14 +234,15 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(tuning),
                          tuning, rigid_body_mass, params)
         cols = _base_inputs(GRAYBOX_MODELS[model], params)
-        base.fit(tuning[cols].to_numpy(float), tuning[params.outputs].to_numpy(float))
-        resid = data[params.outputs].to_numpy(float) - base.predict(data[cols].to_numpy(float))
         # the residual's own RBF -> 2-weights -> WDSE chain, as for the SVRs (the SVRs' optima are no warm start:
-        # the target differs)
+        # the target differs); each chain fits the base first, as a task (a Fossen base's fit takes seconds: off the
+        # driver, and the three outputs' chains do not wait for one another)
+        fit = (base, tuning[cols].to_numpy(float), tuning[params.outputs].to_numpy(float), data[cols].to_numpy(float),
+               data[params.outputs].to_numpy(float))
         kernels = list(SVR_MODELS) if settings.method == "fast" else ["wdse_svr"]
         chains += [{"owner": model, "output": out, "label": f"{model}/{out}", "models": kernels, "X": X,
                     "names": [*[None] * (len(kernels) - 1), f"{model}/{out}"],
-                    "y": resid[:, k], "cache": cache} for k, out in enumerate(params.outputs)]
+                    "residual_of": (*fit, k), "cache": cache} for k, out in enumerate(params.outputs)]
     done = tune_chains(chains, settings, workers(n_jobs), progress)
     hyper: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in [*order, *graybox]}
     trace: dict[str, Any] = {m: {} for m in [*order, *graybox]}
@@ -287,7 +288,7 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
                          frame, rigid_body_mass, params)
         cols = _base_inputs(GRAYBOX_MODELS[model], params)
         # a task, not the driver's work: a Fossen base selects its terms by free runs (seconds a fit)
-        (base,) = yield [(_fit, (base, frame[cols].to_numpy(float), frame[params.outputs].to_numpy(float)))]
+        (base,) = yield [(fitted, (base, frame[cols].to_numpy(float), frame[params.outputs].to_numpy(float)))]
         Y = Y - base.predict(data[cols].to_numpy(float))
         svr = "wdse_svr"
     subset = None
@@ -300,11 +301,6 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
     return ({out: residual_record(res, params.residual_min_cv_r2) if model in GRAYBOX_MODELS else res.best_params
              for out, res in zip(params.outputs, done, strict=True)},
             {out: res.to_dict() for out, res in zip(params.outputs, done, strict=True)})
-
-
-def _fit(estimator: Any, X: np.ndarray, y: np.ndarray) -> Any:
-    """``estimator.fit(X, y)``, as a task of :mod:`pipeline.rounds`."""
-    return estimator.fit(X, y)
 
 
 class NestedTuned(RegressorMixin, BaseEstimator):

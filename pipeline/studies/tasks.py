@@ -46,8 +46,8 @@ def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs
     (1: inline, with each search's candidates on ``progress``; more, or -1 on a Dask cluster: ``progress`` moves as
     each chain ends)."""
     settings = replace(settings, n_jobs=1)  # the searches' tasks go to this function's executor
-    items = [{**c, "X": np.ascontiguousarray(c["X"], dtype=float), "y": np.ascontiguousarray(c["y"], dtype=float),
-              "settings": settings} for c in chains]
+    items = [{**c, "X": np.ascontiguousarray(c["X"], dtype=float), "settings": settings,
+              **({"y": np.ascontiguousarray(c["y"], dtype=float)} if "y" in c else {})} for c in chains]
     if jobs == 1:  # each search that has a name (``names``, None: a warm start only) moves the bar by its candidates
         total = sum(n is not None for item in items for n in item.get("names", item["models"]))
         k = 0
@@ -68,6 +68,11 @@ def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs
                  labels=[item["label"] for item in items], on_done=chain_done)
 
 
+def fitted(estimator: Any, X: np.ndarray, y: np.ndarray) -> Any:
+    """``estimator.fit(X, y)``: a task of :mod:`pipeline.rounds` (a gray box's base, off the driver)."""
+    return estimator.fit(X, y)
+
+
 def _labelled(progress: Callable[..., Any] | None, label: str) -> Callable[..., Any] | None:
     if progress is None:
         return None
@@ -78,6 +83,10 @@ def _run_chain(item: dict[str, Any]) -> Any:
     """A chain's searches in order, each warm-started from the one before: a coroutine of :mod:`pipeline.rounds`
     returning their results."""
     cache = item.get("cache") or SearchCache()
+    if "residual_of" in item:  # a gray box's residual: its base fitted (a task), then y = Y - base(X) of output k
+        base, X_fit, Y_fit, X_base, Y, k = item["residual_of"]
+        (base,) = yield [(fitted, (base, X_fit, Y_fit))]
+        item["y"] = np.ascontiguousarray((Y - base.predict(X_base))[:, k], dtype=float)
     warm, out = None, []
     bars = item.get("progress") or [None] * len(item["models"])
     for model, bar in zip(item["models"], bars, strict=True):
