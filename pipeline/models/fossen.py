@@ -32,6 +32,16 @@ runs: a one-step (acceleration) error hardly sees a small damping term, which a 
 blocks: on the fitted rows every added term lowers the error. The tolerance prefers the smaller model where
 scores tie within noise.
 
+Dissipation (``dissipative=True``): each DOF's damping in its own velocity must dissipate energy at every speed,
+``-X_u u^2 - X_|u|u |u|u^2 >= 0`` for all u (Fossen 2011, sec. 6.4: D(nu) > 0), which holds for all u only with
+both coefficients <= 0 (the linear one rules at low speed, the quadratic one at high); the same for Y_v, Y_|v|v and
+N_r, N_|r|r. A fit (every fit: the selection's folds and the final one) that gives one of these the wrong sign has
+it pinned at 0 and the others refitted, until none has (an active set: the constrained least-squares optimum lies
+on the bound its unconstrained one violates). Why: an unknown force that drives the velocities (a tether), or
+cross-flow terms nearly collinear with the quadratic one on one trial's excitation, can give a positive Y_|v|v
+whose held-out blocks (the same excitation) look fine and that drives the vehicle at speeds the training trials
+did not reach. Pinned terms: ``pinned_terms_`` (final fit), not in ``selected_terms_``.
+
 Guard (``mean_fallback_outputs_``): an output whose one-step R² on the held-out blocks (the selected terms) is
 below 0 is predicted by its training mean: never worse there than the mean predictor.
 """
@@ -52,7 +62,7 @@ from pipeline.rk4 import rk4_step
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Fossen3DOF", "ADDED_MASS_TERMS", "DAMPING_TERMS"]
+__all__ = ["Fossen3DOF", "ADDED_MASS_TERMS", "DAMPING_TERMS", "DISSIPATIVE_TERMS"]
 
 #: identified added mass (SNAME), in the order of theta's first four entries
 ADDED_MASS_TERMS = ("X_udot", "Y_vdot", "Y_rdot", "N_rdot")
@@ -64,7 +74,10 @@ DAMPING_TERMS = {
     "N_v": (2, "v"), "N_r": (2, "r"), "N_|v|v": (2, "|v|v"), "N_|r|r": (2, "|r|r"), "N_|r|v": (2, "|r|v"),
     "N_|v|r": (2, "|v|r"),
 }
+#: each DOF's damping in its own velocity: dissipative at every speed only if each is <= 0 (SNAME)
+DISSIPATIVE_TERMS = ("X_u", "X_|u|u", "Y_v", "Y_|v|v", "N_r", "N_|r|r")
 _PARAMS = (*ADDED_MASS_TERMS, *DAMPING_TERMS)
+_DAMPING_INDEX = {t: k for k, t in enumerate(DAMPING_TERMS)}
 _ZERO_COLUMN = 1e-12  # a column with RMS below this fraction of the largest is degenerate (no excitation)
 _ABS_SLACK = 1e-10  # free-run error (in SD^2) below which two scores tie whatever their ratio
 
@@ -122,14 +135,15 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
     ``rigid_body_mass``: 3x3 M_RB over (u, v, r) (None: zero; the added mass is then the whole inertia).
     ``terms``: the damping terms offered (None: every one of :data:`DAMPING_TERMS`). ``noise_std``: the nine
     signals' SDs (None or NaN entries: estimated). ``dt_s``: sample interval for the free runs (None: estimated).
+    ``dissipative``: pin a wrong-signed :data:`DISSIPATIVE_TERMS` coefficient at 0 (see the module's docstring).
     Fitted: ``coef_`` (LHS parameters), ``mass_matrix_``, ``selected_terms_``, ``selection_`` (the elimination's
-    rounds), ``dropped_terms_``, ``ols_fallback_``, ``mean_fallback_outputs_``, ``heldout_r2_``.
+    rounds), ``dropped_terms_``, ``pinned_terms_``, ``ols_fallback_``, ``mean_fallback_outputs_``, ``heldout_r2_``.
     """
 
     def __init__(self, rigid_body_mass: Sequence[Sequence[float]] | None = None, terms: Sequence[str] | None = None,
                  noise_std: Sequence[float] | None = None, dt_s: float | None = None, select: bool = True,
                  selection_folds: int = 4, selection_horizon_s: float = 5.0, selection_tolerance: float = 0.01,
-                 guard: bool = True) -> None:
+                 guard: bool = True, dissipative: bool = True) -> None:
         self.rigid_body_mass = rigid_body_mass
         self.terms = terms
         self.noise_std = noise_std
@@ -139,6 +153,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         self.selection_horizon_s = selection_horizon_s
         self.selection_tolerance = selection_tolerance
         self.guard = guard
+        self.dissipative = dissipative
 
     # -- fitting ---------------------------------------------------------------------------------------
     def _m_rb(self) -> np.ndarray:
@@ -209,9 +224,23 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
             w = 1.0 / np.maximum(r, 1e-9 * r.max() + 1e-300)
         return theta
 
-    def _fit_terms(self, stats: _Stats, terms: Sequence[str], m_rb: np.ndarray) -> tuple[np.ndarray, bool]:
+    def _fit_terms(self, stats: _Stats, terms: Sequence[str], m_rb: np.ndarray) -> tuple[np.ndarray, bool, list[str]]:
+        """Full parameter vector (unused terms 0), whether OLS replaced a non-physical WTLS solution, and the terms
+        pinned at 0 for their anti-dissipative sign (``dissipative``: every violator pinned, then a refit, until
+        none; LHS parameters are -SNAME, so a violator is negative here)."""
+        active, pinned = list(terms), []
+        while True:
+            theta, ols_used = self._fit_active(stats, active, m_rb)
+            bad = [t for t in active if self.dissipative and t in DISSIPATIVE_TERMS
+                   and theta[len(ADDED_MASS_TERMS) + _DAMPING_INDEX[t]] < 0]
+            if not bad:
+                return theta, ols_used, pinned
+            pinned += bad
+            active = [t for t in active if t not in bad]
+
+    def _fit_active(self, stats: _Stats, terms: Sequence[str], m_rb: np.ndarray) -> tuple[np.ndarray, bool]:
         """Full parameter vector (unused terms 0) and whether OLS replaced a non-physical WTLS solution."""
-        cols = [*range(4), *(4 + list(DAMPING_TERMS).index(t) for t in terms)]
+        cols = [*range(4), *(4 + _DAMPING_INDEX[t] for t in terms)]
         theta = np.zeros(len(_PARAMS))
         theta[cols] = self._solve(stats, cols, "wtls")
         if self._physical(theta, m_rb):
@@ -265,8 +294,11 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         self.selection_: list[dict[str, object]] = []
         if self.select and folds:
             terms = self._eliminate(nu, tau, folds, terms, m_rb, dt)
+        self.coef_, self.ols_fallback_, self.pinned_terms_ = self._fit_terms(everything, terms, m_rb)
+        if self.pinned_terms_:
+            log.warning("Fossen3DOF: %s came out anti-dissipative (wrong sign): pinned at 0", self.pinned_terms_)
+        terms = [t for t in terms if t not in self.pinned_terms_]
         self.selected_terms_ = terms
-        self.coef_, self.ols_fallback_ = self._fit_terms(everything, terms, m_rb)
         if self.ols_fallback_:
             log.warning("Fossen3DOF: WTLS gave a mass matrix that is not positive definite; OLS used")
         self.noise_std_ = sigma
@@ -341,7 +373,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         errs = []
         for _, starts, stats in folds:
             try:
-                theta, _ = self._fit_terms(stats, terms, m_rb)
+                theta, _, _ = self._fit_terms(stats, terms, m_rb)
             except (ModelError, np.linalg.LinAlgError):
                 return float("inf")
             errs.append(self._free_run_error(theta, m_rb, nu, tau, starts, dt))
@@ -368,7 +400,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         pred = np.full_like(y, np.nan)
         for train, _, stats in folds:
             try:
-                theta, _ = self._fit_terms(stats, terms, m_rb)
+                theta, _, _ = self._fit_terms(stats, terms, m_rb)
             except (ModelError, np.linalg.LinAlgError):
                 continue
             M = m_rb + _added_mass(theta[:4])
