@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -40,9 +41,10 @@ ORIGINAL_COLUMNS = [
 GENTLE_SHA256 = "fea719fb29928003482bd7443e9483eed5f67e3ac88d0e874e3d8af8d2916cc8"
 
 
-def trial_digest(trial: SimTrial) -> str:
+def trial_digest(trial: SimTrial, columns: Sequence[str] = ORIGINAL_COLUMNS) -> str:
+    """sha256 of ``columns`` of the truth table and of every stream's stamps and fields."""
     h = hashlib.sha256()
-    for col in ORIGINAL_COLUMNS:
+    for col in columns:
         h.update(col.encode())
         h.update(np.ascontiguousarray(trial.truth[col].to_numpy()).tobytes())
     for name in sorted(trial.streams):

@@ -4,7 +4,6 @@ unchanged."""
 from __future__ import annotations
 
 import collections
-import hashlib
 
 import numpy as np
 import pytest
@@ -32,6 +31,7 @@ from pipeline.sim.regime import (
 )
 from pipeline.sim.vehicle import Commander, Dynamics
 from pipeline.vocabulary import force_columns
+from tests.sim.test_presets import trial_digest
 
 FAMILY = PRESET_SEED_OFFSET["family"]
 
@@ -44,19 +44,7 @@ BEFORE_FAMILY = {
 
 
 def full_digest(trial: SimTrial) -> str:
-    h = hashlib.sha256()
-    for col in trial.truth.columns:
-        h.update(col.encode())
-        h.update(np.ascontiguousarray(trial.truth[col].to_numpy()).tobytes())
-    for name in sorted(trial.streams):
-        s = trial.streams[name]
-        h.update(name.encode())
-        h.update(s.log_ns.tobytes())
-        h.update(s.header_ns.tobytes())
-        for key in sorted(s.fields):
-            h.update(key.encode())
-            h.update(np.ascontiguousarray(s.fields[key]).tobytes())
-    return h.hexdigest()
+    return trial_digest(trial, list(trial.truth.columns))
 
 
 @pytest.fixture(scope="module")
