@@ -19,11 +19,8 @@ markdown row per (config, GP inputs, DOF).
 (as above, the paper's excitation, periods 6-45 s) and one unseen test trial per DOF from another regime (one
 sinusoid, periods 5-18 s, same duration), through the real stages with the code's defaults; the study (every model,
 the code's defaults) learns each DOF from its training trial and is scored on its test trial: the share of the test
-trial's damping targets inside each model's 90 % interval and inside the GP's 2-sigma band, and the share of the
-test trial's measured velocity inside each model's free-run band (the simulate stage's ``rollout_trial``: mean +- 2
-sd of members that carry the model's force error, the members' 2.5 / 97.5 % quantiles beside it, and the GP's
-posterior functions alone, the band before the force error). Prints mean and worst case over the seed sets per
-(model, DOF). Seed sets 0-99 served as validation (every choice), 100+ as test.
+trial's damping targets inside each model's 90 % interval and inside the GP's 2-sigma band. Prints mean and worst
+case over the seed sets per (model, DOF). Seed sets 0-99 served as validation (every choice), 100+ as test.
 """
 
 from __future__ import annotations
@@ -121,35 +118,6 @@ def interval_set(root: Path, k: int) -> dict[str, dict[str, dict[str, float]]]:
                           gp_warp=p.gp_warp, test=frame[frame["trial"] == f"{dof}_test"])
         out[dof] = {r.model: {**r.test, "half_width": r.interval["half_width"],
                               "cv_band": r.interval.get("cv_band_coverage")} for r in study.results}
-        for model, scores in free_run_bands(study, frame[frame["trial"] == f"{dof}_test"], vehicle, dof).items():
-            out[dof][model].update(scores)
-    return out
-
-
-def free_run_bands(study: object, test: object, vehicle: object, dof: str) -> dict[str, dict[str, float]]:
-    """Each model's free run on the test trial (the simulate stage's function, DOF ``dof`` alone): the share of the
-    measured velocity inside its band with the force error (mean +- 2 sd: ``run_sd``; the members' 2.5 / 97.5 %
-    quantiles: ``run_q``) and, for the GP, inside the band of its posterior functions alone (``run_latent``)."""
-    from pipeline.config import Params
-    from pipeline.rollout import rollout_trial
-    from pipeline.rollout.force_error import ForceError
-
-    params = Params(decoupled={"dofs": [dof]})
-    models = {r.model: {dof: r.estimator} for r in study.results}
-    errors = {r.model: {dof: ForceError.from_dict(r.interval["force_error"])} for r in study.results}
-    frame = test.reset_index(drop=True)
-    out: dict[str, dict[str, float]] = {}
-    for key, given in (("run", errors), ("run_latent", None)):
-        for run in rollout_trial(frame, vehicle, params, models, {}, force_errors=given).runs:
-            if run.band is None:
-                continue
-            ok = np.isfinite(run.measured[:, 0]) & np.isfinite(run.band[0][:, 0])
-            for tag, (lo, hi) in (("_sd", run.band), ("_q", run.band_quantiles)):
-                name = key if key == "run_latent" else key + tag
-                if key == "run_latent" and tag == "_q":
-                    continue
-                inside = (run.measured[ok, 0] >= lo[ok, 0]) & (run.measured[ok, 0] <= hi[ok, 0])
-                out.setdefault(run.name, {})[name] = float(inside.mean())
     return out
 
 
@@ -163,20 +131,14 @@ def intervals(seeds: range) -> int:
                     rows.setdefault((model, dof), []).append(scores)
             print(f"# seed set {k} done ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
     print(f"seed sets {seeds.start}..{seeds.stop - 1}")
-    print("| model | DOF | 90 % inside: mean | worst | GP 2σ inside: mean | worst | GP 2σ in CV |"
-          " free-run band ±2 sd: mean | worst | quantiles: mean | worst | GP latent only: mean |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| model | DOF | 90 % inside: mean | worst | GP 2σ inside: mean | worst | GP 2σ in CV |")
+    print("|---|---|---|---|---|---|---|")
     for (model, dof), runs in sorted(rows.items(), key=lambda kv: (list(DOF_INDEX).index(kv[0][1]), kv[0][0])):
         cov = np.array([r["interval_coverage"] for r in runs])
         band = [r["band_coverage"] for r in runs if "band_coverage" in r]
         cvb = [r["cv_band"] for r in runs if r.get("cv_band") is not None]
         gp = (f"{np.mean(band):.3f} | {np.min(band):.3f} | {np.mean(cvb):.3f}" if band else "– | – | –")
-        runs_cells = []
-        for key in ("run_sd", "run_q", "run_latent"):
-            vals = [r[key] for r in runs if key in r]
-            runs_cells.append((f"{np.mean(vals):.3f} | {np.min(vals):.3f}" if key != "run_latent"
-                               else f"{np.mean(vals):.3f}") if vals else ("– | –" if key != "run_latent" else "–"))
-        print(f"| {model} | {dof} | {cov.mean():.3f} | {cov.min():.3f} | {gp} | {' | '.join(runs_cells)} |")
+        print(f"| {model} | {dof} | {cov.mean():.3f} | {cov.min():.3f} | {gp} |")
     return 0
 
 

@@ -8,10 +8,7 @@ pitch are in the store); each coupled model of ``stages.train`` (``data/models/c
 ``<name>.card.json`` whose ``inputs`` are the velocity columns of those DOFs first, then thruster speeds or ``tau_*``
 columns) is rolled out as ``nudot = F(nu, inputs)``. Writes ``data/simulation/<trial>/``: ``free_run.json|png``,
 ``free_run.parquet`` (the trajectories per sample), ``horizons.json``, ``bridging.json|md|png``, and
-``data/simulation/metrics.json`` (all trials, deterministic). Each decoupled model whose card records a force
-error (``interval.force_error``) gets a 2-sigma band of ``simulate.band_samples`` members, each carrying a draw of
-it (and, for the GP, a posterior function); ``band_coverage`` in ``free_run.json`` is the share of the trial's
-measured velocities inside (docs/models.md, "Free-run bands").
+``data/simulation/metrics.json`` (all trials, deterministic).
 """
 
 from __future__ import annotations
@@ -30,7 +27,6 @@ from pipeline.config import Params, Vehicle, coupled_skip_reason
 from pipeline.errors import ModelError
 from pipeline.report.rollout import bridging_markdown, plot_bridging, plot_free_runs
 from pipeline.rollout import TrialRollout, part_progress, rollout_trial
-from pipeline.rollout.force_error import ForceError
 from pipeline.skips import clear_skip
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json, write_parquet
 from pipeline.vocabulary import VELOCITY_COLUMNS, acceleration_column
@@ -55,21 +51,6 @@ def decoupled_models(root: Path, dofs: list[str], wanted: list[str] | None) -> d
         else:
             log.warning("decoupled model %r lacks DOF(s) %s; skipped", name, [d for d, p in paths.items()
                                                                             if not p.exists()])
-    return out
-
-
-def force_errors(root: Path, models: dict[str, dict[str, Any]]) -> dict[str, dict[str, ForceError]]:
-    """``{model: {dof: ForceError}}`` from the cards of the loaded decoupled models (``interval.force_error``, the
-    AR(1) of the blocked CV's out-of-fold residuals); a card without one (written before it existed) gives none."""
-    from pipeline.models.card import card_path
-
-    base = Path(root) / layout.MODELS / "decoupled"
-    out: dict[str, dict[str, ForceError]] = {}
-    for name, per_dof in models.items():
-        for dof in per_dof:
-            entry = json.loads(card_path(base / f"{dof}_{name}.joblib").read_text()).get("interval", {})
-            if isinstance(entry.get("force_error"), dict):
-                out.setdefault(name, {})[dof] = ForceError.from_dict(entry["force_error"])
     return out
 
 
@@ -125,7 +106,7 @@ def write_trial_outputs(result: TrialRollout, trial: str, out_dir: Path) -> list
 def write_free_runs(t_ns: np.ndarray, columns: list[str], runs: list[Any], target: Path) -> Path:
     """The free-run trajectories per sample (for ``auvid export``): ``t_ns``, the measured velocities under their
     own names, and per model ``<model>/<column>`` (NaN where not simulated) and, with a band,
-    ``<model>/<column>/lower`` and ``/upper`` (mean -+ 2 sd of the band's members)."""
+    ``<model>/<column>/lower`` and ``/upper`` (mean -+ 2 sd of the posterior members)."""
     data: dict[str, Any] = {"t_ns": pa.array(t_ns, pa.int64())}
     if runs:
         data.update({c: runs[0].measured[:, j] for j, c in enumerate(columns)})
@@ -154,7 +135,6 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
         raise ModelError(f"no test-split rows for vehicle {vehicle.name!r} (set features.test_trials)",
                          file=layout.features_dir(root))
     decoupled = decoupled_models(root, dofs, params.simulate.models)
-    errors = force_errors(root, decoupled)
     coupled = coupled_models(root, dofs)
     if not decoupled and not coupled:
         raise ModelError("no fitted models (run the decoupled or coupled stage first)", file=Path(layout.MODELS))
@@ -164,7 +144,7 @@ def run(root: Path, vehicle: Vehicle, params: Params, progress: Callable[..., An
     for k, (trial, frame) in enumerate(groups, start=1):
         frame = frame.reset_index(drop=True)
         result = rollout_trial(frame, vehicle, params, decoupled, coupled,
-                               part_progress(progress, f"trial {trial} ({k}/{len(groups)}):"), errors)
+                               part_progress(progress, f"trial {trial} ({k}/{len(groups)}):"))
         metrics[str(trial)] = result.summary()
         outputs += write_trial_outputs(result, str(frame["trial"].iloc[0]), root / layout.SIMULATION / str(trial))
     outputs.append(write_json(metrics, root / layout.SIMULATION / "metrics.json"))

@@ -430,8 +430,7 @@ class SimulateParams(Frozen):
         "further out, the states overflow before the bound is met).")
     method: Literal["rk4", "euler"] = Field("rk4", description="Fixed-step integrator at the grid rate (ZOH inputs).")
     band_samples: int = Field(32, ge=0, le=1000,
-                              description="Members of each decoupled model's free-run 2-sigma band, each with a "
-                              "draw of its force error (GP: also a posterior function); 0: no bands.")
+                              description="GP posterior functions rolled out for the 2-sigma band (0: none).")
     models: list[str] | None = Field(None, description="Decoupled models to simulate (None: every fitted one).")
     seed: Seed = 0
 

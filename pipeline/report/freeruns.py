@@ -15,7 +15,7 @@ from typing import Any
 from pipeline import layout
 from pipeline.report import figures, verdicts
 from pipeline.report import html as H
-from pipeline.report.rollout import bridging_figure, shaded_band
+from pipeline.report.rollout import bridging_figure
 from pipeline.report.studies import VELOCITY_UNIT, Part, dof_key, href, label, png, read, skipped_part
 
 
@@ -128,17 +128,14 @@ def section(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = N
             parts.append(H.table(_free_run_rows(runs, marks),
                                  caption=f"Free runs on {trial}: each model rolled out from the measured initial "
                                          "velocity over the whole trial; R² and MAE of the velocity; coverage: "
-                                         "share of measured samples inside the model's 2σ band (mean ± 2 SD of "
-                                         "free runs that each carry a draw of the model's force error; 90–98 % "
-                                         "expected: "
+                                         "share of measured samples inside the model's 2σ band (90–98 % expected: "
                                          "below, the band is over-confident; above, too wide); verdict: every "
                                          "mark against the model (a failed one leaves it out of “best”)"))
-        shaded = shaded_band([str(r.get("model")) for r in runs if r.get("band_coverage")])
+        banded = [label(r.get("model")) for r in runs if r.get("band_coverage")]
         data = png(root, f"{rel}/free_run.png", used, figs, f"simulation_{trial}_free_run.png")
         if data:
-            band = (f"the shaded band is the 2σ band of {label(shaded)} (its members carry the model's force error "
-                    "and, for the GP, its posterior functions; every band's coverage is in the table)"
-                    if shaded else "no model of this run has a band")
+            band = (f"the shaded band is the 2σ band of {', '.join(map(str, banded))} (posterior samples)"
+                    if banded else "no model of this run has a band")
             said = [f"{label(r.get('model'))}: {verdicts.verdict(False, marks, str(r.get('model')))}" for r in runs
                     if verdicts.verdict(False, marks, str(r.get("model"))) != "ok"]
             parts.append(H.image(data, f"free runs of {trial}", f"Fig. 4 — free runs (paper 001) on {trial}: "

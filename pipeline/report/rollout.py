@@ -30,15 +30,8 @@ def bridging_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def shaded_band(banded: Sequence[str]) -> str | None:
-    """The one model whose band the free-run figure shades (several overlapping bands hide each other): the GP's
-    where it has one, else the first model with a band; every band's coverage is in the table."""
-    return "gp" if "gp" in banded else next(iter(banded), None)
-
-
 def plot_free_runs(runs: Sequence[FreeRun], target: Any, title: str = "") -> Any:
-    """Fig. 4-like: measured vs predicted velocity per DOF, the band of :func:`shaded_band`; a diverged model ends
-    with an x and its time."""
+    """Fig. 4-like: measured vs predicted velocity per DOF; a diverged model ends with an x and its time."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -47,7 +40,6 @@ def plot_free_runs(runs: Sequence[FreeRun], target: Any, title: str = "") -> Any
     from pipeline.tableio import atomic_path
 
     dofs = runs[0].dofs
-    shaded = shaded_band([r.name for r in runs if r.band is not None])
     fig, axes = plt.subplots(len(dofs), 1, figsize=(10, 2.6 * len(dofs)), sharex=True, squeeze=False)
     for j, d in enumerate(dofs):
         ax = axes[j, 0]
@@ -59,7 +51,7 @@ def plot_free_runs(runs: Sequence[FreeRun], target: Any, title: str = "") -> Any
                             label=label(run.name) + (f" (diverged at {run.diverged_at_s:.1f} s)"
                                                      if run.status == "diverged" else "")
                             + (f" (worse than the mean: R² {r2:.2g})" if worse else ""))
-            if run.band is not None and run.name == shaded:  # with its edges, to show among the other lines
+            if run.band is not None:  # drawn with its edges, so that it shows among the other models' lines
                 cover = run.summary().get("band_coverage", {}).get(d)
                 miss = band_verdict(cover)
                 ax.fill_between(run.t_s, run.band[0][:, j], run.band[1][:, j], color=line.get_color(), alpha=0.3,

@@ -5,8 +5,7 @@ horizon, and DVL-outage bridging.
 - :mod:`~pipeline.rollout.dynamics`: the dynamics a rollout steps (decoupled ``M nudot = tau - C nu - d``, coupled
   ``nudot = F(nu, inputs)``), and several stacked as one batch;
 - :mod:`~pipeline.rollout.integrate`: the batched integrator (RK4 of :mod:`pipeline.rk4`, or Euler);
-- :mod:`~pipeline.rollout.runs`: free runs, horizon errors, the models' bands;
-- :mod:`~pipeline.rollout.force_error`: the force error (AR(1)) each band member carries;
+- :mod:`~pipeline.rollout.runs`: free runs, horizon errors, the GP's band;
 - :mod:`~pipeline.rollout.bridging`: dead reckoning through simulated DVL outages;
 - :mod:`~pipeline.rollout.trial`: the stage's pure function, :func:`rollout_trial`.
 

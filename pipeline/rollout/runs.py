@@ -1,19 +1,15 @@
 """Free runs and error growth over horizons: every model rolled out over a trial's valid runs from its measured
 initial velocity, and from measurement at the start of consecutive windows of each horizon.
 
-Gaps (``segment == -1`` or a jump in ``t_ns``) restart a rollout from measurement. A model's band: Monte Carlo over
-``band_members`` members, each rolled out as one member of the batch; a member is a posterior *function* of the
-model where it has them (``DampingGP.sample_functions`` on the table grid, fixed seed) and carries a force error
-drawn from the model's :class:`~pipeline.rollout.force_error.ForceError` (AR(1) per DOF, added to its inputs, fixed
-seed) where the model has one; the band is the mean +- 2 sd of the members. Every run, band member and window of
-every model that reads the same inputs is one member of one batch (:func:`run_models`).
+Gaps (``segment == -1`` or a jump in ``t_ns``) restart a rollout from measurement. The GP's band: Monte Carlo over
+posterior *functions* (``DampingGP.sample_functions`` on the table grid, fixed seed), each rolled out as one member
+of the batch; the band is the mean +- 2 sd of the members. Every run, band member and window of every model that
+reads the same inputs is one member of one batch (:func:`run_models`).
 """
 
 from __future__ import annotations
 
 import logging
-import warnings
-import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from pipeline.rollout.dynamics import Dynamics, stack
-from pipeline.rollout.force_error import ForceError
 from pipeline.rollout.integrate import rollout_ragged
 from pipeline.rollout.tables import take
 
@@ -78,8 +73,6 @@ class FreeRun:
     diverged_at_s: float | None = None
     band: tuple[np.ndarray, np.ndarray] | None = None
     metrics: dict[str, Any] = field(default_factory=dict)
-    #: the members' 2.5 / 97.5 % quantiles, beside the band (not written; bench/decoupled_coverage.py compares them)
-    band_quantiles: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     def summary(self) -> dict[str, Any]:
         out = {"model": self.name, "status": self.status, "diverged_at_s": self.diverged_at_s,
@@ -95,16 +88,15 @@ class FreeRun:
 
 def free_run(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray, inputs: np.ndarray, dofs: Sequence[str],
              *, segment: np.ndarray | None = None, divergence_factor: float = 10.0, method: str = "rk4",
-             band_f: Dynamics | None = None, band_members: int = 0,
-             force_error: Sequence[ForceError | None] | None = None, seed: int = 0) -> FreeRun:
+             band_f: Dynamics | None = None, band_members: int = 0) -> FreeRun:
     """Roll ``f`` out over every valid run of the trial from its measured initial velocity.
 
     ``band_f`` (optional) is a dynamics over a batch of ``band_members`` posterior members (per-member tables);
-    ``force_error`` (optional, one per DOF of ``inputs``) the force error each member carries; the members' mean
-    +- 2 sd becomes :attr:`FreeRun.band`. All runs (and band members) are one batch (:func:`run_model`).
+    its mean +- 2 sd becomes :attr:`FreeRun.band`. All runs (and band members) are one batch
+    (:func:`run_model`).
     """
     return run_model(name, f, t_ns, nu_meas, inputs, dofs, segment=segment, divergence_factor=divergence_factor,
-                     method=method, band_f=band_f, band_members=band_members, force_error=force_error, seed=seed)[0]
+                          method=method, band_f=band_f, band_members=band_members)[0]
 
 
 def windows(t_ns: np.ndarray, segment: np.ndarray | None, dt_s: float, length_s: float) -> np.ndarray:
@@ -127,39 +119,27 @@ def horizon_errors(f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray, inputs: n
 def run_model(name: str, f: Dynamics, t_ns: np.ndarray, nu_meas: np.ndarray, inputs: np.ndarray,
                    dofs: Sequence[str], horizons_s: Sequence[float] = (), *, segment: np.ndarray | None = None,
                    divergence_factor: float = 10.0, method: str = "rk4", band_f: Dynamics | None = None,
-                   band_members: int = 0, free: bool = True, force_error: Sequence[ForceError | None] | None = None,
-                   seed: int = 0) -> tuple[FreeRun | None, dict[str, Any]]:
-    """One model's free run (``free``; with ``band_f``'s members and ``force_error``) and horizon errors from one
-    batched rollout (:func:`run_models`). Returns ``(FreeRun or None, horizons)``."""
+                   band_members: int = 0, free: bool = True) -> tuple[FreeRun | None, dict[str, Any]]:
+    """One model's free run (``free``; with ``band_f``'s members) and horizon errors from one batched rollout
+    (:func:`run_models`). Returns ``(FreeRun or None, horizons)``."""
     return run_models({name: (f, band_f)}, t_ns, nu_meas, inputs, dofs, horizons_s, segment=segment,
-                      divergence_factor=divergence_factor, method=method, band_members=band_members, free=free,
-                      force_errors=None if force_error is None else {name: force_error}, seed=seed)[name]
+                           divergence_factor=divergence_factor, method=method, band_members=band_members,
+                           free=free)[name]
 
 
 def run_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.ndarray, nu_meas: np.ndarray,
                     inputs: np.ndarray, dofs: Sequence[str], horizons_s: Sequence[float] = (), *,
                     segment: np.ndarray | None = None, divergence_factor: float = 10.0, method: str = "rk4",
-                    band_members: int = 0, free: bool = True, progress: Callable[..., Any] | None = None,
-                    force_errors: Mapping[str, Sequence[ForceError | None]] | None = None, seed: int = 0
+                    band_members: int = 0, free: bool = True, progress: Callable[..., Any] | None = None
                     ) -> dict[str, tuple[FreeRun | None, dict[str, Any]]]:
     """Free runs (``free``) and horizon errors of models ``{name: (f, band_f or None)}`` that read the same
     ``inputs``, from one batched rollout: every valid run, every band member of every run and every window of
     every horizon of every model is a member of one :func:`rollout_ragged` call over :func:`stack` of the
     dynamics (one call per RK4 stage for the whole batch where they merge, e.g. decoupled models on tables).
     Returns ``{name: (FreeRun or None, horizons)}``, equal to rolling each member out alone. ``progress``: see
-    :func:`rollout_ragged`.
-
-    A model has a band of ``band_members`` members when it has ``band_f`` (its posterior members) or
-    ``force_errors[name]`` (one :class:`ForceError` or None per column of ``inputs``, the generalized forces):
-    each member then reads its own inputs, the trial's minus a draw of the force error (the model misses
-    ``target - prediction``), drawn from a generator seeded by ``seed`` and the model's name, so the same
-    inputs give the same bytes."""
+    :func:`rollout_ragged`."""
     if not models:
         return {}
-    inputs = np.asarray(inputs, dtype=float)
-    for name, errors in (force_errors or {}).items():
-        if name in models and errors is not None and len(errors) != inputs.shape[1]:
-            raise ValueError(f"{name}: {len(errors)} force errors for {inputs.shape[1]} input columns")
     dt_s = grid_step_s(t_ns)
     bound = divergence_bound(nu_meas, divergence_factor)
     runs = segment_runs(t_ns, segment, dt_s) if free else []
@@ -167,49 +147,33 @@ def run_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.
     seg_n = np.array([b - a for a, b in runs], dtype=np.intp)
     win = {h: windows(t_ns, segment, dt_s, h) for h in horizons_s}
     win_n = {h: int(round(h / dt_s)) + 1 for h in horizons_s}
-    starts: list[np.ndarray] = []  # each member's first input row (in ``inputs`` and the members' own rows)
-    origins: list[np.ndarray] = []  # each member's first trial row (its initial state)
-    member_inputs = [inputs]  # the trial's rows, then the band members' own rows (tau minus a force error)
-    n_rows = inputs.shape[0]
+    starts: list[np.ndarray] = []
     lengths: list[np.ndarray] = []
     groups: list[np.ndarray] = []
     dynamics: list[Dynamics] = []
     layout: dict[str, tuple[int, bool]] = {}  # name -> (first member, has a band)
     n_members = 0
 
-    def add(st: np.ndarray, n: np.ndarray, origin: np.ndarray | None = None) -> None:
+    def add(st: np.ndarray, n: np.ndarray) -> None:
         nonlocal n_members
         starts.append(st)
-        origins.append(st if origin is None else origin)
         lengths.append(n)
         groups.append(np.full(st.size, len(dynamics) - 1, dtype=np.intp))
         n_members += st.size
 
     for name, (f, band_f) in models.items():
-        errors = (force_errors or {}).get(name)
-        noisy = errors is not None and any(e is not None and e.sd > 0 for e in errors)
-        band = free and band_members > 0 and (band_f is not None or noisy)
+        band = free and band_f is not None and band_members > 0
         layout[name] = (n_members, band)
         dynamics.append(f)
         add(seg_a, seg_n)
         for h in horizons_s:
             add(win[h], np.full(win[h].size, win_n[h], dtype=np.intp))
         if band:  # run-major: the members of run s are rows s*M .. s*M + M - 1 of the band dynamics
-            dynamics.append(take(f if band_f is None else band_f, np.tile(np.arange(band_members), seg_a.size)))
-            origin = np.repeat(seg_a, band_members)
-            if noisy:
-                rows = _member_inputs(inputs, runs, band_members, errors, dt_s,  # type: ignore[arg-type]
-                                      np.random.default_rng([seed, zlib.crc32(name.encode())]))
-                member_inputs.append(rows)
-                own = n_rows + np.concatenate([[0], np.cumsum(np.repeat(seg_n, band_members))[:-1]])
-                n_rows += rows.shape[0]
-                add(own.astype(np.intp), np.repeat(seg_n, band_members), origin)
-            else:
-                add(origin, np.repeat(seg_n, band_members))
-    start, origin, length, group = (np.concatenate(x) for x in (starts, origins, lengths, groups))
+            dynamics.append(take(band_f, np.tile(np.arange(band_members), seg_a.size)))
+            add(np.repeat(seg_a, band_members), np.repeat(seg_n, band_members))
+    start, length, group = (np.concatenate(x) for x in (starts, lengths, groups))
     dyn = dynamics[0] if len(dynamics) == 1 else stack(dynamics, group)
-    rows = member_inputs[0] if len(member_inputs) == 1 else np.concatenate(member_inputs)
-    flat, div = rollout_ragged(dyn, nu_meas[origin], rows, start, length, dt_s, bound=bound, method=method,
+    flat, div = rollout_ragged(dyn, nu_meas[start], inputs, start, length, dt_s, bound=bound, method=method,
                                progress=progress)
     offset = np.concatenate([[0], np.cumsum(length)]).astype(np.intp)
     t_s = (np.asarray(t_ns) - t_ns[0]) * 1e-9
@@ -220,7 +184,6 @@ def run_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.
         if free:
             pred = np.full_like(nu_meas, np.nan, dtype=float)
             lo, hi = np.full_like(pred, np.nan), np.full_like(pred, np.nan)
-            q_lo, q_hi = np.full_like(pred, np.nan), np.full_like(pred, np.nan)
             status, at = "ok", None
             band_first = first + seg_a.size + sum(win[h].size for h in horizons_s)
             for s, (a, b) in enumerate(runs):
@@ -231,15 +194,10 @@ def run_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.
                 if band:
                     m0 = band_first + s * band_members
                     members = flat[offset[m0]:offset[m0 + band_members]].reshape(band_members, b - a, -1)
-                    with np.errstate(all="ignore"), warnings.catch_warnings():
-                        warnings.simplefilter("ignore", RuntimeWarning)  # a sample where every member diverged
+                    with np.errstate(all="ignore"):
                         m, sd = np.nanmean(members, axis=0), np.nanstd(members, axis=0)
-                        # nanquantile is one Python call per sample: only where a member diverged
-                        quantile = np.nanquantile if np.isnan(members).any() else np.quantile
-                        q_lo[a:b], q_hi[a:b] = quantile(members, [0.025, 0.975], axis=0)
                     lo[a:b], hi[a:b] = m - 2 * sd, m + 2 * sd
             run = FreeRun(name, list(dofs), t_s, nu_meas, pred, status, at, (lo, hi) if band else None)
-            run.band_quantiles = (q_lo, q_hi) if band else None
             run.metrics = _metrics(nu_meas, pred, dofs)
         out: dict[str, Any] = {}
         w0 = first + seg_a.size
@@ -260,17 +218,3 @@ def run_models(models: Mapping[str, tuple[Dynamics, Dynamics | None]], t_ns: np.
             w0 += count
         results[name] = (run, out)
     return results
-
-
-def _member_inputs(inputs: np.ndarray, runs: Sequence[tuple[int, int]], n_members: int,
-                   errors: Sequence[ForceError | None], dt_s: float, rng: np.random.Generator) -> np.ndarray:
-    """The band members' own input rows, run-major (run s's members one after another, each its run's rows): the
-    trial's inputs minus a draw of each column's force error (None: that column as measured)."""
-    blocks = []
-    for a, b in runs:
-        block = np.repeat(inputs[None, a:b], n_members, axis=0)
-        for j, e in enumerate(errors):
-            if e is not None and e.sd > 0:
-                block[:, :, j] -= e.sample(n_members, b - a, dt_s, rng)
-        blocks.append(block.reshape(n_members * (b - a), -1))
-    return np.concatenate(blocks) if blocks else inputs[:0]

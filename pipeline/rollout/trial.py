@@ -4,9 +4,6 @@ fitted model, from the trial's table and the loaded models (no files; ``stages/s
 Each decoupled model set ``{dof: estimator}`` becomes ``M nudot = tau - C(nu) nu - d(nu)`` with M and C from
 :mod:`pipeline.physics` and tau from the measured thruster speeds (minus restoring forces when roll and pitch are
 in the store); each coupled model ``(estimator, extra input columns)`` is rolled out as ``nudot = F(nu, inputs)``.
-A decoupled model's band (``simulate.band_samples`` members): its posterior functions where it has them (the GP),
-each member carrying a draw of the model's force error (:mod:`pipeline.rollout.force_error`) where its card
-records one; a model with neither has no band.
 """
 
 from __future__ import annotations
@@ -24,7 +21,6 @@ from pipeline import physics
 from pipeline.config import Params, Vehicle
 from pipeline.rollout.bridging import bridge_outages
 from pipeline.rollout.dynamics import CoupledDynamics, DecoupledDynamics
-from pipeline.rollout.force_error import ForceError
 from pipeline.rollout.runs import FreeRun, run_models
 from pipeline.rollout.tables import band_tables, damping_tables, table_range
 from pipeline.vocabulary import DOFS, TAU_COLUMNS, VELOCITY_COLUMNS
@@ -68,12 +64,10 @@ def trial_inputs(frame: pd.DataFrame, vehicle: Vehicle, dofs: list[str]) -> np.n
 
 
 def rollout_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupled: Mapping[str, Mapping[str, Any]],
-                  coupled: Mapping[str, tuple[Any, list[str]]], progress: Callable[..., Any] | None = None,
-                  force_errors: Mapping[str, Mapping[str, ForceError]] | None = None) -> TrialRollout:
+                  coupled: Mapping[str, tuple[Any, list[str]]], progress: Callable[..., Any] | None = None
+                  ) -> TrialRollout:
     """Free runs, horizon errors and (with u, v and yaw in the store) bridging of the models ``decoupled``
-    (``{model: {dof: estimator}}``) and ``coupled`` (``{name: (estimator, extra input columns)}``) on one trial.
-    ``force_errors`` (``{model: {dof: ForceError}}``, optional): what each decoupled model's band members carry;
-    a DOF not named carries none."""
+    (``{model: {dof: estimator}}``) and ``coupled`` (``{name: (estimator, extra input columns)}``) on one trial."""
     p, dofs = params.simulate, list(params.decoupled.dofs)
     t_ns = frame["t_ns"].to_numpy(np.int64)
     seg = frame["segment"].to_numpy(int) if "segment" in frame else None
@@ -98,7 +92,6 @@ def rollout_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupl
     # merge into one call per RK4 stage), each coupled model alone (its own inputs)
     batches = [{n: (f, bands.get(n)) for n, (f, inputs) in dynamics.items() if inputs is tau}]
     batches += [{n: (f, None)} for n, (f, inputs) in dynamics.items() if inputs is not tau]
-    errors = {n: [(force_errors or {}).get(n, {}).get(d) for d in dofs] for n in decoupled}
     results: dict[str, Any] = {}
     batches = list(filter(None, batches))
     with threadpool_limits(1, user_api="blas"):  # small per-step products: BLAS threads would only spin
@@ -107,8 +100,7 @@ def rollout_trial(frame: pd.DataFrame, vehicle: Vehicle, params: Params, decoupl
             label = f"{', '.join(batch)} ({k}/{len(batches)})"
             results.update(run_models(batch, t_ns, nu, inputs, dofs, p.horizons_s, segment=seg,
                                       divergence_factor=p.divergence_factor, method=p.method,
-                                      band_members=p.band_samples, progress=part_progress(progress, label),
-                                      force_errors=errors, seed=p.seed))
+                                      band_members=p.band_samples, progress=part_progress(progress, label)))
     runs, horizons = [], {}
     for name in dynamics:  # the models' order
         run, horizons[name] = results[name]

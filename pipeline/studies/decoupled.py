@@ -59,7 +59,6 @@ from pipeline.evaluate import (
 from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
 from pipeline.parallel import imap, task_result, timed_task, workers
 from pipeline.physics import weight_buoyancy_N
-from pipeline.rollout.force_error import fit_ar1
 from pipeline.vocabulary import DAMPING_COLUMNS, VELOCITY_COLUMNS, force_column
 
 log = logging.getLogger(__name__)
@@ -87,26 +86,19 @@ def dof_data(df: pd.DataFrame, dof: str, max_samples: int | None = None) -> tupl
     return X, y
 
 
-def dof_rows(df: pd.DataFrame, dof: str, max_samples: int | None = None) -> np.ndarray:
-    """Positions of the rows :func:`dof_samples` keeps: finite velocity and target, thinned by an even stride."""
-    x_col, y_col = dof_columns(dof)
-    missing = [c for c in (x_col, y_col) if c not in df.columns]
-    if missing:
-        raise ModelError(f"columns {missing} missing for DOF {dof!r}; have {sorted(df.columns)[:20]}...")
-    ok = np.flatnonzero(np.isfinite(df[x_col].to_numpy(dtype=float)) & np.isfinite(df[y_col].to_numpy(dtype=float)))
-    if max_samples is not None and ok.size > max_samples:
-        ok = ok[np.linspace(0, ok.size - 1, max_samples).round().astype(int)]
-    return ok
-
-
 def dof_samples(df: pd.DataFrame, dof: str, max_samples: int | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`dof_data` and the targets' own SDs of those rows (None where the table has no :func:`sd_column`;
     a row's non-finite SD becomes the median of the others, with a warning)."""
     x_col, y_col = dof_columns(dof)
-    ok = dof_rows(df, dof, max_samples)
+    missing = [c for c in (x_col, y_col) if c not in df.columns]
+    if missing:
+        raise ModelError(f"columns {missing} missing for DOF {dof!r}; have {sorted(df.columns)[:20]}...")
     x = df[x_col].to_numpy(dtype=float)
     y = df[y_col].to_numpy(dtype=float)
+    ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
+    if max_samples is not None and ok.size > max_samples:
+        ok = ok[np.linspace(0, ok.size - 1, max_samples).round().astype(int)]
     sd = df[sd_column(dof)].to_numpy(dtype=float)[ok] if sd_column(dof) in df.columns else None
     if sd is not None:
         bad = ~(np.isfinite(sd) & (sd >= 0))
@@ -224,12 +216,11 @@ def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, lis
 
 
 def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: int = 5, curve_points: int = 5,
-             sd: np.ndarray | None = None, name: str = "", t_ns: np.ndarray | None = None
+             sd: np.ndarray | None = None, name: str = ""
              ) -> tuple[dict[str, float], dict[str, list[float]], float, float, dict[str, Any]]:
     """Unshuffled k-fold CV (MAE, R^2, train and test, mean and SD), learning curve, mean fit / predict time, and
     the prediction interval from the same folds' out-of-fold residuals (:func:`oof_interval`). ``sd``: the
-    targets' own SDs, passed to the models that take them (``name`` in :data:`TAKES_SD`); ``t_ns``: the rows'
-    times, for the free runs' force error (:func:`oof_interval`)."""
+    targets' own SDs, passed to the models that take them (``name`` in :data:`TAKES_SD`)."""
     cv = KFold(n_splits=folds, shuffle=False)
     params = _fit_params(name, sd)
     with _quiet():
@@ -246,12 +237,12 @@ def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: i
     curve = {"train_sizes": [int(s) for s in sizes],
              "train_mae_mean": (-train.mean(axis=1)).tolist(), "train_mae_sd": train.std(axis=1).tolist(),
              "test_mae_mean": (-test.mean(axis=1)).tolist(), "test_mae_sd": test.std(axis=1).tolist()}
-    interval = oof_interval(res["estimator"], res["indices"]["test"], X, y, sd, t_ns)
+    interval = oof_interval(res["estimator"], res["indices"]["test"], X, y, sd)
     return metrics, curve, float(res["fit_time"].mean()), float(res["score_time"].mean()), interval
 
 
 def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.ndarray], X: np.ndarray,
-                 y: np.ndarray, sd: np.ndarray | None, t_ns: np.ndarray | None = None) -> dict[str, Any]:
+                 y: np.ndarray, sd: np.ndarray | None) -> dict[str, Any]:
     """The :data:`INTERVAL_LEVEL` interval from the out-of-fold residuals of the blocked folds (each fold's rows
     predicted by the model fitted without them); for a GP also the share of out-of-fold targets inside its 2-sigma
     band (``cv_band_coverage``).
@@ -259,8 +250,7 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
     With the targets' own SDs ``sd`` the score is normalized: ``q`` (``half_width_sd``) is the conformal quantile
     of ``|residual| / sd`` and a row's interval is ``+- q sd``, so it widens where the target is noisier (a faster
     trial); ``half_width`` is then ``q`` times the training rows' RMS SD, the typical width. Without ``sd``: one
-    half-width, the quantile of ``|residual|``. With the rows' times ``t_ns`` also ``force_error``: the AR(1) of
-    the signed out-of-fold residuals that the free runs' band members carry (:func:`pipeline.rollout.fit_ar1`)."""
+    half-width, the quantile of ``|residual|``."""
     resid, inside = [], []
     for est, rows in zip(estimators, test_folds, strict=True):
         if isinstance(est, DampingGP):
@@ -269,9 +259,8 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
             inside.append(np.abs(y[rows] - mean) <= 2 * std)
         else:
             mean = est.predict(X[rows])
-        resid.append(y[rows] - np.ravel(mean))
-    signed = np.concatenate(resid)
-    r = np.abs(signed)
+        resid.append(np.abs(y[rows] - np.ravel(mean)))
+    r = np.concatenate(resid)
     out: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size),
                            "method": "split conformal on the blocked CV's out-of-fold residuals"}
     if sd is None:
@@ -282,9 +271,6 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
         out.update(scale="target_sd", half_width_sd=q, half_width=q * float(np.sqrt(np.mean(sd**2))))
     if inside:
         out["cv_band_coverage"] = float(np.concatenate(inside).mean())
-    if t_ns is not None:
-        order = np.concatenate(list(test_folds))
-        out["force_error"] = fit_ar1(signed, np.asarray(t_ns)[order]).as_dict()
     return out
 
 
@@ -404,9 +390,8 @@ def _unit(unit: dict[str, Any]) -> dict[str, Any]:
 
 def _dof_rows(tuning: pd.DataFrame, train_test: pd.DataFrame, dof: str, folds: int, max_samples: int | None,
               dof_trials: Mapping[str, Sequence[str]] | None) -> tuple[np.ndarray, ...]:
-    """``(X_tune, y_tune, sd_tune, X, y, sd, t_ns)`` of a DOF (its own trials if ``dof_trials`` names them; ``sd``:
-    the targets' own SDs or None, :func:`dof_samples`; ``t_ns``: the train_test rows' times, None without
-    ``t_ns``)."""
+    """``(X_tune, y_tune, sd_tune, X, y, sd)`` of a DOF (its own trials if ``dof_trials`` names them; ``sd``: the
+    targets' own SDs or None, :func:`dof_samples`)."""
     tune_rows, tt_rows = tuning, train_test
     if dof_trials and dof_trials.get(dof):
         wanted = set(dof_trials[dof])
@@ -416,13 +401,11 @@ def _dof_rows(tuning: pd.DataFrame, train_test: pd.DataFrame, dof: str, folds: i
     X, y, sd = dof_samples(tt_rows, dof, max_samples)
     if len(y) < 2 * folds:
         raise ModelError(f"{len(y)} train_test samples are too few for {folds}-fold CV", field=dof)
-    t_ns = (tt_rows["t_ns"].to_numpy(np.int64)[dof_rows(tt_rows, dof, max_samples)] if "t_ns" in tt_rows.columns
-            else None)
-    return X_tune, y_tune, sd_tune, X, y, sd, t_ns
+    return X_tune, y_tune, sd_tune, X, y, sd
 
 
 def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, sd_tune: np.ndarray | None,
-               X: np.ndarray, y: np.ndarray, sd: np.ndarray | None, t_ns: np.ndarray | None = None, *, folds: int,
+               X: np.ndarray, y: np.ndarray, sd: np.ndarray | None, *, folds: int,
                search: str | dict[str, dict[str, list[Any]]], seed: int, gp_max_samples: int, gp_warp: str,
                curve_points: int, intercept: bool = False) -> ModelResult:
     model_search = search.get(name, "fast") if isinstance(search, dict) else search
@@ -430,7 +413,7 @@ def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, sd_t
     est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
                             gp_max_samples=gp_max_samples, gp_warp=gp_warp, sd=sd_tune, intercept=intercept)
     cv, curve, fit_s, pred_s, interval = evaluate(est, X, y, folds=folds, curve_points=curve_points, sd=sd,
-                                                  name=name, t_ns=t_ns)
+                                                  name=name)
     with _quiet():
         final = clone(est).fit(X, y, **(_fit_params(name, sd) or {}))
     log.info("%s/%s: search MAE %.3f, CV test MAE %.3f, %.0f %% interval +-%.3g (%.1f s)", dof, name, score,
