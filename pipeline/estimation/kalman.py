@@ -47,7 +47,7 @@ from pipeline.config.params import DifferentiateParams
 from pipeline.config.vehicle import Vehicle
 from pipeline.errors import SchemaError, SyncError
 from pipeline.estimation.accelerometer import accelerometer_measurements
-from pipeline.estimation.clock_offset import estimate_actuator_offset, shift_columns, shifted
+from pipeline.estimation.clock_offset import MIN_STEP_FRACTION, estimate_actuator_offset, shift_columns, shifted
 from pipeline.estimation.dvl_alignment import estimate_misalignment, turned, widen_for_misalignment
 from pipeline.estimation.forced import excitation_report, force_model, smooth_passes, smooth_with_input
 from pipeline.estimation.measurements import rate_measurements, velocity_measurements
@@ -141,7 +141,7 @@ def estimate_motion(synced: pd.DataFrame, vehicle: Vehicle, params: Differentiat
     offset = None
     if model is not None:
         offset = estimate_actuator_offset(grid, meas, results, inputs, passes["chosen"], model, DOFS).with_prior(
-            params.actuator_offset_sd_s)
+            params.actuator_offset_sd_s, min_s=MIN_STEP_FRACTION * h_s)
         if offset.applied:  # the thrust read that much later, the passes run again
             log.info("actuators: clock offset %.3f s (SD %.3f) found and applied", offset.posterior_s,
                      offset.posterior_sd_s)

@@ -108,6 +108,10 @@ def test_the_prior_on_the_configured_offset_is_combined_by_precisions_and_applie
     assert weak.posterior_s == pytest.approx(0.0384) and not weak.applied   # 1.6 SDs: kept as configured
     exact = trial.with_prior(0.0)
     assert exact.posterior_s == 0.0 and exact.posterior_sd_s == 0.0 and not exact.applied
+    # a few ms, many SDs from 0 on a long trial, but under a quarter of a 50-ms grid step: not worth the passes again
+    tiny = ClockOffset(estimate_s=0.009, sd_s=0.0034, identifiable=True)
+    assert tiny.with_prior(0.1).applied and not tiny.with_prior(0.1, min_s=0.0125).applied
+    assert post.posterior_s > 0.0125 and trial.with_prior(0.04, min_s=0.0125).applied
 
 
 def test_shifted_reads_the_thrust_later_exactly_at_whole_steps_and_linearly_between() -> None:
