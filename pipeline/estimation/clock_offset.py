@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline import physics
+from pipeline.estimation.dvl_alignment import zero_mean_posterior
 from pipeline.estimation.forced import ForceModel, covered, damping_features, input_at
 from pipeline.estimation.smoother import Measurements, Smoothed, logliks
 from pipeline.sync import valid_column
@@ -79,11 +80,8 @@ class ClockOffset:
             return replace(self, posterior_s=0.0, posterior_sd_s=0.0, applied=False)
         if self.estimate_s is None or self.sd_s is None:
             return replace(self, posterior_s=0.0, posterior_sd_s=prior_sd_s, applied=False)
-        weight = prior_sd_s**2 / (prior_sd_s**2 + self.sd_s**2)
-        mean = weight * self.estimate_s
-        sd = float(np.sqrt(weight) * self.sd_s)
-        applied = bool(abs(mean) > max(APPLY_SDS * sd, min_s))
-        return replace(self, posterior_s=float(mean), posterior_sd_s=sd, applied=applied)
+        mean, sd = zero_mean_posterior(self.estimate_s, self.sd_s, prior_sd_s)
+        return replace(self, posterior_s=mean, posterior_sd_s=sd, applied=bool(abs(mean) > max(APPLY_SDS * sd, min_s)))
 
 
 def read_later(x: np.ndarray, steps: float) -> np.ndarray:

@@ -27,7 +27,7 @@ from pipeline.estimation.smoother import Measurements, Smoothed
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Misalignment", "estimate_misalignment", "turned", "widen_for_misalignment"]
+__all__ = ["Misalignment", "estimate_misalignment", "turned", "widen_for_misalignment", "zero_mean_posterior"]
 
 
 @dataclass(frozen=True)
@@ -55,10 +55,15 @@ class Misalignment:
             return replace(self, posterior_deg=0.0, posterior_sd_deg=0.0, applied=False)
         if self.estimate_deg is None or self.sd_deg is None:
             return replace(self, posterior_deg=0.0, posterior_sd_deg=prior_sd_deg, applied=False)
-        weight = prior_sd_deg**2 / (prior_sd_deg**2 + self.sd_deg**2)
-        mean = weight * self.estimate_deg
-        sd = float(np.sqrt(weight) * self.sd_deg)
-        return replace(self, posterior_deg=float(mean), posterior_sd_deg=sd, applied=bool(abs(mean) > sd))
+        mean, sd = zero_mean_posterior(self.estimate_deg, self.sd_deg, prior_sd_deg)
+        return replace(self, posterior_deg=mean, posterior_sd_deg=sd, applied=bool(abs(mean) > sd))
+
+
+def zero_mean_posterior(estimate: float, sd: float, prior_sd: float) -> tuple[float, float]:
+    """Mean and SD of a Gaussian estimate ``estimate`` ± ``sd`` combined with a zero-mean prior of SD ``prior_sd``
+    (precisions add): a trial's own estimate of a sensor error against its configured value."""
+    weight = prior_sd**2 / (prior_sd**2 + sd**2)
+    return float(weight * estimate), float(np.sqrt(weight) * sd)
 
 
 def turned(u: Measurements, v: Measurements, psi_rad: float) -> tuple[Measurements, Measurements]:
