@@ -57,6 +57,7 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from pipeline.errors import ModelError
+from pipeline.models import bootstrap
 from pipeline.models.explicit import NOISE_SIGNALS, contiguous_runs, estimate_noise_std, null_vector, ols
 from pipeline.rk4 import rk4_step
 
@@ -436,9 +437,60 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
     def coefficients(self) -> dict[str, float]:
         """SNAME derivatives: added mass (``N_vdot`` = ``Y_rdot``) and damping; a term not selected is 0."""
         check_is_fitted(self, "coef_")
-        out = {name: -float(v) for name, v in zip(_PARAMS, self.coef_, strict=True)}
-        out["N_vdot"] = out["Y_rdot"]
-        return out
+        return _sname(self.coef_)
+
+    def fit_intervals(self, X, y, groups=None, *, level: float = 0.9, n_boot: int = 200, seed: int = 0):
+        """``coefficient_intervals_``: ``level`` intervals of the identified coefficients (added mass and the
+        selected damping terms, SNAME) by the block bootstrap of :mod:`pipeline.models.bootstrap`, the terms held
+        at the selection's (intervals conditional on it: the selection's own variability is not in them). ``X``,
+        ``y``: the rows :meth:`fit` was given; ``groups`` (one id per row, e.g. the trial): blocks are drawn within
+        each group, so every trial keeps its share (None: one group; a block may then span two trials, which
+        only the blocks' correlation sees). Each replicate weights the rows' sufficient statistics by its block
+        counts, so it costs a few small QR factorizations, not a fit."""
+        check_is_fitted(self, "coef_")
+        X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
+        nu, tau, m_rb = X[:, :3], X[:, 3:], self._m_rb()
+        if groups is None:
+            runs = [(0, len(X))]
+        else:
+            ids = np.asarray(groups)
+            edges = [0, *(np.flatnonzero(ids[1:] != ids[:-1]) + 1).tolist(), len(X)]
+            runs = list(zip(edges[:-1], edges[1:], strict=True))
+        resid = _rows(nu, y, tau, m_rb) @ np.append(self.coef_, -1.0)
+        length = bootstrap.block_rows(resid, runs)
+        blocks = bootstrap.cut_blocks(runs, length)
+        masks = []
+        for a, b, _ in blocks:
+            m = np.zeros(len(X), dtype=bool)
+            m[a:b] = True
+            masks.append(m)
+        parts = self._stats(nu, y, tau, self.noise_std_, m_rb, masks)
+        counts = bootstrap.draw_counts(blocks, n_boot, np.random.default_rng(seed))
+        samples, failed = [], 0
+        for c in counts:
+            use = np.flatnonzero(c)
+            r = np.concatenate([np.sqrt(c[b]) * parts[b].r for b in use], axis=1)
+            stats = _Stats(np.stack([np.linalg.qr(r[e], mode="r") for e in range(3)]),
+                           sum(c[b] * parts[b].noise for b in use), int(sum(c[b] * parts[b].n for b in use)))
+            try:
+                samples.append(self._fit_terms(stats, self.selected_terms_, m_rb)[0])
+            except ModelError:  # a replicate without a physical mass matrix: left out, and counted
+                failed += 1
+        names = [*ADDED_MASS_TERMS, "N_vdot", *self.selected_terms_]
+        self.coefficient_intervals_ = {"level": level, "method": "non-overlapping block bootstrap, percentile",
+                                       "block_rows": length, "blocks": len(blocks), "replicates": len(samples),
+                                       "failed_replicates": failed, "intervals": {}}
+        if len(samples) >= n_boot // 2:
+            lo, hi = bootstrap.percentile_interval([[_sname(t)[k] for k in names] for t in samples], level)
+            self.coefficient_intervals_["intervals"] = {k: [float(a), float(b)] for k, a, b in zip(names, lo, hi,
+                                                                                                  strict=True)}
+        return self
+
+
+def _sname(theta: np.ndarray) -> dict[str, float]:
+    out = {name: -float(v) for name, v in zip(_PARAMS, theta, strict=True)}
+    out["N_vdot"] = out["Y_rdot"]
+    return out
 
 
 def _dynamics(theta: np.ndarray, M: np.ndarray, M_inv: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:

@@ -170,6 +170,15 @@ class GrayBox(RegressorMixin, BaseEstimator):
 
         return predict
 
+    def fit_intervals(self, X, y, **kwargs: Any) -> GrayBox:
+        """``coefficient_intervals_``: the base model's (``fit_intervals``, for the card), where it has them."""
+        check_is_fitted(self, "base_")
+        if hasattr(self.base_, "fit_intervals"):
+            X = np.asarray(X, dtype=float)
+            base = self.base_.fit_intervals(X[:, self._columns(X.shape[1])[0]], y, **kwargs)
+            self.coefficient_intervals_ = base.coefficient_intervals_
+        return self
+
     def coefficients(self) -> dict[str, float]:
         """The base model's coefficients (for the model card)."""
         check_is_fitted(self, "base_")

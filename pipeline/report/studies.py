@@ -291,6 +291,25 @@ def ranking_note(best: dict[str, tuple[str, float]], hyper_doc: dict[str, Any] |
             "See docs/models.md, “On realistic data”.</p>")
 
 
+def coefficient_tables(root: Path, used: set[str]) -> str:
+    """Per physics model whose card has them (Fossen), its coefficients with their block-bootstrap intervals."""
+    parts = []
+    for path in sorted((root / layout.MODELS / "coupled").glob("*.card.json")):
+        card = read(root, str(path.relative_to(root)), used)
+        ci = (card or {}).get("coefficient_intervals") if isinstance(card, dict) else None
+        if not isinstance(ci, dict) or not ci.get("intervals") or str(card.get("model", "")).startswith("graybox"):
+            continue  # a gray box's are its base's, shown with the base
+        values = card.get("coefficients") or {}
+        rows = [{"coefficient": k, "value": values.get(k), "low": lo, "high": hi}
+                for k, (lo, hi) in ci["intervals"].items()]
+        level = float(ci.get("level", 0.9))
+        parts.append(H.table(rows, caption=(
+            f"{label(card['model'])}: identified coefficients (SNAME) with {level:.0%} intervals: a block bootstrap "
+            f"({ci.get('replicates')} replicates, {ci.get('blocks')} blocks of {ci.get('block_rows')} rows), "
+            "the selected terms held fixed; a term not listed was not selected")))
+    return "".join(parts)
+
+
 def fold_figure(root: Path, t3: Any, outputs: Sequence[str], used: set[str], figs: dict[str, bytes],
                 marks: verdicts.Marks | None) -> str:
     """Fig. 4 drawn from fold_scores.json with the report's verdicts (failed models red, an axis clipped at R² −1
@@ -359,6 +378,7 @@ def coupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = N
         best = _best_per_output(t3, outputs, marks)
         parts.append(ranking_note(best, hyper_doc))
         parts.append(cv_against_unseen(t3, outputs, trace))
+        parts.append(coefficient_tables(root, used))
         part.headline = [{"output": OUTPUT_LABELS.get(o, o), "best model": label(m),
                           "R² on the unseen trial": r2} for o, (m, r2) in best.items()]
         part.verdicts = _train_failures(t3, outputs)

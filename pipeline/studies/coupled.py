@@ -547,6 +547,8 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
         card["residual"] = residual_verdicts(hyper[model], params.outputs, params.residual_min_cv_r2)
     if hasattr(estimator, "coefficients"):
         card["coefficients"] = estimator.coefficients()
+    if getattr(estimator, "coefficient_intervals_", None):  # fossen and its gray box: block-bootstrap intervals
+        card["coefficient_intervals"] = estimator.coefficient_intervals_
     if hasattr(estimator, "selected_terms_"):  # fossen: the backward elimination's rounds
         card["term_selection"] = {
             "selected": list(estimator.selected_terms_), "dropped_no_excitation": list(estimator.dropped_terms_),

@@ -222,6 +222,8 @@ def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
             pred = scores.pop("test_pred")
             return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred}
         est = spec["estimator"] if spec.get("final_fitted") else spec["estimator"].fit(X, y)
+        if hasattr(est, "fit_intervals"):  # a physics model's coefficients: block-bootstrap intervals (its card)
+            est.fit_intervals(X, y)
         final = pred = None
         if spec["X_test"] is not None:
             pred = est.predict(np.ascontiguousarray(spec["X_test"], dtype=float))

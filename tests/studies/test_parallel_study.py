@@ -117,6 +117,10 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     assert any(name.endswith("u_gp.joblib") for name in serial)
     metrics = json.loads(serial["evaluation/coupled/metrics.json"])
     assert set(metrics) == {"rbf_svr", "wdse_svr", "fossen", "graybox_fossen"}
+    # Fossen's coefficient intervals (the final fit's block bootstrap) in its card, and its gray box's base's the same
+    fossen = json.loads(serial["models/coupled/fossen.card.json"])["coefficient_intervals"]
+    assert fossen["intervals"] and fossen["replicates"] == 200
+    assert json.loads(serial["models/coupled/graybox_fossen.card.json"])["coefficient_intervals"] == fossen
     # the conformal intervals (from the folds' out-of-fold predictions, gathered in any order) are among the bytes
     assert all(0 < m[o]["final_interval_coverage"] <= 1 for m in metrics.values() for o in m)
     for other in (pooled, on_dask):
