@@ -72,7 +72,7 @@ Rounds = Generator[Any, Any, "SearchResult"]  # a search as a coroutine of pipel
 
 __all__ = ["SVR_MODELS", "make_svr", "paper_grid", "grid_candidates", "cv_fold_scores", "cv_score", "grid_search",
            "fast_search", "fast_search_rounds", "local_search", "local_search_rounds", "search", "search_rounds",
-           "with_C_rows", "train_rows", "SearchResult", "SearchSettings"]
+           "with_C_rows", "SearchResult", "SearchSettings"]
 
 SVR_MODELS = ("rbf_svr", "two_weights_svr", "wdse_svr")
 GAMMA_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -101,7 +101,6 @@ class SearchResult:
     cost: dict[str, Any] = field(default_factory=dict)  # CPU, the iteration cap and the slowest candidates
     halving: dict[str, Any] = field(default_factory=dict)  # successive halving: each rung's rows (search_halving)
     folds: str = "blocked"  # "blocked" (contiguous blocks of the rows) or "trials" (whole trials held out)
-    train_rows: int = 0  # the mean training rows of its folds: the rows its C was chosen on (C_rows)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -285,13 +284,9 @@ def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, lis
     result = SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
                           len(candidates) * n_folds, n_folds, time.perf_counter() - t0,
                           trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter), n_rows=len(X),
-                          folds=_folds_kind(groups), train_rows=train_rows(folds))
+                          folds="blocked" if groups is None else "trials")
     log_capped(model, result.n_candidates, result.cost)
     return result
-
-
-def _folds_kind(groups: np.ndarray | None) -> str:
-    return "blocked" if groups is None else "trials"
 
 
 def _gp_seed(model: str, X: np.ndarray, y: np.ndarray, n_velocity: int, gp_samples: int, seed: int
@@ -464,7 +459,7 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
     X, y = _check_xy(X, y)
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
-    folds = all_folds = search_folds(len(X), n_folds, groups)
+    folds = search_folds(len(X), n_folds, groups)
     n_folds = len(folds)
     cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
     if fold_subset is not None:
@@ -506,9 +501,8 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
     x, best, converged = yield from pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step,
                                                    min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          sum(t["n_fits"] for t in trace), n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
-                          budget_exhausted=not converged, n_rows=len(X), folds=_folds_kind(groups),
-                          train_rows=train_rows(all_folds))
+                          sum(t["n_fits"] for t in trace), n_folds, 0.0, gp_fit_s=gp_s, trace=trace, n_rows=len(X),
+                          budget_exhausted=not converged, folds="blocked" if groups is None else "trials")
     if warm_key is not None:
         result.warm_start_score = float(cache[warm_key])
         if tuple(np.round(x, 6)) == warm_key:
@@ -539,10 +533,10 @@ def local_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, start: dict
     (x2), no restarts, at most ``max_evals`` candidates in all. The nested CV's folds use it, so a fold re-tunes
     on its own training rows at a fraction of a whole search's cost. ``warm_start_kept``/``note`` say whether
     ``start`` stayed the best; ``budget_exhausted`` whether the budget ran out before the steps converged.
-    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does). ``groups``: as
+    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does); ``groups`` as
     :func:`fast_search`'s. A coroutine of :mod:`pipeline.rounds` (:func:`local_search` runs it)."""
     X, y = _check_xy(X, y)
-    folds = all_folds = search_folds(len(X), n_folds, groups)
+    folds = search_folds(len(X), n_folds, groups)
     n_folds = len(folds)
     cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
     if fold_subset is not None:
@@ -560,7 +554,7 @@ def local_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, start: dict
     result = SearchResult(model, "local", _to_params(model, names, np.exp(x)), float(best), len(cache),
                           sum(t["n_fits"] for t in trace), n_folds, time.perf_counter() - t0, trace=trace,
                           warm_start_score=float(start_score), budget_exhausted=not converged, n_rows=len(X),
-                          folds=_folds_kind(groups), train_rows=train_rows(all_folds))
+                          folds="blocked" if groups is None else "trials")
     if tuple(np.round(x, 6)) == tuple(np.round(x0, 6)):
         result.warm_start_kept = True
         result.note = kept_note(trace, start_score, n_folds)
@@ -598,14 +592,9 @@ def search_rounds(model: str, X: np.ndarray, y: np.ndarray, method: str = "fast"
 search = _driven(search_rounds)
 
 
-def train_rows(folds: list[tuple[np.ndarray, np.ndarray]]) -> int:
-    """The mean training rows of ``folds``, rounded: a search's ``C_rows``."""
-    return int(round(float(np.mean([len(train) for train, _ in folds]))))
-
-
 def with_C_rows(res: SearchResult, n_rows: int) -> SearchResult:
-    """``res`` with ``C_rows`` in its best parameters: the mean training rows of its folds (``res.train_rows``; a
-    result without them: of ``res.n_folds`` blocked folds on ``n_rows`` rows)."""
-    rows = res.train_rows or train_rows(search_folds(n_rows, res.n_folds))
-    res.best_params = {**res.best_params, "C_rows": rows}
+    """``res`` with ``C_rows`` in its best parameters: the mean training rows of its ``res.n_folds`` folds on ``n_rows``
+    rows (any k folds that test each row once train on n (k - 1) / k rows on average: the trials' folds too)."""
+    train_rows = [len(train) for train, _ in search_folds(n_rows, res.n_folds)]
+    res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
     return res

@@ -38,7 +38,6 @@ from pipeline.models.search import (
     _to_params,
     fast_search_rounds,
     fit_task,
-    train_rows,
     with_C_rows,
 )
 from pipeline.models.search import search_rounds as plain_search
@@ -89,8 +88,8 @@ def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_ro
     ``survivors`` best (and the warm start) then scored on all rows of ``X`` and all folds; ``kw``:
     :func:`~pipeline.models.search.fast_search`'s keywords (its ``groups``, each row's trial: the folds hold out
     whole trials, the screen's rows keep their trials, ``screen_folds`` counts the trials' folds). With nothing to
-    screen (no more rows than ``screen_rows``, no fewer folds than ``n_folds``) it is the fast search itself. A fold screen on all rows
-    keeps its fits: a survivor fits only the folds the screen left out.
+    screen (no more rows than ``screen_rows``, no fewer folds than ``n_folds``) it is the fast search itself. A fold
+    screen on all rows keeps its fits: a survivor fits only the folds the screen left out.
 
     The result's ``best_score`` and choice are the last rung's; its ``trace`` holds both rungs (``rung`` 0 and 1,
     each entry's ``n_rows``), ``halving`` says what each rung saw, ``warm_start_kept`` whether the warm start won
@@ -184,8 +183,7 @@ def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_ro
     n_fits = screen.n_fits + n_new
     result = SearchResult(model, "fast", best_params, float(best_score), len(trace), n_fits, n_folds, 0.0,
                           gp_fit_s=screen.gp_fit_s, trace=trace, warm_start_score=screen.warm_start_score,
-                          budget_exhausted=screen.budget_exhausted, n_rows=len(X), folds=screen.folds,
-                          train_rows=train_rows(folds))
+                          budget_exhausted=screen.budget_exhausted, n_rows=len(X), folds=screen.folds)
     result.halving = {"screen_rows": len(idx), "screen_folds": subset or list(range(n_folds)), "rows": len(X),
                       "survivors": len(final), "screen_best_score": screen.best_score,
                       "screen_choice_kept": chosen["screen_key"] == list(_key(model, screen.best_params, d,

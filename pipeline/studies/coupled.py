@@ -33,8 +33,8 @@ from pipeline.evaluate import (
     check_no_leakage,
     guarded_folds,
     model_failure,
-    split_blocks,
     search_folds,
+    split_blocks,
     summarize_folds,
     trial_groups,
 )
@@ -318,9 +318,9 @@ class NestedTuned(RegressorMixin, BaseEstimator):
     one per fit). ``start`` (output -> hyperparameters, the tune stage's): with the fast search and
     ``params.fold_evals`` set, the fold's search is :func:`tune_local` from it, not a whole :func:`tune`.
     ``rigid_body_mass``: a ``graybox_fossen`` base's M_RB over (u, v, r). ``groups`` (of :meth:`fit` and
-    :meth:`tune_rounds`): each row's trial, for the search's folds (``coupled.tuning_cv``). ``preset`` (``(hyperparameters,
-    searches)``): the search :meth:`tune_rounds` ran on the same rows, fitted with no search of its own (the
-    train stage runs a fold's search in rounds, then its fit as one task: :mod:`pipeline.studies.tasks`).
+    :meth:`tune_rounds`): each row's trial, for the search's folds (``coupled.tuning_cv``). ``preset``
+    (``(hyperparameters, searches)``): the search :meth:`tune_rounds` ran on the same rows, fitted with no search of
+    its own (the train stage runs a fold's search in rounds, then its fit as one task: :mod:`pipeline.studies.tasks`).
     Fitted: ``hyperparameters_`` (output -> params), ``search_`` (output -> the fold's search as a dict),
     ``estimator_``."""
 
