@@ -277,12 +277,13 @@ class CoupledParams(Frozen):
                               "whole trials (tuning_cv; docs/models.md).")
     tuning_cv: Literal["auto", "blocked", "trials"] = Field(
         "blocked", description="How each search's folds cut its rows (the tune stage's, the nested CV's local "
-        "searches, a gray box's residual verdict). trials: whole training trials held out (leave-one-trial-out; "
-        "with more trials than tuning_folds, that many contiguous groups of trials), so a candidate is scored on a "
-        "trial it was not fitted on. blocked: tuning_folds contiguous blocks of the rows of all trials together "
-        "(most folds then test on another part of a trial they were fitted on). auto: trials where the search's "
-        "rows come from two or more trials of at least 20 rows each, else blocked. docs/models.md, 'Folds that "
-        "hold out whole trials'.")
+        "searches, a gray box's residual verdict). blocked: tuning_folds contiguous blocks of the rows of all "
+        "training trials together. trials: whole training trials held out (leave-one-trial-out; with more trials "
+        "than tuning_folds, that many contiguous groups of trials), so a candidate is scored on a trial it was not "
+        "fitted on. auto: trials where the search's rows come from two or more trials of at least 20 rows each, "
+        "else blocked. blocked stays the default: with two training trials, trials helped WDSE's sway on the "
+        "family's validation seeds but not its surge or yaw, and kept a gray-box residual that hurt "
+        "(docs/models.md, 'Searches that hold out whole trials').")
     max_evals: int = Field(30, ge=1, le=10_000, description="Fast search: most candidates per model and output.")
     fold_evals: int | None = Field(
         8, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
