@@ -25,7 +25,8 @@ from pipeline.errors import ModelError, PipelineError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SPLITS", "split_blocks", "blocked_folds", "check_no_leakage", "regression_scores",
+__all__ = ["SPLITS", "split_blocks", "blocked_folds", "trial_folds", "search_folds", "trial_groups",
+           "MIN_TRIAL_ROWS", "check_no_leakage", "regression_scores",
            "cross_validate_blocked", "fit_fold", "guarded_folds", "summarize_folds", "score_holdout", "MODEL_FAILURES",
            "model_failure", "INTERVAL_LEVEL", "conformal_half_width", "sd_floor", "interval_half_width"]
 
@@ -56,6 +57,70 @@ def blocked_folds(n_samples: int, n_folds: int = 5) -> list[tuple[np.ndarray, np
     if n_samples < 2 * n_folds:
         raise ModelError(f"{n_samples} samples are too few for {n_folds}-fold CV")
     return list(KFold(n_splits=n_folds, shuffle=False).split(np.arange(n_samples)))
+
+
+#: A trial with fewer of a search's rows is no fold of its own (:func:`trial_folds`: it joins its neighbour) and
+#: does not count towards ``coupled.tuning_cv: auto``'s two trials (:func:`trial_groups`).
+MIN_TRIAL_ROWS = 20
+
+
+def trial_groups(trials: Sequence[Any], mode: str = "auto", min_rows: int = MIN_TRIAL_ROWS) -> np.ndarray | None:
+    """The search folds' groups of rows labelled ``trials`` (one label a row): each row's trial as an integer code
+    in order of first appearance, or None for blocked folds. ``mode``: ``blocked`` (None), ``trials`` (the codes;
+    a ModelError unless two trials have ``min_rows`` rows each), ``auto`` (the codes where two trials do, else
+    None)."""
+    if mode not in ("auto", "blocked", "trials"):
+        raise ModelError(f"unknown search CV {mode!r}; expected 'auto', 'blocked' or 'trials'")
+    if mode == "blocked":
+        return None
+    codes = pd.factorize(pd.Series(list(trials), dtype=object), sort=False)[0].astype(np.int64)
+    enough = int(np.sum(np.bincount(codes) >= min_rows)) if codes.size else 0
+    if enough >= 2:
+        return codes
+    if mode == "trials":
+        raise ModelError(f"coupled.tuning_cv: trials needs two training trials with at least {min_rows} of the "
+                         f"search's rows each; got {enough} (use auto or blocked)")
+    return None
+
+
+def trial_folds(groups: np.ndarray, n_folds: int = 5, min_rows: int = MIN_TRIAL_ROWS
+                ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Folds that hold out whole trials: ``groups`` (one integer a row, its trial) taken in order of first
+    appearance, a trial of fewer than ``min_rows`` rows joined to the one before it (the first to the next); one
+    fold per trial (leave-one-trial-out) where there are no more than ``n_folds``, else the trials in ``n_folds``
+    contiguous groups balanced by rows (a trial goes to the fold its middle row falls in). Each fold: (train_idx,
+    test_idx), both sorted."""
+    groups = np.asarray(groups)
+    order = list(dict.fromkeys(groups.tolist()))
+    rows = {g: int(np.sum(groups == g)) for g in order}
+    units: list[list[Any]] = []
+    for g in order:
+        if units and (rows[g] < min_rows or sum(rows[h] for h in units[-1]) < min_rows):
+            units[-1].append(g)
+        else:
+            units.append([g])
+    if len(units) < 2:
+        raise ModelError(f"trial folds need two trials of at least {min_rows} rows; got {rows}")
+    if len(units) > n_folds:
+        sizes = np.array([sum(rows[g] for g in u) for u in units], dtype=float)
+        middle = np.cumsum(sizes) - sizes / 2.0
+        which = np.minimum((middle * n_folds / sizes.sum()).astype(int), n_folds - 1)
+        units = [[g for u, w in zip(units, which, strict=True) if w == k for g in u] for k in sorted(set(which))]
+    folds = []
+    for unit in units:
+        held = np.isin(groups, unit)
+        folds.append((np.flatnonzero(~held), np.flatnonzero(held)))
+    return folds
+
+
+def search_folds(n_samples: int, n_folds: int, groups: np.ndarray | None = None
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A search's folds: :func:`trial_folds` of ``groups`` (one a row) where given, else :func:`blocked_folds`."""
+    if groups is None:
+        return blocked_folds(n_samples, n_folds)
+    if len(groups) != n_samples:
+        raise ModelError(f"{len(groups)} trial labels for {n_samples} rows")
+    return trial_folds(groups, n_folds)
 
 
 def _key_frame(keys: pd.DataFrame, group: str, time_col: str) -> pd.DataFrame:

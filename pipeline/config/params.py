@@ -272,8 +272,18 @@ class CoupledParams(Frozen):
         "final model on the whole train_test block (the tune stage). split: the papers' protocol, on the tuning "
         "split (the first tuning_fraction of each trial) once, then fixed; on realistic trials that block is too "
         "short to rank hyperparameters the way the whole training set needs them (docs/models.md).")
-    tuning_folds: int = Field(5, ge=2, le=100, description="Blocked CV folds inside each search's data (search score): "
-                              "each candidate is scored on this many test blocks (docs/models.md).")
+    tuning_folds: int = Field(5, ge=2, le=100, description="CV folds inside each search's data (search score): "
+                              "each candidate is scored on this many test blocks, or at most this many groups of "
+                              "whole trials (tuning_cv; docs/models.md).")
+    tuning_cv: Literal["auto", "blocked", "trials"] = Field(
+        "blocked", description="How each search's folds cut its rows (the tune stage's, the nested CV's local "
+        "searches, a gray box's residual verdict). blocked: tuning_folds contiguous blocks of the rows of all "
+        "training trials together. trials: whole training trials held out (leave-one-trial-out; with more trials "
+        "than tuning_folds, that many contiguous groups of trials), so a candidate is scored on a trial it was not "
+        "fitted on. auto: trials where the search's rows come from two or more trials of at least 20 rows each, "
+        "else blocked. blocked stays the default: with two training trials, trials helped WDSE's sway on the "
+        "family's validation seeds but not its surge or yaw, and kept a gray-box residual that hurt "
+        "(docs/models.md, 'Searches that hold out whole trials').")
     max_evals: int = Field(30, ge=1, le=10_000, description="Fast search: most candidates per model and output.")
     fold_evals: int | None = Field(
         8, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "

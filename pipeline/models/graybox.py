@@ -6,10 +6,10 @@ McFarland-Whitcomb, :mod:`pipeline.models.explicit`) carries the physics and ext
 propeller inflow, which the static tau of the feature store does not carry). Fit: the base on ``(X_base, y)``,
 then the residual model on ``(X_res, y - base.predict(X_base))`` of the same rows.
 
-Per output the residual is kept only where a blocked CV says it helps (:func:`residual_verdict`: the residual
-search's CV R² on the residual target above a threshold, by default 0, the score of a constant, by more than its
-standard error over the folds): elsewhere that output is the base's prediction alone (``residual_outputs``, the
-outputs that keep it).
+Per output the residual is kept only where a CV says it helps (:func:`residual_verdict`: the residual search's
+CV R² on the residual target, whole training trials held out under ``coupled.tuning_cv``, above a threshold, by
+default 0, the score of a constant, by more than its standard error over the folds): elsewhere that output is the
+base's prediction alone (``residual_outputs``, the outputs that keep it).
 
 With the coupled study's columns ``X = [u v r tau_u tau_v tau_r T1 T2 T3]`` (the union of the explicit and the SVR
 inputs, velocities first, as the simulate stage needs), ``base_columns = (0..5)``, ``residual_columns =

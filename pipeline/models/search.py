@@ -47,7 +47,7 @@ from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 from sklearn.metrics import r2_score
 
 from pipeline.errors import ModelError
-from pipeline.evaluate import blocked_folds
+from pipeline.evaluate import search_folds
 from pipeline.models.search_choice import kept_note, smoothest_within
 from pipeline.models.search_cost import (
     ITER_CAP_RATIO,
@@ -100,6 +100,7 @@ class SearchResult:
     n_rows: int = 0  # the rows the search scored its candidates on (its folds' training and test rows)
     cost: dict[str, Any] = field(default_factory=dict)  # CPU, the iteration cap and the slowest candidates
     halving: dict[str, Any] = field(default_factory=dict)  # successive halving: each rung's rows (search_halving)
+    folds: str = "blocked"  # "blocked" (contiguous blocks of the rows) or "trials" (whole trials held out)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -257,12 +258,14 @@ def _check_xy(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, list[float]] | None = None,
                 n_folds: int = 3, n_jobs: int | None = 1, n_velocity: int = 3,
                 iter_per_row: float | None = ITER_PER_ROW, keep_trace: bool = False,
-                progress: Progress | None = None) -> SearchResult:
+                progress: Progress | None = None, groups: np.ndarray | None = None) -> SearchResult:
     """Exhaustive search (the paper's protocol). Candidates run in parallel through joblib; ``progress(done,
-    total, desc)`` (optional) is called as their scores arrive, in candidate order."""
+    total, desc)`` (optional) is called as their scores arrive, in candidate order. ``groups``: each row's trial,
+    for folds that hold out whole trials (:func:`pipeline.evaluate.search_folds`; None: blocked folds)."""
     X, y = _check_xy(X, y)
     grid = grid or paper_grid(model, X.shape[1], float(np.std(y)))
-    folds = blocked_folds(len(X), n_folds)
+    folds = search_folds(len(X), n_folds, groups)
+    n_folds = len(folds)
     max_iter = iteration_cap(iter_per_row, folds)  # the absolute cap only: a grid's candidates run at once
     t0 = time.perf_counter()
     candidates = list(grid_candidates(model, grid))
@@ -280,7 +283,8 @@ def grid_search(model: str, X: np.ndarray, y: np.ndarray, *, grid: dict[str, lis
     best = int(np.argmax(scores))
     result = SearchResult(model, "paper_grid", candidates[best], float(scores[best]), len(candidates),
                           len(candidates) * n_folds, n_folds, time.perf_counter() - t0,
-                          trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter), n_rows=len(X))
+                          trace=entries if keep_trace else [], cost=cost_summary(entries, max_iter), n_rows=len(X),
+                          folds="blocked" if groups is None else "trials")
     log_capped(model, result.n_candidates, result.cost)
     return result
 
@@ -418,7 +422,8 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
                 iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
                 smooth_tolerance: float = 0.0, one_se: bool = False, n_explore: int | None = None,
                 local: str = "model", model_share: float = 0.6, progress: Progress | None = None,
-                report_kept: bool = True, fold_subset: list[int] | None = None) -> Rounds:
+                report_kept: bool = True, fold_subset: list[int] | None = None,
+                groups: np.ndarray | None = None) -> Rounds:
     """GP-seeded adaptive pattern search on log scale (see module docstring), in rounds (a coroutine of
     :mod:`pipeline.rounds`: :func:`fast_search` runs it; ``n_jobs`` is that function's).
 
@@ -448,11 +453,14 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
     ``report_kept=False``: no warning for a kept warm start (a halving screen's: its last rung decides).
     ``fold_subset``: score the candidates on these of the ``n_folds`` folds only (a halving screen's; each trace
     entry then holds its folds' R², ``fold_r2``, for the next rung).
+    ``groups``: each row's trial: the folds hold out whole trials (:func:`pipeline.evaluate.search_folds`: one per
+    trial up to ``n_folds``, so ``n_folds`` is then the trials' count or less); None: blocked folds.
     """
     X, y = _check_xy(X, y)
     if local not in ("model", "pattern"):
         raise ModelError(f"unknown local search {local!r}; expected 'model' or 'pattern'")
-    folds = blocked_folds(len(X), n_folds)
+    folds = search_folds(len(X), n_folds, groups)
+    n_folds = len(folds)
     cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
     if fold_subset is not None:
         folds = [folds[i] for i in fold_subset]
@@ -493,8 +501,8 @@ def fast_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, n_folds: int
     x, best, converged = yield from pattern_search(evaluate, x, best, lo, hi, rng, max_evals, cache, initial_step,
                                                    min_step)
     result = SearchResult(model, "fast", _to_params(model, names, np.exp(x)), float(best), len(cache),
-                          sum(t["n_fits"] for t in trace), n_folds, 0.0, gp_fit_s=gp_s, trace=trace,
-                          budget_exhausted=not converged, n_rows=len(X))
+                          sum(t["n_fits"] for t in trace), n_folds, 0.0, gp_fit_s=gp_s, trace=trace, n_rows=len(X),
+                          budget_exhausted=not converged, folds="blocked" if groups is None else "trials")
     if warm_key is not None:
         result.warm_start_score = float(cache[warm_key])
         if tuple(np.round(x, 6)) == warm_key:
@@ -518,16 +526,18 @@ def local_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, start: dict
                         n_jobs: int | None = 1, n_velocity: int = 3, max_evals: int = 8,
                         iter_per_row: float | None = ITER_PER_ROW, iter_cap_ratio: float | None = ITER_CAP_RATIO,
                         initial_step: float = math.log(2.0),
-                        min_step: float = math.log(1.25), fold_subset: list[int] | None = None) -> Rounds:
+                        min_step: float = math.log(1.25), fold_subset: list[int] | None = None,
+                        groups: np.ndarray | None = None) -> Rounds:
     """A small search around ``start`` (another search's optimum, e.g. the tune stage's on the rows these are cut
     from): ``start`` scored, then the pattern search of :func:`fast_search` from it, steps of ``initial_step``
     (x2), no restarts, at most ``max_evals`` candidates in all. The nested CV's folds use it, so a fold re-tunes
     on its own training rows at a fraction of a whole search's cost. ``warm_start_kept``/``note`` say whether
     ``start`` stayed the best; ``budget_exhausted`` whether the budget ran out before the steps converged.
-    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does). A coroutine of
-    :mod:`pipeline.rounds` (:func:`local_search` runs it)."""
+    ``fold_subset``: score on these of the ``n_folds`` folds only (as a halving screen does); ``groups`` as
+    :func:`fast_search`'s. A coroutine of :mod:`pipeline.rounds` (:func:`local_search` runs it)."""
     X, y = _check_xy(X, y)
-    folds = blocked_folds(len(X), n_folds)
+    folds = search_folds(len(X), n_folds, groups)
+    n_folds = len(folds)
     cap = _cap(iter_per_row, iter_cap_ratio, folds, len(folds) if fold_subset is None else len(fold_subset))
     if fold_subset is not None:
         folds = [folds[i] for i in fold_subset]
@@ -543,7 +553,8 @@ def local_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, start: dict
                                                    max(1, max_evals), cache, initial_step, min_step, restarts=False)
     result = SearchResult(model, "local", _to_params(model, names, np.exp(x)), float(best), len(cache),
                           sum(t["n_fits"] for t in trace), n_folds, time.perf_counter() - t0, trace=trace,
-                          warm_start_score=float(start_score), budget_exhausted=not converged, n_rows=len(X))
+                          warm_start_score=float(start_score), budget_exhausted=not converged, n_rows=len(X),
+                          folds="blocked" if groups is None else "trials")
     if tuple(np.round(x, 6)) == tuple(np.round(x0, 6)):
         result.warm_start_kept = True
         result.note = kept_note(trace, start_score, n_folds)
@@ -582,7 +593,8 @@ search = _driven(search_rounds)
 
 
 def with_C_rows(res: SearchResult, n_rows: int) -> SearchResult:
-    """``res`` with ``C_rows`` in its best parameters: the mean training rows of its folds on ``n_rows`` rows."""
-    train_rows = [len(train) for train, _ in blocked_folds(n_rows, res.n_folds)]
+    """``res`` with ``C_rows`` in its best parameters: the mean training rows of its ``res.n_folds`` folds on ``n_rows``
+    rows (any k folds that test each row once train on n (k - 1) / k rows on average: the trials' folds too)."""
+    train_rows = [len(train) for train, _ in search_folds(n_rows, res.n_folds)]
     res.best_params = {**res.best_params, "C_rows": int(round(float(np.mean(train_rows))))}
     return res

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import ModelError
-from pipeline.evaluate import blocked_folds
+from pipeline.evaluate import search_folds
 from pipeline.models.search import (
     Rounds,
     SearchResult,
@@ -68,8 +68,8 @@ def screen_index(n_rows: int, screen_rows: int) -> np.ndarray:
     return np.unique(np.linspace(0, n_rows - 1, min(screen_rows, n_rows)).round().astype(int))
 
 
-def _train_rows(n_rows: int, n_folds: int) -> float:
-    return float(np.mean([len(tr) for tr, _ in blocked_folds(n_rows, n_folds)]))
+def _train_rows(n_rows: int, n_folds: int, groups: np.ndarray | None) -> float:
+    return float(np.mean([len(tr) for tr, _ in search_folds(n_rows, n_folds, groups)]))
 
 
 def _key(model: str, params: dict[str, Any], n_features: int, n_velocity: int) -> tuple[float, ...]:
@@ -77,7 +77,7 @@ def _key(model: str, params: dict[str, Any], n_features: int, n_velocity: int) -
 
 
 def fold_subset(n_folds: int, k: int) -> list[int]:
-    """``k`` of ``n_folds`` blocked folds spread over the block (2 of 5: folds 1 and 3)."""
+    """``k`` of ``n_folds`` folds spread over the block (2 of 5: folds 1 and 3): blocked folds, or the trials'."""
     return sorted({int((i + 0.5) * n_folds / k) for i in range(k)})
 
 
@@ -86,16 +86,19 @@ def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_ro
                           **kw: Any) -> Rounds:
     """The fast search's candidates screened on ``screen_rows`` rows and/or ``screen_folds`` of its folds, its
     ``survivors`` best (and the warm start) then scored on all rows of ``X`` and all folds; ``kw``:
-    :func:`~pipeline.models.search.fast_search`'s keywords. With nothing to screen (no more rows than
-    ``screen_rows``, no fewer folds than ``n_folds``) it is the fast search itself. A fold screen on all rows
-    keeps its fits: a survivor fits only the folds the screen left out.
+    :func:`~pipeline.models.search.fast_search`'s keywords (its ``groups``, each row's trial: the folds hold out
+    whole trials, the screen's rows keep their trials, ``screen_folds`` counts the trials' folds). With nothing to
+    screen (no more rows than ``screen_rows``, no fewer folds than ``n_folds``) it is the fast search itself. A fold
+    screen on all rows keeps its fits: a survivor fits only the folds the screen left out.
 
     The result's ``best_score`` and choice are the last rung's; its ``trace`` holds both rungs (``rung`` 0 and 1,
     each entry's ``n_rows``), ``halving`` says what each rung saw, ``warm_start_kept`` whether the warm start won
     the last rung, ``budget_exhausted`` the screen's (its pattern search ran out of candidates). A coroutine of
     :mod:`pipeline.rounds` (:func:`halving_search` runs it): the survivors are one round."""
     X, y = _check_xy(X, y)
-    n_folds, n_velocity = kw.get("n_folds", 3), kw.get("n_velocity", 3)
+    n_velocity, groups = kw.get("n_velocity", 3), kw.get("groups")
+    folds = search_folds(len(X), kw.get("n_folds", 3), groups)
+    n_folds = len(folds)  # the trials' folds may be fewer than asked
     if (screen_rows is not None and screen_rows < 2) or survivors < 1 or (screen_folds is not None
                                                                           and screen_folds < 1):
         raise ModelError(f"successive halving needs screen_rows >= 2, screen_folds >= 1 and survivors >= 1, got "
@@ -107,13 +110,17 @@ def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_ro
     t0 = time.perf_counter()
     iter_per_row = kw.get("iter_per_row", ITER_PER_ROW)
     idx = screen_index(len(X), screen_rows) if by_rows else np.arange(len(X))
-    subset = fold_subset(n_folds, screen_folds) if by_folds else None
-    rows_screen, rows_all = _train_rows(len(idx), n_folds), _train_rows(len(X), n_folds)
+    screen_groups = None if groups is None else np.asarray(groups)[idx]
+    n_screen = len(search_folds(len(idx), kw.get("n_folds", 3), screen_groups)) if by_rows else n_folds
+    subset = fold_subset(n_screen, screen_folds) if by_folds and screen_folds < n_screen else None
+    rows_screen = _train_rows(len(idx), kw.get("n_folds", 3), screen_groups)
+    rows_all = float(np.mean([len(tr) for tr, _ in folds]))
     warm = kw.get("warm_start")
     if warm is not None and by_rows:  # chosen on all rows (C_rows): its C as the screen's rows would use it
         warm = {**warm, "C": scaled_C(warm["C"], warm.get("C_rows") or round(rows_all), round(rows_screen), c_rate)}
         warm.pop("C_rows", None)
         kw = {**kw, "warm_start": warm}
+    kw = {**kw, "groups": screen_groups}
     screen = yield from fast_search_rounds(model, X[idx], y[idx], report_kept=False, fold_subset=subset, **kw)
 
     # the survivors: the screen's best distinct candidates in score order (the first of equal scores first), then
@@ -132,7 +139,6 @@ def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_ro
                                           == warm_key), {"params": _to_params(model, _names(model, d),
                                                                                np.exp(np.array(warm_key)))}))
 
-    folds = blocked_folds(len(X), n_folds)
     # the survivors' relative cap from the screen's candidates (their largest fold's iterations, on all rows)
     cap = _cap(iter_per_row, kw.get("iter_cap_ratio", ITER_CAP_RATIO), folds)
     for t in screen.trace:
@@ -177,7 +183,7 @@ def halving_search_rounds(model: str, X: np.ndarray, y: np.ndarray, *, screen_ro
     n_fits = screen.n_fits + n_new
     result = SearchResult(model, "fast", best_params, float(best_score), len(trace), n_fits, n_folds, 0.0,
                           gp_fit_s=screen.gp_fit_s, trace=trace, warm_start_score=screen.warm_start_score,
-                          budget_exhausted=screen.budget_exhausted, n_rows=len(X))
+                          budget_exhausted=screen.budget_exhausted, n_rows=len(X), folds=screen.folds)
     result.halving = {"screen_rows": len(idx), "screen_folds": subset or list(range(n_folds)), "rows": len(X),
                       "survivors": len(final), "screen_best_score": screen.best_score,
                       "screen_choice_kept": chosen["screen_key"] == list(_key(model, screen.best_params, d,

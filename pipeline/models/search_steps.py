@@ -129,7 +129,7 @@ def pattern_search(evaluate: Evaluate, x: np.ndarray, best: float, lo: np.ndarra
                 cand[i] = np.clip(cand[i] + sign * steps[i], lo[i], hi[i])
                 if cand[i] != x[i]:
                     poll.append((i, sign, cand))
-        move, start = None, x.copy()
+        move, start, n_start = None, x.copy(), len(cache)
         if not poll:  # every active coordinate at its bounds both ways
             steps[steps >= min_step] /= 2.0
             continue
@@ -150,8 +150,13 @@ def pattern_search(evaluate: Evaluate, x: np.ndarray, best: float, lo: np.ndarra
                     steps[moved_i] = min(2.0 * steps[moved_i], 4.0 * initial_step)
                     first_i = (moved_i + 1) % x.size
                 break
+        halved = False
         for j in {j for j, _, _ in poll if j >= 0 and j != moved_i}:  # all its steps scored, none better
             if all(k < tried for k, (jj, _, _) in enumerate(poll) if jj == j):
+                steps[j] /= 2.0
+                halved = True
+        if not (moved or halved) and len(cache) == n_start:  # the budget's last room held only candidates scored
+            for j in {j for j, _, _ in poll[:tried] if j >= 0}:  # before: as failed, or the same poll comes back
                 steps[j] /= 2.0
         if moved:
             shift = x - start

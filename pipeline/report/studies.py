@@ -105,9 +105,22 @@ def protocol_line(hyper_doc: dict[str, Any] | None) -> str:
             folds = ("in the cross-validation each fold searched its own training blocks again, so no test block "
                      "chose the hyperparameters it is scored with")
         return (f"Tuning protocol: nested (coupled.tuning: nested, the default). Table II was searched {where}; "
-                f"{folds}. This is not the papers' protocol.")
+                f"{folds}. This is not the papers' protocol.{search_folds_line(hyper_doc)}")
     return (f"Tuning protocol: split (coupled.tuning: split, the papers' protocol). Hyperparameters were searched "
-            f"once {where} and kept fixed for the cross-validation and the final model.")
+            f"once {where} and kept fixed for the cross-validation and the final model.{search_folds_line(hyper_doc)}")
+
+
+def search_folds_line(hyper_doc: dict[str, Any]) -> str:
+    """How the searches' folds cut their rows (``hyperparameters.json``: ``search_folds``, ``tuning_cv``), as a
+    sentence with a leading space; '' for a file from before the key."""
+    used, mode = hyper_doc.get("search_folds"), hyper_doc.get("tuning_cv")
+    if not used:
+        return ""
+    how = {"trials": "folds that hold out whole training trials (leave-one-trial-out)",
+           "blocked": "blocked folds: contiguous blocks of the training trials' rows together, so most folds test on "
+                      "another part of a trial they were fitted on"}
+    said = " and ".join(how.get(u, u) for u in used)
+    return f" Each search scored its candidates on {said} (coupled.tuning_cv: {mode})."
 
 
 def _named(values: dict[str, Any], inputs: Sequence[str]) -> dict[str, Any]:

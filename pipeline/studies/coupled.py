@@ -33,8 +33,10 @@ from pipeline.evaluate import (
     check_no_leakage,
     guarded_folds,
     model_failure,
+    search_folds,
     split_blocks,
     summarize_folds,
+    trial_groups,
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.fossen import Fossen3DOF
@@ -172,11 +174,14 @@ def _check_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> No
                          f"vehicle config)")
 
 
-def _subsample(frame: pd.DataFrame, max_samples: int | None) -> pd.DataFrame:
-    if max_samples is None or len(frame) <= max_samples:
-        return frame
-    idx = np.unique(np.linspace(0, len(frame) - 1, max_samples).round().astype(int))
-    return frame.iloc[idx]
+def _search_rows(frame: pd.DataFrame, params: CoupledParams) -> tuple[pd.DataFrame, np.ndarray | None]:
+    """A search's rows (at most ``max_samples``, evenly spaced) and their trials' codes for its folds
+    (:func:`pipeline.evaluate.trial_groups` by ``tuning_cv``; None: blocked folds, or no ``trial`` column)."""
+    if params.max_samples is not None and len(frame) > params.max_samples:
+        frame = frame.iloc[np.unique(np.linspace(0, len(frame) - 1, params.max_samples).round().astype(int))]
+    if "trial" not in frame.columns:
+        return frame, None
+    return frame, trial_groups(frame["trial"].to_numpy(), params.tuning_cv)
 
 
 def search_settings(params: CoupledParams) -> SearchSettings:
@@ -217,19 +222,19 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
     if graybox:
         _check_columns(tuning, sorted({c for m in graybox for c in _base_inputs(GRAYBOX_MODELS[m], params)}),
                        f"tune ({', '.join(graybox)})")
-    data = _subsample(tuning, params.max_samples)
+    data, groups = _search_rows(tuning, params)
     X = data[params.inputs].to_numpy(float)
     settings = search_settings(params)
     cache = cache if cache is not None else SearchCache()
     # simplest kernel first: each richer kernel's fast search is warm-started from the simpler one's optimum. The
-    # chain runs even where the simpler kernels are not asked for (their results serve as warm starts only): a
-    # lone WDSE search of 8 hyperparameters from the GP seed lands far from the chain's optimum
-    # (docs/benchmarks.md)
+    # chain runs even where the simpler kernels are not asked for (their results serve as warm starts only): a lone
+    # WDSE search of 8 hyperparameters from the GP seed lands far from the chain's optimum (docs/benchmarks.md)
     wanted = [m for m in SVR_MODELS if m in params.models]
     order = SVR_MODELS[:SVR_MODELS.index(wanted[-1]) + 1] if wanted and params.search == "fast" else wanted
     # independent chains (tasks.tune_chains): per output the SVRs' chain, per gray box and output its residual's
     chains = [{"owner": None, "output": out, "label": out, "models": order, "names": [f"{m}/{out}" for m in order],
-               "X": X, "y": data[out].to_numpy(float), "cache": cache} for out in params.outputs] if order else []
+               "X": X, "y": data[out].to_numpy(float), "cache": cache, "groups": groups}
+              for out in params.outputs] if order else []
     for model in graybox:
         base = _explicit(GRAYBOX_MODELS[model], noise_std if noise_std is not None else noise_std_from(tuning),
                          tuning, rigid_body_mass, params)
@@ -241,7 +246,7 @@ def tune(tuning: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None = 1,
                data[params.outputs].to_numpy(float))
         kernels = list(SVR_MODELS) if settings.method == "fast" else ["wdse_svr"]
         chains += [{"owner": model, "output": out, "label": f"{model}/{out}", "models": kernels, "X": X,
-                    "names": [*[None] * (len(kernels) - 1), f"{model}/{out}"],
+                    "groups": groups, "names": [*[None] * (len(kernels) - 1), f"{model}/{out}"],
                     "residual_of": (*fit, k), "cache": cache} for k, out in enumerate(params.outputs)]
     done = tune_chains(chains, settings, workers(n_jobs), progress)
     hyper: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in [*order, *graybox]}
@@ -279,7 +284,7 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
     when null): a few steps from an optimum chosen on all folds need no more than a screen does
     (docs/models.md, 'Successive halving'). A coroutine of :mod:`pipeline.rounds` (the outputs' searches side by
     side, :func:`pipeline.rounds.gather`)."""
-    data = _subsample(frame, params.max_samples)
+    data, groups = _search_rows(frame, params)
     X = data[params.inputs].to_numpy(float)
     Y = data[params.outputs].to_numpy(float)
     svr = model
@@ -291,12 +296,13 @@ def tune_local_rounds(frame: pd.DataFrame, model: str, params: CoupledParams, st
         (base,) = yield [(fitted, (base, frame[cols].to_numpy(float), frame[params.outputs].to_numpy(float)))]
         Y = Y - base.predict(data[cols].to_numpy(float))
         svr = "wdse_svr"
-    subset = None
-    if params.screen_folds is not None and params.screen_folds < params.tuning_folds:
-        subset = fold_subset(params.tuning_folds, params.screen_folds)
+    subset, n_folds = None, len(search_folds(len(X), params.tuning_folds, groups))  # the trials' may be fewer
+    if params.screen_folds is not None and params.screen_folds < n_folds:
+        subset = fold_subset(n_folds, params.screen_folds)
     searches = [search_rounds(svr, X, Y[:, k], "local", start=start[out], n_folds=params.tuning_folds, n_jobs=1,
                               n_velocity=params.n_velocity_inputs(), max_evals=params.fold_evals, fold_subset=subset,
-                              iter_cap_ratio=params.iter_cap_ratio) for k, out in enumerate(params.outputs)]
+                              iter_cap_ratio=params.iter_cap_ratio, groups=groups)
+                for k, out in enumerate(params.outputs)]
     done = yield from gather(searches)  # the outputs' searches side by side: their rounds together
     return ({out: residual_record(res, params.residual_min_cv_r2) if model in GRAYBOX_MODELS else res.best_params
              for out, res in zip(params.outputs, done, strict=True)},
@@ -311,9 +317,10 @@ class NestedTuned(RegressorMixin, BaseEstimator):
     fold is cut from: ``X`` has no SD columns). ``cache``: the run's :class:`SearchCache`, shared by the folds (None:
     one per fit). ``start`` (output -> hyperparameters, the tune stage's): with the fast search and
     ``params.fold_evals`` set, the fold's search is :func:`tune_local` from it, not a whole :func:`tune`.
-    ``rigid_body_mass``: a ``graybox_fossen`` base's M_RB over (u, v, r). ``preset`` (``(hyperparameters,
-    searches)``): the search :meth:`tune_rounds` ran on the same rows, fitted with no search of its own (the
-    train stage runs a fold's search in rounds, then its fit as one task: :mod:`pipeline.studies.tasks`).
+    ``rigid_body_mass``: a ``graybox_fossen`` base's M_RB over (u, v, r). ``groups`` (of :meth:`fit` and
+    :meth:`tune_rounds`): each row's trial, for the search's folds (``coupled.tuning_cv``). ``preset``
+    (``(hyperparameters, searches)``): the search :meth:`tune_rounds` ran on the same rows, fitted with no search of
+    its own (the train stage runs a fold's search in rounds, then its fit as one task: :mod:`pipeline.studies.tasks`).
     Fitted: ``hyperparameters_`` (output -> params), ``search_`` (output -> the fold's search as a dict),
     ``estimator_``."""
 
@@ -329,13 +336,15 @@ class NestedTuned(RegressorMixin, BaseEstimator):
         self.rigid_body_mass = rigid_body_mass
         self.preset = preset
 
-    def tune_rounds(self, X: np.ndarray, y: np.ndarray) -> Any:
+    def tune_rounds(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None) -> Any:
         """The search :meth:`fit` runs on these rows, as a coroutine of :mod:`pipeline.rounds` returning
         ``(hyperparameters, searches)``: the local search from ``start`` in rounds, a whole search (no
         ``start``, or ``fold_evals`` null) inline."""
         params = (self.params or CoupledParams()).model_copy(update={"models": [self.model]})
         frame = pd.DataFrame(np.asarray(X, dtype=float), columns=model_inputs(self.model, params))
         frame[params.outputs] = np.asarray(y, dtype=float).reshape(len(frame), -1)
+        if groups is not None:
+            frame["trial"] = np.asarray(groups)
         if self.start is not None and params.fold_evals is not None and params.search == "fast":
             return (yield from tune_local_rounds(frame, self.model, params, self.start, noise_std=self.noise_std,
                                                  rigid_body_mass=self.rigid_body_mass))
@@ -343,8 +352,8 @@ class NestedTuned(RegressorMixin, BaseEstimator):
                                rigid_body_mass=self.rigid_body_mass)
         return whole[self.model], searches[self.model]
 
-    def fit(self, X: np.ndarray, y: np.ndarray) -> NestedTuned:
-        hyper, trace = self.preset if self.preset is not None else run_inline(self.tune_rounds(X, y))
+    def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None) -> NestedTuned:
+        hyper, trace = self.preset if self.preset is not None else run_inline(self.tune_rounds(X, y, groups))
         self.hyperparameters_ = hyper
         self.search_ = trace
         self.estimator_ = self.built(hyper).fit(X, y)
@@ -457,7 +466,8 @@ def _model_tasks(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np
     cv_est = NestedTuned(model, params, noise_std_from(train_test), cache, hyper.get(model),
                          rigid_body_mass) if nested else est
     folds = guarded_folds(len(X), params.folds, keys, tuning_keys)
-    common = {"model": model, "X": X, "y": y, "outputs": params.outputs, "folds": len(folds)}
+    common = {"model": model, "X": X, "y": y, "outputs": params.outputs, "folds": len(folds),
+              "groups": train_test["trial"].to_numpy()}  # a nested fold's search: its rows' trials
     tasks = [{**common, "kind": "fold", "fold": k, "estimator": cv_est, "train": train, "test": held}
              for k, (train, held) in enumerate(folds)]
     tasks.append({**common, "kind": "final", "estimator": est,
@@ -516,7 +526,9 @@ def tune_stage(frame: pd.DataFrame, params: CoupledParams, *, vehicle: str,
            "outputs": params.outputs, "tuning": params.tuning, "tuned_on": block, "n_tuning_rows": len(frame),
            "max_samples": params.max_samples, "screen_samples": params.screen_samples,
            "screen_folds": params.screen_folds, "survivors": params.survivors,
-           "fold_evals": params.fold_evals, "hyperparameters": hyper}
+           "fold_evals": params.fold_evals, "tuning_cv": params.tuning_cv,
+           "search_folds": sorted({r["folds"] for per in trace.values() for r in per.values()}),
+           "hyperparameters": hyper}
     return doc, trace
 
 

@@ -40,7 +40,8 @@ log = logging.getLogger(__name__)
 def tune_chains(chains: Sequence[dict[str, Any]], settings: SearchSettings, jobs: int,
                 progress: Callable[..., Any] | None = None) -> list[list[Any]]:
     """Run each chain of warm-started searches (``{"label", "models": [kernel, ...], "names": [each search's name
-    on the progress bar, or None], "X", "y", "cache"}``; other keys are carried), each through the chain's
+    on the progress bar, or None], "X", "y", "cache", "groups": each row's trial for folds that hold out whole
+    trials, or None}``; other keys are carried), each through the chain's
     :class:`SearchCache`; returns, per chain in order, its searches'
     :class:`~pipeline.models.search.SearchResult` in chain order. ``jobs`` workers for the chains' tasks
     (1: inline, with each search's candidates on ``progress``; more, or -1 on a Dask cluster: ``progress`` moves as
@@ -91,7 +92,7 @@ def _run_chain(item: dict[str, Any]) -> Any:
     bars = item.get("progress") or [None] * len(item["models"])
     for model, bar in zip(item["models"], bars, strict=True):
         res = yield from cache.search_rounds(model, item["X"], item["y"], item["settings"], warm_start=warm,
-                                             progress=bar)
+                                             progress=bar, groups=item.get("groups"))
         warm = res.best_params if item["settings"].method == "fast" else None
         out.append(res)
     return out
@@ -120,19 +121,23 @@ class SearchCache:
         return SearchCache, (self.kept,)
 
     def search(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
-               warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None) -> SearchResult:
+               warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None,
+               groups: np.ndarray | None = None) -> SearchResult:
         """:meth:`search_rounds` run inline."""
-        return run_inline(self.search_rounds(model, X, y, settings, warm_start=warm_start, progress=progress))
+        return run_inline(self.search_rounds(model, X, y, settings, warm_start=warm_start, progress=progress,
+                                             groups=groups))
 
     def search_rounds(self, model: str, X: np.ndarray, y: np.ndarray, settings: SearchSettings, *,
-                      warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None
-                      ) -> Rounds:
+                      warm_start: dict[str, Any] | None = None, progress: Callable[..., Any] | None = None,
+                      groups: np.ndarray | None = None) -> Rounds:
         """:func:`~pipeline.models.search.search` with ``settings`` (and a simpler kernel's optimum as
-        ``warm_start``: fast search only), or the result of the same search run before; a coroutine of
-        :mod:`pipeline.rounds`."""
+        ``warm_start``: fast search only; ``groups``, each row's trial: folds that hold out whole trials), or the
+        result of the same search run before; a coroutine of :mod:`pipeline.rounds`."""
         kw = settings.keywords()
         if warm_start is not None:
             kw["warm_start"] = warm_start
+        if groups is not None:
+            kw["groups"] = np.asarray(groups, dtype=np.int64).tolist()  # in the key; an array again below
         # the layout too: a strided column (a residual's) sums in another order than a contiguous copy of it, and a
         # search's choices can turn on the last bit
         layout = [(np.asarray(v).shape, np.asarray(v).strides, str(np.asarray(v).dtype)) for v in (X, y)]
@@ -142,6 +147,8 @@ class SearchCache:
         key = h.hexdigest()
         result = self._results.get(key)
         if result is None:
+            if groups is not None:
+                kw["groups"] = np.asarray(groups, dtype=np.int64)
             result = yield from search_rounds(model, X, y, settings.method, progress=progress, **kw)
             self._results[key] = result
             while len(self._results) > self.kept:
@@ -191,8 +198,9 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
     if spec["kind"] == "fold" and hasattr(est, "tune_rounds"):
         X = np.ascontiguousarray(spec["X"], dtype=float)[spec["train"]]
         y = np.ascontiguousarray(spec["y"], dtype=float)[spec["train"]]
+        groups = spec.get("groups")  # the fold's training rows' trials: its search's folds
         try:
-            preset = yield from est.tune_rounds(X, y)
+            preset = yield from est.tune_rounds(X, y, None if groups is None else np.asarray(groups)[spec["train"]])
             spec["estimator"] = clone(est).set_params(preset=preset)
             inner = spec["estimator"].built(preset[0])
             if hasattr(inner, "output_tasks"):  # the fold's fit, one task per output, as fit_fold would fit it

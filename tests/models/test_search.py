@@ -214,3 +214,28 @@ def test_the_relative_cap_holds_each_fit_near_the_median_of_the_fits_before_it(m
     assert free.cost["n_capped"] == 0 and free.cost["slowest_fit_over_median"] > 0
     with pytest.raises(Exception, match="ratio must be a number >= 1"):
         IterationCap(None, 0.5)
+
+
+def test_the_pattern_search_ends_when_its_last_room_holds_only_candidates_scored_before():
+    """One candidate of room left and the poll's first candidate already scored (no better): the poll used to come
+    back unchanged forever (its other candidate never scored, so no step halved). Found on two trials' folds."""
+    from pipeline.models.search_steps import pattern_search
+    from pipeline.rounds import run_inline
+
+    lo, hi = np.array([-10.0]), np.array([10.0])
+    cache = {(1.0,): 0.1, (-1.0,): 0.2, (5.0,): 0.0}  # x = 0 (score 0.5) +- its step 1, and one more
+    calls = []
+
+    def evaluate(pairs):
+        calls.append(len(pairs))
+        assert len(calls) < 50, "the pattern search polls the same scored candidates again and again"
+        keys = [tuple(np.round(np.clip(v, lo, hi), 6)) for v, _ in pairs]
+        for key in keys:
+            cache.setdefault(key, 0.0)
+        return [cache[k] for k in keys]
+        yield  # a generator, as the search's evaluator is
+
+    x, best, _ = run_inline(pattern_search(evaluate, np.array([0.0]), 0.5, lo, hi, np.random.default_rng(0), 4,
+                                           cache, 1.0, 0.2))
+    assert len(cache) == 4 and best == 0.5 and x.tolist() == [0.0]
+    assert len(calls) <= 3

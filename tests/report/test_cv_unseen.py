@@ -29,3 +29,14 @@ def test_only_the_pairs_outside_the_fold_spread_are_named_with_the_gap_and_the_s
 
 def test_nothing_is_said_when_every_unseen_score_lies_within_its_folds() -> None:
     assert cv_against_unseen({"rbf_svr": _entry(0.95, 0.02, 0.94)}, ["udot_mps2"], None) == ""
+
+
+def test_the_protocol_line_says_how_the_searches_folds_cut_the_rows():
+    from pipeline.report.studies import protocol_line
+
+    doc = {"tuning": "nested", "tuned_on": "train_test", "n_tuning_rows": 9000, "max_samples": 600,
+           "fold_evals": 8, "tuning_cv": "auto"}
+    assert "hold out whole training trials" in protocol_line({**doc, "search_folds": ["trials"]})
+    blocked = protocol_line({**doc, "search_folds": ["blocked"], "tuning_cv": "blocked"})
+    assert "blocked folds" in blocked and "(coupled.tuning_cv: blocked)" in blocked
+    assert "tuning_cv" not in protocol_line(doc)  # a file from before the key: nothing said
