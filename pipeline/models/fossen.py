@@ -439,6 +439,15 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         check_is_fitted(self, "coef_")
         return _sname(self.coef_)
 
+    def selection_record(self, outputs: Sequence[str]) -> dict[str, object]:
+        """The term selection for a model card: the terms kept, dropped and pinned, the elimination's rounds (JSON:
+        an infinite score as None), the fallbacks (``outputs`` names the mean-fallback ones)."""
+        check_is_fitted(self, "coef_")
+        return {"selected": list(self.selected_terms_), "dropped_no_excitation": list(self.dropped_terms_),
+                "rounds": [{**r, "score": r["score"] if np.isfinite(r["score"]) else None} for r in self.selection_],
+                "ols_fallback": bool(self.ols_fallback_), "pinned_anti_dissipative": list(self.pinned_terms_),
+                "mean_fallback_outputs": [outputs[j] for j in self.mean_fallback_outputs_]}
+
     def fit_intervals(self, X, y, groups=None, *, level: float = 0.9, n_boot: int = 200, seed: int = 0):
         """``coefficient_intervals_``: ``level`` intervals of the identified coefficients (added mass and the
         selected damping terms, SNAME) by the block bootstrap of :mod:`pipeline.models.bootstrap`, the terms held

@@ -562,12 +562,7 @@ def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, veh
     if getattr(estimator, "coefficient_intervals_", None):  # fossen and its gray box: block-bootstrap intervals
         card["coefficient_intervals"] = estimator.coefficient_intervals_
     if hasattr(estimator, "selected_terms_"):  # fossen: the backward elimination's rounds
-        card["term_selection"] = {
-            "selected": list(estimator.selected_terms_), "dropped_no_excitation": list(estimator.dropped_terms_),
-            "rounds": [{**r, "score": r["score"] if np.isfinite(r["score"]) else None} for r in estimator.selection_],
-            "ols_fallback": bool(estimator.ols_fallback_),
-            "pinned_anti_dissipative": list(getattr(estimator, "pinned_terms_", [])),  # fossen: pinned at 0
-            "mean_fallback_outputs": [params.outputs[j] for j in estimator.mean_fallback_outputs_]}
+        card["term_selection"] = estimator.selection_record(params.outputs)
     if getattr(estimator, "refine", False):  # coupled.explicit_refine
         cost = estimator.refine_cost_
         card["refinement"] = {"refined": bool(estimator.refined_),
