@@ -29,20 +29,6 @@ def _two_of_six(n: int, seed: int = 0, noise: float = 0.05) -> tuple[np.ndarray,
     return X, y
 
 
-@pytest.fixture
-def fits(monkeypatch):
-    """Every SVR fit of a search, as (training rows, test rows)."""
-    seen: list[tuple[int, int]] = []
-    real = search_mod._fold_fit
-
-    def counting(est, X, y, train, test):
-        seen.append((len(train), len(test)))
-        return real(est, X, y, train, test)
-
-    monkeypatch.setattr(search_mod, "_fold_fit", counting)
-    return seen
-
-
 def test_the_choice_is_the_best_survivor_on_all_rows_and_near_the_known_best():
     X, y = _two_of_six(600)
     res = halving_search("wdse_svr", X, y, screen_rows=150, survivors=4, max_evals=16, n_folds=3)
@@ -67,7 +53,7 @@ def test_the_choice_is_the_best_survivor_on_all_rows_and_near_the_known_best():
     assert min(gammas[:2]) > max(gammas[2:])
 
 
-def test_the_rows_each_candidate_is_scored_on_are_bounded_whatever_the_block_length(fits):
+def test_the_rows_each_candidate_is_scored_on_are_bounded_whatever_the_block_length(svr_fold_fits):
     # a block 10x the bound: the screen sees screen_samples rows, only the survivors (and the warm start) see the
     # max_samples rows, however long the trials
     params = CoupledParams(models=["two_weights_svr"], outputs=["udot_mps2"], inputs=["u_mps", "v_mps", "r_radps"],
@@ -75,16 +61,16 @@ def test_the_rows_each_candidate_is_scored_on_are_bounded_whatever_the_block_len
                            survivors=2)
     counts = []
     for n in (1500, 6000):
-        fits.clear()
+        svr_fold_fits.clear()
         _, trace = tune(synthetic_frame(n, seed=3, split="train_test"), params, split="train_test")
-        small = [tr + te for tr, te in fits if tr + te <= 90]
-        large = [tr + te for tr, te in fits if tr + te > 90]
+        small = [tr + te for tr, te in svr_fold_fits if tr + te <= 90]
+        large = [tr + te for tr, te in svr_fold_fits if tr + te > 90]
         assert max(large) <= 300
         # 2 survivors per search (+ the warm start for 2-weights, whose chain starts with RBF), 3 folds each
         assert len(large) <= 2 * (params.survivors + 1) * params.tuning_folds
         assert len(small) == 2 * params.max_evals * params.tuning_folds
         assert trace["two_weights_svr"]["udot_mps2"]["halving"]["screen_rows"] == 90
-        counts.append(set(fits))
+        counts.append(set(svr_fold_fits))
     assert counts[0] == counts[1]  # fits on the same numbers of rows for a block 4x longer
 
 

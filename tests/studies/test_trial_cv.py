@@ -8,7 +8,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import pipeline.models.search as search_mod
 import pipeline.studies.coupled as coupled
 from pipeline.config.params import CoupledParams
 from pipeline.evaluate import split_blocks
@@ -16,20 +15,6 @@ from pipeline.sim.synthetic import synthetic_frame
 from pipeline.studies.coupled import evaluate_models, tune
 
 INPUTS = ["u_mps", "v_mps", "r_radps"]
-
-
-@pytest.fixture
-def fits(monkeypatch):
-    """Every SVR fit of a search, as (training rows, test rows)."""
-    seen: list[tuple[int, int]] = []
-    real = search_mod._fold_fit
-
-    def counting(est, X, y, train, test):
-        seen.append((len(train), len(test)))
-        return real(est, X, y, train, test)
-
-    monkeypatch.setattr(search_mod, "_fold_fit", counting)
-    return seen
 
 
 def _two_trials() -> pd.DataFrame:
@@ -45,7 +30,7 @@ def _kept_per_trial(frame: pd.DataFrame, max_samples: int) -> list[int]:
 
 
 @pytest.mark.parametrize("cv", ["auto", "trials"])
-def test_the_tune_stage_holds_out_each_training_trial_of_its_subsample(fits, cv):
+def test_the_tune_stage_holds_out_each_training_trial_of_its_subsample(svr_fold_fits, cv):
     block = split_blocks(_two_trials())["train_test"]
     params = CoupledParams(models=["rbf_svr"], outputs=["udot_mps2"], inputs=INPUTS, max_evals=3, tuning_folds=5,
                            max_samples=300, tuning_cv=cv)
@@ -54,18 +39,18 @@ def test_the_tune_stage_holds_out_each_training_trial_of_its_subsample(fits, cv)
     assert (a, b) == (180, 120)
     res = trace["rbf_svr"]["udot_mps2"]
     assert (res["folds"], res["n_folds"], res["n_rows"]) == ("trials", 2, 300)
-    assert set(fits) == {(b, a), (a, b)}  # each fit trains on one whole trial and tests on the other
+    assert set(svr_fold_fits) == {(b, a), (a, b)}  # each fit trains on one whole trial and tests on the other
     assert hyper["rbf_svr"]["udot_mps2"]["C_rows"] == (a + b) // 2
 
 
-def test_blocked_folds_stay_as_they_were(fits):
+def test_blocked_folds_stay_as_they_were(svr_fold_fits):
     block = split_blocks(_two_trials())["train_test"]
     params = CoupledParams(models=["rbf_svr"], outputs=["udot_mps2"], inputs=INPUTS, max_evals=3, tuning_folds=5,
                            max_samples=300, tuning_cv="blocked")
     hyper, trace = tune(block, params, split="train_test")
     res = trace["rbf_svr"]["udot_mps2"]
     assert (res["folds"], res["n_folds"]) == ("blocked", 5)
-    assert set(fits) == {(240, 60)}
+    assert set(svr_fold_fits) == {(240, 60)}
     assert hyper["rbf_svr"]["udot_mps2"]["C_rows"] == 240
 
 
