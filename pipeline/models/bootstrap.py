@@ -22,9 +22,10 @@ cap that binds (a short trial with slow errors) makes the intervals too narrow; 
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import norm
 
 __all__ = ["MAX_BLOCKS", "MIN_BLOCKS", "integrated_time", "block_rows", "cut_blocks", "draw_counts",
-           "percentile_interval"]
+           "percentile_interval", "resample_plan", "summary"]
 
 #: fewer blocks than this and a replicate's spread says little: the block length is capped to leave this many
 MIN_BLOCKS = 20
@@ -87,3 +88,39 @@ def percentile_interval(samples: np.ndarray, level: float) -> np.ndarray:
     """(2, p): the ((1 - level) / 2, (1 + level) / 2) quantiles of each column of ``samples`` (replicates, p)."""
     alpha = (1.0 - level) / 2.0
     return np.quantile(np.asarray(samples, dtype=float), [alpha, 1.0 - alpha], axis=0)
+
+
+def resample_plan(residuals: np.ndarray, groups: np.ndarray | None, n_boot: int, seed: int
+                  ) -> tuple[int, list[tuple[int, int, int]], np.ndarray]:
+    """For a fit on time-ordered rows with these residuals (rows first): the block length, the blocks (within each
+    group of consecutive rows with one id; None: one group, so a block may span two trials, which only the blocks'
+    correlation sees) and each of ``n_boot`` replicates' block counts (seeded)."""
+    n = len(residuals)
+    if groups is None:
+        runs = [(0, n)]
+    else:
+        ids = np.asarray(groups)
+        edges = [0, *(np.flatnonzero(ids[1:] != ids[:-1]) + 1).tolist(), n]
+        runs = list(zip(edges[:-1], edges[1:], strict=True))
+    length = block_rows(residuals, runs)
+    blocks = cut_blocks(runs, length)
+    return length, blocks, draw_counts(blocks, n_boot, np.random.default_rng(seed))
+
+
+def summary(names: list[str], samples: list[np.ndarray], level: float, *, point: np.ndarray | None = None,
+            length: int, blocks: int, failed: int) -> dict:
+    """A model card's record of the intervals: percentile intervals of the replicates, or with ``point`` (few
+    replicates) the point estimate +- z times their SD; none unless at least half the replicates succeeded."""
+    out = {"level": level, "method": "non-overlapping block bootstrap, "
+           + ("percentile" if point is None else "normal (replicates' SD)"), "block_rows": length,
+           "blocks": blocks, "replicates": len(samples), "failed_replicates": failed, "intervals": {}}
+    if len(samples) < failed or len(samples) < 2:
+        return out
+    if point is None:
+        lo, hi = percentile_interval(np.asarray(samples), level)
+    else:
+        z = float(norm.ppf(0.5 + level / 2.0))
+        half = z * np.std(np.asarray(samples), axis=0, ddof=1)
+        lo, hi = np.asarray(point) - half, np.asarray(point) + half
+    out["intervals"] = {k: [float(a), float(b)] for k, a, b in zip(names, lo, hi, strict=True)}
+    return out

@@ -54,10 +54,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
-from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.base import BaseEstimator, RegressorMixin, clone
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from pipeline.errors import ModelError
+from pipeline.models import bootstrap
 from pipeline.rk4 import rk4_step
 
 log = logging.getLogger(__name__)
@@ -486,6 +487,29 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
     def coefficients(self) -> dict[str, float]:
         check_is_fitted(self, "coef_")
         return {name: float(v) for name, v in zip(self.param_names, self.coef_, strict=True)}
+
+    def fit_intervals(self, X, y, groups=None, *, level: float = 0.9, n_boot: int = 50, seed: int = 0):
+        """``coefficient_intervals_``: ``level`` intervals of ``coef_`` by the block bootstrap of
+        :mod:`pipeline.models.bootstrap` (``groups``: as :meth:`Fossen3DOF.fit_intervals`). Each replicate refits
+        on the resampled blocks, the noise SDs held at the fit's and without refinement; a replicate costs a
+        whole fit, so there are fewer than Fossen's and the interval is the estimate +- z times their SD."""
+        check_is_fitted(self, "coef_")
+        X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
+        nu, tau = self._split(X)
+        resid = np.einsum("nep,p->ne", self.design(nu, y), self.coef_) - tau
+        length, blocks, counts = bootstrap.resample_plan(resid, groups, n_boot, seed)
+        noise = None if self.noise_std_ is None else [float(v) for v in self.noise_std_]
+        replicate = clone(self).set_params(noise_std=noise, refine=False)
+        samples, failed = [], 0
+        for c in counts:
+            rows = np.concatenate([np.arange(a, b) for (a, b, _), k in zip(blocks, c, strict=True) for _ in range(k)])
+            try:
+                samples.append(replicate.fit(X[rows], y[rows]).coef_.copy())
+            except ModelError:  # a replicate without an invertible mass matrix: left out, and counted
+                failed += 1
+        self.coefficient_intervals_ = bootstrap.summary(list(self.param_names), samples, level, point=self.coef_,
+                                                        length=length, blocks=len(blocks), failed=failed)
+        return self
 
 
 class GertlerHagen(_LinearInParameters):

@@ -459,40 +459,29 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         check_is_fitted(self, "coef_")
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
         nu, tau, m_rb = X[:, :3], X[:, 3:], self._m_rb()
-        if groups is None:
-            runs = [(0, len(X))]
-        else:
-            ids = np.asarray(groups)
-            edges = [0, *(np.flatnonzero(ids[1:] != ids[:-1]) + 1).tolist(), len(X)]
-            runs = list(zip(edges[:-1], edges[1:], strict=True))
         resid = _rows(nu, y, tau, m_rb) @ np.append(self.coef_, -1.0)
-        length = bootstrap.block_rows(resid, runs)
-        blocks = bootstrap.cut_blocks(runs, length)
+        length, blocks, counts = bootstrap.resample_plan(resid, groups, n_boot, seed)
         masks = []
         for a, b, _ in blocks:
             m = np.zeros(len(X), dtype=bool)
             m[a:b] = True
             masks.append(m)
         parts = self._stats(nu, y, tau, self.noise_std_, m_rb, masks)
-        counts = bootstrap.draw_counts(blocks, n_boot, np.random.default_rng(seed))
         samples, failed = [], 0
+        names = [*ADDED_MASS_TERMS, "N_vdot", *self.selected_terms_]
         for c in counts:
             use = np.flatnonzero(c)
             r = np.concatenate([np.sqrt(c[b]) * parts[b].r for b in use], axis=1)
             stats = _Stats(np.stack([np.linalg.qr(r[e], mode="r") for e in range(3)]),
                            sum(c[b] * parts[b].noise for b in use), int(sum(c[b] * parts[b].n for b in use)))
             try:
-                samples.append(self._fit_terms(stats, self.selected_terms_, m_rb)[0])
+                theta = self._fit_terms(stats, self.selected_terms_, m_rb)[0]
             except ModelError:  # a replicate without a physical mass matrix: left out, and counted
                 failed += 1
-        names = [*ADDED_MASS_TERMS, "N_vdot", *self.selected_terms_]
-        self.coefficient_intervals_ = {"level": level, "method": "non-overlapping block bootstrap, percentile",
-                                       "block_rows": length, "blocks": len(blocks), "replicates": len(samples),
-                                       "failed_replicates": failed, "intervals": {}}
-        if len(samples) >= n_boot // 2:
-            lo, hi = bootstrap.percentile_interval([[_sname(t)[k] for k in names] for t in samples], level)
-            self.coefficient_intervals_["intervals"] = {k: [float(a), float(b)] for k, a, b in zip(names, lo, hi,
-                                                                                                  strict=True)}
+                continue
+            samples.append(np.array([_sname(theta)[k] for k in names]))
+        self.coefficient_intervals_ = bootstrap.summary(names, samples, level, length=length, blocks=len(blocks),
+                                                        failed=failed)
         return self
 
 

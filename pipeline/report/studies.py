@@ -305,7 +305,8 @@ def ranking_note(best: dict[str, tuple[str, float]], hyper_doc: dict[str, Any] |
 
 
 def coefficient_tables(root: Path, used: set[str]) -> str:
-    """Per physics model whose card has them (Fossen), its coefficients with their block-bootstrap intervals."""
+    """Per physics model whose card has them (Fossen, Gertler-Hagen, McFarland-Whitcomb), its coefficients with
+    their block-bootstrap intervals."""
     parts = []
     for path in sorted((root / layout.MODELS / "coupled").glob("*.card.json")):
         card = read(root, str(path.relative_to(root)), used)
@@ -315,11 +316,12 @@ def coefficient_tables(root: Path, used: set[str]) -> str:
         values = card.get("coefficients") or {}
         rows = [{"coefficient": k, "value": values.get(k), "low": lo, "high": hi}
                 for k, (lo, hi) in ci["intervals"].items()]
-        level = float(ci.get("level", 0.9))
+        level, fossen = float(ci.get("level", 0.9)), card.get("model") == "fossen"
         parts.append(H.table(rows, caption=(
-            f"{label(card['model'])}: identified coefficients (SNAME) with {level:.0%} intervals: a block bootstrap "
-            f"({ci.get('replicates')} replicates, {ci.get('blocks')} blocks of {ci.get('block_rows')} rows), "
-            "the selected terms held fixed; a term not listed was not selected")))
+            f"{label(card['model'])}: identified coefficients{' (SNAME)' if fossen else ''} with {level:.0%} "
+            f"intervals: {ci.get('method', 'a block bootstrap')} ({ci.get('replicates')} replicates, "
+            f"{ci.get('blocks')} blocks of {ci.get('block_rows')} rows)"
+            + ("; the selected terms held fixed, a term not listed was not selected" if fossen else ""))))
     return "".join(parts)
 
 
