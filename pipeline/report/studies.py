@@ -314,8 +314,8 @@ def coefficient_tables(root: Path, used: set[str]) -> str:
         if not isinstance(ci, dict) or not ci.get("intervals") or str(card.get("model", "")).startswith("graybox"):
             continue  # a gray box's are its base's, shown with the base
         values = card.get("coefficients") or {}
-        rows = [{"coefficient": k, "value": values.get(k), "low": lo, "high": hi}
-                for k, (lo, hi) in ci["intervals"].items()]
+        rows = [{"coefficient": k, "value": values.get(k), "low": lo, "high": hi}  # the masses (..dot) first
+                for k, (lo, hi) in sorted(ci["intervals"].items(), key=lambda kv: (not kv[0].endswith("dot"), kv[0]))]
         level, fossen = float(ci.get("level", 0.9)), card.get("model") == "fossen"
         parts.append(H.table(rows, caption=(
             f"{label(card['model'])}: identified coefficients{' (SNAME)' if fossen else ''} with {level:.0%} "

@@ -21,7 +21,7 @@ def _card(root: Path, model: str, intervals: dict | None) -> None:
 
 
 def test_each_selected_coefficient_is_shown_with_its_interval_once(tmp_path: Path) -> None:
-    ci = {"X_udot": [-23.0, -20.0], "X_u": [-11.0, -8.5]}  # Y_v not selected: not in the intervals
+    ci = {"X_u": [-11.0, -8.5], "X_udot": [-23.0, -20.0]}  # as a card stores them (sorted); Y_v not selected
     _card(tmp_path, "fossen", ci)
     _card(tmp_path, "graybox_fossen", ci)  # the same base: not shown twice
     _card(tmp_path, "rbf_svr", None)
