@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
-__all__ = ["MAX_BLOCKS", "MIN_BLOCKS", "integrated_time", "block_rows", "cut_blocks", "draw_counts",
+__all__ = ["MAX_BLOCKS", "MIN_BLOCKS", "integrated_time", "wanted_rows", "block_rows", "cut_blocks", "draw_counts",
            "percentile_interval", "resample_plan", "summary"]
 
 #: fewer blocks than this and a replicate's spread says little: the block length is capped to leave this many
@@ -50,15 +50,20 @@ def integrated_time(e: np.ndarray) -> float:
     return max(2.0 * float(pairs[:m].sum()) - 1.0, 1.0)
 
 
-def block_rows(residuals: np.ndarray, runs: list[tuple[int, int]]) -> int:
-    """``L``: :data:`BLOCK_FACTOR` times the longest integrated time of the residuals' columns (each computed on
-    the longest run), within [the length that gives :data:`MAX_BLOCKS` blocks, the one that leaves
-    :data:`MIN_BLOCKS`] (and at least 1 row)."""
+def wanted_rows(residuals: np.ndarray, runs: list[tuple[int, int]]) -> int:
+    """:data:`BLOCK_FACTOR` times the longest integrated time of the residuals' columns (each computed on the
+    longest run), in rows: the block length the errors' correlation asks for."""
     residuals = np.asarray(residuals, dtype=float).reshape(len(residuals), -1)
     start, stop = max(runs, key=lambda r: r[1] - r[0])
     tau = max(integrated_time(residuals[start:stop, j]) for j in range(residuals.shape[1]))
+    return int(np.ceil(BLOCK_FACTOR * tau))
+
+
+def block_rows(residuals: np.ndarray, runs: list[tuple[int, int]]) -> int:
+    """``L``: :func:`wanted_rows` within [the length that gives :data:`MAX_BLOCKS` blocks, the one that leaves
+    :data:`MIN_BLOCKS`] (and at least 1 row)."""
     rows = sum(b - a for a, b in runs)
-    return int(max(1, min(max(np.ceil(BLOCK_FACTOR * tau), np.ceil(rows / MAX_BLOCKS)), rows // MIN_BLOCKS)))
+    return int(max(1, min(max(wanted_rows(residuals, runs), np.ceil(rows / MAX_BLOCKS)), rows // MIN_BLOCKS)))
 
 
 def cut_blocks(runs: list[tuple[int, int]], length: int) -> list[tuple[int, int, int]]:
@@ -91,10 +96,11 @@ def percentile_interval(samples: np.ndarray, level: float) -> np.ndarray:
 
 
 def resample_plan(residuals: np.ndarray, groups: np.ndarray | None, n_boot: int, seed: int
-                  ) -> tuple[int, list[tuple[int, int, int]], np.ndarray]:
+                  ) -> tuple[int, list[tuple[int, int, int]], np.ndarray, bool]:
     """For a fit on time-ordered rows with these residuals (rows first): the block length, the blocks (within each
     group of consecutive rows with one id; None: one group, so a block may span two trials, which only the blocks'
-    correlation sees) and each of ``n_boot`` replicates' block counts (seeded)."""
+    correlation sees), each of ``n_boot`` replicates' block counts (seeded), and whether the blocks are shorter
+    than the errors' correlation asks for (the cap of :data:`MIN_BLOCKS` bound: the intervals are too narrow)."""
     n = len(residuals)
     if groups is None:
         runs = [(0, n)]
@@ -104,16 +110,18 @@ def resample_plan(residuals: np.ndarray, groups: np.ndarray | None, n_boot: int,
         runs = list(zip(edges[:-1], edges[1:], strict=True))
     length = block_rows(residuals, runs)
     blocks = cut_blocks(runs, length)
-    return length, blocks, draw_counts(blocks, n_boot, np.random.default_rng(seed))
+    short = wanted_rows(residuals, runs) > length
+    return length, blocks, draw_counts(blocks, n_boot, np.random.default_rng(seed)), short
 
 
 def summary(names: list[str], samples: list[np.ndarray], level: float, *, point: np.ndarray | None = None,
-            length: int, blocks: int, failed: int) -> dict:
+            length: int, blocks: int, failed: int, short: bool) -> dict:
     """A model card's record of the intervals: percentile intervals of the replicates, or with ``point`` (few
     replicates) the point estimate +- z times their SD; none unless at least half the replicates succeeded."""
     out = {"level": level, "method": "non-overlapping block bootstrap, "
            + ("percentile" if point is None else "normal (replicates' SD)"), "block_rows": length,
-           "blocks": blocks, "replicates": len(samples), "failed_replicates": failed, "intervals": {}}
+           "blocks": blocks, "blocks_too_short": short, "replicates": len(samples), "failed_replicates": failed,
+           "intervals": {}}
     if len(samples) < failed or len(samples) < 2:
         return out
     if point is None:

@@ -495,9 +495,8 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         whole fit, so there are fewer than Fossen's and the interval is the estimate +- z times their SD."""
         check_is_fitted(self, "coef_")
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
-        nu, tau = self._split(X)
-        resid = np.einsum("nep,p->ne", self.design(nu, y), self.coef_) - tau
-        length, blocks, counts = bootstrap.resample_plan(resid, groups, n_boot, seed)
+        resid = np.einsum("nep,p->ne", self.design(X[:, :3], y), self.coef_) - self._split(X)[1]
+        length, blocks, counts, short = bootstrap.resample_plan(resid, groups, n_boot, seed)
         noise = None if self.noise_std_ is None else [float(v) for v in self.noise_std_]
         replicate = clone(self).set_params(noise_std=noise, refine=False)
         samples, failed = [], 0
@@ -508,7 +507,8 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
             except ModelError:  # a replicate without an invertible mass matrix: left out, and counted
                 failed += 1
         self.coefficient_intervals_ = bootstrap.summary(list(self.param_names), samples, level, point=self.coef_,
-                                                        length=length, blocks=len(blocks), failed=failed)
+                                                        length=length, blocks=len(blocks), failed=failed,
+                                                        short=short)
         return self
 
 

@@ -460,7 +460,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
         nu, tau, m_rb = X[:, :3], X[:, 3:], self._m_rb()
         resid = _rows(nu, y, tau, m_rb) @ np.append(self.coef_, -1.0)
-        length, blocks, counts = bootstrap.resample_plan(resid, groups, n_boot, seed)
+        length, blocks, counts, short = bootstrap.resample_plan(resid, groups, n_boot, seed)
         masks = []
         for a, b, _ in blocks:
             m = np.zeros(len(X), dtype=bool)
@@ -481,7 +481,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
                 continue
             samples.append(np.array([_sname(theta)[k] for k in names]))
         self.coefficient_intervals_ = bootstrap.summary(names, samples, level, length=length, blocks=len(blocks),
-                                                        failed=failed)
+                                                        failed=failed, short=short)
         return self
 
 

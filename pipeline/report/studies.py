@@ -321,7 +321,9 @@ def coefficient_tables(root: Path, used: set[str]) -> str:
             f"{label(card['model'])}: identified coefficients{' (SNAME)' if fossen else ''} with {level:.0%} "
             f"intervals: {ci.get('method', 'a block bootstrap')} ({ci.get('replicates')} replicates, "
             f"{ci.get('blocks')} blocks of {ci.get('block_rows')} rows)"
-            + ("; the selected terms held fixed, a term not listed was not selected" if fossen else ""))))
+            + ("; the selected terms held fixed, a term not listed was not selected" if fossen else "")
+            + (". The errors' correlation asks for longer blocks than the rows allow: these intervals are likely "
+               "too narrow" if ci.get("blocks_too_short") else ""))))
     return "".join(parts)
 
 
