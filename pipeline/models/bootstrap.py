@@ -8,21 +8,23 @@ sample as a new observation, and the intervals would come out far too narrow. Th
 cuts each contiguous run into blocks of ``L`` rows. A replicate draws, per run, as many of that run's blocks as it
 has, with replacement, so each trial keeps its share of the rows. Its fit is the fit with every row weighted by its
 block's count. The interval is the percentile interval of the replicates (Efron & Tibshirani 1993, *An
-Introduction to the Bootstrap*, sec. 13.3).
+Introduction to the Bootstrap*, sec. 13.3), or, where a replicate costs a whole fit and there are few of them, the
+estimate +- z times their SD (the same book, sec. 12.2).
 
 Block length: ``L`` is 4 times the residuals' integrated autocorrelation time, the longest over the equations;
 at least the length that gives :data:`MAX_BLOCKS` blocks, at most the one that leaves :data:`MIN_BLOCKS`. The time
 is estimated by Geyer's initial positive sequence (Stat. Sci. 7 (1992) 473-483, sec. 3.3): autocorrelations
 summed in pairs up to the first negative pair. Why 4: for an AR(1) error the blocks' sums then hold about seven
 eighths of its long-run variance; the rest is the correlation across block edges, which the bootstrap loses. A
-cap that binds (a short trial with slow errors) makes the intervals too narrow; the result reports
-``block_rows`` and ``blocks``, so a reader can see it.
+cap that binds (a short trial with slow errors) makes the intervals too narrow; the result says so
+(``blocks_too_short``, beside ``block_rows`` and ``blocks``).
 """
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
-from scipy.stats import norm
 
 __all__ = ["MAX_BLOCKS", "MIN_BLOCKS", "integrated_time", "wanted_rows", "block_rows", "cut_blocks", "draw_counts",
            "percentile_interval", "resample_plan", "summary"]
@@ -127,7 +129,7 @@ def summary(names: list[str], samples: list[np.ndarray], level: float, *, point:
     if point is None:
         lo, hi = percentile_interval(np.asarray(samples), level)
     else:
-        z = float(norm.ppf(0.5 + level / 2.0))
+        z = NormalDist().inv_cdf(0.5 + level / 2.0)
         half = z * np.std(np.asarray(samples), axis=0, ddof=1)
         lo, hi = np.asarray(point) - half, np.asarray(point) + half
     out["intervals"] = {k: [float(a), float(b)] for k, a, b in zip(names, lo, hi, strict=True)}
