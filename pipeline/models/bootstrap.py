@@ -97,19 +97,12 @@ def percentile_interval(samples: np.ndarray, level: float) -> np.ndarray:
     return np.quantile(np.asarray(samples, dtype=float), [alpha, 1.0 - alpha], axis=0)
 
 
-def resample_plan(residuals: np.ndarray, groups: np.ndarray | None, n_boot: int, seed: int
+def resample_plan(residuals: np.ndarray, runs: list[tuple[int, int]], n_boot: int, seed: int
                   ) -> tuple[int, list[tuple[int, int, int]], np.ndarray, bool]:
-    """For a fit on time-ordered rows with these residuals (rows first): the block length, the blocks (within each
-    group of consecutive rows with one id; None: one group, so a block may span two trials, which only the blocks'
-    correlation sees), each of ``n_boot`` replicates' block counts (seeded), and whether the blocks are shorter
-    than the errors' correlation asks for (the cap of :data:`MIN_BLOCKS` bound: the intervals are too narrow)."""
-    n = len(residuals)
-    if groups is None:
-        runs = [(0, n)]
-    else:
-        ids = np.asarray(groups)
-        edges = [0, *(np.flatnonzero(ids[1:] != ids[:-1]) + 1).tolist(), n]
-        runs = list(zip(edges[:-1], edges[1:], strict=True))
+    """For a fit on time-ordered rows with these residuals (rows first) in these runs (``(start, stop)``, e.g.
+    one per trial; blocks are drawn within each, so every trial keeps its share): the block length, the blocks,
+    each of ``n_boot`` replicates' block counts (seeded), and whether the blocks are shorter than the errors'
+    correlation asks for (the cap of :data:`MIN_BLOCKS` bound: the intervals are too narrow)."""
     length = block_rows(residuals, runs)
     blocks = cut_blocks(runs, length)
     short = wanted_rows(residuals, runs) > length

@@ -496,9 +496,10 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         check_is_fitted(self, "coef_")
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
         resid = np.einsum("nep,p->ne", self.design(X[:, :3], y), self.coef_) - self._split(X)[1]
-        length, blocks, counts, short = bootstrap.resample_plan(resid, groups, n_boot, seed)
-        noise = None if self.noise_std_ is None else [float(v) for v in self.noise_std_]
-        replicate = clone(self).set_params(noise_std=noise, refine=False)
+        runs = [(0, len(X))] if groups is None else contiguous_runs(X[:, :3], y, 0.0, groups)  # dt: unused here
+        length, blocks, counts, short = bootstrap.resample_plan(resid, runs, n_boot, seed)
+        replicate = clone(self).set_params(noise_std=None if self.noise_std_ is None else list(self.noise_std_),
+                                           refine=False)
         samples, failed = [], 0
         for c in counts:
             rows = np.concatenate([np.arange(a, b) for (a, b, _), k in zip(blocks, c, strict=True) for _ in range(k)])
@@ -507,8 +508,7 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
             except ModelError:  # a replicate without an invertible mass matrix: left out, and counted
                 failed += 1
         self.coefficient_intervals_ = bootstrap.summary(list(self.param_names), samples, level, point=self.coef_,
-                                                        length=length, blocks=len(blocks), failed=failed,
-                                                        short=short)
+                                                        length=length, blocks=len(blocks), failed=failed, short=short)
         return self
 
 

@@ -460,7 +460,8 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
         nu, tau, m_rb = X[:, :3], X[:, 3:], self._m_rb()
         resid = _rows(nu, y, tau, m_rb) @ np.append(self.coef_, -1.0)
-        length, blocks, counts, short = bootstrap.resample_plan(resid, groups, n_boot, seed)
+        runs = [(0, len(X))] if groups is None else contiguous_runs(nu, y, self.dt_s_, groups)
+        length, blocks, counts, short = bootstrap.resample_plan(resid, runs, n_boot, seed)
         masks = []
         for a, b, _ in blocks:
             m = np.zeros(len(X), dtype=bool)

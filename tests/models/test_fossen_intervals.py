@@ -50,9 +50,9 @@ def test_block_length_follows_the_correlation_and_leaves_enough_blocks() -> None
     assert bootstrap.block_rows(e[:, :1], [(0, 40000)]) == 40000 // bootstrap.MAX_BLOCKS  # white: the floor
     # a short record of slow errors: the cap of MIN_BLOCKS binds, and the plan says the blocks are too short
     slow = ar1((2000, 1), 0.99, rng)
-    length, blocks, _, short = bootstrap.resample_plan(slow, None, 10, 0)
+    length, blocks, _, short = bootstrap.resample_plan(slow, [(0, 2000)], 10, 0)
     assert length == 2000 // bootstrap.MIN_BLOCKS and len(blocks) == bootstrap.MIN_BLOCKS and short
-    assert not bootstrap.resample_plan(e[:, :1], None, 10, 0)[3]
+    assert not bootstrap.resample_plan(e[:, :1], [(0, 40000)], 10, 0)[3]
     assert bootstrap.block_rows(ar1((8000,), 0.999, rng), [(0, 4000), (4000, 8000)]) == 8000 // bootstrap.MIN_BLOCKS
     blocks = bootstrap.cut_blocks([(0, 1000), (1000, 1130)], 100)
     assert blocks[-1] == (1000, 1130, 1)  # a 30-row remainder joins its run's last block
