@@ -64,8 +64,9 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
                          f"{'n/a' if inside is None else f'{inside:.0%}'} |")
     if results:
         lines.append("\n90 % interval: the prediction ± the split-conformal quantile of the blocked CV's out-of-fold "
-                     "|residuals| (one half-width per output); inside: the share of the test trial(s)' measured "
-                     "targets within it (85–95 % expected).")
+                     "|residuals| (one half-width per output; with two or more training trials the wider of that "
+                     "and the quantile of fits without whole trials); inside: the share of the test trial(s)' "
+                     "measured targets within it (85–95 % expected).")
     for model, entry in (failed or {}).items():
         doc[model] = {"failed": entry}
         lines.append(f"\nFailed, not in the table: {MODEL_LABELS.get(model, model)} "

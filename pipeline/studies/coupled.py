@@ -48,7 +48,7 @@ from pipeline.models.svr import PerOutputRegressor
 from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
 from pipeline.rounds import gather, run_inline
-from pipeline.studies.intervals import interval_coverage, oof_intervals, target_sd
+from pipeline.studies.intervals import held_out_trials, interval_coverage, oof_intervals, target_sd
 from pipeline.studies.tasks import SearchCache, fitted, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
 
@@ -420,11 +420,12 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
         if failed is not None:
             _failed(model, failed, failures, on_model)
             return
-        folds = [r["fold"] for r in mine if "fold" in r]
-        final = mine[-1]
         mine_specs = [s for s in specs if s["model"] == model]  # the folds' test rows: out-of-fold residuals
-        interval = oof_intervals([(s["test"], r["pred"]) for s, r in zip(mine_specs, mine, strict=True)
-                                  if s["kind"] == "fold"], y, params.outputs, sd_train)
+        folds = [r["fold"] for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == "fold"]
+        final = mine[-1]
+        pairs = {k: [(s["test"], r["pred"]) for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == k]
+                 for k in ("fold", "trial")}
+        interval = oof_intervals(pairs["fold"], y, params.outputs, sd_train, pairs["trial"])
         if final["final"] is not None:  # the final check: the test trials' targets inside, beside R²
             inside = interval_coverage(interval, mine_specs[-1]["y_test"], final["pred"], params.outputs, sd_test)
             for o in params.outputs:
@@ -470,6 +471,9 @@ def _model_tasks(model: str, train_test: pd.DataFrame, test: pd.DataFrame, y: np
               "groups": train_test["trial"].to_numpy()}  # a nested fold's search: its rows' trials
     tasks = [{**common, "kind": "fold", "fold": k, "estimator": cv_est, "train": train, "test": held}
              for k, (train, held) in enumerate(folds)]
+    trials = held_out_trials(train_test["trial"].to_numpy(), params.folds)  # the interval's across-trial residuals
+    tasks += [{**common, "kind": "trial", "fold": k, "folds": len(trials), "estimator": est, "train": train,
+               "test": held} for k, (train, held) in enumerate(trials)]
     tasks.append({**common, "kind": "final", "estimator": est,
                   "X_test": test[cols].to_numpy(float) if len(test) else None,
                   "y_test": test[params.outputs].to_numpy(float) if len(test) else None})
@@ -491,8 +495,6 @@ def run_study(frame: pd.DataFrame, params: CoupledParams, *, n_jobs: int | None 
                               tuning_keys=blocks["tuning"][["trial", "t_ns"]], n_jobs=n_jobs, failures=failed,
                               cache=cache, rigid_body_mass=rigid_body_mass)
     return {"hyper": hyper, "trace": trace, "results": results, "failed": failed}
-
-
 
 
 # -- the stages ----------------------------------------------------------------------------------------------

@@ -6,6 +6,12 @@ folds' ``test_pred``). Per output the score of a row is ``|residual|`` and ``q``
 final model's prediction ± ``q``. The final check scores the share of the test trial(s)' measured targets inside
 (``interval_coverage``).
 
+Blocks of the training trials understate the error on the next trial: a block's neighbours in time are in its
+fold's training rows, and the next trial may be driven otherwise. With two or more training trials the train stage
+also fits each model without whole trials (:func:`held_out_trials`, at most ``coupled.folds`` fits, with the tune
+stage's hyperparameters) and ``q`` is the wider of the blocked and the held-out trials' quantiles (chosen on
+validation seeds; docs/models.md, "Calibrated on held-out trials").
+
 One half-width, not one normalized by each target's smoother SD (``udot_std_mps2`` ...; the decoupled study's
 choice): the coupled models' residuals are mostly model error, which does not grow with the smoother's SD, and on
 the validation seeds the normalized band missed more (docs/models.md, "Coupled models' intervals"). The
@@ -25,14 +31,24 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluate import INTERVAL_LEVEL, conformal_half_width, interval_half_width, sd_floor
+from pipeline.evaluate import (
+    INTERVAL_LEVEL,
+    conformal_half_width,
+    interval_half_width,
+    sd_floor,
+    trial_folds,
+    trial_groups,
+)
 from pipeline.vocabulary import DOFS, accel_std_column, acceleration_column
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METHOD", "target_sd_column", "target_sd", "oof_intervals", "interval_coverage"]
+__all__ = ["METHOD", "METHOD_TRIALS", "target_sd_column", "target_sd", "held_out_trials", "oof_intervals",
+           "interval_coverage"]
 
 METHOD = "split conformal on the blocked CV's out-of-fold residuals"
+METHOD_TRIALS = ("split conformal: the wider of the blocked CV's and the held-out trials' quantiles of the "
+                 "out-of-fold residuals")
 
 
 def target_sd_column(output: str) -> str | None:
@@ -61,26 +77,49 @@ def target_sd(frame: pd.DataFrame, outputs: Sequence[str]) -> dict[str, np.ndarr
     return out
 
 
+def held_out_trials(trials: Sequence[Any], n_folds: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Folds of the train_test rows (``trials``: each row's trial) that each hold out whole training trials
+    (:func:`pipeline.evaluate.trial_folds`, at most ``n_folds``): the interval's across-trial residuals. None
+    (``[]``) with fewer than two trials of :data:`~pipeline.evaluate.MIN_TRIAL_ROWS` rows."""
+    groups = trial_groups(trials, "auto")
+    return [] if groups is None else trial_folds(groups, n_folds)
+
+
 def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray, outputs: Sequence[str],
-                  sd: Mapping[str, np.ndarray | None]) -> dict[str, dict[str, Any]]:
-    """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the folds' ``(test rows,
+                  sd: Mapping[str, np.ndarray | None],
+                  held_out_trials: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> dict[str, dict[str, Any]]:
+    """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the blocked folds' ``(test rows,
     predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: none``, ``half_width``
-    = q of ``|residual|``. With the rows' SDs (``sd[output]``) also the alternative, not used: ``half_width_sd``,
-    the quantile of ``|residual| / sd`` (docs/models.md)."""
-    rows = np.concatenate([np.asarray(r) for r, _ in folds])
-    pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), -1) for r, p in folds])
+    = q of ``|residual|``. With ``held_out_trials`` (the same pairs from models fitted without a whole training
+    trial) ``half_width`` is the wider of the two quantiles, each saved too (``half_width_blocked``,
+    ``half_width_trials``). With the rows' SDs (``sd[output]``) also the alternative, not used: ``half_width_sd``,
+    the quantile of ``|residual| / sd``, the wider of the two likewise (docs/models.md)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    sets = [("blocked", folds), *([("trials", held_out_trials)] if len(held_out_trials) else [])]
+    scored = [(name, *_residuals(pairs, y)) for name, pairs in sets]
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
-        r = np.abs(y[rows, k] - pred[:, k])
-        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size), "method": METHOD, "scale": "none",
-                                 "half_width": conformal_half_width(r)}
+        q = {name: conformal_half_width(r[:, k]) for name, _, r in scored}
+        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(scored[0][2].shape[0]),
+                                 "method": METHOD if len(scored) == 1 else METHOD_TRIALS, "scale": "none",
+                                 "half_width": max(q.values())}
+        if len(scored) > 1:
+            entry.update(half_width_blocked=q["blocked"], half_width_trials=q["trials"],
+                         trials_held_out=len(held_out_trials))
         s = sd.get(o)
         if s is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
             entry.update(alternative_sd_column=target_sd_column(o),
-                         half_width_sd=conformal_half_width(r / sd_floor(s[rows])))
+                         half_width_sd=max(conformal_half_width(r[:, k] / sd_floor(s[rows]))
+                                           for _, rows, r in scored))
         out[o] = entry
     return out
+
+
+def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of ``pairs`` (``(test rows, predictions (rows, outputs))``) and their ``|target - prediction|``."""
+    rows = np.concatenate([np.asarray(r) for r, _ in pairs])
+    pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), -1) for r, p in pairs])
+    return rows, np.abs(y[rows] - pred)
 
 
 def interval_coverage(intervals: Mapping[str, dict[str, Any]], y: np.ndarray, pred: np.ndarray,

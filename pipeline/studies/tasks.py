@@ -159,11 +159,16 @@ class SearchCache:
         return copy.deepcopy(result)
 
 
+#: The train stage's tasks that fit on some rows and predict the others: a CV fold, a fit without whole trials.
+_TASK_NAMES = {"fold": "fold", "trial": "without trials"}
+
+
 def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
                 progress: Callable[..., Any] | None = None,
                 on_task: Callable[[int, dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
-    """Run the train stage's tasks: each ``{"model", "kind": "fold" | "final", "estimator", "X", "y", ...}``
-    (a fold: ``train`` / ``test`` row indices and ``fold``; the final fit: ``X_test`` / ``y_test`` or None).
+    """Run the train stage's tasks: each ``{"model", "kind": "fold" | "trial" | "final", "estimator", "X", "y",
+    ...}`` (a fold, or a fit without whole trials: ``train`` / ``test`` row indices and ``fold``; the final fit:
+    ``X_test`` / ``y_test`` or None).
     Returns per task in order ``{"fold": scores, "pred"}`` / ``{"estimator", "final", "pred"}`` (``pred``: the
     predictions of the fold's test rows / of ``X_test``), or ``{"failed": entry}`` when
     the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
@@ -172,8 +177,8 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     CV's) runs that search in rounds; a fit of one regressor per output (``output_tasks``: a nested fold's, or a
     final fit) fits each output as a task; then the fold's or the final fit's scores are one task; the rest are one
     task each."""
-    names = [f"{s['model']} fold {s['fold'] + 1}/{s['folds']}" if s["kind"] == "fold" else f"{s['model']} final fit"
-             for s in jobs_spec]
+    names = [f"{s['model']} {_TASK_NAMES[s['kind']]} {s['fold'] + 1}/{s['folds']}" if s["kind"] in _TASK_NAMES
+             else f"{s['model']} final fit" for s in jobs_spec]
     finished = [0]
 
     def task_done(index: int, res: dict[str, Any]) -> None:
@@ -224,7 +229,7 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
 def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
     X, y = np.ascontiguousarray(spec["X"], dtype=float), np.ascontiguousarray(spec["y"], dtype=float)
     try:
-        if spec["kind"] == "fold":  # its test block's predictions calibrate the conformal interval
+        if spec["kind"] in _TASK_NAMES:  # its test rows' predictions calibrate the conformal interval
             scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True,
                               fitted=spec.get("fitted"))
             pred = scores.pop("test_pred")

@@ -156,3 +156,37 @@ def test_train_stage_writes_the_interval_and_its_coverage(tmp_path: Path, truth:
         assert metrics[out]["interval_half_width"] == interval["half_width"]
     assert "| 90 % interval ± | final check: inside 90 % |" in md
     assert f"| {card['interval']['udot_mps2']['half_width']:.3g} | " in md
+
+
+def test_with_two_training_trials_the_wider_of_the_blocked_and_the_held_out_trials_quantiles(
+        truth: McFarlandWhitcomb) -> None:
+    """Two training trials, the second's targets three times noisier: a model fitted on one trial predicts the
+    other (by hand: fit on a, residuals of b; fit on b, residuals of a), its quantile of those |residuals| beside
+    the blocked folds'; the interval takes the wider, and says both."""
+    a, b = trial(truth, 8, "a", 700), trial(truth, 9, "b", 800)
+    b[OUTPUTS] += 2.0 * (b[OUTPUTS].to_numpy() - truth.predict(b[list(EXPLICIT_INPUTS)].to_numpy()))
+    tt, fresh = pd.concat([a, b], ignore_index=True), trial(truth, 10, "c", 500, split="test")
+    params = CoupledParams(models=["mcfarland_whitcomb"], folds=5)
+    res = evaluate_models(tt, fresh, {}, params)["mcfarland_whitcomb"]
+    X, y = tt[list(EXPLICIT_INPUTS)].to_numpy(), tt[OUTPUTS].to_numpy()
+    est = build_model("mcfarland_whitcomb", None, params, train=tt)
+    held = [(np.flatnonzero(tt["trial"] != t), np.flatnonzero(tt["trial"] == t)) for t in ("a", "b")]
+    by_trial = np.concatenate([np.abs(y[te] - clone(est).fit(X[tr], y[tr]).predict(X[te])) for tr, te in held])
+    blocked = np.concatenate([np.abs(y[te] - clone(est).fit(X[tr], y[tr]).predict(X[te]))
+                              for tr, te in blocked_folds(len(tt), 5)])
+    k = int(np.ceil((len(tt) + 1) * 0.9))
+    for j, out in enumerate(OUTPUTS):
+        interval = res["interval"][out]
+        q_trials, q_blocked = np.sort(by_trial[:, j])[k - 1], np.sort(blocked[:, j])[k - 1]
+        assert interval["half_width_trials"] == pytest.approx(q_trials, rel=1e-12)
+        assert interval["half_width_blocked"] == pytest.approx(q_blocked, rel=1e-12)
+        assert interval["half_width"] == max(q_trials, q_blocked) and interval["trials_held_out"] == 2
+        assert interval["method"].startswith("split conformal: the wider")
+    # the fit on the quiet trial a alone is worse on b than the blocked folds (which saw b's noise), on some output
+    assert any(res["interval"][o]["half_width_trials"] > res["interval"][o]["half_width_blocked"] for o in OUTPUTS)
+
+
+def test_one_training_trial_has_no_held_out_trials(study) -> None:
+    """One training trial (the module's study): the blocked CV's quantile alone, no across-trial part."""
+    for interval in study[0]["mcfarland_whitcomb"]["interval"].values():
+        assert "half_width_trials" not in interval and interval["method"].startswith("split conformal on the blocked")

@@ -75,9 +75,9 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     monkeypatch.setattr(tasks, "drive", drive_spy)
     monkeypatch.setattr(decoupled, "imap", spy)
     serial = _run(store_root, tmp_path / "serial")
-    # tune: 3 SVR chains + 3 gray-box residual chains; train: 4 models x (3 folds + the final fit), each a coroutine
-    # of rounds; decoupled: 3 DOFs x 5 models
-    assert calls == [(6, 1), (16, 1), (15, 1)]
+    # tune: 3 SVR chains + 3 gray-box residual chains; train: 4 models x (3 folds + 2 fits without a training
+    # trial + the final fit), each a coroutine of rounds; decoupled: 3 DOFs x 5 models
+    assert calls == [(6, 1), (24, 1), (15, 1)]
 
     calls.clear()
     monkeypatch.setenv(parallel.ENV_JOBS, "2")
@@ -99,7 +99,7 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     monkeypatch.setattr(parallel, "local_pool", pool_spy)
     pooled = _run(store_root, tmp_path / "pool")
     # every stage went through the one forked pool: tune's and train's rounds, decoupled's tasks (_forked_map)
-    assert calls == [(6, 2), (16, 2), (15, 2)] and forked == [15] and pooled_tasks == [2, 2, 2]
+    assert calls == [(6, 2), (24, 2), (15, 2)] and forked == [15] and pooled_tasks == [2, 2, 2]
 
     calls.clear()
     distributed = pytest.importorskip("distributed")
@@ -111,7 +111,7 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     finally:
         os.environ.clear()
         os.environ.update(saved)
-    assert calls == [(6, -1), (16, -1), (15, -1)]
+    assert calls == [(6, -1), (24, -1), (15, -1)]
 
     assert any(name.endswith("wdse_svr.joblib") for name in serial)
     assert any(name.endswith("u_gp.joblib") for name in serial)
@@ -123,6 +123,9 @@ def test_pool_and_dask_write_the_same_bytes_as_serial(store_root: Path, tmp_path
     assert json.loads(serial["models/coupled/graybox_fossen.card.json"])["coefficient_intervals"] == fossen
     # the conformal intervals (from the folds' out-of-fold predictions, gathered in any order) are among the bytes
     assert all(0 < m[o]["final_interval_coverage"] <= 1 for m in metrics.values() for o in m)
+    # and so are the fits without a training trial (any order too): each card's across-trial quantile
+    card = json.loads(serial["models/coupled/wdse_svr.card.json"])
+    assert all(v["trials_held_out"] == 2 and v["half_width_trials"] > 0 for v in card["interval"].values())
     for other in (pooled, on_dask):
         assert sorted(other) == sorted(serial)
         assert [name for name in serial if other[name] != serial[name]] == []
