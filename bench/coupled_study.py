@@ -108,8 +108,9 @@ def final_models(root: Path, params: Params, vehicle) -> dict:
 
 
 def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
-    """Per output: the share of the test trial's measured targets inside the model's 90 % interval and inside the
-    alternative normalized by the target's SD (q_sd times each row's SD; None without SD columns)."""
+    """Per output: the share of the test trial's measured targets inside the model's 90 % interval, inside the
+    blocked CV's half-width alone (the method before held-out trials widened it; the same where they did not) and
+    inside the alternative normalized by the target's SD (q_sd times each row's SD; None without SD columns)."""
     from pipeline.evaluate import interval_half_width
     from pipeline.studies.intervals import target_sd
 
@@ -119,6 +120,8 @@ def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
         err = np.abs(test[o].to_numpy(float) - pred[:, j])
         q_sd = interval[o].get("half_width_sd")
         out[o] = {"inside": float(np.mean(err <= interval_half_width(interval[o], sd[o]))),
+                  "inside_blocked": float(np.mean(err <= interval[o].get("half_width_blocked",
+                                                                         interval[o]["half_width"]))),
                   "inside_sd": None if q_sd is None or sd[o] is None else float(np.mean(err <= q_sd * sd[o]))}
     return out
 
@@ -297,15 +300,22 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
             print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial s3's MEASURED targets inside each model's 90 % interval "
-              "(one half-width: the method; normalized by the target's SD: the alternative), mean / worst over seeds")
-        print("| model | " + " | ".join(f"{o} inside" for o in OUTPUTS) + " | "
-              + " | ".join(f"{o} normalized" for o in OUTPUTS) + " |")
-        print("| --- |" + " ---: |" * 6)
+              "(the method: one half-width, the wider of the blocked CV's and the held-out trials'; the blocked "
+              "CV's alone; normalized by the target's SD: the alternative), mean / worst over seeds")
+        kinds = ("inside", "inside_blocked", "inside_sd")
+        print("| model | " + " | ".join(f"{o} {k}" for k in ("inside", "blocked", "normalized") for o in OUTPUTS)
+              + " |")
+        print("| --- |" + " ---: |" * 9)
         for m in models:
             per = [r["intervals"][m] for r in results if m in r.get("intervals", {})]
             cells = [f"{np.mean(v):.3f} / {np.min(v):.3f}" if None not in (v := [p[o][k] for p in per]) else "–"
-                     for k in ("inside", "inside_sd") for o in OUTPUTS]
+                     for k in kinds for o in OUTPUTS]
             print(f"| {m} | " + " | ".join(cells) + " |")
+        for k in kinds[:2]:  # every (seed, model, output): inside 85-95 %, under, over
+            v = [x for r in results for per in r.get("intervals", {}).values() for o in OUTPUTS
+                 if (x := per[o][k]) is not None]
+            print(f"{k}: {sum(0.85 <= x <= 0.95 for x in v)} of {len(v)} (seed, model, output) inside 85-95 %, "
+                  f"{sum(x < 0.85 for x in v)} under, {sum(x > 0.95 for x in v)} over")
     if args.oracle:
         print("\nbest WDSE-SVR candidate of the search, chosen on the test truth (a bound, not a method); per seed")
         for o in args.oracle:
