@@ -36,8 +36,11 @@ the train stage's cross-validation folds, which decide nothing the test trial se
 
 ``--intervals`` (needs the CV: not with ``--no-cv``) adds a table of each model's 90 % prediction interval
 (``pipeline.studies.intervals``: split conformal on the train stage's out-of-fold |residuals|, one half-width per
-output) and its share of the test trial's MEASURED targets inside, mean and worst over seeds, beside the same
-share for the alternative normalized by each target's own SD (``half_width_sd`` times the row's SD).
+output, the wider of the blocked CV's and the held-out trials' quantiles) and its share of the test trial's
+MEASURED targets inside, mean and worst over seeds, beside the same share for the blocked CV's quantile alone and
+for the alternative normalized by each target's own SD (``half_width_sd`` times the row's SD); then, for the
+method and each calibration it was chosen among, how many (seed, model, output) cells lie inside 85-95 %, under
+and over.
 
     python bench/coupled_study.py --seeds 16 17 --duration 300 --intervals
 
@@ -109,8 +112,8 @@ def final_models(root: Path, params: Params, vehicle) -> dict:
 
 def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
     """Per output: the share of the test trial's measured targets inside the model's 90 % interval, inside the
-    blocked CV's half-width alone (the method before held-out trials widened it; the same where they did not) and
-    inside the alternative normalized by the target's SD (q_sd times each row's SD; None without SD columns)."""
+    calibrations the method was chosen among (:func:`_alternatives`) and inside the alternative normalized by the
+    target's SD (q_sd times each row's SD; None without SD columns)."""
     from pipeline.evaluate import interval_half_width
     from pipeline.studies.intervals import target_sd
 
@@ -120,10 +123,17 @@ def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
         err = np.abs(test[o].to_numpy(float) - pred[:, j])
         q_sd = interval[o].get("half_width_sd")
         out[o] = {"inside": float(np.mean(err <= interval_half_width(interval[o], sd[o]))),
-                  "inside_blocked": float(np.mean(err <= interval[o].get("half_width_blocked",
-                                                                         interval[o]["half_width"]))),
+                  **{f"inside_{k}": float(np.mean(err <= q)) for k, q in _alternatives(interval[o]).items()},
                   "inside_sd": None if q_sd is None or sd[o] is None else float(np.mean(err <= q_sd * sd[o]))}
     return out
+
+
+def _alternatives(interval: dict) -> dict:
+    """The calibrations the method was chosen among (docs/models.md, "Calibrated on held-out trials"): the blocked
+    CV's quantile, the held-out trials' and the mean of both (each the blocked one's without held-out trials)."""
+    q_b = interval.get("half_width_blocked", interval["half_width"])
+    q_t = interval.get("half_width_trials", q_b)
+    return {"blocked": q_b, "trials": q_t, "mean": 0.5 * (q_b + q_t)}
 
 
 def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: np.ndarray) -> dict:
@@ -311,7 +321,7 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
             cells = [f"{np.mean(v):.3f} / {np.min(v):.3f}" if None not in (v := [p[o][k] for p in per]) else "–"
                      for k in kinds for o in OUTPUTS]
             print(f"| {m} | " + " | ".join(cells) + " |")
-        for k in kinds[:2]:  # every (seed, model, output): inside 85-95 %, under, over
+        for k in ("inside", "inside_blocked", "inside_trials", "inside_mean"):  # every (seed, model, output)
             v = [x for r in results for per in r.get("intervals", {}).values() for o in OUTPUTS
                  if (x := per[o][k]) is not None]
             print(f"{k}: {sum(0.85 <= x <= 0.95 for x in v)} of {len(v)} (seed, model, output) inside 85-95 %, "

@@ -79,23 +79,23 @@ def target_sd(frame: pd.DataFrame, outputs: Sequence[str]) -> dict[str, np.ndarr
 
 def held_out_trials(trials: Sequence[Any], n_folds: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Folds of the train_test rows (``trials``: each row's trial) that each hold out whole training trials
-    (:func:`pipeline.evaluate.trial_folds`, at most ``n_folds``): the interval's across-trial residuals. None
-    (``[]``) with fewer than two trials of :data:`~pipeline.evaluate.MIN_TRIAL_ROWS` rows."""
+    (:func:`pipeline.evaluate.trial_folds`, at most ``n_folds``): the interval's across-trial residuals. Empty
+    with fewer than two trials of :data:`~pipeline.evaluate.MIN_TRIAL_ROWS` rows."""
     groups = trial_groups(trials, "auto")
     return [] if groups is None else trial_folds(groups, n_folds)
 
 
 def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray, outputs: Sequence[str],
                   sd: Mapping[str, np.ndarray | None],
-                  held_out_trials: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> dict[str, dict[str, Any]]:
+                  trial_pairs: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> dict[str, dict[str, Any]]:
     """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the blocked folds' ``(test rows,
     predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: none``, ``half_width``
-    = q of ``|residual|``. With ``held_out_trials`` (the same pairs from models fitted without a whole training
-    trial) ``half_width`` is the wider of the two quantiles, each saved too (``half_width_blocked``,
+    = q of ``|residual|``. With ``trial_pairs`` (the same pairs from models fitted without whole training trials,
+    :func:`held_out_trials`) ``half_width`` is the wider of the two quantiles, each saved too (``half_width_blocked``,
     ``half_width_trials``). With the rows' SDs (``sd[output]``) also the alternative, not used: ``half_width_sd``,
     the quantile of ``|residual| / sd``, the wider of the two likewise (docs/models.md)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
-    sets = [("blocked", folds), *([("trials", held_out_trials)] if len(held_out_trials) else [])]
+    sets = [("blocked", folds), *([("trials", trial_pairs)] if len(trial_pairs) else [])]
     scored = [(name, *_residuals(pairs, y)) for name, pairs in sets]
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
@@ -105,7 +105,7 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
                                  "half_width": max(q.values())}
         if len(scored) > 1:
             entry.update(half_width_blocked=q["blocked"], half_width_trials=q["trials"],
-                         trials_held_out=len(held_out_trials))
+                         trials_held_out=len(trial_pairs))
         s = sd.get(o)
         if s is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
             entry.update(alternative_sd_column=target_sd_column(o),
