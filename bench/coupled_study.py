@@ -10,10 +10,11 @@ thruster, periods 6-45 s), "hard" (one sine per thruster, periods 5-18 s, a teth
 thruster speeds, rate-sensor biases) and "family" (each trial draws its own regime from its seed,
 ``pipeline.sim.regime``: 1-3 sines per thruster, periods 5-45 s, half or full thrust, the tether on or off, Hall
 speeds on or off, rate biases), each with its own seeds (``pipeline.sim.PRESET_SEED_OFFSET``).
-Trials s1 and s2 are tuned and cross-validated on, s3 is the unseen test trial. In the family preset the test
-trial's regime differs from both training trials': where its seed's draw has the same number of sines, thrust
-level, tether and Hall switches as s1's or s2's, s3 is simulated from seed + 100000 k instead (k = 1, 2, ...: the
-first whose regime differs; ``pipeline.sim.regime.distinct_regime``), and the table says so. Validation seeds of
+Trials s1 and s2 are tuned and cross-validated on, s3 is the unseen test trial (``--train-trials N``: s1 ... sN,
+the test trial s(N+1)). In the family preset the test trial's regime differs from every training trial's: where
+its seed's draw has the same number of sines, thrust level, tether and Hall switches as one of theirs, it is
+simulated from seed + 100000 k instead (k = 1, 2, ...: the first whose regime differs;
+``pipeline.sim.regime.distinct_regime``), and the table says so. Validation seeds of
 the family preset: 0-1; test seeds: 2-4 (docs/models.md). They go through the real stages
 (ingest ... features, tune, train) with the code's defaults, what a user gets (``--params FILE`` for
 others; the repository's ``params.yaml`` is the example's, sized for two cores, not the defaults).
@@ -160,22 +161,25 @@ def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: 
 
 
 def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models: list[str] | None,
-             cv: bool = True, oracle: list[str] | None = None, preset: str = "gentle") -> dict:
+             cv: bool = True, oracle: list[str] | None = None, preset: str = "gentle", n_train: int = 2) -> dict:
     from stages import derive, differentiate, features, ingest, sync, train, tune
 
     vehicle = load_example_vehicle()
     truth = dataclasses.replace(load_truth(), inflow_loss=DAGON_INFLOW_LOSS) if inflow else load_truth()
     if models:
         params = params.model_copy(update={"coupled": params.coupled.model_copy(update={"models": models})})
-    params = params.model_copy(update={"features": params.features.model_copy(update={"test_trials": ["s3"]})})
-    out: dict = {"seed": seed, "preset": preset}
+    names = [f"s{k + 1}" for k in range(n_train + 1)]  # training trials s1 ... sN, the unseen test trial last
+    test_name = names[-1]
+    params = params.model_copy(update={"features": params.features.model_copy(update={"test_trials": [test_name]})})
+    out: dict = {"seed": seed, "preset": preset, "n_train": n_train}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         (root / "data/raw").mkdir(parents=True)
         trials = {}
         first = PRESET_SEED_OFFSET[preset] + 100 * seed + 1
-        family = family_trials(first) if preset == "family" else None  # s3's regime differs from s1's and s2's
-        for k, name in enumerate(("s1", "s2", "s3")):
+        # the test trial's regime differs from every training trial's
+        family = family_trials(first, n_train) if preset == "family" else None
+        for k, name in enumerate(names):
             sim_seed = first + k
             if family is not None:
                 sim_seed, regime = family[k]
@@ -192,8 +196,8 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
             if result.quarantined:
                 print(f"seed {seed}: {stage.NAME} quarantined {result.quarantined}", file=sys.stderr)
         out["stages_s"] = time.perf_counter() - t0
-        test = store.load(root, trials="s3").sort_values("t_ns")
-        rows = trials["s3"].truth.set_index("t_ns").loc[test["t_ns"].to_numpy()]
+        test = store.load(root, trials=test_name).sort_values("t_ns")
+        rows = trials[test_name].truth.set_index("t_ns").loc[test["t_ns"].to_numpy()]
         a_true = rows[list(OUTPUTS)].to_numpy()
         dyn = Dynamics(vehicle, truth)
         eta = np.zeros((len(test), 6))
@@ -240,8 +244,10 @@ def main() -> None:
                     help="simulator presets (default: the gentle default and the hard one; 'family': a regime per "
                          "trial), each its own seeds")
     ap.add_argument("--duration", type=float, default=480.0)
+    ap.add_argument("--train-trials", type=int, default=2,
+                    help="training trials s1 ... sN (default 2); the unseen test trial is s(N+1)")
     ap.add_argument("--params", type=Path, default=None,
-                    help="a params file (default: none, the code's defaults; the test trial is always s3)")
+                    help="a params file (default: none, the code's defaults; the test trial is always the last)")
     ap.add_argument("--models", nargs="+", default=None)
     ap.add_argument("--no-inflow", action="store_true",
                     help="no inflow loss (the truth's linear and cubic damping stay outside the explicit families)")
@@ -271,7 +277,7 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
     results = []
     for seed in args.seeds:
         res = one_seed(seed, args.duration, params, not args.no_inflow, args.models, cv=not args.no_cv,
-                       oracle=args.oracle, preset=preset)
+                       oracle=args.oracle, preset=preset, n_train=args.train_trials)
         results.append(res)
         print(f"seed {seed}: stages {res['stages_s']:.0f} s, ceiling "
               + ", ".join(f"{o} {v:.3f}" for o, v in res["ceiling"].items()), file=sys.stderr, flush=True)
@@ -280,7 +286,8 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
     if args.json:
         args.json.with_name(f"{args.json.stem}_{preset}{args.json.suffix}").write_text(json.dumps(results, indent=2))
     models = sorted({m for r in results for m in r["models"]})
-    print(f"\n{preset} preset: R² against the TRUE accelerations of the unseen trial s3 ({args.duration:.0f}-s trials, "
+    print(f"\n{preset} preset: R² against the TRUE accelerations of the unseen trial s{args.train_trials + 1} "
+          f"({args.train_trials} training trials, {args.duration:.0f}-s trials, "
           f"{'inflow loss on' if not args.no_inflow else 'no inflow loss, damping outside the explicit families'}, "
           f"seeds {args.seeds}, coupled.max_samples {params.coupled.max_samples})")
     print("| model | " + " | ".join(f"{o} mean" for o in OUTPUTS) + " | " + " | ".join(f"{o} worst" for o in OUTPUTS)
@@ -304,12 +311,13 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
           + "; ".join(f"seed {r['seed']} " + " / ".join(f"{r['ceiling'][o]:.3f}" for o in OUTPUTS) for r in results))
     for r in results:  # the family preset: each trial's regime
         for name, reg in r.get("regimes", {}).items():
-            print(f"seed {r['seed']} {name}{' (test)' if name == 's3' else ''}: {regime_line(reg)}")
+            print(f"seed {r['seed']} {name}{' (test)' if name == f's{args.train_trials + 1}' else ''}: "
+                  f"{regime_line(reg)}")
     for r in results:  # a gray box's residual per output: kept or dropped, with the CV R² that decided
         for m, verdicts in (r.get("residual") or {}).items():
             print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
     if args.intervals:
-        print(f"\n{preset} preset: share of the unseen trial s3's MEASURED targets inside each model's 90 % interval "
+        print(f"\n{preset} preset: share of the unseen trial's MEASURED targets inside each model's 90 % interval "
               "(the method: one half-width, the wider of the blocked CV's and the held-out trials'; the blocked "
               "CV's alone; normalized by the target's SD: the alternative), mean / worst over seeds")
         kinds = ("inside", "inside_blocked", "inside_sd")
