@@ -15,7 +15,8 @@ the test trial s(N+1)). In the family preset the test trial's regime differs fro
 its seed's draw has the same number of sines, thrust level, tether and Hall switches as one of theirs, it is
 simulated from seed + 100000 k instead (k = 1, 2, ...: the first whose regime differs;
 ``pipeline.sim.regime.distinct_regime``), and the table says so. Validation seeds of
-the family preset: 0-1; test seeds: 2-4 (docs/models.md). They go through the real stages
+the family preset: 0-1, 20-21, 70-71; test seeds: 5-7, 22-24, 72-74 (2-4 retired; docs/models.md says which
+served which). They go through the real stages
 (ingest ... features, tune, train) with the code's defaults, what a user gets (``--params FILE`` for
 others; the repository's ``params.yaml`` is the example's, sized for two cores, not the defaults).
 
