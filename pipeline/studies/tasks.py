@@ -169,9 +169,9 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     """Run the train stage's tasks: each ``{"model", "kind": "fold" | "trial" | "final", "estimator", "X", "y",
     ...}`` (a fold, or a fit without whole trials: ``train`` / ``test`` row indices and ``fold``; the final fit:
     ``X_test`` / ``y_test`` or None).
-    Returns per task in order ``{"fold": scores, "pred"}`` / ``{"estimator", "final", "pred"}`` (``pred``: the
-    predictions of the fold's test rows / of ``X_test``), or ``{"failed": entry}`` when
-    the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
+    Returns per task in order ``{"fold": scores, "pred"}`` / ``{"pred"}`` / ``{"estimator", "final", "pred"}``
+    (``pred``: the predictions of the fold's or the held-out trials' rows / of ``X_test``), or ``{"failed":
+    entry}`` when the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
     ``on_task(index, result)`` as each task ends (completion order). Each is a coroutine of
     :mod:`pipeline.rounds`: a fold whose estimator searches its own hyperparameters (``tune_rounds``, the nested
     CV's) runs that search in rounds; a fit of one regressor per output (``output_tasks``: a nested fold's, or a
@@ -229,7 +229,10 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
 def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
     X, y = np.ascontiguousarray(spec["X"], dtype=float), np.ascontiguousarray(spec["y"], dtype=float)
     try:
-        if spec["kind"] in _TASK_NAMES:  # its test rows' predictions calibrate the conformal interval
+        if spec["kind"] == "trial":  # a fit without whole trials: only its held-out rows' predictions (interval)
+            est = clone(spec["estimator"]).fit(X[spec["train"]], y[spec["train"]])
+            return {"pred": np.asarray(est.predict(X[spec["test"]]), dtype=float).reshape(len(spec["test"]), -1)}
+        if spec["kind"] == "fold":  # its test block's predictions calibrate the conformal interval
             scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True,
                               fitted=spec.get("fitted"))
             pred = scores.pop("test_pred")
