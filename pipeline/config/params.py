@@ -281,9 +281,7 @@ class CoupledParams(Frozen):
         "training trials together. trials: whole training trials held out (leave-one-trial-out; with more trials "
         "than tuning_folds, that many contiguous groups of trials), so a candidate is scored on a trial it was not "
         "fitted on. auto: trials where the search's rows come from two or more trials of at least 20 rows each, "
-        "else blocked. blocked stays the default: with two training trials, trials helped WDSE's sway on the "
-        "family's validation seeds but not its surge or yaw, and kept a gray-box residual that hurt "
-        "(docs/models.md, 'Searches that hold out whole trials').")
+        "else blocked. docs/models.md, 'Searches that hold out whole trials', says why blocked is the default.")
     max_evals: int = Field(30, ge=1, le=10_000, description="Fast search: most candidates per model and output.")
     fold_evals: int | None = Field(
         8, description="Nested tuning with the fast search: each CV fold re-tunes on its own training rows "
