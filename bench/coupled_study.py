@@ -37,12 +37,12 @@ exactly as the train stage does (``pipeline.studies.coupled.build_model`` with t
 the train stage's cross-validation folds, which decide nothing the test trial sees: the scores are the same numbers.
 
 ``--intervals`` (needs the CV: not with ``--no-cv``) adds a table of each model's 90 % prediction interval
-(``pipeline.studies.intervals``: split conformal on the train stage's out-of-fold |residuals|, one half-width per
-output, the wider of the blocked CV's and the held-out trials' quantiles) and its share of the test trial's
-MEASURED targets inside, mean and worst over seeds, beside the same share for the blocked CV's quantile alone and
-for the alternative normalized by each target's own SD (``half_width_sd`` times the row's SD); then, for the
-method and each calibration it was chosen among, how many (seed, model, output) cells lie inside 85-95 %, under
-and over.
+(``pipeline.studies.intervals``: split conformal on the train stage's out-of-fold |residuals|, the wider of the
+blocked CV's and the held-out trials' quantiles, its spread growing with the prediction) and its share of the test
+trial's MEASURED targets inside, mean and worst over seeds, beside the same share for the blocked CV's quantile alone
+(one half-width) and for the alternative normalized by each target's own SD (``half_width_sd`` times the row's
+SD); then, for the method and each calibration it was chosen among, how many (seed, model, output) cells lie inside
+85-95 %, under and over.
 
     python bench/coupled_study.py --seeds 16 17 --duration 300 --intervals
 
@@ -124,18 +124,20 @@ def interval_shares(interval: dict, test, pred: np.ndarray) -> dict:
     for j, o in enumerate(OUTPUTS):
         err = np.abs(test[o].to_numpy(float) - pred[:, j])
         q_sd = interval[o].get("half_width_sd")
-        out[o] = {"inside": float(np.mean(err <= interval_half_width(interval[o], sd[o]))),
+        out[o] = {"inside": float(np.mean(err <= interval_half_width(interval[o], sd[o], pred[:, j]))),
                   **{f"inside_{k}": float(np.mean(err <= q)) for k, q in _alternatives(interval[o]).items()},
                   "inside_sd": None if q_sd is None or sd[o] is None else float(np.mean(err <= q_sd * sd[o]))}
     return out
 
 
 def _alternatives(interval: dict) -> dict:
-    """The calibrations the method was chosen among (docs/models.md, "Calibrated on held-out trials"): the blocked
-    CV's quantile, the held-out trials' and the mean of both (each the blocked one's without held-out trials)."""
-    q_b = interval.get("half_width_blocked", interval["half_width"])
+    """The one-half-width calibrations the method was chosen among (docs/models.md, "Calibrated on held-out
+    trials" and "A band that grows with the prediction"): the wider of the blocked CV's and the held-out trials'
+    quantiles, the blocked CV's, the held-out trials' and the mean of both (each the blocked one's without
+    held-out trials)."""
+    q_b = interval.get("half_width_blocked", interval["half_width_constant"])
     q_t = interval.get("half_width_trials", q_b)
-    return {"blocked": q_b, "trials": q_t, "mean": 0.5 * (q_b + q_t)}
+    return {"constant": interval["half_width_constant"], "blocked": q_b, "trials": q_t, "mean": 0.5 * (q_b + q_t)}
 
 
 def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: np.ndarray) -> dict:
@@ -319,8 +321,9 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
             print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial's MEASURED targets inside each model's 90 % interval "
-              "(the method: one half-width, the wider of the blocked CV's and the held-out trials'; the blocked "
-              "CV's alone; normalized by the target's SD: the alternative), mean / worst over seeds")
+              "(the method: the wider of the blocked CV's and the held-out trials' quantiles, its spread growing "
+              "with |prediction|; the blocked CV's one half-width; normalized by the target's SD: the alternative), "
+              "mean / worst over seeds")
         kinds = ("inside", "inside_blocked", "inside_sd")
         print("| model | " + " | ".join(f"{o} {k}" for k in ("inside", "blocked", "normalized") for o in OUTPUTS)
               + " |")
@@ -330,7 +333,7 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
             cells = [f"{np.mean(v):.3f} / {np.min(v):.3f}" if None not in (v := [p[o][k] for p in per]) else "–"
                      for k in kinds for o in OUTPUTS]
             print(f"| {m} | " + " | ".join(cells) + " |")
-        for k in ("inside", "inside_blocked", "inside_trials", "inside_mean"):  # every (seed, model, output)
+        for k in ("inside", "inside_constant", "inside_blocked", "inside_trials", "inside_mean"):  # every cell
             v = [x for r in results for per in r.get("intervals", {}).values() for o in OUTPUTS
                  if (x := per[o][k]) is not None]
             print(f"{k}: {sum(0.85 <= x <= 0.95 for x in v)} of {len(v)} (seed, model, output) inside 85-95 %, "

@@ -276,9 +276,15 @@ def sd_floor(sd: np.ndarray) -> np.ndarray:
     return np.maximum(sd, 1e-3 * float(np.median(sd)) + 1e-300)
 
 
-def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None) -> np.ndarray | float:
+def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None, pred: np.ndarray | None = None
+                        ) -> np.ndarray | float:
     """The half-width of each row's interval: ``half_width_sd * sd`` for a normalized interval
-    (``scale == "target_sd"``) where the rows' SDs are known, else the typical ``half_width``."""
+    (``scale == "target_sd"``) where the rows' SDs are known; ``half_width_scaled * (c_0 + c_1 |pred|)`` for one
+    whose spread grows with the prediction (``scale == "prediction"``, ``spread`` = [c_0, c_1]) where the rows'
+    predictions are given; else the typical ``half_width``."""
     if interval.get("scale") == "target_sd" and sd is not None:
         return interval["half_width_sd"] * sd_floor(sd)
+    if interval.get("scale") == "prediction" and pred is not None:
+        c0, c1 = interval["spread"]
+        return interval["half_width_scaled"] * (c0 + c1 * np.abs(np.asarray(pred, dtype=float)))
     return float(interval["half_width"])

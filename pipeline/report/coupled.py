@@ -63,10 +63,10 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
                          f"{s['test_mae']['mean']:.4g} | {final} | {interval_text(doc[model]['interval'].get(out))} | "
                          f"{'n/a' if inside is None else f'{inside:.0%}'} |")
     if results:
-        lines.append("\n90 % interval: the prediction ± the split-conformal quantile of the blocked CV's out-of-fold "
-                     "|residuals| (one half-width per output; with two or more training trials the wider of that "
-                     "and the quantile of fits without whole trials); inside: the share of the test trial(s)' "
-                     "measured targets within it (85–95 % expected).")
+        lines.append("\n90 % interval: the prediction p ± a half-width a + b·abs(p) (split conformal on the "
+                     "blocked CV's out-of-fold |residuals|, their spread growing with abs(p); with two or more "
+                     "training trials the wider of that and the quantile of fits without whole trials); inside: "
+                     "the share of the test trial(s)' measured targets within it (85–95 % expected).")
     for model, entry in (failed or {}).items():
         doc[model] = {"failed": entry}
         lines.append(f"\nFailed, not in the table: {MODEL_LABELS.get(model, model)} "
@@ -75,11 +75,15 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
 
 
 def interval_text(interval: dict[str, Any] | None) -> str:
-    """'1.42 SD (≈ 0.0123)' for an interval normalized by the target's SD, '0.0123' for one half-width."""
+    """'1.42 SD (≈ 0.0123)' for an interval normalized by the target's SD, '0.00412 + 0.153·abs(p)' for one
+    whose spread grows with the prediction p (no '|': a table's cell), '0.0123' for one half-width."""
     if not interval:
         return "n/a"
     if interval.get("scale") == "target_sd":
         return f"{interval['half_width_sd']:.2f} SD (≈ {interval['half_width']:.3g})"
+    if interval.get("scale") == "prediction":
+        a, b = (interval["half_width_scaled"] * c for c in interval["spread"])
+        return f"{a:.3g} + {b:.3g}·abs(p)"
     return f"{interval['half_width']:.3g}"
 
 

@@ -1,10 +1,18 @@
-"""The coupled study's 90 % prediction intervals: split conformal on the blocked CV's out-of-fold residuals.
+"""The coupled study's 90 % prediction intervals: split conformal on the blocked CV's out-of-fold residuals,
+locally weighted by the predicted value.
 
 The train stage's blocked CV already predicts every train_test row with a model fitted without its block (the
-folds' ``test_pred``). Per output the score of a row is ``|residual|`` and ``q`` (``half_width``) is the
+folds' ``test_pred``). Per output, a row's spread s(p) = c_0 + c_1 |p| (p: its out-of-fold prediction) is fitted
+to the |residuals| by non-negative least squares, its score is ``|residual| / s(p)`` and ``q`` is the
 ``ceil((n + 1) 0.9)``-th smallest score (:func:`pipeline.evaluate.conformal_half_width`); a row's interval is the
-final model's prediction ± ``q``. The final check scores the share of the test trial(s)' measured targets inside
-(``interval_coverage``).
+final model's prediction p ± ``q s(p)`` (:func:`scale_fit`). The final check scores the share of the test
+trial(s)' measured targets inside (``interval_coverage``).
+
+Why the predicted value: a model's error grows with how hard the vehicle is driven (a thrust map's gain error, a
+damping coefficient's error at speed), and one half-width calibrated on trials at full thrust is far too wide for
+a trial driven gently. Chosen on validation seeds against one half-width and a spread in the model's inputs
+(docs/models.md, "A band that grows with the prediction"); the one half-width is saved beside it
+(``half_width_constant``).
 
 Blocks of the training trials understate the error on the next trial: a block's neighbours in time are in its
 fold's training rows, and the next trial may be driven otherwise. With two or more training trials the train stage
@@ -12,10 +20,10 @@ also fits each model without whole trials (:func:`held_out_trials`, at most ``co
 stage's hyperparameters) and ``q`` is the wider of the blocked and the held-out trials' quantiles (chosen on
 validation seeds; docs/models.md, "Calibrated on held-out trials").
 
-One half-width, not one normalized by each target's smoother SD (``udot_std_mps2`` ...; the decoupled study's
-choice): the coupled models' residuals are mostly model error, which does not grow with the smoother's SD, and on
-the validation seeds the normalized band missed more (docs/models.md, "Coupled models' intervals"). The
-normalized quantile is saved beside it (``half_width_sd``) for comparison, where the store has the SDs.
+Not normalized by each target's smoother SD (``udot_std_mps2`` ...; the decoupled study's choice): the coupled
+models' residuals are mostly model error, which does not grow with the smoother's SD, and on the validation seeds
+the normalized band missed more (docs/models.md, "Coupled models' intervals"). The normalized quantile is saved
+beside it (``half_width_sd``) for comparison, where the store has the SDs.
 
 Blocks are exchangeable only approximately (the targets' errors are correlated in time) and a test trial of
 another regime is a covariate shift: docs/models.md, "Coupled models' intervals", says what guarantee remains and
@@ -30,6 +38,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import nnls
 
 from pipeline.evaluate import (
     INTERVAL_LEVEL,
@@ -46,9 +55,9 @@ log = logging.getLogger(__name__)
 __all__ = ["METHOD", "METHOD_TRIALS", "target_sd_column", "target_sd", "held_out_trials", "oof_intervals",
            "interval_coverage"]
 
-METHOD = "split conformal on the blocked CV's out-of-fold residuals"
+METHOD = "split conformal on the blocked CV's out-of-fold residuals, spread growing with |prediction|"
 METHOD_TRIALS = ("split conformal: the wider of the blocked CV's and the held-out trials' quantiles of the "
-                 "out-of-fold residuals")
+                 "out-of-fold residuals, spread growing with |prediction|")
 
 
 def target_sd_column(output: str) -> str | None:
@@ -89,20 +98,26 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
                   sd: Mapping[str, np.ndarray | None],
                   trial_pairs: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> dict[str, dict[str, Any]]:
     """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the blocked folds' ``(test rows,
-    predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: none``, ``half_width``
-    = q of ``|residual|``. With ``trial_pairs`` (the same pairs from models fitted without whole training trials,
-    :func:`held_out_trials`) ``half_width`` is the wider of the two quantiles, each saved too (``half_width_blocked``,
-    ``half_width_trials``). With the rows' SDs (``sd[output]``) also the alternative, not used: ``half_width_sd``,
-    the quantile of ``|residual| / sd``, the wider of the two likewise (docs/models.md)."""
+    predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: prediction``, a row's
+    half-width ``half_width_scaled * (c_0 + c_1 |prediction|)`` (``spread`` = [c_0, c_1], :func:`scale_fit`) and
+    ``half_width`` its median over the calibration rows. With ``trial_pairs`` (the same pairs from models fitted
+    without whole training trials, :func:`held_out_trials`) the quantile is the wider of the two sets'. Saved beside
+    it, not used: ``half_width_constant``, the one half-width for every row (the wider of ``half_width_blocked``
+    and ``half_width_trials``), and with the rows' SDs (``sd[output]``) ``half_width_sd``, the quantile of
+    ``|residual| / sd``, the wider of the two likewise (docs/models.md)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     sets = [("blocked", folds), *([("trials", trial_pairs)] if len(trial_pairs) else [])]
     scored = [(name, *_residuals(pairs, y)) for name, pairs in sets]
+    preds = [_predictions(pairs, y.shape[1]) for _, pairs in sets]
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
         q = {name: conformal_half_width(r[:, k]) for name, _, r in scored}
+        spread, q_scaled = scale_fit([r[:, k] for _, _, r in scored], [np.abs(p[:, k]) for p in preds])
+        typical = float(np.median(q_scaled * (spread[0] + spread[1] * np.abs(preds[0][:, k]))))
         entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(scored[0][2].shape[0]),
-                                 "method": METHOD if len(scored) == 1 else METHOD_TRIALS, "scale": "none",
-                                 "half_width": max(q.values())}
+                                 "method": METHOD if len(scored) == 1 else METHOD_TRIALS, "scale": "prediction",
+                                 "half_width": typical, "half_width_scaled": q_scaled, "spread": spread,
+                                 "half_width_constant": max(q.values())}
         if len(scored) > 1:
             entry.update(half_width_blocked=q["blocked"], half_width_trials=q["trials"],
                          trials_held_out=len(trial_pairs))
@@ -115,6 +130,24 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
     return out
 
 
+def scale_fit(scores: Sequence[np.ndarray], predictions: Sequence[np.ndarray]) -> tuple[list[float], float]:
+    """A locally weighted split-conformal interval (Lei, G'Sell, Rinaldo, Tibshirani & Wasserman, JASA 113 (2018)
+    1094, §5.2) whose spread grows with the predicted value: s(p) = c_0 + c_1 |p|, c >= 0, fitted by non-negative
+    least squares of the out-of-fold ``scores`` (|residual|) on ``predictions`` (|p|, one array per residual
+    set), then q the conformal quantile of ``|residual| / s``, the wider over the sets (blocked, held-out trials).
+    Returns ([c_0, c_1], q); a row's half-width is q s(p)."""
+    r = np.concatenate(list(scores))
+    p = np.concatenate(list(predictions))
+    c = nnls(np.column_stack([np.ones(p.size), p]), r)[0]
+    c[0] = max(float(c[0]), 1e-3 * float(np.mean(r)) + 1e-300)  # a spread never 0
+    q = max(conformal_half_width(sc / (c[0] + c[1] * pr)) for sc, pr in zip(scores, predictions, strict=True))
+    return [float(c[0]), float(c[1])], q
+
+
+def _predictions(pairs: Sequence[tuple[np.ndarray, np.ndarray]], n_outputs: int) -> np.ndarray:
+    return np.concatenate([np.asarray(p, dtype=float).reshape(len(r), n_outputs) for r, p in pairs])
+
+
 def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rows of ``pairs`` (``(test rows, predictions (rows, outputs))``) and their ``|target - prediction|``."""
     rows = np.concatenate([np.asarray(r) for r, _ in pairs])
@@ -125,8 +158,9 @@ def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray) ->
 def interval_coverage(intervals: Mapping[str, dict[str, Any]], y: np.ndarray, pred: np.ndarray,
                       outputs: Sequence[str], sd: Mapping[str, np.ndarray | None]) -> dict[str, float]:
     """Per output the share of the rows' measured targets ``y`` inside prediction ± the interval's half-width (each
-    row's own, ``q · sd``, for an interval normalized by the targets' SDs ``sd``)."""
+    row's own: :func:`pipeline.evaluate.interval_half_width`)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     pred = np.asarray(pred, dtype=float).reshape(len(pred), -1)
-    return {o: float(np.mean(np.abs(y[:, k] - pred[:, k]) <= interval_half_width(intervals[o], sd.get(o))))
+    return {o: float(np.mean(np.abs(y[:, k] - pred[:, k]) <= interval_half_width(intervals[o], sd.get(o),
+                                                                                  pred[:, k])))
             for k, o in enumerate(outputs)}

@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.optimize import nnls
 from sklearn.base import clone
 
 from pipeline import store
 from pipeline.config import Params
 from pipeline.config.params import CoupledParams
-from pipeline.evaluate import blocked_folds
+from pipeline.evaluate import blocked_folds, interval_half_width
 from pipeline.models.explicit import EXPLICIT_INPUTS, McFarlandWhitcomb
 from pipeline.sim import load_example_vehicle
 from pipeline.sim.synthetic import synthetic_frame
@@ -43,15 +44,19 @@ def truth() -> McFarlandWhitcomb:
 
 
 def trial(truth: McFarlandWhitcomb, seed: int, name: str, n: int, split: str = "train_test", *,
-          hetero: bool = False) -> pd.DataFrame:
+          hetero: bool = False, gain: bool = False) -> pd.DataFrame:
     """Exact inputs; targets = the truth's accelerations + N(0, sd²), sd 2 % of a reference trial's target SD or,
-    ``hetero``, 1-4 % growing with |u| (a faster manoeuvre's targets are noisier)."""
+    ``hetero``, 1-4 % growing with |u| (a faster manoeuvre's targets are noisier) or, ``gain``, 1 % plus 10 % of
+    the row's own |acceleration| (an error that grows with how hard the vehicle is driven, a thrust map's gain
+    error, say)."""
     f = synthetic_frame(n, seed=seed, trial=name, rate_hz=5.0, noise=0.0, split=split)
     rng = np.random.default_rng(100 + seed)
     clean = truth.predict(f[list(EXPLICIT_INPUTS)].to_numpy())
     speed = np.abs(f["u_mps"].to_numpy())
     for k, (out, sd_col) in enumerate(zip(OUTPUTS, SD, strict=True)):
         sd = 0.01 * truth.scale_[k] * ((1 + 3 * speed / speed.max()) if hetero else np.full(len(f), 2.0))
+        if gain:
+            sd = 0.01 * truth.scale_[k] + 0.1 * np.abs(clean[:, k])
         f[out] = clean[:, k] + sd * rng.standard_normal(len(f))
         f[sd_col] = sd
     return f
@@ -76,31 +81,36 @@ def test_interval_covers_90_percent_of_a_fresh_trial(study) -> None:
     res = results["mcfarland_whitcomb"]
     for j, out in enumerate(OUTPUTS):
         interval = res["interval"][out]
-        assert interval["level"] == 0.9 and interval["scale"] == "none" and interval["rows"] == 1500
+        assert interval["level"] == 0.9 and interval["scale"] == "prediction" and interval["rows"] == 1500
         assert abs(interval["half_width_sd"] - Z90) < 0.15, (out, interval)
-        assert interval["half_width"] == pytest.approx(interval["half_width_sd"] * tt[SD[j]].iloc[0])  # constant SD
+        assert interval["half_width_constant"] == pytest.approx(interval["half_width_sd"] * tt[SD[j]].iloc[0])
         assert 0.86 <= res["final"][out]["interval_coverage"] <= 0.94, (out, res["final"][out])
 
 
 def test_half_width_is_the_conformal_quantile_of_the_out_of_fold_residuals(study) -> None:
     """By hand: the blocked folds' models, their held-out rows' |residual| (and / SD, the alternative), the
-    ceil((n + 1) 0.9)-th smallest; then the fresh trial's share inside the final model's prediction +- q."""
+    spread a + b |p| of those residuals by non-negative least squares on the out-of-fold |prediction| p, the
+    ceil((n + 1) 0.9)-th smallest |residual| / spread; then the fresh trial's share inside the final model's
+    prediction +- q (a + b |p|)."""
     results, tt, fresh, params = study
     res = results["mcfarland_whitcomb"]
     X, y = tt[list(EXPLICIT_INPUTS)].to_numpy(), tt[OUTPUTS].to_numpy()
     est = build_model("mcfarland_whitcomb", None, params, train=tt)
     folds = blocked_folds(len(tt), 5)
-    scores = np.concatenate([np.abs(y[test] - clone(est).fit(X[train], y[train]).predict(X[test]))
-                             for train, test in folds])
+    oof = np.concatenate([clone(est).fit(X[train], y[train]).predict(X[test]) for train, test in folds])
+    scores = np.abs(np.concatenate([y[test] for _, test in folds]) - oof)
     sd = np.concatenate([tt[SD].to_numpy()[test] for _, test in folds])
     k = int(np.ceil((len(scores) + 1) * 0.9))  # 1351st of 1500
     pred = res["estimator"].predict(fresh[list(EXPLICIT_INPUTS)].to_numpy())
     for j, out in enumerate(OUTPUTS):
-        q = np.sort(scores[:, j])[k - 1]
-        assert res["interval"][out]["half_width"] == pytest.approx(q, rel=1e-12)
-        assert res["interval"][out]["half_width_sd"] == pytest.approx(np.sort(scores[:, j] / sd[:, j])[k - 1],
-                                                                      rel=1e-12)
-        inside = np.abs(fresh[out].to_numpy() - pred[:, j]) <= q
+        interval = res["interval"][out]
+        assert interval["half_width_constant"] == pytest.approx(np.sort(scores[:, j])[k - 1], rel=1e-12)
+        assert interval["half_width_sd"] == pytest.approx(np.sort(scores[:, j] / sd[:, j])[k - 1], rel=1e-12)
+        a, b = nnls(np.column_stack([np.ones(len(oof)), np.abs(oof[:, j])]), scores[:, j])[0]
+        assert interval["spread"] == pytest.approx([a, b], rel=1e-9)
+        q = np.sort(scores[:, j] / (a + b * np.abs(oof[:, j])))[k - 1]
+        assert interval["half_width_scaled"] == pytest.approx(q, rel=1e-9)
+        inside = np.abs(fresh[out].to_numpy() - pred[:, j]) <= q * (a + b * np.abs(pred[:, j]))
         assert res["final"][out]["interval_coverage"] == pytest.approx(inside.mean(), abs=1e-12)
 
 
@@ -117,8 +127,34 @@ def test_interval_widens_where_the_target_is_noisier(hetero_study) -> None:
         err = np.abs(fresh[out].to_numpy() - pred[:, j])
         band = res["interval"][out]["half_width_sd"] * fresh[SD[j]].to_numpy()
         assert np.mean(err[fast] <= band[fast]) >= 0.85
-        one = res["interval"][out]["half_width"]
+        one = res["interval"][out]["half_width_constant"]
         assert np.mean(err[fast] <= one) < 0.8 and np.mean(err[slow] <= one) > 0.97
+
+
+def test_interval_grows_with_the_predicted_acceleration(truth: McFarlandWhitcomb) -> None:
+    """Noise of SD a + b |acceleration| (a = 1 % of the target's SD, b = 0.1): the spread fitted to the out-of-fold
+    |residuals| grows with |prediction| at E|N(0, 1)| b, and the band covers ~90 % of the fresh trial's gently
+    driven quarter (smallest |prediction|) and of its hardest driven quarter alike, where one half-width for all
+    rows is far too wide on the first and misses on the second.
+
+    Tolerances: E|residual| = sqrt(2 / pi) (a + b |a_true|) (the model's own error adds to the intercept, not the
+    slope): the fitted slope within 20 %; a quarter of 2000 fresh rows has a binomial SD of 0.013, plus the
+    quantile's spread and the straight line's misfit at the ends: 0.80-0.98.
+    """
+    tt = trial(truth, 11, "a", 1500, gain=True)
+    fresh = trial(truth, 12, "b", 2000, split="test", gain=True)
+    res = evaluate_models(tt, fresh, {}, CoupledParams(models=["mcfarland_whitcomb"], folds=5))["mcfarland_whitcomb"]
+    pred = res["estimator"].predict(fresh[list(EXPLICIT_INPUTS)].to_numpy())
+    for j, out in enumerate(OUTPUTS):
+        interval = res["interval"][out]
+        q, (a, b) = interval["half_width_scaled"], interval["spread"]
+        assert b == pytest.approx(np.sqrt(2 / np.pi) * 0.1, rel=0.2) and q * a > 0, (out, interval)
+        err, p = np.abs(fresh[out].to_numpy() - pred[:, j]), np.abs(pred[:, j])
+        band = interval_half_width(interval, None, pred[:, j])
+        gentle, hard = p < np.quantile(p, 0.25), p > np.quantile(p, 0.75)
+        assert 0.8 <= np.mean(err[gentle] <= band[gentle]) <= 0.98 and 0.8 <= np.mean(err[hard] <= band[hard]) <= 0.98
+        one = interval["half_width_constant"]
+        assert np.mean(err[gentle] <= one) > 0.99 and np.mean(err[hard] <= one) < 0.78, (out, one)
 
 
 def test_without_sd_columns_one_half_width(truth: McFarlandWhitcomb) -> None:
@@ -129,7 +165,7 @@ def test_without_sd_columns_one_half_width(truth: McFarlandWhitcomb) -> None:
     res = evaluate_models(tt, fresh, {}, CoupledParams(models=["mcfarland_whitcomb"], folds=5))["mcfarland_whitcomb"]
     for out in OUTPUTS:
         interval = res["interval"][out]
-        assert interval["scale"] == "none" and interval["half_width"] > 0 and "half_width_sd" not in interval
+        assert interval["scale"] == "prediction" and interval["half_width"] > 0 and "half_width_sd" not in interval
         assert 0.8 <= res["final"][out]["interval_coverage"] <= 0.99  # heteroscedastic: right on average only
 
 
@@ -150,12 +186,13 @@ def test_train_stage_writes_the_interval_and_its_coverage(tmp_path: Path, truth:
     md = (tmp_path / "data/evaluation/coupled/table3.md").read_text()
     for out in OUTPUTS:
         interval, final = card["interval"][out], card["scores"]["final_check"][out]
-        assert interval["scale"] == "none" and interval == t3["interval"][out]
+        assert interval["scale"] == "prediction" and interval == t3["interval"][out]
         assert 0.8 <= final["interval_coverage"] <= 0.98 and final == t3["final"][out]
         assert metrics[out]["final_interval_coverage"] == final["interval_coverage"]
         assert metrics[out]["interval_half_width"] == interval["half_width"]
     assert "| 90 % interval ± | final check: inside 90 % |" in md
-    assert f"| {card['interval']['udot_mps2']['half_width']:.3g} | " in md
+    a, b = (card["interval"]["udot_mps2"]["half_width_scaled"] * c for c in card["interval"]["udot_mps2"]["spread"])
+    assert f"| {a:.3g} + {b:.3g}·abs(p) | " in md
 
 
 def test_with_two_training_trials_the_wider_of_the_blocked_and_the_held_out_trials_quantiles(
@@ -180,7 +217,7 @@ def test_with_two_training_trials_the_wider_of_the_blocked_and_the_held_out_tria
         q_trials, q_blocked = np.sort(by_trial[:, j])[k - 1], np.sort(blocked[:, j])[k - 1]
         assert interval["half_width_trials"] == pytest.approx(q_trials, rel=1e-12)
         assert interval["half_width_blocked"] == pytest.approx(q_blocked, rel=1e-12)
-        assert interval["half_width"] == max(q_trials, q_blocked) and interval["trials_held_out"] == 2
+        assert interval["half_width_constant"] == max(q_trials, q_blocked) and interval["trials_held_out"] == 2
         assert interval["method"].startswith("split conformal: the wider")
     # the fit on the quiet trial a alone is worse on b than the blocked folds (which saw b's noise), on some output
     assert any(res["interval"][o]["half_width_trials"] > res["interval"][o]["half_width_blocked"] for o in OUTPUTS)
