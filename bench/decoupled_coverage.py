@@ -131,14 +131,26 @@ def intervals(seeds: range) -> int:
                     rows.setdefault((model, dof), []).append(scores)
             print(f"# seed set {k} done ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
     print(f"seed sets {seeds.start}..{seeds.stop - 1}")
-    print("| model | DOF | 90 % inside: mean | worst | GP 2σ inside: mean | worst | GP 2σ in CV |")
-    print("|---|---|---|---|---|---|---|")
+    alts = ("prediction", "sd_prediction")
+    print("| model | DOF | 90 % inside: mean | worst | GP 2σ inside: mean | worst | GP 2σ in CV | "
+          + " | ".join(f"{a}: mean | worst" for a in alts) + " |")
+    print("|---|---|---|---|---|---|---|" + "---|---|" * len(alts))
+    cells = {k: [] for k in ("method", *alts)}
     for (model, dof), runs in sorted(rows.items(), key=lambda kv: (list(DOF_INDEX).index(kv[0][1]), kv[0][0])):
         cov = np.array([r["interval_coverage"] for r in runs])
         band = [r["band_coverage"] for r in runs if "band_coverage" in r]
         cvb = [r["cv_band"] for r in runs if r.get("cv_band") is not None]
         gp = (f"{np.mean(band):.3f} | {np.min(band):.3f} | {np.mean(cvb):.3f}" if band else "– | – | –")
-        print(f"| {model} | {dof} | {cov.mean():.3f} | {cov.min():.3f} | {gp} |")
+        alt = {a: np.array([r.get(f"interval_coverage_{a}", np.nan) for r in runs]) for a in alts}
+        cells["method"] += cov.tolist()
+        for a in alts:
+            cells[a] += alt[a].tolist()
+        print(f"| {model} | {dof} | {cov.mean():.3f} | {cov.min():.3f} | {gp} | "
+              + " | ".join(f"{alt[a].mean():.3f} | {alt[a].min():.3f}" for a in alts) + " |")
+    for k, v in cells.items():  # every (seed set, model, DOF)
+        v = np.array(v)
+        print(f"{k}: {np.sum((v >= 0.85) & (v <= 0.95))} of {v.size} (seed set, model, DOF) inside 85-95 %, "
+              f"{np.sum(v < 0.85)} under, {np.sum(v > 0.95)} over")
     return 0
 
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
+from scipy.optimize import nnls
 from sklearn.base import clone
 from sklearn.metrics import mean_absolute_error, r2_score
 from sklearn.model_selection import KFold
@@ -28,7 +29,8 @@ log = logging.getLogger(__name__)
 __all__ = ["SPLITS", "split_blocks", "blocked_folds", "trial_folds", "search_folds", "trial_groups",
            "MIN_TRIAL_ROWS", "check_no_leakage", "regression_scores",
            "cross_validate_blocked", "fit_fold", "guarded_folds", "summarize_folds", "score_holdout", "MODEL_FAILURES",
-           "model_failure", "INTERVAL_LEVEL", "conformal_half_width", "sd_floor", "interval_half_width"]
+           "model_failure", "INTERVAL_LEVEL", "conformal_half_width", "sd_floor", "interval_half_width",
+           "scale_fit"]
 
 #: What one model's fit or evaluation may raise without stopping a study: the pipeline's own errors and numerical
 #: errors from numpy / scipy / scikit-learn (LinAlgError is a ValueError). Never KeyboardInterrupt or MemoryError.
@@ -274,6 +276,20 @@ def conformal_half_width(abs_residuals: np.ndarray, level: float = INTERVAL_LEVE
 def sd_floor(sd: np.ndarray) -> np.ndarray:
     """SDs kept away from 0 (a thousandth of their median), so a normalized score stays finite."""
     return np.maximum(sd, 1e-3 * float(np.median(sd)) + 1e-300)
+
+
+def scale_fit(scores: Sequence[np.ndarray], covariates: Sequence[np.ndarray]) -> tuple[list[float], float]:
+    """A locally weighted split-conformal interval (Lei, G'Sell, Rinaldo, Tibshirani & Wasserman, JASA 113 (2018)
+    1094, §5.2): a row's spread s = z' c, c >= 0, fitted by non-negative least squares of the out-of-fold
+    ``scores`` (|residual|) on the rows' ``covariates`` z (rows, m; >= 0: a column of ones for a constant part,
+    |prediction| for a part that grows with it), then q the conformal quantile of ``|residual| / s``, the wider
+    over the residual sets given (one array each: blocked folds, held-out trials). Returns (c, q); a row's
+    half-width is q z' c. The first coefficient is kept above 0 so that no spread is 0."""
+    r = np.concatenate(list(scores))
+    c = nnls(np.concatenate(list(covariates)), r)[0]
+    c[0] = max(float(c[0]), 1e-3 * float(np.mean(r)) + 1e-300)
+    q = max(conformal_half_width(sc / (z @ c)) for sc, z in zip(scores, covariates, strict=True))
+    return [float(x) for x in c], q
 
 
 def interval_half_width(interval: dict[str, Any], sd: np.ndarray | None, pred: np.ndarray | None = None

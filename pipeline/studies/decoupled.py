@@ -54,6 +54,7 @@ from pipeline.evaluate import (
     conformal_half_width,
     interval_half_width,
     model_failure,
+    scale_fit,
     sd_floor,
 )
 from pipeline.models.decoupled import DampingGP, describe, make_estimator, paper_names, param_grid
@@ -250,8 +251,11 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
     With the targets' own SDs ``sd`` the score is normalized: ``q`` (``half_width_sd``) is the conformal quantile
     of ``|residual| / sd`` and a row's interval is ``+- q sd``, so it widens where the target is noisier (a faster
     trial); ``half_width`` is then ``q`` times the training rows' RMS SD, the typical width. Without ``sd``: one
-    half-width, the quantile of ``|residual|``."""
-    resid, inside = [], []
+    half-width, the quantile of ``|residual|``. Saved beside it, not used (measured on validation seeds and not
+    taken: docs/models.md, "Decoupled models' intervals"): ``alternatives``, spreads that grow with the
+    prediction p (:func:`pipeline.evaluate.scale_fit`): ``prediction`` c_0 + c_1 |p| and ``sd_prediction``
+    c_0 sd + c_1 |p|."""
+    resid, inside, preds = [], [], []
     for est, rows in zip(estimators, test_folds, strict=True):
         if isinstance(est, DampingGP):
             mean, std = est.predict(X[rows], return_std=True, include_noise=True,
@@ -260,6 +264,7 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
         else:
             mean = est.predict(X[rows])
         resid.append(np.abs(y[rows] - np.ravel(mean)))
+        preds.append(np.abs(np.ravel(mean)))
     r = np.concatenate(resid)
     out: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(r.size),
                            "method": "split conformal on the blocked CV's out-of-fold residuals"}
@@ -271,6 +276,15 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
         out.update(scale="target_sd", half_width_sd=q, half_width=q * float(np.sqrt(np.mean(sd**2))))
     if inside:
         out["cv_band_coverage"] = float(np.concatenate(inside).mean())
+    p = np.concatenate(preds)
+    alternatives = {"prediction": np.column_stack([np.ones(p.size), p])}
+    if sd is not None:
+        alternatives["sd_prediction"] = np.column_stack([sd_floor(np.concatenate([sd[rows] for rows in test_folds])),
+                                                         p])
+    out["alternatives"] = {}
+    for name, Z in alternatives.items():
+        c, q = scale_fit([r], [Z])
+        out["alternatives"][name] = {"spread": c, "half_width_scaled": q}
     return out
 
 
@@ -291,6 +305,11 @@ def unseen_scores(result: ModelResult, X: np.ndarray, y: np.ndarray, sd: np.ndar
     out["mae"] = float(err.mean())
     if "half_width" in result.interval:
         out["interval_coverage"] = float(np.mean(err <= interval_half_width(result.interval, sd)))
+    for name, alt in result.interval.get("alternatives", {}).items():
+        if name == "sd_prediction" and sd is None:
+            continue
+        z = np.column_stack([np.ones(err.size) if name == "prediction" else sd_floor(sd), np.abs(mean)])
+        out[f"interval_coverage_{name}"] = float(np.mean(err <= alt["half_width_scaled"] * (z @ alt["spread"])))
     return out
 
 

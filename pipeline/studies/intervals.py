@@ -5,8 +5,8 @@ The train stage's blocked CV already predicts every train_test row with a model 
 folds' ``test_pred``). Per output, a row's spread s(p) = c_0 + c_1 |p| (p: its out-of-fold prediction) is fitted
 to the |residuals| by non-negative least squares, its score is ``|residual| / s(p)`` and ``q`` is the
 ``ceil((n + 1) 0.9)``-th smallest score (:func:`pipeline.evaluate.conformal_half_width`); a row's interval is the
-final model's prediction p ± ``q s(p)`` (:func:`scale_fit`). The final check scores the share of the test
-trial(s)' measured targets inside (``interval_coverage``).
+final model's prediction p ± ``q s(p)`` (:func:`pipeline.evaluate.scale_fit`). The final check scores the share
+of the test trial(s)' measured targets inside (``interval_coverage``).
 
 Why the predicted value: a model's error grows with how hard the vehicle is driven (a thrust map's gain error, a
 damping coefficient's error at speed), and one half-width calibrated on trials at full thrust is far too wide for
@@ -38,12 +38,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import nnls
 
 from pipeline.evaluate import (
     INTERVAL_LEVEL,
     conformal_half_width,
     interval_half_width,
+    scale_fit,
     sd_floor,
     trial_folds,
     trial_groups,
@@ -99,12 +99,13 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
                   trial_pairs: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> dict[str, dict[str, Any]]:
     """Per output the :data:`~pipeline.evaluate.INTERVAL_LEVEL` interval from the blocked folds' ``(test rows,
     predictions (rows, outputs))`` of the targets ``y`` (train_test rows, outputs): ``scale: prediction``, a row's
-    half-width ``half_width_scaled * (c_0 + c_1 |prediction|)`` (``spread`` = [c_0, c_1], :func:`scale_fit`) and
-    ``half_width`` its median over the calibration rows. With ``trial_pairs`` (the same pairs from models fitted
-    without whole training trials, :func:`held_out_trials`) the quantile is the wider of the two sets'. Saved beside
-    it, not used: ``half_width_constant``, the one half-width for every row (the wider of ``half_width_blocked``
-    and ``half_width_trials``), and with the rows' SDs (``sd[output]``) ``half_width_sd``, the quantile of
-    ``|residual| / sd``, the wider of the two likewise (docs/models.md)."""
+    half-width ``half_width_scaled * (c_0 + c_1 |prediction|)`` (``spread`` = [c_0, c_1],
+    :func:`~pipeline.evaluate.scale_fit`) and ``half_width`` its median over the calibration rows. With
+    ``trial_pairs`` (the same pairs from models fitted without whole training trials, :func:`held_out_trials`) the
+    quantile is the wider of the two sets'. Saved beside it, not used: ``half_width_constant``, the one half-width
+    for every row (the wider of ``half_width_blocked`` and ``half_width_trials``), and with the rows' SDs
+    (``sd[output]``) ``half_width_sd``, the quantile of ``|residual| / sd``, the wider of the two likewise
+    (docs/models.md)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     sets = [("blocked", folds), *([("trials", trial_pairs)] if len(trial_pairs) else [])]
     scored = [(name, *_residuals(pairs, y)) for name, pairs in sets]
@@ -112,7 +113,8 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
         q = {name: conformal_half_width(r[:, k]) for name, _, r in scored}
-        spread, q_scaled = scale_fit([r[:, k] for _, _, r in scored], [np.abs(p[:, k]) for p in preds])
+        spread, q_scaled = scale_fit([r[:, k] for _, _, r in scored],
+                                     [np.column_stack([np.ones(len(p)), np.abs(p[:, k])]) for p in preds])
         typical = float(np.median(q_scaled * (spread[0] + spread[1] * np.abs(preds[0][:, k]))))
         entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(scored[0][2].shape[0]),
                                  "method": METHOD if len(scored) == 1 else METHOD_TRIALS, "scale": "prediction",
@@ -128,20 +130,6 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
                                            for _, rows, r in scored))
         out[o] = entry
     return out
-
-
-def scale_fit(scores: Sequence[np.ndarray], predictions: Sequence[np.ndarray]) -> tuple[list[float], float]:
-    """A locally weighted split-conformal interval (Lei, G'Sell, Rinaldo, Tibshirani & Wasserman, JASA 113 (2018)
-    1094, §5.2) whose spread grows with the predicted value: s(p) = c_0 + c_1 |p|, c >= 0, fitted by non-negative
-    least squares of the out-of-fold ``scores`` (|residual|) on ``predictions`` (|p|, one array per residual
-    set), then q the conformal quantile of ``|residual| / s``, the wider over the sets (blocked, held-out trials).
-    Returns ([c_0, c_1], q); a row's half-width is q s(p)."""
-    r = np.concatenate(list(scores))
-    p = np.concatenate(list(predictions))
-    c = nnls(np.column_stack([np.ones(p.size), p]), r)[0]
-    c[0] = max(float(c[0]), 1e-3 * float(np.mean(r)) + 1e-300)  # a spread never 0
-    q = max(conformal_half_width(sc / (c[0] + c[1] * pr)) for sc, pr in zip(scores, predictions, strict=True))
-    return [float(c[0]), float(c[1])], q
 
 
 def _predictions(pairs: Sequence[tuple[np.ndarray, np.ndarray]], n_outputs: int) -> np.ndarray:
