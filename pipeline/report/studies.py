@@ -222,10 +222,11 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
                                  "scored on the unseen test trial(s); verdict “failed: train R² < 0”: worse than "
                                  "the mean on its own training rows; a free run that diverged or is worse than the "
                                  "mean on the output's DOF is named too; either leaves the model out of “best”. "
-                                 "90 % interval: prediction ± the split-conformal quantile of the CV's out-of-fold "
-                                 "|residuals| (with two or more training trials, the wider of that and the "
-                                 "quantile of fits without whole trials); inside: the share of the unseen "
-                                 "trial's measured targets within it, 85–95 % expected")
+                                 "90 % interval: prediction p ± a + b·abs(p), split conformal on the CV's "
+                                 "out-of-fold |residuals|, their spread growing with abs(p) (with two or more "
+                                 "training trials, the wider of that and the quantile of fits without whole "
+                                 "trials); inside: the share of the unseen trial's measured targets within it, "
+                                 "85–95 % expected")
     return html, failed
 
 
