@@ -20,10 +20,13 @@ Two kinds of model, one contract (``nu``: ``(n, k)`` velocities of ``model.dofs`
 - ``coupled`` (``coupled_<name>``: one estimator for all outputs): ``nudot = F(nu, inputs)``, ``tau`` being the
   model's other inputs in its card's order (``model.inputs``: thruster speeds or ``tau_*``).
 
-``predict(nu, tau, interval=True)`` returns ``(nudot, lower, upper)``: a band of +- 2 sd where the model has one
-(a decoupled set whose damping models all give a latent SD, the GP: the SD mapped through ``M^-1``, DOFs taken
-as independent), else ``lower = upper = None``. ``simulate`` integrates the model's own dynamics with RK4 at the
-step of ``t_s`` (uniform), inputs held over each step, as the simulate stage does (:func:`pipeline.rollout.rollout`).
+``predict(nu, tau, interval=True)`` returns ``(nudot, lower, upper)``: for a coupled model, its 90 % prediction
+interval from the train stage (its card's ``interval``: split conformal, the half-width growing with the
+prediction, :func:`pipeline.evaluate.interval_half_width`); for a decoupled set whose damping models all give a
+latent SD (the GP), a band of +- 2 sd (the SD mapped through ``M^-1``, DOFs taken as independent); else
+``lower = upper = None``. ``model.interval_kind`` says which. ``simulate`` integrates the model's own dynamics with
+RK4 at the step of ``t_s`` (uniform), inputs held over each step, as the simulate stage does
+(:func:`pipeline.rollout.rollout`).
 """
 
 from __future__ import annotations
@@ -77,7 +80,18 @@ class Model:
 
     @property
     def has_interval(self) -> bool:
-        return self.kind == "decoupled" and all(hasattr(m, "sample_functions") for m in self.estimators.values())
+        return self.interval_kind is not None
+
+    @property
+    def interval_kind(self) -> str | None:
+        """What ``predict(..., interval=True)``'s band is: "90 % interval" (a coupled model's, from its card),
+        "2-sd band" (a decoupled set of GPs) or None (no band)."""
+        if self.kind == "coupled":
+            interval = (self.cards.get("coupled") or {}).get("interval") or {}
+            return "90 % interval" if all(o in interval for o in self.outputs) else None
+        if all(hasattr(m, "sample_functions") for m in self.estimators.values()):
+            return "2-sd band"
+        return None
 
     @property
     def trials(self) -> list[str]:
@@ -111,13 +125,20 @@ class Model:
 
     def predict(self, nu: Any, tau: Any, interval: bool = False) -> Any:
         """nudot ``(n, k)`` for velocities ``nu (n, k)`` and inputs ``tau (n, m)``; ``interval=True``:
-        ``(nudot, lower, upper)`` with the +- 2 sd band where the model has one (else ``None, None``)."""
+        ``(nudot, lower, upper)`` with the model's band where it has one (else ``None, None``; the module's doc)."""
         nu, tau = self._arrays(nu, tau)
         nudot = np.asarray(self.dynamics()(nu, tau), dtype=float)
         if not interval:
             return nudot
         if not self.has_interval:
             return nudot, None, None
+        if self.kind == "coupled":
+            from pipeline.evaluate import interval_half_width  # scikit-learn's metrics: not at `import auvid`
+
+            card = self.cards["coupled"]["interval"]
+            half = np.column_stack([np.broadcast_to(interval_half_width(card[o], None, nudot[:, j]), len(nudot))
+                                    for j, o in enumerate(self.outputs)])
+            return nudot, nudot - half, nudot + half
         dyn = self.dynamics()
         assert isinstance(dyn, DecoupledDynamics)
         sd_d = np.column_stack([np.asarray(self.estimators[d].predict(nu[:, [j]], return_std=True)[1]).ravel()

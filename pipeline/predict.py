@@ -7,8 +7,9 @@ forces are subtracted as the damping balance does — from the ``g_*`` columns w
 table does), else from ``roll_rad`` / ``pitch_rad`` and the vehicle config, else taken as zero (logged).
 
 The output has ``t_ns`` and ``trial`` where the input has them, the measured accelerations where present, and per
-model ``<model>/<output>`` (``ls/udot_mps2``) plus ``<model>/<output>/lower`` and ``/upper`` (+- 2 sd) for a model
-with a band. A row whose inputs are not all finite is NaN. Parquet (with provenance) or CSV, written atomically.
+model ``<model>/<output>`` (``ls/udot_mps2``) plus ``<model>/<output>/lower`` and ``/upper`` for a model with a
+band (a coupled model's 90 % interval, a GP set's +- 2 sd: :attr:`pipeline.api.Model.interval_kind`). A row
+whose inputs are not all finite is NaN. Parquet (with provenance) or CSV, written atomically.
 """
 
 from __future__ import annotations

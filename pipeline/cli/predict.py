@@ -53,7 +53,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
                                    "version": models.version})
     if not args.quiet:
         for name, m in models_used.items():
-            print(f"[predict] {name}: {', '.join(m.outputs)}" + (" with a 2-sd band" if m.has_interval else ""))
+            print(f"[predict] {name}: {', '.join(m.outputs)}" + (f" with its {m.interval_kind}" if m.has_interval
+                                                                  else ""))
     print(f"auvid predict: done (exit 0): {len(models_used)} model(s) on {table.num_rows} row(s) in "
           f"{time.perf_counter() - start:.1f} s -> {out}", flush=True)
     return EXIT_OK

@@ -81,10 +81,40 @@ def test_gp_has_a_band_and_ls_has_none(run: Path, test_rows: pd.DataFrame) -> No
     nudot, lo, hi = models["gp"].predict(nu, tau, interval=True)
     assert models["gp"].has_interval and (lo < nudot).all() and (nudot < hi).all()
     np.testing.assert_array_equal(nudot, models["gp"].predict(nu, tau))
-    assert models["ls"].predict(nu, tau, interval=True)[1:] == (None, None)
+    assert models["ls"].predict(nu, tau, interval=True)[1:] == (None, None) and models["ls"].interval_kind is None
+    assert models["gp"].interval_kind == "2-sd band"
     assert models["coupled_rbf_svr"].inputs == ["n1_rpm", "n2_rpm"] and models["ls"].trials == ["a"]
     with pytest.raises(ValueError, match=r"tau \(n, 3\)"):
         models["ls"].predict(nu, tau[:, :2])
+
+
+def test_a_coupled_model_gives_its_90_percent_interval(run: Path, test_rows: pd.DataFrame, tmp_path: Path) -> None:
+    """A coupled model's band is the 90 % interval its card holds (the train stage writes it), by hand:
+    p +- q (c_0 + c_1 |p|) per output, wider where the model predicts a larger acceleration; a card without one
+    (the run's stand-in model) gives none."""
+    import json
+    import shutil
+
+    assert auvid.load(run)["coupled_rbf_svr"].predict(np.zeros((1, 3)), np.zeros((1, 2)), interval=True)[1:] \
+        == (None, None)
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy, symlinks=True)
+    path = copy / "data/models/coupled/rbf_svr.card.json"
+    card = json.loads(path.read_text())
+    spreads = {"udot_mps2": [0.01, 0.2], "vdot_mps2": [0.02, 0.0], "rdot_radps2": [0.005, 0.5]}
+    card["interval"] = {o: {"level": 0.9, "scale": "prediction", "spread": c, "half_width_scaled": 1.5,
+                            "half_width": 0.03} for o, c in spreads.items()}
+    path.write_text(json.dumps(card))
+    model = auvid.load(copy)["coupled_rbf_svr"]
+    nu, tau = test_rows[NU].to_numpy(), test_rows[model.inputs].to_numpy()
+    nudot, lo, hi = model.predict(nu, tau, interval=True)
+    assert model.interval_kind == "90 % interval"
+    np.testing.assert_array_equal(nudot, model.predict(nu, tau))
+    for j, out in enumerate(model.outputs):
+        c0, c1 = spreads[out]
+        half = 1.5 * (c0 + c1 * np.abs(nudot[:, j]))
+        np.testing.assert_allclose(hi[:, j] - nudot[:, j], half, rtol=1e-12)
+        np.testing.assert_allclose(nudot[:, j] - lo[:, j], half, rtol=1e-12)
 
 
 @pytest.mark.parametrize("name", ["ls", "gp", "coupled_rbf_svr"])
