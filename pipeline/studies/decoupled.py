@@ -276,15 +276,21 @@ def oof_interval(estimators: Sequence[BaseEstimator], test_folds: Sequence[np.nd
         out.update(scale="target_sd", half_width_sd=q, half_width=q * float(np.sqrt(np.mean(sd**2))))
     if inside:
         out["cv_band_coverage"] = float(np.concatenate(inside).mean())
-    p = np.concatenate(preds)
-    alternatives = {"prediction": np.column_stack([np.ones(p.size), p])}
-    if sd is not None:
-        alternatives["sd_prediction"] = np.column_stack([sd_floor(np.concatenate([sd[rows] for rows in test_folds])),
-                                                         p])
+    covariates = _spread_covariates(np.concatenate(preds),
+                                    None if sd is None else np.concatenate([sd[rows] for rows in test_folds]))
     out["alternatives"] = {}
-    for name, Z in alternatives.items():
+    for name, Z in covariates.items():
         c, q = scale_fit([r], [Z])
         out["alternatives"][name] = {"spread": c, "half_width_scaled": q}
+    return out
+
+
+def _spread_covariates(abs_pred: np.ndarray, sd: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The covariates of :func:`oof_interval`'s alternatives at rows of |prediction| ``abs_pred`` and target SD
+    ``sd``: ``prediction`` [1, |p|] and, with SDs, ``sd_prediction`` [sd, |p|]."""
+    out = {"prediction": np.column_stack([np.ones(abs_pred.size), abs_pred])}
+    if sd is not None:
+        out["sd_prediction"] = np.column_stack([sd_floor(sd), abs_pred])
     return out
 
 
@@ -305,11 +311,11 @@ def unseen_scores(result: ModelResult, X: np.ndarray, y: np.ndarray, sd: np.ndar
     out["mae"] = float(err.mean())
     if "half_width" in result.interval:
         out["interval_coverage"] = float(np.mean(err <= interval_half_width(result.interval, sd)))
+    covariates = _spread_covariates(np.abs(mean), sd)
     for name, alt in result.interval.get("alternatives", {}).items():
-        if name == "sd_prediction" and sd is None:
-            continue
-        z = np.column_stack([np.ones(err.size) if name == "prediction" else sd_floor(sd), np.abs(mean)])
-        out[f"interval_coverage_{name}"] = float(np.mean(err <= alt["half_width_scaled"] * (z @ alt["spread"])))
+        if name in covariates:
+            half = alt["half_width_scaled"] * (covariates[name] @ alt["spread"])
+            out[f"interval_coverage_{name}"] = float(np.mean(err <= half))
     return out
 
 

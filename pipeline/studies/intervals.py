@@ -109,14 +109,13 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     sets = [("blocked", folds), *([("trials", trial_pairs)] if len(trial_pairs) else [])]
     scored = [(name, *_residuals(pairs, y)) for name, pairs in sets]
-    preds = [_predictions(pairs, y.shape[1]) for _, pairs in sets]
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
-        q = {name: conformal_half_width(r[:, k]) for name, _, r in scored}
-        spread, q_scaled = scale_fit([r[:, k] for _, _, r in scored],
-                                     [np.column_stack([np.ones(len(p)), np.abs(p[:, k])]) for p in preds])
-        typical = float(np.median(q_scaled * (spread[0] + spread[1] * np.abs(preds[0][:, k]))))
-        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(scored[0][2].shape[0]),
+        q = {name: conformal_half_width(r[:, k]) for name, _, _, r in scored}
+        spread, q_scaled = scale_fit([r[:, k] for *_, r in scored],
+                                     [np.column_stack([np.ones(len(p)), np.abs(p[:, k])]) for _, _, p, _ in scored])
+        typical = float(np.median(q_scaled * (spread[0] + spread[1] * np.abs(scored[0][2][:, k]))))
+        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(scored[0][3].shape[0]),
                                  "method": METHOD if len(scored) == 1 else METHOD_TRIALS, "scale": "prediction",
                                  "half_width": typical, "half_width_scaled": q_scaled, "spread": spread,
                                  "half_width_constant": max(q.values())}
@@ -127,20 +126,18 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
         if s is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
             entry.update(alternative_sd_column=target_sd_column(o),
                          half_width_sd=max(conformal_half_width(r[:, k] / sd_floor(s[rows]))
-                                           for _, rows, r in scored))
+                                           for _, rows, _, r in scored))
         out[o] = entry
     return out
 
 
-def _predictions(pairs: Sequence[tuple[np.ndarray, np.ndarray]], n_outputs: int) -> np.ndarray:
-    return np.concatenate([np.asarray(p, dtype=float).reshape(len(r), n_outputs) for r, p in pairs])
-
-
-def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rows of ``pairs`` (``(test rows, predictions (rows, outputs))``) and their ``|target - prediction|``."""
+def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of ``pairs`` (``(test rows, predictions (rows, outputs))``), their predictions and their
+    ``|target - prediction|``."""
     rows = np.concatenate([np.asarray(r) for r, _ in pairs])
-    pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), -1) for r, p in pairs])
-    return rows, np.abs(y[rows] - pred)
+    pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), y.shape[1]) for r, p in pairs])
+    return rows, pred, np.abs(y[rows] - pred)
 
 
 def interval_coverage(intervals: Mapping[str, dict[str, Any]], y: np.ndarray, pred: np.ndarray,
