@@ -26,7 +26,10 @@ Term selection (``select=True``): backward elimination of damping terms by free-
 rows are cut into ``selection_folds`` contiguous blocks; a term set's score is the mean over the blocks of the
 free-run error of the model fitted on the other blocks: windows of ``selection_horizon_s`` inside the held-out
 block's contiguous runs, each started from the measured velocity and integrated by RK4 with tau held per step,
-squared velocity error over each DOF's SD, averaged. Each round removes the term whose removal gives the lowest
+squared velocity error over each DOF's SD, averaged over each block's windows less the ``selection_trim`` share
+with the largest errors (a free run through a stretch where the motion is unstable, straight-line surge with the
+Munk moment, say, amplifies its start's noise whatever the terms, and one such window would decide the block's
+score). Each round removes the term whose removal gives the lowest
 score if that score is at most ``(1 + selection_tolerance)`` times the current one, and stops otherwise. Why free
 runs: a one-step (acceleration) error hardly sees a small damping term, which a free run integrates; why held-out
 blocks: on the fitted rows every added term lowers the error. The tolerance prefers the smaller model where
@@ -144,7 +147,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
     def __init__(self, rigid_body_mass: Sequence[Sequence[float]] | None = None, terms: Sequence[str] | None = None,
                  noise_std: Sequence[float] | None = None, dt_s: float | None = None, select: bool = True,
                  selection_folds: int = 4, selection_horizon_s: float = 5.0, selection_tolerance: float = 0.01,
-                 guard: bool = True, dissipative: bool = True) -> None:
+                 selection_trim: float = 0.1, guard: bool = True, dissipative: bool = True) -> None:
         self.rigid_body_mass = rigid_body_mass
         self.terms = terms
         self.noise_std = noise_std
@@ -153,6 +156,7 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         self.selection_folds = selection_folds
         self.selection_horizon_s = selection_horizon_s
         self.selection_tolerance = selection_tolerance
+        self.selection_trim = selection_trim
         self.guard = guard
         self.dissipative = dissipative
 
@@ -263,8 +267,10 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         if X.shape[1] != 6 or y.ndim != 2 or y.shape[1] != 3:
             raise ValueError("Fossen3DOF expects X = [u v r tau_u tau_v tau_r] (6 columns) and y = [udot vdot rdot] "
                              f"(3 columns), got {X.shape[1]} and {1 if y.ndim == 1 else y.shape[1]}")
-        if self.selection_folds < 2 or not self.selection_horizon_s > 0 or self.selection_tolerance < 0:
-            raise ValueError("selection_folds >= 2, selection_horizon_s > 0 and selection_tolerance >= 0 needed")
+        if self.selection_folds < 2 or not self.selection_horizon_s > 0 or self.selection_tolerance < 0 \
+                or not 0 <= self.selection_trim < 1:
+            raise ValueError("selection_folds >= 2, selection_horizon_s > 0, selection_tolerance >= 0 and "
+                             "0 <= selection_trim < 1 needed")
         unknown = [t for t in (self.terms or ()) if t not in DAMPING_TERMS]
         if unknown:
             raise ValueError(f"unknown damping term(s) {unknown}; known {list(DAMPING_TERMS)}")
@@ -362,13 +368,14 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         sd = np.maximum(nu.std(axis=0), 1e-9)
         bound = 10.0 * np.abs(nu).max(axis=0) + 1e-9
         x = nu[starts].copy()
-        err = 0.0
+        err = np.zeros(len(starts))
         with np.errstate(all="ignore"):
             for i in range(L):
                 x = np.clip(rk4_step(f, x, tau[idx[:, i]], dt), -bound, bound)
                 x = np.where(np.isfinite(x), x, bound)
-                err += float(np.sum(((x - nu[idx[:, i + 1]]) / sd) ** 2))
-        return err / (L * len(starts) * 3)
+                err += np.sum(((x - nu[idx[:, i + 1]]) / sd) ** 2, axis=1)
+        kept = np.sort(err)[:max(1, int(np.ceil((1.0 - self.selection_trim) * len(starts))))]
+        return float(kept.mean()) / (L * 3)
 
     def _score(self, nu, tau, folds, terms, m_rb, dt) -> float:
         errs = []
