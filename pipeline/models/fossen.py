@@ -33,7 +33,9 @@ score). Each round removes the term whose removal gives the lowest
 score if that score is at most ``(1 + selection_tolerance)`` times the current one, and stops otherwise. Why free
 runs: a one-step (acceleration) error hardly sees a small damping term, which a free run integrates; why held-out
 blocks: on the fitted rows every added term lowers the error. The tolerance prefers the smaller model where
-scores tie within noise.
+scores tie within noise. The last of a DOF's damping terms in its own velocity (X_u or X_|u|u, ...) is never
+removed: a body in water dissipates in every DOF (D(nu) > 0, Fossen 2011, sec. 6.4), and a free run can score
+better without any surge damping only because an unknown force (a tether) drives the motion.
 
 Dissipation (``dissipative=True``): each DOF's damping in its own velocity must dissipate energy at every speed,
 ``-X_u u^2 - X_|u|u |u|u^2 >= 0`` for all u (Fossen 2011, sec. 6.4: D(nu) > 0), which holds for all u only with
@@ -391,9 +393,13 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         current = list(terms)
         score = self._score(nu, tau, folds, current, m_rb, dt)
         self.selection_.append({"removed": None, "score": score, "terms": list(current)})
-        while current:
-            trial = {t: self._score(nu, tau, folds, [c for c in current if c != t], m_rb, dt) for t in current}
-            best = min(current, key=lambda t: (trial[t], current.index(t)))
+        while True:
+            # a DOF keeps at least one damping term in its own velocity: D(nu) > 0 (Fossen 2011, sec. 6.4)
+            removable = [t for t in current if not _last_own_damping(t, current)]
+            if not removable:
+                break
+            trial = {t: self._score(nu, tau, folds, [c for c in current if c != t], m_rb, dt) for t in removable}
+            best = min(removable, key=lambda t: (trial[t], current.index(t)))
             # _ABS_SLACK: on noise-free data every score is rounding, and a zero term must still go
             if not trial[best] <= score * (1.0 + self.selection_tolerance) + _ABS_SLACK:
                 break
@@ -491,6 +497,14 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
         self.coefficient_intervals_ = bootstrap.summary(names, samples, level, length=length, blocks=len(blocks),
                                                         failed=failed, short=short)
         return self
+
+
+def _last_own_damping(term: str, current: Sequence[str]) -> bool:
+    """Whether ``term`` is the last of its equation's :data:`DISSIPATIVE_TERMS` left in ``current``."""
+    if term not in DISSIPATIVE_TERMS:
+        return False
+    eq = DAMPING_TERMS[term][0]
+    return not any(t != term and t in DISSIPATIVE_TERMS and DAMPING_TERMS[t][0] == eq for t in current)
 
 
 def _sname(theta: np.ndarray) -> dict[str, float]:

@@ -13,6 +13,7 @@ from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from pipeline.errors import ModelError
 from pipeline.models.explicit import GertlerHagen
+from pipeline.models import fossen
 from pipeline.models.fossen import Fossen3DOF
 from tests.models.fossen_data import DT_S, M_RB, TRUTH, run
 from tests.models.test_explicit import _expected_failed, _without_array_api
@@ -73,6 +74,20 @@ def test_one_unstable_window_does_not_decide_the_selection():
     assert rel_errors(model).max() < 0.10, dict(zip(MAIN, rel_errors(model).round(3), strict=True))
     untrimmed = Fossen3DOF(rigid_body_mass=M_RB, noise_std=noise, dt_s=DT_S, selection_trim=0.0).fit(X, y)
     assert "X_u" not in untrimmed.selected_terms_, untrimmed.selection_
+
+
+def test_selection_keeps_a_damping_term_in_every_dofs_own_velocity(monkeypatch):
+    # A score that always favours the smaller model (as free runs can where an unknown force, a tether, drives a
+    # DOF: on a family trial they removed all surge damping): the elimination stops at the last damping term in
+    # each DOF's own velocity, since a body in water dissipates in every DOF. Ties go to the earlier term, so the
+    # linear ones go first.
+    X, y, _, _, _ = run(0)
+    monkeypatch.setattr(Fossen3DOF, "_score", lambda self, nu, tau, folds, terms, m_rb, dt: float(len(terms)))
+    model = Fossen3DOF(rigid_body_mass=M_RB, dt_s=DT_S).fit(X, y)
+    assert model.selection_[-1]["terms"] == ["X_|u|u", "Y_|v|v", "N_|r|r"], model.selection_
+    assert model.selected_terms_ == ["X_|u|u", "Y_|v|v", "N_|r|r"]
+    monkeypatch.setattr(fossen, "_last_own_damping", lambda term, current: False)
+    assert Fossen3DOF(rigid_body_mass=M_RB, dt_s=DT_S).fit(X, y).selection_[-1]["terms"] == []
 
 
 @pytest.mark.parametrize("seed", [400, 401, 402])
