@@ -34,17 +34,15 @@ every ``r`` term when the vehicle never turns) is dropped with a warning naming 
 term; its coefficient is 0 and it is listed in ``dropped_terms_``. An equation group whose right-hand side tau is
 identically zero (a DOF without actuation: tau_v = 0 on a torpedo AUV or ship) is homogeneous: its diagonal
 acceleration (mass) coefficient is fixed to 1 and the others are found relative to it (prediction only needs the
-ratios, since ``tau_e = 0`` there; a model fitted so must not be given ``tau_e != 0``). It is listed in
-``homogeneous_equations_``.
+ratios, since ``tau_e = 0`` there; never give it ``tau_e != 0``), listed in ``homogeneous_equations_``.
 
 Output-error refinement (``refine=True``, needs ``dt_s``): starting from the (W)TLS solution, the free
 coefficients are refined by multiple shooting: windows of ``refine_horizon_s`` seconds, each started from the
 measured velocity, integrated by RK4 at ``dt_s`` with tau held over each step, velocity error (per DOF divided by
-its SD) minimized by ``scipy.optimize.least_squares``. Contiguous runs are taken from ``fit(..., groups=ids)``
-when given, and otherwise found in the data: a row where the measured velocity step disagrees with the
-trapezoid integral of the measured acceleration by more than 8 robust SDs starts a new run (so the two blocks of
-a blocked-CV training fold, which ``cross_validate_blocked`` passes without groups, are never bridged). The
-refined solution is kept only if it lowers the cost and leaves a well-conditioned mass matrix.
+its SD) minimized by ``scipy.optimize.least_squares``. Contiguous runs: from ``fit(..., groups=ids)`` when
+given, otherwise found in the data (:func:`contiguous_runs`: a blocked-CV training fold's two blocks, passed
+without groups, are never bridged). The refined solution is kept only if it lowers the cost and leaves a
+well-conditioned mass matrix.
 """
 
 from __future__ import annotations
@@ -168,8 +166,9 @@ def null_vector(Z: np.ndarray, cov: np.ndarray | None) -> np.ndarray:
 
 def contiguous_runs(nu: np.ndarray, nudot: np.ndarray, dt_s: float, groups=None) -> list[tuple[int, int]]:
     """``(start, stop)`` of each contiguous run of time-ordered rows (at least 2 rows): from ``groups`` (one id per
-    row) when given; otherwise a row where the measured velocity step disagrees with the trapezoid integral of the
-    measured acceleration by more than 8 robust SDs starts a new run."""
+    row) when given; otherwise a row starts a run where the velocity step and the trapezoid integral of the
+    acceleration differ by more than 8 robust SDs and 5 median velocity steps (a smoother's nu and nu_dot agree to
+    rounding on most rows, leaving that SD near 0; a seam under a few ordinary steps does a free run no harm)."""
     n = len(nu)
     if groups is not None:
         g = np.asarray(groups)
@@ -178,9 +177,10 @@ def contiguous_runs(nu: np.ndarray, nudot: np.ndarray, dt_s: float, groups=None)
         breaks = np.flatnonzero(g[1:] != g[:-1]) + 1
     else:
         d = nu[1:] - nu[:-1] - 0.5 * dt_s * (nudot[1:] + nudot[:-1])
-        scale = _MAD_TO_SD * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-        scale = np.maximum(scale, 1e-12 * (np.abs(nu).max(axis=0) + 1e-300))
-        breaks = np.flatnonzero(np.any(np.abs(d) > 8 * scale, axis=1)) + 1
+        scale = np.maximum(_MAD_TO_SD * np.median(np.abs(d - np.median(d, axis=0)), axis=0),
+                           1e-12 * (np.abs(nu).max(axis=0) + 1e-300))
+        breaks = np.flatnonzero(np.any((np.abs(d) > 8 * scale)
+                                       & (np.abs(d) > 5 * np.median(np.abs(np.diff(nu, axis=0)), axis=0)), axis=1)) + 1
     edges = [0, *breaks.tolist(), n]
     return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b - a >= 2]
 

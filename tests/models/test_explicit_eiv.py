@@ -193,6 +193,26 @@ def test_refinement_finds_the_breaks_between_runs():
     assert model._runs(joined[0][:, :3], joined[1], np.r_[np.zeros(400), np.ones(400)]) == runs
 
 
+def test_a_smoothers_output_is_one_run_and_a_removed_block_a_break():
+    # As the model-aware smoother writes them: nu integrates nu_dot = a + b exactly, a (the known input) held per
+    # step and changing every 7 steps, b smooth. The trapezoid rule then agrees to rounding except where a jumps
+    # (by h/2 of the jump): a robust SD of the disagreement near 0, which alone would cut a run at every jump.
+    from pipeline.models.explicit import contiguous_runs
+
+    h, n = 0.05, 2000
+    rng = np.random.default_rng(3)
+    a = np.repeat(rng.normal(size=(n // 7 + 1, 3)) * [0.05, 0.03, 0.02], 7, axis=0)[:n]
+    t = np.arange(n) * h
+    b = np.column_stack([0.1 * np.sin(0.3 * t), 0.05 * np.cos(0.2 * t), 0.02 * np.sin(0.5 * t + 1)])
+    nudot = a + b
+    nu = np.zeros((n, 3))
+    nu[1:] = np.cumsum(h * a[:-1] + 0.5 * h * (b[:-1] + b[1:]), axis=0)
+    nu += [0.5, 0.0, 0.0]
+    assert contiguous_runs(nu, nudot, h) == [(0, n)]
+    keep = np.r_[0:900, 940:n]  # a blocked fold's seam: 40 steps (2 s) left out
+    assert contiguous_runs(nu[keep], nudot[keep], h) == [(0, 900), (900, n - 40)]
+
+
 def test_tls_equation_with_non_positive_inertia_falls_back_to_ols(caplog) -> None:
     """A TLS solution whose own-acceleration coefficient is <= 0 is no physical model (its predictions divide by
     it: on the demo, a WTLS yaw inertia of -9.9 gave Gertler-Hagen R2 -27 on its own training data). That
