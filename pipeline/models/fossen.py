@@ -29,10 +29,10 @@ block's contiguous runs, each started from the measured velocity and integrated 
 squared velocity error over each DOF's SD, averaged over each block's windows less the ``selection_trim`` share
 with the largest errors (a free run through a stretch where the motion is unstable, straight-line surge with the
 Munk moment, say, amplifies its start's noise whatever the terms, and one such window would decide the block's
-score). Each round removes the term whose removal gives the lowest
-score if that score is at most ``(1 + selection_tolerance)`` times the current one, and stops otherwise. Why free
-runs: a one-step (acceleration) error hardly sees a small damping term, which a free run integrates; why held-out
-blocks: on the fitted rows every added term lowers the error. The tolerance prefers the smaller model where
+score). Each round removes the term whose removal gives the lowest score if that score is at most
+``(1 + selection_tolerance)`` times the current one, and stops otherwise. Why free runs: a one-step (acceleration)
+error hardly sees a small damping term, which a free run integrates; why held-out blocks: on the fitted rows every
+added term lowers the error. The tolerance prefers the smaller model where
 scores tie within noise. The last of a DOF's damping terms in its own velocity (X_u or X_|u|u, ...) is never
 removed: a body in water dissipates in every DOF (D(nu) > 0, Fossen 2011, sec. 6.4), and a free run can score
 better without any surge damping only because an unknown force (a tether) drives the motion.
