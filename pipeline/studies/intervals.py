@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -107,37 +107,42 @@ def oof_intervals(folds: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray,
     (``sd[output]``) ``half_width_sd``, the quantile of ``|residual| / sd``, the wider of the two likewise
     (docs/models.md)."""
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
-    sets = [("blocked", folds), *([("trials", trial_pairs)] if len(trial_pairs) else [])]
-    scored = [(name, *_residuals(pairs, y)) for name, pairs in sets]
+    scored = {"blocked": _residuals(folds, y), **({"trials": _residuals(trial_pairs, y)} if len(trial_pairs) else {})}
+    blocked = scored["blocked"]
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(outputs):
-        q = {name: conformal_half_width(r[:, k]) for name, _, _, r in scored}
-        spread, q_scaled = scale_fit([r[:, k] for *_, r in scored],
-                                     [np.column_stack([np.ones(len(p)), np.abs(p[:, k])]) for _, _, p, _ in scored])
-        typical = float(np.median(q_scaled * (spread[0] + spread[1] * np.abs(scored[0][2][:, k]))))
-        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(scored[0][3].shape[0]),
+        q = {name: conformal_half_width(part.resid[:, k]) for name, part in scored.items()}
+        spread, q_scaled = scale_fit([part.resid[:, k] for part in scored.values()],
+                                     [np.column_stack([np.ones(len(part.pred)), np.abs(part.pred[:, k])])
+                                      for part in scored.values()])
+        typical = float(np.median(q_scaled * (spread[0] + spread[1] * np.abs(blocked.pred[:, k]))))
+        entry: dict[str, Any] = {"level": INTERVAL_LEVEL, "rows": int(blocked.rows.size),
                                  "method": METHOD if len(scored) == 1 else METHOD_TRIALS, "scale": "prediction",
                                  "half_width": typical, "half_width_scaled": q_scaled, "spread": spread,
                                  "half_width_constant": max(q.values())}
         if len(scored) > 1:
             entry.update(half_width_blocked=q["blocked"], half_width_trials=q["trials"],
                          trials_held_out=len(trial_pairs))
-        s = sd.get(o)
-        if s is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
+        sd_o = sd.get(o)
+        if sd_o is not None:  # the alternative, for comparison: each row's band q_sd times its target's SD
             entry.update(alternative_sd_column=target_sd_column(o),
-                         half_width_sd=max(conformal_half_width(r[:, k] / sd_floor(s[rows]))
-                                           for _, rows, _, r in scored))
+                         half_width_sd=max(conformal_half_width(part.resid[:, k] / sd_floor(sd_o[part.rows]))
+                                           for part in scored.values()))
         out[o] = entry
     return out
 
 
-def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rows of ``pairs`` (``(test rows, predictions (rows, outputs))``), their predictions and their
-    ``|target - prediction|``."""
+class _Scored(NamedTuple):
+    rows: np.ndarray   # train_test rows
+    pred: np.ndarray   # their out-of-fold predictions (rows, outputs)
+    resid: np.ndarray  # |target - prediction|
+
+
+def _residuals(pairs: Sequence[tuple[np.ndarray, np.ndarray]], y: np.ndarray) -> _Scored:
+    """The rows of ``pairs`` (``(test rows, predictions (rows, outputs))``), their predictions and residuals."""
     rows = np.concatenate([np.asarray(r) for r, _ in pairs])
     pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(r), y.shape[1]) for r, p in pairs])
-    return rows, pred, np.abs(y[rows] - pred)
+    return _Scored(rows, pred, np.abs(y[rows] - pred))
 
 
 def interval_coverage(intervals: Mapping[str, dict[str, Any]], y: np.ndarray, pred: np.ndarray,
