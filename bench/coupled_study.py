@@ -53,6 +53,21 @@ what a better choice among the searched hyperparameters could give the WDSE-SVR 
 WDSE's says the search chose badly; one close to it, that the kernel and the data are the limit).
 
     python bench/coupled_study.py --no-cv --oracle vdot_mps2    # + 30 final fits a seed and output
+
+``--loto`` (a diagnostic, not a method): each explicit model of the run fitted on all training trials but one and
+scored (R² against the held-out trial's targets), per output; the table gets, per seed and output, the explicit model
+a choice by the mean of those scores would take and its R² on the test truth, beside the best explicit model's.
+It says whether a gray box whose base is chosen per output by held-out trials would do better than one base.
+
+    python bench/coupled_study.py --no-cv --preset family --seeds 90 91 92 93 --duration 300 --loto \
+        --models fossen gertler_hagen mcfarland_whitcomb
+
+``--fossen-fits`` (a diagnostic): Fossen's model fitted on the training trials as the study fits it, with every
+damping term (no selection), with the selection never removing an own-velocity damping term, and on the test trial
+itself (every term: what its family can do on that motion); R² per output on the test trial's targets, and the
+v̇ equation's damping coefficients of the study's fit.
+
+    python bench/coupled_study.py --no-cv --preset family --seeds 92 99 --duration 300 --fossen-fits --models fossen
 """
 
 from __future__ import annotations
@@ -163,8 +178,60 @@ def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: 
     return out
 
 
+def loto_scores(root: Path, params: Params, vehicle) -> dict:
+    """Per explicit model of the run: R² per output on each training trial's targets of the model fitted on the
+    other training trials (the train stage's final fit, without that trial): model -> [[u̇, v̇, ṙ] per trial]."""
+    from pipeline.studies.coupled import EXPLICIT_MODELS, build_model, model_inputs, rigid_body_uvr
+
+    cp = params.coupled
+    tt = store.load(root, split="train_test").sort_values(["trial", "t_ns"])
+    out = {}
+    for model in (m for m in cp.models if m in EXPLICIT_MODELS):
+        cols, scores = model_inputs(model, cp), []
+        for held in sorted(tt["trial"].unique()):
+            train, test = tt[tt["trial"] != held], tt[tt["trial"] == held]
+            est = build_model(model, None, cp, train=train, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
+            pred = est.fit(train[cols].to_numpy(float), train[cp.outputs].to_numpy(float)).predict(
+                test[cols].to_numpy(float))
+            scores.append([r2(pred[:, j], test[o].to_numpy(float)) for j, o in enumerate(cp.outputs)])
+        out[model] = scores
+    return out
+
+
+def fossen_fits(root: Path, params: Params, vehicle) -> dict:
+    """Fossen's fits of ``--fossen-fits`` (see the module's docstring): variant -> {"r2": [u̇, v̇, ṙ] on the test
+    trial's targets, "terms": the selected terms (None without selection)}; "Y": the study's fit's sway damping."""
+    import pipeline.models.fossen as fossen
+    from pipeline.studies.coupled import build_model, model_inputs, rigid_body_uvr
+
+    cp = params.coupled
+    cols, outputs = model_inputs("fossen", cp), list(cp.outputs)
+    rows = store.load(root).sort_values(["trial", "t_ns"])
+    test_name = params.features.test_trials[0]
+    train, test = rows[rows["trial"] != test_name], rows[rows["trial"] == test_name]
+    keep_last = fossen._last_own_damping
+    out: dict = {}
+    variants = {"study": (train, {}), "every term": (train, {"select": False}), "own damping kept": (train, {}),
+                "fitted on the test trial": (test, {"select": False, "guard": False})}
+    for name, (data, settings) in variants.items():
+        est = build_model("fossen", None, cp, train=data, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
+        if name == "own damping kept":
+            fossen._last_own_damping = lambda term, current: term in fossen.DISSIPATIVE_TERMS
+        try:
+            est.set_params(**settings).fit(data[cols].to_numpy(float), data[outputs].to_numpy(float))
+        finally:
+            fossen._last_own_damping = keep_last
+        pred = est.predict(test[cols].to_numpy(float))
+        out[name] = {"r2": [r2(pred[:, j], test[o].to_numpy(float)) for j, o in enumerate(outputs)],
+                     "terms": getattr(est, "selected_terms_", None) if est.select else None}
+        if name == "study":
+            out["Y"] = {k: v for k, v in est.coefficients().items() if k.startswith("Y_") and "dot" not in k}
+    return out
+
+
 def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models: list[str] | None,
-             cv: bool = True, oracle: list[str] | None = None, preset: str = "gentle", n_train: int = 2) -> dict:
+             cv: bool = True, oracle: list[str] | None = None, preset: str = "gentle", n_train: int = 2,
+             loto: bool = False, fossen_diag: bool = False) -> dict:
     from stages import derive, differentiate, features, ingest, sync, train, tune
 
     vehicle = load_example_vehicle()
@@ -232,6 +299,10 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
                 out["intervals"][model] = interval_shares(intervals[model], test, pred)
         if oracle:
             out["oracle"] = oracle_scores(root, params, oracle, test, a_true)
+        if loto:
+            out["loto"] = loto_scores(root, params, vehicle)
+        if fossen_diag:
+            out["fossen_fits"] = fossen_fits(root, params, vehicle)
     return out
 
 
@@ -263,6 +334,10 @@ def main() -> None:
                     help="also each model's 90 %% interval and its share of the test trial's targets inside")
     ap.add_argument("--oracle", nargs="+", default=None, choices=OUTPUTS, metavar="OUTPUT",
                     help="also the best WDSE-SVR search candidate per seed on the test truth (a bound; see above)")
+    ap.add_argument("--loto", action="store_true",
+                    help="also the explicit model a choice per output by held-out training trials takes (see above)")
+    ap.add_argument("--fossen-fits", action="store_true",
+                    help="also Fossen's model fitted four ways, scored on the test trial's targets (see above)")
     args = ap.parse_args()
     if args.intervals and args.no_cv:
         ap.error("--intervals needs the train stage's CV folds: drop --no-cv")
@@ -280,7 +355,8 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
     results = []
     for seed in args.seeds:
         res = one_seed(seed, args.duration, params, not args.no_inflow, args.models, cv=not args.no_cv,
-                       oracle=args.oracle, preset=preset, n_train=args.train_trials)
+                       oracle=args.oracle, preset=preset, n_train=args.train_trials, loto=args.loto,
+                       fossen_diag=args.fossen_fits)
         results.append(res)
         print(f"seed {seed}: stages {res['stages_s']:.0f} s, ceiling "
               + ", ".join(f"{o} {v:.3f}" for o, v in res["ceiling"].items()), file=sys.stderr, flush=True)
@@ -347,6 +423,27 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
             print(f"{o}: best {np.round(per, 3).tolist()} (mean {np.mean(per):.3f}), chosen "
                   f"{np.round(chosen, 3).tolist()}, ceiling {np.round(ceiling, 3).tolist()} "
                   f"(mean {np.mean(ceiling):.3f})")
+    if args.loto:
+        print("\nexplicit model chosen per output by held-out training trials (mean R² on them) against the best "
+              "explicit model on the test truth; per seed: chosen R², best R², ceiling")
+        for r in results:
+            cells = []
+            for j, o in enumerate(OUTPUTS):
+                held = {m: np.mean([s[j] for s in per]) for m, per in r["loto"].items()}
+                pick = max(held, key=held.get)
+                best = max(r["loto"], key=lambda m: r["models"][m][o])
+                cells.append(f"{o} {pick} {r['models'][pick][o]:.3f} (held-out {held[pick]:.2f}), best {best} "
+                             f"{r['models'][best][o]:.3f}, ceiling {r['ceiling'][o]:.3f}")
+            print(f"seed {r['seed']}: " + "; ".join(cells))
+    if args.fossen_fits:
+        print("\nFossen's model fitted four ways, R² on the test trial's targets (u̇ / v̇ / ṙ); per seed")
+        for r in results:
+            fits = r["fossen_fits"]
+            print(f"seed {r['seed']}: " + "; ".join(
+                f"{name} " + " / ".join(f"{v:.3f}" for v in f["r2"]) + (f" ({len(f['terms'])} terms)" if f["terms"]
+                                                                       else "")
+                for name, f in fits.items() if name != "Y")
+                  + "; the study's sway damping " + ", ".join(f"{k} {v:.1f}" for k, v in fits["Y"].items()))
     failed = {r["seed"]: r["failed"] for r in results if r["failed"]}
     if failed:
         print(f"\nfailed models: {failed}")
