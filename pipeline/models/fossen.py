@@ -30,7 +30,8 @@ squared velocity error over each DOF's SD, averaged over each block's windows le
 with the largest errors (a free run through a stretch where the motion is unstable, straight-line surge with the
 Munk moment, say, amplifies its start's noise whatever the terms, and one such window would decide the block's
 score). Each round removes the term whose removal gives the lowest score if that score is at most
-``(1 + selection_tolerance)`` times the current one, and stops otherwise. Why free runs: a one-step (acceleration)
+``(1 + selection_tolerance)`` times the current one, and stops otherwise; a round's candidate term sets are
+integrated together, one batch of windows per block. Why free runs: a one-step (acceleration)
 error hardly sees a small damping term, which a free run integrates; why held-out blocks: on the fitted rows every
 added term lowers the error. The tolerance prefers the smaller model where
 scores tie within noise. The last of a DOF's damping terms in its own velocity (X_u or X_|u|u, ...) is never
@@ -97,8 +98,11 @@ class _Stats(NamedTuple):
     n: int
 
 
+_REGRESSORS = ("u", "v", "r", "|u|u", "|v|v", "|r|r", "|r|v", "|v|r")  # :func:`_regressors`' keys, in order
+
+
 def _regressors(nu: np.ndarray) -> dict[str, np.ndarray]:
-    u, v, r = nu.T
+    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]  # (n, 3), or (K, n, 3): K models' states
     return {"u": u, "v": v, "r": r, "|u|u": np.abs(u) * u, "|v|v": np.abs(v) * v, "|r|r": np.abs(r) * r,
             "|r|v": np.abs(r) * v, "|v|r": np.abs(v) * r}
 
@@ -361,44 +365,56 @@ class Fossen3DOF(RegressorMixin, BaseEstimator):
             return []
         return out
 
-    def _free_run_error(self, theta: np.ndarray, m_rb: np.ndarray, nu: np.ndarray, tau: np.ndarray,
-                        starts: np.ndarray, dt: float) -> float:
+    def _free_run_errors(self, thetas: np.ndarray, m_rb: np.ndarray, nu: np.ndarray, tau: np.ndarray,
+                         starts: np.ndarray, dt: float) -> np.ndarray:
+        """The free-run error of each parameter vector (rows of ``thetas``) over the windows at ``starts``: every
+        model's windows integrated together, one batch of RK4 steps."""
         L = max(2, int(round(self.selection_horizon_s / dt)))
         idx = starts[:, None] + np.arange(L + 1)[None, :]
-        M = m_rb + _added_mass(theta[:4])
-        f = _dynamics(theta, M, np.linalg.inv(M))
+        M = m_rb[None] + np.stack([_added_mass(t[:4]) for t in thetas])
+        f = _batch_dynamics(thetas, M, np.linalg.inv(M))
         sd = np.maximum(nu.std(axis=0), 1e-9)
         bound = 10.0 * np.abs(nu).max(axis=0) + 1e-9
-        x = nu[starts].copy()
-        err = np.zeros(len(starts))
+        x = np.repeat(nu[starts][None], len(thetas), axis=0)
+        err = np.zeros(x.shape[:2])
         with np.errstate(all="ignore"):
             for i in range(L):
                 x = np.clip(rk4_step(f, x, tau[idx[:, i]], dt), -bound, bound)
                 x = np.where(np.isfinite(x), x, bound)
-                err += np.sum(((x - nu[idx[:, i + 1]]) / sd) ** 2, axis=1)
-        kept = np.sort(err)[:max(1, int(np.ceil((1.0 - self.selection_trim) * len(starts))))]
-        return float(kept.mean()) / (L * 3)
+                err += np.sum(((x - nu[idx[:, i + 1]]) / sd) ** 2, axis=2)
+        n_kept = max(1, int(np.ceil((1.0 - self.selection_trim) * len(starts))))
+        return np.sort(err, axis=1)[:, :n_kept].mean(axis=1) / (L * 3)
 
-    def _score(self, nu, tau, folds, terms, m_rb, dt) -> float:
-        errs = []
-        for _, starts, stats in folds:
-            try:
-                theta, _, _ = self._fit_terms(stats, terms, m_rb)
-            except (ModelError, np.linalg.LinAlgError):
-                return float("inf")
-            errs.append(self._free_run_error(theta, m_rb, nu, tau, starts, dt))
-        return float(np.mean(errs))
+    def _scores(self, nu, tau, folds, term_sets, m_rb, dt) -> list[float]:
+        """Each term set's score: the mean over the held-out blocks of its free-run error (inf where a block's fit
+        fails); the sets' free runs of a block integrated together."""
+        errs = np.zeros((len(term_sets), len(folds)))
+        failed = np.zeros(len(term_sets), dtype=bool)
+        for j, (_, starts, stats) in enumerate(folds):
+            fitted, thetas = [], []
+            for k, terms in enumerate(term_sets):
+                if failed[k]:
+                    continue
+                try:
+                    thetas.append(self._fit_terms(stats, terms, m_rb)[0])
+                    fitted.append(k)
+                except (ModelError, np.linalg.LinAlgError):
+                    failed[k] = True
+            if fitted:
+                errs[fitted, j] = self._free_run_errors(np.stack(thetas), m_rb, nu, tau, starts, dt)
+        return [float("inf") if failed[k] else float(np.mean(errs[k])) for k in range(len(term_sets))]
 
     def _eliminate(self, nu, tau, folds, terms, m_rb, dt) -> list[str]:
         current = list(terms)
-        score = self._score(nu, tau, folds, current, m_rb, dt)
+        score, = self._scores(nu, tau, folds, [current], m_rb, dt)
         self.selection_.append({"removed": None, "score": score, "terms": list(current)})
         while True:
             # a DOF keeps at least one damping term in its own velocity: D(nu) > 0 (Fossen 2011, sec. 6.4)
             removable = [t for t in current if not _last_own_damping(t, current)]
             if not removable:
                 break
-            trial = {t: self._score(nu, tau, folds, [c for c in current if c != t], m_rb, dt) for t in removable}
+            sets = [[c for c in current if c != t] for t in removable]
+            trial = dict(zip(removable, self._scores(nu, tau, folds, sets, m_rb, dt), strict=True))
             best = min(removable, key=lambda t: (trial[t], current.index(t)))
             # _ABS_SLACK: on noise-free data every score is rounding, and a zero term must still go
             if not trial[best] <= score * (1.0 + self.selection_tolerance) + _ABS_SLACK:
@@ -524,6 +540,25 @@ def _dynamics(theta: np.ndarray, M: np.ndarray, M_inv: np.ndarray) -> Callable[[
             for eq, name, c in damping:
                 rhs[:, eq] -= c * reg[name]
         return rhs @ M_inv.T
+
+    return f
+
+
+def _batch_dynamics(thetas: np.ndarray, M: np.ndarray, M_inv: np.ndarray
+                    ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """:func:`_dynamics` of K models at once: ``thetas`` (K, parameters), ``M`` and ``M_inv`` (K, 3, 3); the
+    returned ``f(nu, tau)`` takes ``nu`` (K, n, 3), each model's states, and ``tau`` (n, 3), shared."""
+    W = np.zeros((len(thetas), len(_REGRESSORS), 3))  # damping: regressor -> equation, per model
+    for k, (eq, name) in enumerate(DAMPING_TERMS.values()):
+        W[:, _REGRESSORS.index(name), eq] = thetas[:, 4 + k]
+    M_inv_t = np.swapaxes(M_inv, 1, 2)
+
+    def f(nu: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
+        a = nu @ np.swapaxes(M, 1, 2)  # a = M nu, per model
+        coriolis = np.stack([-r * a[..., 1], r * a[..., 0], u * a[..., 1] - v * a[..., 0]], axis=-1)
+        reg = _regressors(nu)
+        return (tau - coriolis - np.stack([reg[name] for name in _REGRESSORS], axis=-1) @ W) @ M_inv_t
 
     return f
 

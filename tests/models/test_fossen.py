@@ -12,8 +12,8 @@ import pytest
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from pipeline.errors import ModelError
-from pipeline.models.explicit import GertlerHagen
 from pipeline.models import fossen
+from pipeline.models.explicit import GertlerHagen
 from pipeline.models.fossen import Fossen3DOF
 from tests.models.fossen_data import DT_S, M_RB, TRUTH, run
 from tests.models.test_explicit import _expected_failed, _without_array_api
@@ -82,7 +82,8 @@ def test_selection_keeps_a_damping_term_in_every_dofs_own_velocity(monkeypatch):
     # each DOF's own velocity, since a body in water dissipates in every DOF. Ties go to the earlier term, so the
     # linear ones go first.
     X, y, _, _, _ = run(0)
-    monkeypatch.setattr(Fossen3DOF, "_score", lambda self, nu, tau, folds, terms, m_rb, dt: float(len(terms)))
+    monkeypatch.setattr(Fossen3DOF, "_scores",
+                        lambda self, nu, tau, folds, sets, m_rb, dt: [float(len(terms)) for terms in sets])
     model = Fossen3DOF(rigid_body_mass=M_RB, dt_s=DT_S).fit(X, y)
     assert model.selection_[-1]["terms"] == ["X_|u|u", "Y_|v|v", "N_|r|r"], model.selection_
     assert model.selected_terms_ == ["X_|u|u", "Y_|v|v", "N_|r|r"]
@@ -220,3 +221,18 @@ def test_a_ship_whose_rudder_is_not_in_tau_is_a_clear_error_not_an_svd_failure()
     # with M_RB the equations have a scale, but an unactuated sway and yaw still fall outside the family: a clear error
     with pytest.raises(ModelError, match="Fossen3DOF: identified mass matrix .* not positive definite"):
         Fossen3DOF(rigid_body_mass=M_RB, dt_s=0.1, select=False).fit(X, y)
+
+
+def test_the_selections_batched_free_runs_integrate_each_model_as_alone():
+    # The selection integrates every candidate term set's free runs together (one batch of RK4 steps per block);
+    # each model's slopes must be those of its own dynamics, with an asymmetric mass matrix (Y_rdot != 0) and
+    # every damping term non-zero and distinct.
+    rng = np.random.default_rng(7)
+    thetas = rng.normal(size=(4, 18))
+    thetas[:, :4] = np.abs(thetas[:, :4]) + np.array([1.0, 2.0, 0.3, 0.5])
+    M = np.asarray(M_RB)[None] + np.stack([fossen._added_mass(t[:4]) for t in thetas])
+    nu, tau = rng.normal(size=(4, 9, 3)), rng.normal(size=(9, 3))
+    batched = fossen._batch_dynamics(thetas, M, np.linalg.inv(M))(nu, tau)
+    for k in range(4):
+        alone = fossen._dynamics(thetas[k], M[k], np.linalg.inv(M[k]))(nu[k], tau)
+        np.testing.assert_allclose(batched[k], alone, rtol=1e-12, atol=1e-12)
