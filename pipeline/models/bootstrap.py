@@ -27,7 +27,7 @@ from statistics import NormalDist
 import numpy as np
 
 __all__ = ["MAX_BLOCKS", "MIN_BLOCKS", "integrated_time", "wanted_rows", "block_rows", "cut_blocks", "draw_counts",
-           "percentile_interval", "resample_plan", "summary"]
+           "percentile_interval", "refits", "resample_plan", "summary"]
 
 #: fewer blocks than this and a replicate's spread says little: the block length is capped to leave this many
 MIN_BLOCKS = 20
@@ -107,6 +107,20 @@ def resample_plan(residuals: np.ndarray, runs: list[tuple[int, int]], n_boot: in
     blocks = cut_blocks(runs, length)
     short = wanted_rows(residuals, runs) > length
     return length, blocks, draw_counts(blocks, n_boot, np.random.default_rng(seed)), short
+
+
+def refits(replicate, X: np.ndarray, y: np.ndarray, blocks: list[tuple[int, int, int]], counts: np.ndarray,
+           failures: tuple[type[BaseException], ...]) -> tuple[list[np.ndarray], int]:
+    """``replicate`` (an unfitted estimator) fitted on each row of ``counts``' resampled blocks: the replicates'
+    ``coef_`` in order, and how many raised one of ``failures`` (left out, counted)."""
+    samples, failed = [], 0
+    for c in counts:
+        rows = np.concatenate([np.arange(a, b) for (a, b, _), k in zip(blocks, c, strict=True) for _ in range(k)])
+        try:
+            samples.append(replicate.fit(X[rows], y[rows]).coef_.copy())
+        except failures:
+            failed += 1
+    return samples, failed
 
 
 def summary(names: list[str], samples: list[np.ndarray], level: float, *, point: np.ndarray | None = None,

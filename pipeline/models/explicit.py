@@ -17,31 +17,26 @@ Solvers (``solver=``), each on one group of equations at a time, in homogeneous 
     propagated to first order through the regressor functions, row by row (the Jacobian of the design, by
     central differences), and averaged over the rows into a column noise covariance ``C`` (off-diagonal terms
     included: ``v^2`` and ``v r`` share the noise of v). Columns whose noise is zero or negligible (SD below
-    1e-8 of the column's RMS: typically tau computed from logged rpm, given as 0) are *exact*; they are handled by
-    the mixed LS-TLS method (Golub, Hoffman & Stewart 1987; Van Huffel & Vandewalle 1991, ch. 3): QR of
-    ``[Z_exact | Z_noisy C^-1/2]``, TLS on the block of the noisy columns orthogonal to the exact ones, the
-    exact columns' coefficients by back-substitution. Chosen over a tiny variance floor because a floor only
-    approximates it, and sets the conditioning of the SVD by the floor's arbitrary size. The remaining columns
-    are whitened by ``C^-1/2`` (Cholesky) and the right singular vector of the smallest singular value is taken.
+    1e-8 of the column's RMS: typically tau computed from logged rpm, given as 0) are *exact*: mixed LS-TLS
+    (Golub, Hoffman & Stewart 1987; Van Huffel & Vandewalle 1991, ch. 3; why not a variance floor: docs/models.md).
+    The other columns are whitened by ``C^-1/2`` (Cholesky); the right singular vector of the smallest singular
+    value is taken.
     A multi-equation group (McFarland-Whitcomb) is fitted twice: equations weighted by 1/RMS(tau_e) first, then
     by 1/RMS(residual_e) of that fit (equal equation-error variance across stacked rows, as TLS assumes).
 ``"tls"``: the paper's plain TLS, columns of ``[Phi | tau]`` scaled to unit RMS (right only if every column's
     error has the same variance after that scaling; kept for the paper's comparison).
 ``"ols"``: ordinary least squares of tau on Phi (errors in tau only).
 
-Degenerate data. A regressor column that is identically zero in the fit data (a term without excitation, e.g.
-every ``r`` term when the vehicle never turns) is dropped with a warning naming the model, the equation and the
-term; its coefficient is 0 and it is listed in ``dropped_terms_``. An equation group whose right-hand side tau is
-identically zero (a DOF without actuation: tau_v = 0 on a torpedo AUV or ship) is homogeneous: its diagonal
-acceleration (mass) coefficient is fixed to 1 and the others are found relative to it (prediction only needs the
-ratios, since ``tau_e = 0`` there; never give it ``tau_e != 0``), listed in ``homogeneous_equations_``.
+Degenerate data. A regressor column identically zero in the fit data (no excitation, e.g. every ``r`` term when
+the vehicle never turns) is dropped with a warning naming the model, equation and term (coefficient 0,
+``dropped_terms_``). An equation whose tau is identically zero (no actuation: tau_v on a torpedo AUV or ship) is
+homogeneous: its own mass coefficient is fixed to 1, the others found relative to it (prediction needs only the
+ratios, as ``tau_e = 0`` there), listed in ``homogeneous_equations_``.
 
-Output-error refinement (``refine=True``, needs ``dt_s``): starting from the (W)TLS solution, the free
-coefficients are refined by multiple shooting: windows of ``refine_horizon_s`` seconds, each started from the
-measured velocity, integrated by RK4 at ``dt_s`` with tau held over each step, velocity error (per DOF divided by
-its SD) minimized by ``scipy.optimize.least_squares``. Contiguous runs: from ``fit(..., groups=ids)`` when
-given, otherwise found in the data (:func:`contiguous_runs`: a blocked-CV training fold's two blocks, passed
-without groups, are never bridged). The refined solution is kept only if it lowers the cost and leaves a
+Output-error refinement (``refine=True``, needs ``dt_s``): from the (W)TLS solution, the free coefficients are
+refined by multiple shooting: windows of ``refine_horizon_s`` s from the measured velocity, RK4 at ``dt_s`` with tau
+held per step, velocity error over each DOF's SD minimized by ``scipy.optimize.least_squares``, inside contiguous
+runs (``fit(..., groups=ids)``, else :func:`contiguous_runs`). Kept only if it lowers the cost and leaves a
 well-conditioned mass matrix.
 """
 
@@ -49,6 +44,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -79,12 +75,9 @@ _MAD_TO_SD = 1.482602218505602
 
 
 def tls(Phi: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Plain total least squares solution of ``Phi theta ~ y`` (errors in Phi and y).
-
-    Columns of ``[Phi | y]`` are scaled to unit RMS (so that units do not decide which column absorbs the
-    error), the SVD gives the right singular vector ``v`` of the smallest singular value, and
-    ``theta = -v[:-1] / v[-1]``, scaled back.
-    """
+    """Plain total least squares of ``Phi theta ~ y`` (errors in Phi and y): columns of ``[Phi | y]`` scaled to unit
+    RMS (units do not decide which column absorbs the error), ``theta = -v[:-1] / v[-1]`` of the right singular
+    vector ``v`` of the smallest singular value, scaled back."""
     Z = np.column_stack([Phi, y])
     scale = np.sqrt(np.mean(Z * Z, axis=0))
     if np.any(scale == 0):
@@ -489,26 +482,33 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         return {name: float(v) for name, v in zip(self.param_names, self.coef_, strict=True)}
 
     def fit_intervals(self, X, y, groups=None, *, level: float = 0.9, n_boot: int = 50, seed: int = 0):
-        """``coefficient_intervals_``: ``level`` intervals of ``coef_`` by the block bootstrap of
-        :mod:`pipeline.models.bootstrap` (``groups``: as :meth:`Fossen3DOF.fit_intervals`). Each replicate refits
-        on the resampled blocks, the noise SDs held at the fit's and without refinement; a replicate costs a
-        whole fit, so there are fewer than Fossen's and the interval is the estimate +- z times their SD."""
+        """``coefficient_intervals_``: ``level`` intervals of ``coef_`` by :mod:`pipeline.models.bootstrap`'s block
+        bootstrap (``groups``: as :meth:`Fossen3DOF.fit_intervals`), each replicate a whole refit (noise SDs held,
+        no refinement): fewer than Fossen's, so the estimate +- z times their SD. In tasks: :meth:`interval_tasks`."""
+        tasks = self.interval_tasks(X, y, groups, level=level, n_boot=n_boot, seed=seed, chunks=1)
+        return self.join_intervals([fn(*args) for fn, args in tasks])
+
+    def interval_tasks(self, X, y, groups=None, *, level: float = 0.9, n_boot: int = 50, seed: int = 0,
+                       chunks: int = 5) -> list[tuple[Callable[..., Any], tuple]]:
+        """:meth:`fit_intervals`' replicates as ``chunks`` tasks ``(fn, args)`` in order; their results go to
+        :meth:`join_intervals` in the same order (the same intervals, to the bit, however many chunks)."""
         check_is_fitted(self, "coef_")
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
         resid = np.einsum("nep,p->ne", self.design(X[:, :3], y), self.coef_) - self._split(X)[1]
         runs = [(0, len(X))] if groups is None else contiguous_runs(X[:, :3], y, 0.0, groups)  # dt: unused here
         length, blocks, counts, short = bootstrap.resample_plan(resid, runs, n_boot, seed)
-        replicate = clone(self).set_params(noise_std=None if self.noise_std_ is None else list(self.noise_std_),
-                                           refine=False)
-        samples, failed = [], 0
-        for c in counts:
-            rows = np.concatenate([np.arange(a, b) for (a, b, _), k in zip(blocks, c, strict=True) for _ in range(k)])
-            try:
-                samples.append(replicate.fit(X[rows], y[rows]).coef_.copy())
-            except ModelError:  # a replicate without an invertible mass matrix: left out, and counted
-                failed += 1
-        self.coefficient_intervals_ = bootstrap.summary(list(self.param_names), samples, level, point=self.coef_,
-                                                        length=length, blocks=len(blocks), failed=failed, short=short)
+        sd = None if self.noise_std_ is None else list(self.noise_std_)
+        replicate = clone(self).set_params(noise_std=sd, refine=False)
+        self._interval_plan = (level, length, len(blocks), short)
+        return [(bootstrap.refits, (replicate, X, y, blocks, part, (ModelError,)))
+                for part in np.array_split(counts, max(1, min(chunks, len(counts)))) if len(part)]
+
+    def join_intervals(self, parts: Sequence[tuple[list[np.ndarray], int]]):
+        """``coefficient_intervals_`` from :meth:`interval_tasks`' results, in order."""
+        level, length, n_blocks, short = self.__dict__.pop("_interval_plan")
+        self.coefficient_intervals_ = bootstrap.summary(
+            list(self.param_names), [s for samples, _ in parts for s in samples], level, point=self.coef_,
+            length=length, blocks=n_blocks, failed=sum(failed for _, failed in parts), short=short)
         return self
 
 

@@ -222,6 +222,15 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
         except MODEL_FAILURES as err:
             return {"failed": model_failure(spec["model"], err)}
         spec["final_fitted"] = True
+    elif spec["kind"] == "final" and hasattr(est, "interval_tasks"):  # the fit, then its bootstrap in chunks
+        X = np.ascontiguousarray(spec["X"], dtype=float)
+        y = np.ascontiguousarray(spec["y"], dtype=float)
+        try:
+            whole, = yield [(fitted, (clone(est), X, y))]
+            spec["estimator"] = whole.join_intervals((yield whole.interval_tasks(X, y)))
+        except MODEL_FAILURES as err:
+            return {"failed": model_failure(spec["model"], err)}
+        spec["final_fitted"] = spec["intervals_fitted"] = True
     done, = yield [(_run_train_task, (spec,))]
     return done
 
@@ -238,7 +247,7 @@ def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
             pred = scores.pop("test_pred")
             return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred}
         est = spec["estimator"] if spec.get("final_fitted") else spec["estimator"].fit(X, y)
-        if hasattr(est, "fit_intervals"):  # a physics model's coefficients: block-bootstrap intervals (its card)
+        if hasattr(est, "fit_intervals") and not spec.get("intervals_fitted"):  # block-bootstrap intervals (card)
             est.fit_intervals(X, y)
         final = pred = None
         if spec["X_test"] is not None:

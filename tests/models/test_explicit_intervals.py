@@ -42,3 +42,16 @@ def test_every_parameter_has_a_centred_interval_and_the_refit_leaves_the_model_a
     for k, (lo, hi) in ci["intervals"].items():
         assert lo < hi and (lo + hi) / 2 == pytest.approx(model.coefficients()[k], abs=1e-9 * max(1.0, abs(hi)))
     assert model.fit_intervals(X, y).coefficient_intervals_ == ci  # seeded
+
+
+@pytest.mark.parametrize("chunks", [1, 3, 50])
+def test_intervals_in_tasks_are_the_intervals_of_one_call(chunks):
+    # The train stage runs the bootstrap's replicates as tasks (its span was one 2.6-s task); whatever the number of
+    # chunks, joined in order they give the same record, to the bit, as one fit_intervals call.
+    whole, X, y = _fit(McFarlandWhitcomb, 3)
+    whole.fit_intervals(X, y, n_boot=12)
+    split, _, _ = _fit(McFarlandWhitcomb, 3)
+    parts = [fn(*args) for fn, args in split.interval_tasks(X, y, n_boot=12, chunks=chunks)]
+    assert len(parts) == min(chunks, 12)
+    assert split.join_intervals(parts).coefficient_intervals_ == whole.coefficient_intervals_
+    assert not hasattr(split, "_interval_plan")

@@ -78,12 +78,14 @@ def test_train_writes_each_model_as_it_finishes(tmp_path: Path, vehicle: Vehicle
     """A study stopped by a later model (here: interrupted) still leaves the finished model's files.
 
     The interrupt comes once the first model is written, however many workers run the study's tasks at once:
-    in a pool the second model's fits may start before the first model's last fit ends."""
+    in a pool the second model's fits may start before the first model's last fit ends. The first model's final
+    fit is one task (Fossen's; Gertler-Hagen's bootstrap runs in tasks of its own, after the second model's folds
+    have started)."""
     params = Params(features={"test_trials": ["b"]},
-                    coupled={"models": ["gertler_hagen", "mcfarland_whitcomb"], "folds": 3})
+                    coupled={"models": ["fossen", "mcfarland_whitcomb"], "folds": 3})
     _store(tmp_path, vehicle, {t: synthetic_frame(400, seed=s, trial=t, rate_hz=5.0)
                                for t, s in (("a", 1), ("b", 2))}, params)
-    finished = tmp_path / "data/models/coupled/gertler_hagen.card.json"
+    finished = tmp_path / "data/models/coupled/fossen.card.json"
 
     def interrupted(self, X, y):  # noqa: ANN001, ANN202
         deadline = time.monotonic() + 60.0
@@ -94,9 +96,9 @@ def test_train_writes_each_model_as_it_finishes(tmp_path: Path, vehicle: Vehicle
     monkeypatch.setattr(explicit.McFarlandWhitcomb, "fit", interrupted)
     with pytest.raises(KeyboardInterrupt):
         train_stage.run(tmp_path, vehicle, params)
-    assert (tmp_path / "data/models/coupled/gertler_hagen.joblib").exists()
+    assert (tmp_path / "data/models/coupled/fossen.joblib").exists()
     metrics = json.loads((tmp_path / "data/evaluation/coupled/metrics.json").read_text())
-    assert set(metrics) == {"gertler_hagen"}
+    assert set(metrics) == {"fossen"}
 
 
 def test_train_fails_when_every_model_fails(tmp_path: Path, vehicle: Vehicle, monkeypatch: pytest.MonkeyPatch) -> None:
