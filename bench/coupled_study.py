@@ -79,6 +79,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -178,34 +179,35 @@ def oracle_scores(root: Path, params: Params, outputs: list[str], test, a_true: 
     return out
 
 
+def _fit_scores(model: str, params: Params, vehicle, train, test, **settings) -> tuple[Any, list[float]]:
+    """``model`` built as the train stage builds it (``settings`` on top), fitted on ``train``'s rows: the fitted
+    estimator and its R² per output against ``test``'s targets."""
+    from pipeline.studies.coupled import build_model, model_inputs, rigid_body_uvr
+
+    cp = params.coupled
+    cols = model_inputs(model, cp)
+    est = build_model(model, None, cp, train=train, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
+    est.set_params(**settings).fit(train[cols].to_numpy(float), train[cp.outputs].to_numpy(float))
+    pred = est.predict(test[cols].to_numpy(float))
+    return est, [r2(pred[:, j], test[o].to_numpy(float)) for j, o in enumerate(cp.outputs)]
+
+
 def loto_scores(root: Path, params: Params, vehicle) -> dict:
     """Per explicit model of the run: R² per output on each training trial's targets of the model fitted on the
     other training trials (the train stage's final fit, without that trial): model -> [[u̇, v̇, ṙ] per trial]."""
-    from pipeline.studies.coupled import EXPLICIT_MODELS, build_model, model_inputs, rigid_body_uvr
+    from pipeline.studies.coupled import EXPLICIT_MODELS
 
-    cp = params.coupled
     tt = store.load(root, split="train_test").sort_values(["trial", "t_ns"])
-    out = {}
-    for model in (m for m in cp.models if m in EXPLICIT_MODELS):
-        cols, scores = model_inputs(model, cp), []
-        for held in sorted(tt["trial"].unique()):
-            train, test = tt[tt["trial"] != held], tt[tt["trial"] == held]
-            est = build_model(model, None, cp, train=train, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
-            pred = est.fit(train[cols].to_numpy(float), train[cp.outputs].to_numpy(float)).predict(
-                test[cols].to_numpy(float))
-            scores.append([r2(pred[:, j], test[o].to_numpy(float)) for j, o in enumerate(cp.outputs)])
-        out[model] = scores
-    return out
+    return {model: [_fit_scores(model, params, vehicle, tt[tt["trial"] != held], tt[tt["trial"] == held])[1]
+                    for held in sorted(tt["trial"].unique())]
+            for model in params.coupled.models if model in EXPLICIT_MODELS}
 
 
 def fossen_fits(root: Path, params: Params, vehicle) -> dict:
     """Fossen's fits of ``--fossen-fits`` (see the module's docstring): variant -> {"r2": [u̇, v̇, ṙ] on the test
     trial's targets, "terms": the selected terms (None without selection)}; "Y": the study's fit's sway damping."""
     import pipeline.models.fossen as fossen
-    from pipeline.studies.coupled import build_model, model_inputs, rigid_body_uvr
 
-    cp = params.coupled
-    cols, outputs = model_inputs("fossen", cp), list(cp.outputs)
     rows = store.load(root).sort_values(["trial", "t_ns"])
     test_name = params.features.test_trials[0]
     train, test = rows[rows["trial"] != test_name], rows[rows["trial"] == test_name]
@@ -214,16 +216,13 @@ def fossen_fits(root: Path, params: Params, vehicle) -> dict:
     variants = {"study": (train, {}), "every term": (train, {"select": False}), "own damping kept": (train, {}),
                 "fitted on the test trial": (test, {"select": False, "guard": False})}
     for name, (data, settings) in variants.items():
-        est = build_model("fossen", None, cp, train=data, rigid_body_mass=rigid_body_uvr(vehicle.rigid_body))
         if name == "own damping kept":
             fossen._last_own_damping = lambda term, current: term in fossen.DISSIPATIVE_TERMS
         try:
-            est.set_params(**settings).fit(data[cols].to_numpy(float), data[outputs].to_numpy(float))
+            est, scores = _fit_scores("fossen", params, vehicle, data, test, **settings)
         finally:
             fossen._last_own_damping = keep_last
-        pred = est.predict(test[cols].to_numpy(float))
-        out[name] = {"r2": [r2(pred[:, j], test[o].to_numpy(float)) for j, o in enumerate(outputs)],
-                     "terms": getattr(est, "selected_terms_", None) if est.select else None}
+        out[name] = {"r2": scores, "terms": est.selected_terms_ if est.select else None}
         if name == "study":
             out["Y"] = {k: v for k, v in est.coefficients().items() if k.startswith("Y_") and "dot" not in k}
     return out

@@ -485,13 +485,13 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         """``coefficient_intervals_``: ``level`` intervals of ``coef_`` by :mod:`pipeline.models.bootstrap`'s block
         bootstrap (``groups``: as :meth:`Fossen3DOF.fit_intervals`), each replicate a whole refit (noise SDs held,
         no refinement): fewer than Fossen's, so the estimate +- z times their SD. In tasks: :meth:`interval_tasks`."""
-        tasks = self.interval_tasks(X, y, groups, level=level, n_boot=n_boot, seed=seed, chunks=1)
-        return self.join_intervals([fn(*args) for fn, args in tasks])
+        plan, tasks = self.interval_tasks(X, y, groups, level=level, n_boot=n_boot, seed=seed, chunks=1)
+        return self.join_intervals(plan, [fn(*args) for fn, args in tasks])
 
     def interval_tasks(self, X, y, groups=None, *, level: float = 0.9, n_boot: int = 50, seed: int = 0,
-                       chunks: int = 5) -> list[tuple[Callable[..., Any], tuple]]:
-        """:meth:`fit_intervals`' replicates as ``chunks`` tasks ``(fn, args)`` in order; their results go to
-        :meth:`join_intervals` in the same order (the same intervals, to the bit, however many chunks)."""
+                       chunks: int = 5) -> tuple[tuple, list[tuple[Callable[..., Any], tuple]]]:
+        """(plan, tasks): :meth:`fit_intervals`' replicates as ``chunks`` tasks ``(fn, args)``; the plan and their
+        results, in order, go to :meth:`join_intervals` (the same intervals, to the bit, however many chunks)."""
         check_is_fitted(self, "coef_")
         X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
         resid = np.einsum("nep,p->ne", self.design(X[:, :3], y), self.coef_) - self._split(X)[1]
@@ -499,13 +499,13 @@ class _LinearInParameters(RegressorMixin, BaseEstimator):
         length, blocks, counts, short = bootstrap.resample_plan(resid, runs, n_boot, seed)
         sd = None if self.noise_std_ is None else list(self.noise_std_)
         replicate = clone(self).set_params(noise_std=sd, refine=False)
-        self._interval_plan = (level, length, len(blocks), short)
-        return [(bootstrap.refits, (replicate, X, y, blocks, part, (ModelError,)))
-                for part in np.array_split(counts, max(1, min(chunks, len(counts)))) if len(part)]
+        parts = np.array_split(counts, max(1, min(chunks, len(counts))))
+        return (level, length, len(blocks), short), [(bootstrap.refits, (replicate, X, y, blocks, part, (ModelError,)))
+                                                     for part in parts]
 
-    def join_intervals(self, parts: Sequence[tuple[list[np.ndarray], int]]):
-        """``coefficient_intervals_`` from :meth:`interval_tasks`' results, in order."""
-        level, length, n_blocks, short = self.__dict__.pop("_interval_plan")
+    def join_intervals(self, plan: tuple, parts: Sequence[tuple[list[np.ndarray], int]]):
+        """``coefficient_intervals_`` from :meth:`interval_tasks`' plan and its tasks' results, in order."""
+        level, length, n_blocks, short = plan
         self.coefficient_intervals_ = bootstrap.summary(
             list(self.param_names), [s for samples, _ in parts for s in samples], level, point=self.coef_,
             length=length, blocks=n_blocks, failed=sum(failed for _, failed in parts), short=short)

@@ -227,7 +227,8 @@ def _train_rounds(spec: dict[str, Any]) -> Any:
         y = np.ascontiguousarray(spec["y"], dtype=float)
         try:
             whole, = yield [(fitted, (clone(est), X, y))]
-            spec["estimator"] = whole.join_intervals((yield whole.interval_tasks(X, y)))
+            plan, tasks = whole.interval_tasks(X, y)
+            spec["estimator"] = whole.join_intervals(plan, (yield tasks))
         except MODEL_FAILURES as err:
             return {"failed": model_failure(spec["model"], err)}
         spec["final_fitted"] = spec["intervals_fitted"] = True

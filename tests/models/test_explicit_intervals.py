@@ -51,7 +51,7 @@ def test_intervals_in_tasks_are_the_intervals_of_one_call(chunks):
     whole, X, y = _fit(McFarlandWhitcomb, 3)
     whole.fit_intervals(X, y, n_boot=12)
     split, _, _ = _fit(McFarlandWhitcomb, 3)
-    parts = [fn(*args) for fn, args in split.interval_tasks(X, y, n_boot=12, chunks=chunks)]
-    assert len(parts) == min(chunks, 12)
-    assert split.join_intervals(parts).coefficient_intervals_ == whole.coefficient_intervals_
-    assert not hasattr(split, "_interval_plan")
+    plan, tasks = split.interval_tasks(X, y, n_boot=12, chunks=chunks)
+    assert len(tasks) == min(chunks, 12)
+    assert split.join_intervals(plan, [fn(*args) for fn, args in tasks]).coefficient_intervals_ \
+        == whole.coefficient_intervals_
