@@ -142,6 +142,13 @@ def _import_distributed() -> Any:
     return dask.distributed
 
 
+#: A LocalCluster's housekeeping, made rarer: each worker otherwise samples its task thread's stack every 10 ms (the
+#: dashboard's profile, which a run without a dashboard never shows) and wakes its event loop every 20 ms; on a
+#: machine whose cores are all workers, both take the GIL and the core from the tasks (docs/benchmarks.md, "Dask").
+QUIET_CLUSTER = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "500ms",
+                 "distributed.admin.system-monitor.interval": "2s"}
+
+
 def _local_cluster(workers: int | None) -> Any:
     """A LocalCluster of ``workers`` processes (default: one per usable core), one thread each (the work is
     numpy / libsvm and holds the GIL for long stretches), no dashboard."""
@@ -162,7 +169,7 @@ def _local_cluster(workers: int | None) -> Any:
                if k != "MALLOC_TRIM_THRESHOLD_"}
     saved = dict(os.environ)  # the nannies set their pre-spawn environment in this process and leave it there
     try:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ, **QUIET_CLUSTER}):
             return distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                             dashboard_address=None)
     finally:

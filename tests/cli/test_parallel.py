@@ -343,6 +343,30 @@ def test_local_cluster_workers_keep_glibcs_memory() -> None:
     assert env is None and blas == "1"
 
 
+def _housekeeping() -> tuple[object, object]:
+    import dask
+
+    return dask.config.get("distributed.worker.profile.enabled"), dask.config.get("distributed.admin.tick.interval")
+
+
+def test_local_cluster_workers_do_not_sample_their_tasks_stacks() -> None:
+    """``--scheduler local``'s workers neither profile their task thread every 10 ms (a dashboard's view, and the
+    run has none) nor wake their event loop every 20 ms: on a machine whose cores are all workers, that work took
+    the cores and the GIL from the tasks. The run's own Dask configuration is left as it was."""
+    import dask
+    from dask.distributed import Client
+
+    before = dask.config.get("distributed.worker.profile.enabled")
+    cluster = parallel._local_cluster(1)
+    try:
+        with Client(cluster) as client:
+            profile, tick = next(iter(client.run(_housekeeping).values()))
+    finally:
+        cluster.close()
+    assert profile is False and tick == "500ms"
+    assert dask.config.get("distributed.worker.profile.enabled") == before
+
+
 def _row_sum(X: object, k: int) -> float:
     return float(X[k].sum() + k)
 
