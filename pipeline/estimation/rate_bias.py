@@ -92,10 +92,12 @@ def euler_rate_matrix(roll: np.ndarray, pitch: np.ndarray) -> np.ndarray:
     """T(Theta) (n, 3, 3) with Theta_dot = T omega (ZYX Euler angles; Fossen 2011, eq. 2.29, p. 25)."""
     sr, cr = np.sin(roll), np.cos(roll)
     tp, cp = np.tan(pitch), np.cos(pitch)
-    one, zero = np.ones_like(sr), np.zeros_like(sr)
-    return np.stack([np.stack([one, sr * tp, cr * tp], axis=-1),
-                     np.stack([zero, cr, -sr], axis=-1),
-                     np.stack([zero, sr / cp, cr / cp], axis=-1)], axis=-2)
+    T = np.zeros(np.shape(sr) + (3, 3))  # filled in place: nested np.stack copies the (n, 3, 3) array twice
+    T[..., 0, 0] = 1.0
+    T[..., 0, 1], T[..., 0, 2] = sr * tp, cr * tp
+    T[..., 1, 1], T[..., 1, 2] = cr, -sr
+    T[..., 2, 1], T[..., 2, 2] = sr / cp, cr / cp
+    return T
 
 
 def _body_rates_from_attitude(t_s: np.ndarray, angles: np.ndarray) -> np.ndarray:

@@ -289,3 +289,16 @@ def test_report_shows_noise_usable_fraction_and_the_band(realistic, tmp_path) ->
         assert 0.05 < band["resolved_band_hz"] < 1.0 and 0.0 <= band["power_above_band"] < 0.5
     assert metrics["estimation"]["t1"]["usable_fraction"] == pytest.approx(report["usable_fraction"], abs=1e-6)
     assert figs["estimation_t1"][:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_median_interval_of_two_sources_is_their_merged_spacing() -> None:
+    """Two 4-Hz sources of one DOF, a quarter-period apart and concatenated (not merged): the stamps' median
+    interval, which sets the likelihood fit's grid stride, is that of the merged stream, 0.125 s; the concatenated
+    order's differences would give 0.25 s."""
+    from pipeline.estimation.smoother import _median_interval
+
+    t = np.arange(0, 40) * 250_000_000
+    a = Measurements(t, np.zeros(t.size), 1.0)
+    b = Measurements(t + 125_000_000, np.zeros(t.size), 1.0)
+    assert _median_interval(Measurements.concat(a, b)) == pytest.approx(0.125)
+    assert _median_interval(a) == pytest.approx(0.25)

@@ -11,10 +11,27 @@ from pipeline.estimation.rate_bias import (
     PLAUSIBLE_BIAS_RADPS,
     debias,
     estimate_rate_biases,
+    euler_rate_matrix,
 )
 from pipeline.estimation.smoother import Measurements
 
 GRID_HZ, RATE_HZ = 20.0, 100.0
+
+
+def test_euler_rate_matrix_inverts_the_body_rate_map() -> None:
+    """T(Theta) maps body rates to Euler-angle rates; its inverse is Fossen's (2011, eq. 2.29-2.30, p. 25)
+    [[1, 0, -s(theta)], [0, c(phi), c(theta) s(phi)], [0, -s(phi), c(theta) c(phi)]]. Roll and pitch far from
+    zero and unequal, so a swapped entry or sign shows."""
+    roll = np.array([0.3, -0.7, 1.1])
+    pitch = np.array([-0.4, 0.9, 0.2])
+    sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch)
+    inverse = np.zeros((3, 3, 3))
+    inverse[:, 0, 0], inverse[:, 0, 2] = 1.0, -sp
+    inverse[:, 1, 1], inverse[:, 1, 2] = cr, cp * sr
+    inverse[:, 2, 1], inverse[:, 2, 2] = -sr, cp * cr
+    T = euler_rate_matrix(roll, pitch)
+    assert T.shape == (3, 3, 3)
+    np.testing.assert_allclose(T @ inverse, np.broadcast_to(np.eye(3), (3, 3, 3)), atol=1e-12)
 
 
 def _attitude(t_s: np.ndarray, roll0: float = 0.0, pitch0: float = 0.0) -> np.ndarray:
