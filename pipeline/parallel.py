@@ -144,7 +144,8 @@ def _import_distributed() -> Any:
 
 #: A LocalCluster's housekeeping, made rarer: each worker otherwise samples its task thread's stack every 10 ms (the
 #: dashboard's profile, which a run without a dashboard never shows) and wakes its event loop every 20 ms; on a
-#: machine whose cores are all workers, both take the GIL and the core from the tasks (docs/benchmarks.md, "Dask").
+#: machine whose cores are all workers, both take the GIL and the core from the tasks (docs/benchmarks.md, "Where
+#: the LocalCluster's time went").
 QUIET_CLUSTER = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "500ms",
                  "distributed.admin.system-monitor.interval": "2s"}
 

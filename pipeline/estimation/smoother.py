@@ -373,8 +373,8 @@ def logliks(grid_ns: np.ndarray, meas: Measurements, shifts: list[np.ndarray], *
     return -0.5 * np.asarray(problem.solve_many(q, s, ys))
 
 
-#: The recursion's cost per step of its Python loop, in units of its cost per chunk and DOF in a step (measured
-#: on a one-hour trial): what :func:`balanced_chunk_factor` balances
+#: The recursion's cost per step of its Python loop, in units of its cost per chunk and DOF in a step: what
+#: :func:`balanced_chunk_factor` balances (docs/estimation.md, "Speed")
 STEP_COST = 40.0
 
 
