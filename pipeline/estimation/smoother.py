@@ -373,20 +373,8 @@ def logliks(grid_ns: np.ndarray, meas: Measurements, shifts: list[np.ndarray], *
     return -0.5 * np.asarray(problem.solve_many(q, s, ys))
 
 
-#: The recursion's cost per step of its Python loop, in units of its cost per chunk and DOF in a step: what
-#: :func:`balanced_chunk_factor` balances (docs/estimation.md, "Speed")
-STEP_COST = 40.0
-
-
-def balanced_chunk_factor(n: int, dofs: int, burn: int) -> float:
-    """Chunk length / burn-in for ``n`` steps of ``dofs`` DOFs: a chunk of f burn-ins costs (f + 2) burn-ins of
-    steps, and the trial's chunks together n dofs (1 + 2 / f) chunk-steps; f = sqrt(2 n dofs / (burn STEP_COST))
-    minimizes the sum (long chunks where the trial is long and the burn-in short, short ones otherwise)."""
-    return float(np.clip(np.sqrt(2.0 * n * dofs / (max(burn, 1) * STEP_COST)), 1.0, 64.0))
-
-
 def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_intervals: float = 40.0,
-                       chunk_factor: float | None = None) -> None:
+                       chunk_factor: float = 2.0) -> None:
     """Fill ``x_sd``, ``xdot_sd`` and ``xddot_sd`` of smoother results on the same grid with the diagonal blocks
     of A^-1.
 
@@ -396,9 +384,7 @@ def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_int
     over which the effect of starting without information (forward) or of cutting the system (backward) dies
     out: ``burn_s`` seconds or ``burn_intervals`` times the DOF's median interval between measurements, whichever
     is longer, plus its longest stretch without measurements. DOFs with the same burn-in (the DVL's axes, say)
-    run together. Each chunk is ``chunk_factor`` burn-ins long (None: :func:`balanced_chunk_factor`, which weighs
-    the loop's steps against the overlap's extra work). Tests check the result against the single-chunk recursion
-    and the textbook RTS smoother.
+    run together. Tests check the result against the single-chunk recursion and the textbook RTS smoother.
     """
     if not results:
         return
@@ -411,9 +397,7 @@ def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_int
         burn = int(np.ceil(max(burn_s / h, burn_intervals * spacing))) + longest
         burns.setdefault(burn, []).append(j)
     for burn, members in sorted(burns.items()):
-        factor = chunk_factor if chunk_factor is not None else balanced_chunk_factor(results[0].x.size,
-                                                                                     len(members), burn)
-        _variances([results[j] for j in members], burn, factor)
+        _variances([results[j] for j in members], burn, chunk_factor)
 
 
 def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:

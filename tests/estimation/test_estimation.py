@@ -122,24 +122,11 @@ def test_chunked_variances_equal_the_single_pass() -> None:
     tm = tm[(tm < 100) | (tm > 104)]   # a 4-s gap
     x, _ = _signal(tm)
     meas = Measurements((tm * 1e9).astype(np.int64), x + 0.02 * rng.standard_normal(tm.size), 0.02**2)
-    a = smooth(grid, meas)
+    a, b = smooth(grid, meas), smooth(grid, meas)
     smoothed_variances([a], burn_s=1e9)
-    for factor in (None, 1.0, 8.0):  # the defaults (the balanced chunk length: many chunks), short and long chunks
-        b = smooth(grid, meas)
-        smoothed_variances([b], chunk_factor=factor)
-        np.testing.assert_allclose(b.x_sd, a.x_sd, rtol=1e-5)
-        np.testing.assert_allclose(b.xdot_sd, a.xdot_sd, rtol=1e-5)
-
-
-def test_chunks_are_long_where_the_trial_is_long_and_its_burn_in_short() -> None:
-    """The chunk length balances the recursion's Python steps against the chunks' overlap: a one-hour 20-Hz
-    trial of five actuators with a 2-s burn-in gets chunks many burn-ins long, a short stretch of one DOF behind a
-    long burn-in the shortest (one burn-in)."""
-    from pipeline.estimation.smoother import balanced_chunk_factor
-
-    assert balanced_chunk_factor(72_000, 5, 40) > 4 * balanced_chunk_factor(72_000, 2, 426) > 4.0
-    assert balanced_chunk_factor(6_000, 1, 316) == 1.0
-    assert balanced_chunk_factor(10**9, 10, 1) == 64.0
+    smoothed_variances([b])  # the defaults: many chunks
+    np.testing.assert_allclose(b.x_sd, a.x_sd, rtol=1e-5)
+    np.testing.assert_allclose(b.xdot_sd, a.xdot_sd, rtol=1e-5)
 
 
 def test_maximum_likelihood_recovers_the_process_noise() -> None:
