@@ -39,7 +39,7 @@ from scipy.optimize import minimize_scalar
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Measurements", "Smoothed", "logliks", "smooth", "smoothed_variances", "white_jerk"]
+__all__ = ["Measurements", "Smoothed", "logliks", "memory_s", "smooth", "smoothed_variances", "white_jerk"]
 
 _PHI = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
 _QT = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
@@ -374,7 +374,7 @@ def logliks(grid_ns: np.ndarray, meas: Measurements, shifts: list[np.ndarray], *
 
 
 def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_intervals: float = 40.0,
-                       chunk_factor: float = 2.0) -> None:
+                       chunk_factor: float = 2.0, memory_burns: float = 12.0) -> None:
     """Fill ``x_sd``, ``xdot_sd`` and ``xddot_sd`` of smoother results on the same grid with the diagonal blocks
     of A^-1.
 
@@ -382,9 +382,10 @@ def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_int
     Sigma_k = S_k^-1 + G_k^T Sigma_{k+1} G_k with G_k = L S_k^-1) runs, to keep the number of Python-level steps
     small on long trials, for many chunks of the grid at once: each chunk is extended on both sides by a burn-in
     over which the effect of starting without information (forward) or of cutting the system (backward) dies
-    out: ``burn_s`` seconds or ``burn_intervals`` times the DOF's median interval between measurements, whichever
-    is longer, plus its longest stretch without measurements. DOFs with the same burn-in (the DVL's axes, say)
-    run together. Tests check the result against the single-chunk recursion and the textbook RTS smoother.
+    out: ``burn_s`` seconds, ``burn_intervals`` times the DOF's median interval between measurements, or
+    ``memory_burns`` times the smoother's memory (:func:`memory_s`), whichever is longest, plus its longest
+    stretch without measurements. DOFs with burn-ins within a factor of two (the DVL's axes, say) run together.
+    Tests check the result against the single-chunk recursion and the textbook RTS smoother.
     """
     if not results:
         return
@@ -394,10 +395,28 @@ def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_int
         steps = np.flatnonzero(res.info[:, 0, 0] > 0)
         spacing = float(np.median(np.diff(steps))) if steps.size > 1 else float(res.x.size)
         longest = _longest_false_run(res.info[:, 0, 0] > 0)
-        burn = int(np.ceil(max(burn_s / h, burn_intervals * spacing))) + longest
+        burn = int(np.ceil(max(burn_s / h, burn_intervals * spacing, memory_burns * memory_s(res) / h))) + longest
         burns.setdefault(burn, []).append(j)
-    for burn, members in sorted(burns.items()):
-        _variances([results[j] for j in members], burn, chunk_factor)
+    # a recursion's cost is its steps, nearly whatever its batch: DOFs whose burn-ins are within a factor of two
+    # run together, with the longest of them
+    groups: list[tuple[int, list[int]]] = []
+    for burn, members in sorted(burns.items(), reverse=True):
+        if groups and 2 * burn >= groups[-1][0]:
+            groups[-1][1].extend(members)
+        else:
+            groups.append((burn, list(members)))
+    for burn, members in reversed(groups):
+        _variances([results[j] for j in sorted(members)], burn, chunk_factor)
+
+
+def memory_s(res: Smoothed) -> float:
+    """The smoother's memory, 1 / omega_c (seconds), omega_c = (q I)^(1/6) with I the information on x per second
+    (the measurements' sum of 1 / variance over the trial's duration). The stationary smoother of a white-jerk
+    process in white noise of density 1 / I is the Wiener filter 1 / (1 + (omega / omega_c)^6); a chunk's cold
+    start is forgotten as exp(-omega_c t) in the variances (twice the decay rate, omega_c / 2, of its slowest
+    pole). A known input's error (``s``) and rate measurements only shorten it. 0 without measurements of x."""
+    rate = float(res.info[:, 0, 0].sum()) / (res.x.size * res.h_s)
+    return float((res.q * rate) ** (-1 / 6)) if rate > 0 and res.q > 0 else 0.0
 
 
 def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.estimation.noise import NOISE_FLOOR, estimate_noise
-from pipeline.estimation.smoother import Measurements, smooth, smoothed_variances, white_jerk
+from pipeline.estimation.smoother import Measurements, memory_s, smooth, smoothed_variances, white_jerk
 from pipeline.estimation.widths import optimal_sigma
 
 H_S = 0.1
@@ -127,6 +127,24 @@ def test_chunked_variances_equal_the_single_pass() -> None:
     smoothed_variances([b])  # the defaults: many chunks
     np.testing.assert_allclose(b.x_sd, a.x_sd, rtol=1e-5)
     np.testing.assert_allclose(b.xdot_sd, a.xdot_sd, rtol=1e-5)
+
+
+def test_chunked_variances_equal_the_single_pass_when_the_smoother_remembers_long() -> None:
+    """A DVL-like DOF (3.3 Hz, 2 cm/s) whose smoother is far smoother than the measurements are dense (q 4e-8:
+    a memory of about 4 s, beyond 40 measurement intervals): each chunk's burn-in must cover that memory, or the
+    chunked SDs are off by up to a few per cent. With a known input's error (``s`` 4e-5) the single pass is exact to
+    1e-8 here (an 80-bit recursion agrees; without it, at this q, float64 itself is good to about 1e-2)."""
+    rng = np.random.default_rng(11)
+    n = 6000
+    grid = np.arange(n, dtype=np.int64) * H_NS
+    tm = np.sort(rng.uniform(0, (n - 1) * H_S, int(0.33 * n)))
+    meas = Measurements((tm * 1e9).astype(np.int64), 0.02 * rng.standard_normal(tm.size), 0.02**2)
+    a, b = smooth(grid, meas, q=4e-8, s=4e-5, gate=0), smooth(grid, meas, q=4e-8, s=4e-5, gate=0)
+    smoothed_variances([a], burn_s=1e9)
+    smoothed_variances([b])  # the defaults: several chunks, each with a burn-in over the smoother's memory
+    assert memory_s(b) == pytest.approx(3.8, rel=0.1)
+    np.testing.assert_allclose(b.xdot_sd, a.xdot_sd, rtol=1e-4)
+    np.testing.assert_allclose(b.xddot_sd, a.xddot_sd, rtol=1e-4)
 
 
 def test_maximum_likelihood_recovers_the_process_noise() -> None:
