@@ -67,6 +67,9 @@ log = logging.getLogger(__name__)
 SCORING = {"mae": "neg_mean_absolute_error", "r2": "r2"}
 #: Models whose ``fit`` takes the targets' own SDs (``sample_sd``).
 TAKES_SD = ("gp",)
+#: The models from the costliest unit (search, CV, final fit) to the cheapest on the fast grids (docs/benchmarks.md,
+#: "The decoupled study's units, costliest first"): the order their units go to the workers.
+COST_ORDER = ("svr", "gp", "krr", "mlp", "ls")
 
 
 def dof_columns(dof: str) -> tuple[str, str]:
@@ -384,10 +387,14 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
                    "kw": {"folds": folds, "search": search, "seed": seed, "gp_max_samples": gp_max_samples,
                           "gp_warp": gp_warp, "curve_points": curve_points, "intercept": dof in intercept}}
                   for name in models]
-    # every (DOF, model) is an independent task (search, CV, final fit) for the run's workers; results are kept in
-    # DOF-then-model order whatever order they finish in
+    # every (DOF, model) is an independent task (search, CV, final fit) for the run's workers, the costliest
+    # models first so that none of them starts last; results are kept in DOF-then-model order whatever order they
+    # finish in
+    order = sorted(range(len(units)), key=lambda i: (COST_ORDER.index(units[i]["name"])
+                                                     if units[i]["name"] in COST_ORDER else len(COST_ORDER), i))
     finished: dict[int, ModelResult] = {}
-    for index, timed in imap(timed_task(_unit, "decoupled"), units, jobs=workers(n_jobs)):
+    for position, timed in imap(timed_task(_unit, "decoupled"), [units[i] for i in order], jobs=workers(n_jobs)):
+        index = order[position]
         unit = units[index]
         out = task_result(timed, "decoupled", f"{unit['dof']}/{unit['name']}")
         if "failed" in out:

@@ -197,3 +197,25 @@ def test_gp_band_is_widened_by_the_residuals_remaining_correlation() -> None:
     K = gp._signal(gp.Z_train_, gp.Z_train_) + gp.theta_[-1] * np.eye(len(gp.Z_train_))
     plain = gp.theta_[0] - np.einsum("ij,ji->i", k_star, np.linalg.solve(K, k_star.T))
     np.testing.assert_allclose(std**2, gp.variance_factor_ * plain * gp.y_scale_**2, rtol=1e-6, atol=1e-12)
+
+
+def test_costliest_units_go_to_the_workers_first_and_results_keep_the_study_order(data: pd.DataFrame,
+                                                                                 monkeypatch) -> None:
+    """The SVR and GP units are sent before the cheap ones (none of the long units starts last on the workers);
+    the results come back in DOF-then-model order."""
+    import pipeline.studies.decoupled as decoupled
+
+    sent: list[str] = []
+    real = decoupled.imap
+
+    def spy(fn, items, **kw):  # noqa: ANN001, ANN202
+        items = list(items)
+        sent.extend(f"{u['dof']}/{u['name']}" for u in items)
+        return real(fn, items, **kw)
+
+    monkeypatch.setattr(decoupled, "imap", spy)
+    frame = pd.concat([data, data.rename(columns={"v_mps": "u_mps", "d_v_N": "d_u_N"})[["u_mps", "d_u_N"]]], axis=1)
+    out = run_study(frame.iloc[:200], frame.iloc[200:], dofs=["u", "v"], models=["ls", "svr", "gp"], search=SMALL,
+                    gp_max_samples=60, max_samples=300, curve_points=2, folds=3)
+    assert sent == ["u/svr", "v/svr", "u/gp", "v/gp", "u/ls", "v/ls"]
+    assert [f"{r.dof}/{r.model}" for r in out.results] == ["u/ls", "u/svr", "u/gp", "v/ls", "v/svr", "v/gp"]
