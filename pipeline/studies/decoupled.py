@@ -390,8 +390,8 @@ def _run_study(tuning: pd.DataFrame, train_test: pd.DataFrame, dofs: Sequence[st
     # every (DOF, model) is an independent task (search, CV, final fit) for the run's workers, the costliest
     # models first so that none of them starts last; results are kept in DOF-then-model order whatever order they
     # finish in
-    order = sorted(range(len(units)), key=lambda i: (COST_ORDER.index(units[i]["name"])
-                                                     if units[i]["name"] in COST_ORDER else len(COST_ORDER), i))
+    cost_rank = {name: i for i, name in enumerate(COST_ORDER)}
+    order = sorted(range(len(units)), key=lambda i: (cost_rank.get(units[i]["name"], len(cost_rank)), i))
     finished: dict[int, ModelResult] = {}
     for position, timed in imap(timed_task(_unit, "decoupled"), [units[i] for i in order], jobs=workers(n_jobs)):
         index = order[position]
