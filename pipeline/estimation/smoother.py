@@ -14,8 +14,8 @@ of one symmetric positive definite block-tridiagonal system A z = b (A = the pro
 the measurements' information). It is solved by a banded Cholesky factorization (LAPACK via scipy: linear in
 the number of steps, no Python loop per step), which also gives the marginal likelihood of the measurements
 exactly, so the process noise ``q`` is chosen by maximum likelihood (Brent's method on log q) at the cost of a
-few dozen factorizations. The smoothed variances (diagonal blocks of A^-1) come from the block recursion of
-the same factorization, vectorized across DOFs: one pass forward, one backward.
+few dozen factorizations. The smoothed variances (diagonal blocks of A^-1) come from an information filter
+and RTS pass written so that nothing large cancels (:func:`smoothed_variances`), vectorized across DOFs.
 
 Outliers are rejected by gating the smoother's residuals: a measurement whose residual exceeds ``gate`` robust
 standard deviations is dropped and the problem solved again (twice at most).
@@ -42,10 +42,19 @@ log = logging.getLogger(__name__)
 __all__ = ["Measurements", "Smoothed", "logliks", "memory_s", "smooth", "smoothed_variances", "white_jerk"]
 
 _PHI = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
+_PHI_INV = np.array([[1.0, -1.0, 0.5], [0.0, 1.0, -1.0], [0.0, 0.0, 1.0]])
 _QT = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
 _QT_INV = np.linalg.inv(_QT)
 _LOGDET_QT = float(np.linalg.slogdet(_QT)[1])
 _PRIOR_PRECISION = 1e-10  # on the first state (scaled units): effectively diffuse
+
+
+def process_covariance(q: float, s: float, h_s: float) -> np.ndarray:
+    """One step's process-noise covariance in scaled states: the white jerk's q h^5 QT, plus a white acceleration
+    of spectral density ``s`` (a random walk of x, s h)."""
+    Q = q * h_s**5 * _QT
+    Q[0, 0] += max(s, 0.0) * h_s
+    return Q
 
 
 def process_precision(q: float, s: float, h_s: float) -> tuple[np.ndarray, float]:
@@ -55,8 +64,7 @@ def process_precision(q: float, s: float, h_s: float) -> tuple[np.ndarray, float
     integrated by the velocity like the input itself."""
     if s <= 0:
         return _QT_INV / (q * h_s**5), 3.0 * np.log(q * h_s**5) + _LOGDET_QT
-    Q = q * h_s**5 * _QT
-    Q[0, 0] += s * h_s
+    Q = process_covariance(q, s, h_s)
     return np.linalg.inv(Q), float(np.linalg.slogdet(Q)[1])
 
 
@@ -378,13 +386,20 @@ def smoothed_variances(results: list[Smoothed], *, burn_s: float = 2.0, burn_int
     """Fill ``x_sd``, ``xdot_sd`` and ``xddot_sd`` of smoother results on the same grid with the diagonal blocks
     of A^-1.
 
-    The block-tridiagonal recursion (forward S_k = D_k - L S_{k-1}^-1 L^T, backward
-    Sigma_k = S_k^-1 + G_k^T Sigma_{k+1} G_k with G_k = L S_k^-1) runs, to keep the number of Python-level steps
-    small on long trials, for many chunks of the grid at once: each chunk is extended on both sides by a burn-in
-    over which the effect of starting without information (forward) or of cutting the system (backward) dies
-    out: ``burn_s`` seconds, ``burn_intervals`` times the DOF's median interval between measurements, or
-    ``memory_burns`` times the smoother's memory (:func:`memory_s`), whichever is longest, plus its longest
-    stretch without measurements. DOFs with burn-ins within a factor of two (the DVL's axes, say) run together.
+    Forward, an information filter: Y_k = Yp_k + J_k (J the measurements' information), and the prediction
+    Yp_k+1 = (Phi Y_k^-1 Phi^T + Q)^-1 written as V (Phi + Q V)^-1 with V = Phi^-T Y_k, so Y is never inverted
+    (a diffuse start is exact) and the process precision Q^-1, huge next to J for a smooth process, never enters.
+    Backward, the RTS smoother Sigma_k = P_k + C_k (Sigma_k+1 - Pp_k+1) C_k^T, C_k = P_k Phi^T Yp_k+1, written
+    with Phi P_k Phi^T Yp_k+1 = I - Q Yp_k+1 as C_k = Phi^-1 (I - Q Yp_k+1) and
+    Sigma_k = (C_k Sigma_k+1 + Phi^-1 Q) C_k^T: a sum of positive terms, no difference of large covariances.
+    Derivation and sources: docs/estimation.md, "The variances' recursion".
+
+    To keep the number of Python-level steps small on long trials, the recursion runs for many chunks of the grid
+    at once: each chunk is extended on both sides by a burn-in over which the effect of starting without
+    information (forward) or of cutting the system (backward) dies out: ``burn_s`` seconds, ``burn_intervals``
+    times the DOF's median interval between measurements, or ``memory_burns`` times the smoother's memory
+    (:func:`memory_s`), whichever is longest, plus its longest stretch without measurements.
+    DOFs with burn-ins within a factor of two (the DVL's axes, say) run together.
     Tests check the result against the single-chunk recursion and the textbook RTS smoother.
     """
     if not results:
@@ -423,13 +438,8 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
     n = results[0].x.size
     h = results[0].h_s
     dofs = len(results)
-    W = np.stack([process_precision(res.q, res.s, h)[0] for res in results])  # (dofs, 3, 3)
-    base = np.zeros((n, dofs, 3, 3))
-    base[:-1] += np.einsum("ji,djk,kl->dil", _PHI, W, _PHI)
-    base[1:] += W
-    base[0] += _PRIOR_PRECISION * np.eye(3)
-    D = base + np.stack([res.info for res in results], axis=1)
-    L = -W @ _PHI
+    Q = np.stack([process_covariance(res.q, res.s, h) for res in results])  # (dofs, 3, 3)
+    J = np.stack([res.info for res in results], axis=1)                    # (n, dofs, 3, 3)
     burn = min(n, burn)
     core = max(int(chunk_factor * burn), 1)
     if n <= core + 2 * burn:
@@ -441,34 +451,33 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
         starts = np.clip(np.arange(chunks) * core - burn, 0, n - length)
     idx = starts[:, None] + np.arange(length)[None, :]                     # (chunks, length)
     # struct of arrays: entry (i, j) of every chunk's and DOF's matrix as one contiguous (length, batch) array, so
-    # each step is a few dozen vectorized multiply-adds instead of per-matrix calls
+    # each step is a few vectorized multiply-adds instead of per-matrix calls
     batch = len(starts) * dofs
-    Dc = np.moveaxis(D[idx], 1, 0).reshape(length, batch, 3, 3)                               # (length, batch, 3, 3)
-    Dc = np.ascontiguousarray(np.moveaxis(Dc, (2, 3), (0, 1)))                                # (3, 3, length, batch)
-    Lb = np.ascontiguousarray(np.moveaxis(np.tile(L, (len(starts), 1, 1)), (1, 2), (0, 1)))   # (3, 3, batch)
-    sinv = np.empty((3, 3, length, batch))
-    gmat = np.empty((3, 3, length, batch))
-    S = Dc[:, :, 0]
-    for k in range(length):
-        if k:  # S = D_k - G_{k-1} L^T
-            S = Dc[:, :, k] - np.einsum("imb,jmb->ijb", gmat[:, :, k - 1], Lb, optimize=False)
-        si = _inv3_soa(S)
-        sinv[:, :, k] = si
-        gmat[:, :, k] = np.einsum("imb,mjb->ijb", Lb, si, optimize=False)  # G = L S^-1
-    # the diagonal, the (x, x') entry, and cov(x_k, x_{k+2}) for the variance of a central difference of x
+    Jc = np.moveaxis(J[idx], 1, 0).reshape(length, batch, 3, 3)                               # (length, batch, 3, 3)
+    Jc = np.ascontiguousarray(np.moveaxis(Jc, (2, 3), (0, 1)))                                # (3, 3, length, batch)
+    Qb = np.ascontiguousarray(np.moveaxis(np.tile(Q, (len(starts), 1, 1)), (1, 2), (0, 1)))   # (3, 3, batch)
+    piq = np.einsum("im,mjb->ijb", _PHI_INV, Qb)
+    # forward: the predicted information Yp of each step, Yp' = V (Phi + Q V)^-1 with V = Phi^-T (Yp + J)
+    yp = np.empty((3, 3, length, batch))
+    yp[:, :, 0] = _PRIOR_PRECISION * np.eye(3)[:, :, None]
+    for k in range(length - 1):
+        v = np.einsum("mi,mjb->ijb", _PHI_INV, yp[:, :, k] + Jc[:, :, k], optimize=False)
+        a = _PHI[:, :, None] + np.einsum("imb,mjb->ijb", Qb, v, optimize=False)
+        yp[:, :, k + 1] = np.einsum("imb,mjb->ijb", v, _inv3_soa(a), optimize=False)
+    # backward: C = Phi^-1 (I - Q Yp'), Sigma = (C Sigma' + Phi^-1 Q) C^T, cov(z_k, z_k+1) = C Sigma'; also the
+    # (x, x') entry and cov(x_k, x_k+2) for the variance of a central difference of x
     var = np.empty((5, length, batch))
     var[4] = 0.0
-    cross = None  # column 0 of cov(z_k, z_{k+1}) = -G_k^T Sigma_{k+1}
-    sigma = sinv[:, :, length - 1]
-    var[0, length - 1], var[1, length - 1], var[2, length - 1] = sigma[0, 0], sigma[1, 1], sigma[2, 2]
-    var[3, length - 1] = sigma[0, 1]
-    for k in range(length - 2, -1, -1):  # Sigma_k = S_k^-1 + G_k^T Sigma_{k+1} G_k
-        g = gmat[:, :, k]
-        if cross is not None:  # cov(x_k, x_{k+2}) = -(G_k^T cov(z_{k+1}, z_{k+2}))_00
-            var[4, k] = -np.sum(g[:, 0] * cross, axis=0)
-        cross = -np.einsum("mib,mb->ib", g, sigma[:, 0], optimize=False)
-        u = np.einsum("imb,mjb->ijb", sigma, g, optimize=False)
-        sigma = sinv[:, :, k] + np.einsum("mib,mjb->ijb", g, u, optimize=False)
+    sigma = _inv3_soa(yp[:, :, -1] + Jc[:, :, -1], equilibrate=True)
+    var[0, -1], var[1, -1], var[2, -1], var[3, -1] = sigma[0, 0], sigma[1, 1], sigma[2, 2], sigma[0, 1]
+    cross = None  # column 0 of cov(z_k+1, z_k+2)
+    for k in range(length - 2, -1, -1):
+        c = _PHI_INV[:, :, None] - np.einsum("imb,mjb->ijb", piq, yp[:, :, k + 1], optimize=False)
+        if cross is not None:
+            var[4, k] = np.einsum("mb,mb->b", c[0], cross, optimize=False)
+        cs = np.einsum("imb,mjb->ijb", c, sigma, optimize=False)
+        cross = cs[:, 0]
+        sigma = np.einsum("imb,jmb->ijb", cs + piq, c, optimize=False)
         var[0, k], var[1, k], var[2, k], var[3, k] = sigma[0, 0], sigma[1, 1], sigma[2, 2], sigma[0, 1]
     var = np.moveaxis(var.reshape(5, length, len(starts), dofs), (0, 1, 2), (3, 1, 0))  # (chunks, length, dofs, 5)
     out = np.empty((n, dofs, 5))
@@ -479,15 +488,18 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
     out[..., :3] = np.maximum(out[..., :3], 0.0)
     for j, res in enumerate(results):
         res.x_sd = np.sqrt(out[:, j, 0])
-        # + the known input's error, white: its variance on one grid step (none without an input)
         res.xdot_sd = np.sqrt(out[:, j, 1]) / h
         res.xddot_sd = np.sqrt(out[:, j, 2]) / h**2
         res.x_xdot_cov = out[:, j, 3] / h
         res.x_lag2_cov = out[:, j, 4]
 
 
-def _inv3_soa(S: np.ndarray) -> np.ndarray:
-    """Inverses of 3x3 matrices stored entry-first, ``S[i, j]`` an array over the batch (adjugate / determinant)."""
+def _inv3_soa(S: np.ndarray, equilibrate: bool = False) -> np.ndarray:
+    """Inverses of 3x3 matrices stored entry-first, ``S[i, j]`` an array over the batch (adjugate / determinant);
+    ``equilibrate`` scales a symmetric positive definite S to a unit diagonal first (for a diffuse direction)."""
+    if equilibrate:
+        d = 1.0 / np.sqrt(np.einsum("iib->ib", S))
+        return _inv3_soa(S * d[:, None] * d[None, :]) * d[:, None] * d[None, :]
     a, b, c = S[0, 0], S[0, 1], S[0, 2]
     d, e, f = S[1, 0], S[1, 1], S[1, 2]
     g, h, i = S[2, 0], S[2, 1], S[2, 2]
@@ -496,21 +508,6 @@ def _inv3_soa(S: np.ndarray) -> np.ndarray:
     return np.array([[A, c * h - b * i, b * f - c * e],
                      [B, a * i - c * g, c * d - a * f],
                      [C, b * g - a * h, a * e - b * d]]) * inv_det
-
-
-def _inv3(S: np.ndarray) -> np.ndarray:
-    """Inverses of a stack of 3x3 matrices by the adjugate: a few dozen vectorized operations instead of LAPACK's
-    per-matrix calls, for the small, well-conditioned (scaled) information matrices here."""
-    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
-    d, e, f = S[..., 1, 0], S[..., 1, 1], S[..., 1, 2]
-    g, h, i = S[..., 2, 0], S[..., 2, 1], S[..., 2, 2]
-    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * A + b * B + c * C
-    out = np.empty_like(S)
-    out[..., 0, 0], out[..., 1, 0], out[..., 2, 0] = A, B, C
-    out[..., 0, 1], out[..., 1, 1], out[..., 2, 1] = c * h - b * i, a * i - c * g, b * g - a * h
-    out[..., 0, 2], out[..., 1, 2], out[..., 2, 2] = b * f - c * e, c * d - a * f, a * e - b * d
-    return out / det[..., None, None]
 
 
 def _longest_false_run(mask: np.ndarray) -> int:

@@ -3,6 +3,8 @@ lock-loss bridging, maximum-likelihood process noise, gating, auto widths, and t
 
 from __future__ import annotations
 
+import decimal
+
 import numpy as np
 import pytest
 
@@ -132,8 +134,7 @@ def test_chunked_variances_equal_the_single_pass() -> None:
 def test_chunked_variances_equal_the_single_pass_when_the_smoother_remembers_long() -> None:
     """A DVL-like DOF (3.3 Hz, 2 cm/s) whose smoother is far smoother than the measurements are dense (q 4e-8:
     a memory of about 4 s, beyond 40 measurement intervals): each chunk's burn-in must cover that memory, or the
-    chunked SDs are off by up to a few per cent. With a known input's error (``s`` 4e-5) the single pass is exact to
-    1e-8 here (an 80-bit recursion agrees; without it, at this q, float64 itself is good to about 1e-2)."""
+    chunked SDs are off by up to a few per cent. The single pass is exact (the test below)."""
     rng = np.random.default_rng(11)
     n = 6000
     grid = np.arange(n, dtype=np.int64) * H_NS
@@ -145,6 +146,74 @@ def test_chunked_variances_equal_the_single_pass_when_the_smoother_remembers_lon
     assert memory_s(b) == pytest.approx(3.8, rel=0.1)
     np.testing.assert_allclose(b.xdot_sd, a.xdot_sd, rtol=1e-4)
     np.testing.assert_allclose(b.xddot_sd, a.xddot_sd, rtol=1e-4)
+
+
+def _rts_variances_in_80_digits(n: int, meas_k: np.ndarray, r: float, q: float) -> np.ndarray:
+    """Smoothed variances of (x, x', x'') of the white-jerk model, measurements of x at grid steps ``meas_k``:
+    a Kalman filter + RTS smoother written step by step (Särkkä 2013, eqs. 4.20-4.21 and Th. 8.2) in 80-digit
+    decimal arithmetic, with the smoother's own diffuse prior (precision 1e-10 on the scaled states), so that no
+    rounding of float64 can reach the reference."""
+    with decimal.localcontext() as ctx:
+        ctx.prec = 80
+        D = decimal.Decimal
+        h = D(H_NS) / D(10**9)
+        phi = [[D(1), h, h * h / 2], [D(0), D(1), h], [D(0), D(0), D(1)]]
+        qd = D(repr(q))
+        Q = [[qd * h**5 / 20, qd * h**4 / 8, qd * h**3 / 6], [qd * h**4 / 8, qd * h**3 / 3, qd * h**2 / 2],
+             [qd * h**3 / 6, qd * h**2 / 2, qd * h]]
+
+        def mul(a, b, bt=False):
+            return [[sum(a[i][m] * (b[j][m] if bt else b[m][j]) for m in range(3)) for j in range(3)] for i in range(3)]
+
+        def inv(a):
+            adj = [[a[(j + 1) % 3][(i + 1) % 3] * a[(j + 2) % 3][(i + 2) % 3]
+                    - a[(j + 1) % 3][(i + 2) % 3] * a[(j + 2) % 3][(i + 1) % 3] for j in range(3)] for i in range(3)]
+            det = sum(a[0][m] * adj[m][0] for m in range(3))
+            return [[adj[i][j] / det for j in range(3)] for i in range(3)]
+
+        scale = [D(1), h, h * h]  # the smoother's prior: precision 1e-10 on (x, h x', h^2 x'')
+        P = [[(D(10) ** 10 / (scale[i] * scale[i]) if i == j else D(0)) for j in range(3)] for i in range(3)]
+        measured = set(meas_k.tolist())
+        rd = D(repr(r))
+        Pf, Pp = [], []
+        for k in range(n):
+            if k:
+                P = [[a + b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(mul(mul(phi, P), phi, bt=True), Q,
+                                                                                  strict=True)]
+            Pp.append(P)
+            if k in measured:
+                s = P[0][0] + rd
+                P = [[P[i][j] - P[i][0] * P[0][j] / s for j in range(3)] for i in range(3)]
+            Pf.append(P)
+        out = np.empty((n, 3))
+        sig = Pf[-1]
+        out[-1] = [float(sig[i][i]) for i in range(3)]
+        for k in range(n - 2, -1, -1):
+            C = mul(mul(Pf[k], phi, bt=True), inv(Pp[k + 1]))
+            d = [[a - b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(sig, Pp[k + 1], strict=True)]
+            sig = [[a + b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(Pf[k], mul(mul(C, d), C, bt=True),
+                                                                              strict=True)]
+            out[k] = [float(sig[i][i]) for i in range(3)]
+    return out
+
+
+def test_variances_are_exact_for_a_smoother_far_smoother_than_its_measurements() -> None:
+    """The demo's kinematic pass on the DVL's axes: q 5e-8, 2 cm/s every third 0.1-s step, no input (s = 0). The
+    process precision per step is some 1e12 times the measurements' information, which an information-form
+    recursion cancels to 0.2-2 %; the variances must match an 80-digit RTS smoother to 1e-6, in one pass and
+    chunked."""
+    n, r, q = 900, 0.02**2, 5e-8
+    grid = np.arange(n, dtype=np.int64) * H_NS
+    k = np.arange(0, n, 3)
+    k = k[(k < 400) | (k > 430)]  # and 3 s without bottom lock
+    y = 0.3 + 0.02 * np.random.default_rng(12).standard_normal(k.size)
+    exact = np.sqrt(_rts_variances_in_80_digits(n, k, r, q))
+    for burn_s in (1e9, 2.0):
+        got = smooth(grid, Measurements(grid[k], y, r), q=q, gate=0)
+        smoothed_variances([got], burn_s=burn_s)
+        np.testing.assert_allclose(got.x_sd, exact[:, 0], rtol=1e-6)
+        np.testing.assert_allclose(got.xdot_sd, exact[:, 1], rtol=1e-6)
+        np.testing.assert_allclose(got.xddot_sd, exact[:, 2], rtol=1e-6)
 
 
 def test_maximum_likelihood_recovers_the_process_noise() -> None:
