@@ -468,7 +468,7 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
     # (x, x') entry and cov(x_k, x_k+2) for the variance of a central difference of x
     var = np.empty((5, length, batch))
     var[4] = 0.0
-    sigma = _inv3_soa(yp[:, :, -1] + Jc[:, :, -1], equilibrate=True)
+    sigma = _inv3_soa(yp[:, :, -1] + Jc[:, :, -1])
     var[0, -1], var[1, -1], var[2, -1], var[3, -1] = sigma[0, 0], sigma[1, 1], sigma[2, 2], sigma[0, 1]
     cross = None  # column 0 of cov(z_k+1, z_k+2)
     for k in range(length - 2, -1, -1):
@@ -494,12 +494,8 @@ def _variances(results: list[Smoothed], burn: int, chunk_factor: float) -> None:
         res.x_lag2_cov = out[:, j, 4]
 
 
-def _inv3_soa(S: np.ndarray, equilibrate: bool = False) -> np.ndarray:
-    """Inverses of 3x3 matrices stored entry-first, ``S[i, j]`` an array over the batch (adjugate / determinant);
-    ``equilibrate`` scales a symmetric positive definite S to a unit diagonal first (for a diffuse direction)."""
-    if equilibrate:
-        d = 1.0 / np.sqrt(np.einsum("iib->ib", S))
-        return _inv3_soa(S * d[:, None] * d[None, :]) * d[:, None] * d[None, :]
+def _inv3_soa(S: np.ndarray) -> np.ndarray:
+    """Inverses of 3x3 matrices stored entry-first, ``S[i, j]`` an array over the batch (adjugate / determinant)."""
     a, b, c = S[0, 0], S[0, 1], S[0, 2]
     d, e, f = S[1, 0], S[1, 1], S[1, 2]
     g, h, i = S[2, 0], S[2, 1], S[2, 2]

@@ -149,7 +149,8 @@ def test_chunked_variances_equal_the_single_pass_when_the_smoother_remembers_lon
 
 
 def _rts_variances_in_80_digits(n: int, meas_k: np.ndarray, r: float, q: float) -> np.ndarray:
-    """Smoothed variances of (x, x', x'') of the white-jerk model, measurements of x at grid steps ``meas_k``:
+    """Smoothed variances of (x, x', x''), cov(x, x') and cov(x_k, x_k+2) of the white-jerk model (columns 0-4),
+    measurements of x at grid steps ``meas_k``:
     a Kalman filter + RTS smoother written step by step (Särkkä 2013, eqs. 4.20-4.21 and Th. 8.2) in 80-digit
     decimal arithmetic, with the smoother's own diffuse prior (precision 1e-10 on the scaled states), so that no
     rounding of float64 can reach the reference."""
@@ -185,15 +186,19 @@ def _rts_variances_in_80_digits(n: int, meas_k: np.ndarray, r: float, q: float) 
                 s = P[0][0] + rd
                 P = [[P[i][j] - P[i][0] * P[0][j] / s for j in range(3)] for i in range(3)]
             Pf.append(P)
-        out = np.empty((n, 3))
+        out = np.zeros((n, 5))
         sig = Pf[-1]
-        out[-1] = [float(sig[i][i]) for i in range(3)]
+        out[-1, :4] = [float(sig[0][0]), float(sig[1][1]), float(sig[2][2]), float(sig[0][1])]
+        lag1 = None  # cov(z_k+1, z_k+2) = C_k+1 Sigma_k+2 (the smoothed cross-covariance)
         for k in range(n - 2, -1, -1):
             C = mul(mul(Pf[k], phi, bt=True), inv(Pp[k + 1]))
+            if lag1 is not None:
+                out[k, 4] = float(mul(C, lag1)[0][0])
+            lag1 = mul(C, sig)
             d = [[a - b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(sig, Pp[k + 1], strict=True)]
             sig = [[a + b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(Pf[k], mul(mul(C, d), C, bt=True),
                                                                               strict=True)]
-            out[k] = [float(sig[i][i]) for i in range(3)]
+            out[k, :4] = [float(sig[0][0]), float(sig[1][1]), float(sig[2][2]), float(sig[0][1])]
     return out
 
 
@@ -207,13 +212,15 @@ def test_variances_are_exact_for_a_smoother_far_smoother_than_its_measurements()
     k = np.arange(0, n, 3)
     k = k[(k < 400) | (k > 430)]  # and 3 s without bottom lock
     y = 0.3 + 0.02 * np.random.default_rng(12).standard_normal(k.size)
-    exact = np.sqrt(_rts_variances_in_80_digits(n, k, r, q))
+    exact = _rts_variances_in_80_digits(n, k, r, q)
     for burn_s in (1e9, 2.0):
         got = smooth(grid, Measurements(grid[k], y, r), q=q, gate=0)
         smoothed_variances([got], burn_s=burn_s)
-        np.testing.assert_allclose(got.x_sd, exact[:, 0], rtol=1e-6)
-        np.testing.assert_allclose(got.xdot_sd, exact[:, 1], rtol=1e-6)
-        np.testing.assert_allclose(got.xddot_sd, exact[:, 2], rtol=1e-6)
+        np.testing.assert_allclose(got.x_sd, np.sqrt(exact[:, 0]), rtol=1e-6)
+        np.testing.assert_allclose(got.xdot_sd, np.sqrt(exact[:, 1]), rtol=1e-6)
+        np.testing.assert_allclose(got.xddot_sd, np.sqrt(exact[:, 2]), rtol=1e-6)
+        np.testing.assert_allclose(got.x_xdot_cov, exact[:, 3], rtol=1e-6, atol=1e-6 * np.abs(exact[:, 3]).max())
+        np.testing.assert_allclose(got.x_lag2_cov[: n - 2], exact[: n - 2, 4], rtol=1e-6)
 
 
 def test_maximum_likelihood_recovers_the_process_noise() -> None:
