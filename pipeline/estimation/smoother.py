@@ -248,6 +248,11 @@ class _Problem:
 
 
 def _fit_q(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> float:
+    return _fit_q_m2ll(problem, q_bounds, s)[0]
+
+
+def _fit_q_m2ll(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> tuple[float, float]:
+    """The maximum-likelihood q and its -2 log-likelihood (the optimizer's value there: no second solve)."""
     lo, hi = np.log10(q_bounds[0]), np.log10(q_bounds[1])
 
     def objective(lq: float) -> float:
@@ -260,15 +265,14 @@ def _fit_q(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> 
     if res.x - lo < 0.05 or hi - res.x < 0.05:
         log.info("smoother: maximum-likelihood process noise at the bound of [%g, %g]: q = %g",
                  q_bounds[0], q_bounds[1], 10.0**res.x)
-    return float(10.0**res.x)
+    return float(10.0**res.x), float(res.fun)
 
 
 def _fit_qs(problem: _Problem, q_bounds: tuple[float, float], s_bounds: tuple[float, float],
             rounds: int = 2) -> tuple[float, float]:
     """q and s by maximum likelihood, one coordinate at a time (each a Brent search on its log); s's lower
     bound stands for 0, kept when the input's error does not show."""
-    q, s = _fit_q(problem, q_bounds), 0.0
-    best = problem.solve(q, s)[1]
+    (q, best), s = _fit_q_m2ll(problem, q_bounds), 0.0
     lo, hi = np.log10(s_bounds[0]), np.log10(s_bounds[1])
     for _ in range(rounds):
         def objective(ls: float, q: float = q) -> float:
@@ -281,8 +285,7 @@ def _fit_qs(problem: _Problem, q_bounds: tuple[float, float], s_bounds: tuple[fl
         if res.fun >= best - 1e-6:
             break
         s = float(10.0**res.x)
-        q = _fit_q(problem, q_bounds, s)
-        best = problem.solve(q, s)[1]
+        q, best = _fit_q_m2ll(problem, q_bounds, s)
     return q, s
 
 
