@@ -247,11 +247,7 @@ class _Problem:
         return (self.y if y is None else y) - fit
 
 
-def _fit_q(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> float:
-    return _fit_q_m2ll(problem, q_bounds, s)[0]
-
-
-def _fit_q_m2ll(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> tuple[float, float]:
+def _fit_q(problem: _Problem, q_bounds: tuple[float, float], s: float = 0.0) -> tuple[float, float]:
     """The maximum-likelihood q and its -2 log-likelihood (the optimizer's value there: no second solve)."""
     lo, hi = np.log10(q_bounds[0]), np.log10(q_bounds[1])
 
@@ -272,7 +268,7 @@ def _fit_qs(problem: _Problem, q_bounds: tuple[float, float], s_bounds: tuple[fl
             rounds: int = 2) -> tuple[float, float]:
     """q and s by maximum likelihood, one coordinate at a time (each a Brent search on its log); s's lower
     bound stands for 0, kept when the input's error does not show."""
-    (q, best), s = _fit_q_m2ll(problem, q_bounds), 0.0
+    (q, best), s = _fit_q(problem, q_bounds), 0.0
     lo, hi = np.log10(s_bounds[0]), np.log10(s_bounds[1])
     for _ in range(rounds):
         def objective(ls: float, q: float = q) -> float:
@@ -285,7 +281,7 @@ def _fit_qs(problem: _Problem, q_bounds: tuple[float, float], s_bounds: tuple[fl
         if res.fun >= best - 1e-6:
             break
         s = float(10.0**res.x)
-        q, best = _fit_q_m2ll(problem, q_bounds, s)
+        q, best = _fit_q(problem, q_bounds, s)
     return q, s
 
 
@@ -353,12 +349,12 @@ def smooth(grid_ns: np.ndarray, meas: Measurements, *, q: float | None = None, g
             if s_fit <= 1.5 * s_bounds[0] * s_unit:
                 s_fit = 0.0
         else:
-            q_fit = _fit_q(ml, q_bounds)
+            q_fit = _fit_q(ml, q_bounds)[0]
         for _ in range(rounds):  # outliers inflate q: refit without them (when there are enough to matter)
             before = int(ml.keep.sum())
             if not _gate(ml, ml.solve(q_fit)[0], q_fit, gate) or before - int(ml.keep.sum()) < 0.001 * before:
                 break
-            q_fit = _fit_q(ml, q_bounds)
+            q_fit = _fit_q(ml, q_bounds)[0]
     else:
         q_fit, s_fit = q, s
     z, m2ll, info = problem.solve(q_fit, s_fit)
