@@ -283,6 +283,8 @@ def one_seed(seed: int, duration_s: float, params: Params, inflow: bool, models:
                 est, card = load_model(path)
                 fitted[card["model"]] = (est, card["inputs"])
                 intervals[card["model"]] = card["interval"]
+                if card.get("residual_fold_check"):  # a gray box's second verdict: against its base on the folds
+                    out.setdefault("residual_fold_check", {})[card["model"]] = card["residual_fold_check"]
             metrics = json.loads((root / "data/evaluation/coupled/metrics.json").read_text())
             out["failed"] = {m: v["failed"] for m, v in metrics.items() if isinstance(v, dict) and "failed" in v}
         else:
@@ -394,6 +396,9 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
     for r in results:  # a gray box's residual per output: kept or dropped, with the CV R² that decided
         for m, verdicts in (r.get("residual") or {}).items():
             print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
+        for m, verdicts in (r.get("residual_fold_check") or {}).items():
+            print(f"seed {r['seed']} {m} residual on the CV's folds: "
+                  + "; ".join(f"{o} {verdicts[o]}" for o in OUTPUTS if o in verdicts))
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial's MEASURED targets inside each model's 90 % interval "
               "(the method: the wider of the blocked CV's and the held-out trials' quantiles, its spread growing "

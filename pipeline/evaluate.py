@@ -27,7 +27,7 @@ from pipeline.errors import ModelError, PipelineError
 log = logging.getLogger(__name__)
 
 __all__ = ["SPLITS", "split_blocks", "blocked_folds", "trial_folds", "search_folds", "trial_groups",
-           "MIN_TRIAL_ROWS", "check_no_leakage", "regression_scores",
+           "MIN_TRIAL_ROWS", "check_no_leakage", "regression_scores", "base_predictor",
            "cross_validate_blocked", "fit_fold", "guarded_folds", "summarize_folds", "score_holdout", "MODEL_FAILURES",
            "model_failure", "INTERVAL_LEVEL", "conformal_half_width", "sd_floor", "interval_half_width",
            "scale_fit"]
@@ -173,7 +173,8 @@ def fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, te
              fitted: tuple[Any, float] | None = None) -> dict[str, Any]:
     """A clone of ``estimator`` fitted on the ``train`` rows: its scores on them and on the ``test`` rows, times,
     sizes and the test block's span; with ``predictions`` also its predictions of the ``test`` rows
-    (``test_pred``, the out-of-fold predictions a conformal interval is calibrated on). ``fitted``: ``(the
+    (``test_pred``, the out-of-fold predictions a conformal interval is calibrated on) and, for a gray box, its
+    base's scores and test predictions (``base``: ``train``, ``test``, ``test_pred``). ``fitted``: ``(the
     estimator fitted on the train rows elsewhere, its fit's seconds)`` instead of a fit here."""
     if fitted is None:
         est = clone(estimator)
@@ -193,7 +194,17 @@ def fit_fold(estimator: Any, X: np.ndarray, y: np.ndarray, train: np.ndarray, te
            "test_start": int(test[0]), "test_stop": int(test[-1]) + 1}
     if predictions:
         out["test_pred"] = np.asarray(pred_test, dtype=float).reshape(int(test.size), -1)
+        base = base_predictor(est)
+        if base is not None:  # a gray box's base alone, fitted inside it: the paired verdict's other half
+            base_test = np.asarray(base(X[test]), dtype=float).reshape(int(test.size), -1)
+            out["base"] = {"train": regression_scores(y[train], base(X[train]), outputs),
+                           "test": regression_scores(y[test], base_test, outputs), "test_pred": base_test}
     return out
+
+
+def base_predictor(estimator: Any) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A fitted gray box's ``base_predict`` (its own, or a nested fold's inner model's); None for other models."""
+    return getattr(getattr(estimator, "estimator_", estimator), "base_predict", None)
 
 
 def guarded_folds(n_samples: int, n_folds: int, keys: pd.DataFrame | None = None,

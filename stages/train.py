@@ -25,7 +25,8 @@ from pipeline.layout import EVALUATION, MODELS, features_dir
 from pipeline.models.card import card_path, lineage, save_model
 from pipeline.report.coupled import table3
 from pipeline.skips import clear_skip
-from pipeline.studies.coupled import rigid_body_uvr, train_columns, train_stage
+from pipeline.studies.coupled import rigid_body_uvr, train_columns
+from pipeline.studies.training import train_stage
 from pipeline.tableio import atomic_path, remove_stale_temps, write_json
 from stages.common import StageResult, skipped_result, stage_main
 from stages.tune import hyperparameters_path

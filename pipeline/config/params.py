@@ -297,6 +297,12 @@ class CoupledParams(Frozen):
         "better than a constant); elsewhere that output is "
         "the explicit base alone. The nested CV's folds apply it to their own search's score. null: always kept "
         "(docs/models.md, 'Gray box').", le=1.0)
+    residual_fold_check: bool = Field(
+        True, description="Gray-box models: after the train stage's CV, per output, the residual is kept only "
+        "where the gray box beat its own base on the CV's folds: the mean of the folds' test R² differences above "
+        "0 by more than its standard error (a tie dropped). Elsewhere the saved model, its CV and final-check "
+        "scores and its interval are the base's. false: the tune stage's verdict alone (docs/models.md, "
+        "'Gray box').")
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")

@@ -18,6 +18,7 @@ inputs, velocities first, as the simulate stage needs), ``base_columns = (0..5)`
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -31,7 +32,7 @@ from pipeline.models.svr import WDSESVR, PerOutputRegressor
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GrayBox", "kept_outputs", "residual_record", "residual_verdict", "residual_verdicts"]
+__all__ = ["GrayBox", "kept_outputs", "paired_verdict", "residual_record", "residual_verdict", "residual_verdicts"]
 
 
 def residual_verdict(cv_r2: float | None, threshold: float | None, se: float | None = None) -> tuple[bool, str]:
@@ -78,6 +79,21 @@ def residual_verdicts(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], 
 def kept_outputs(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], threshold: float | None) -> list[int]:
     """The outputs (indices into ``outputs``) whose residual the tuned ``hyper`` keeps."""
     return [k for k, (kept, _) in enumerate(_recorded_verdicts(hyper, outputs, threshold)) if kept]
+
+
+def paired_verdict(differences: Sequence[float]) -> tuple[bool, str]:
+    """Whether a CV's folds say the residual helps on an output, and why: ``differences`` the folds' test R² of
+    the gray box minus its base's (the base fitted inside that fold's gray box). Kept where their mean is above 0
+    by more than its standard error over the folds. A tie is dropped: with one fold keeping its residual and the
+    others dropping it, (a, 0, 0, 0, 0), the mean equals the SE, a / 5, and only rounding would decide."""
+    d = np.asarray(differences, dtype=float)
+    if d.size < 2 or not np.all(np.isfinite(d)):
+        raise ValueError(f"a paired verdict needs two or more finite fold scores, got {d.tolist()}")
+    mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size))
+    score = f"gray box − base, fold test R² {mean:+.4f} ± {se:.4f} over {d.size} folds"
+    if mean > 0 and mean - se > 1e-9 * (abs(mean) + se):
+        return True, f"kept ({score})"
+    return False, f"dropped ({score}: not above 0 by 1 SE)"
 
 
 class GrayBox(RegressorMixin, BaseEstimator):
@@ -145,6 +161,34 @@ class GrayBox(RegressorMixin, BaseEstimator):
         if self.residual_ is None:
             return out
         return self._add_residual(out, self.residual_.predict(X[:, res_cols]))
+
+    def base_predict(self, X) -> np.ndarray:
+        """The fitted base's prediction alone, on the same columns ``X`` as :meth:`predict` (every output)."""
+        check_is_fitted(self, "base_")
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        return self.base_.predict(X[:, self._columns(X.shape[1])[0]])
+
+    def narrowed(self, keep: Sequence[int]) -> GrayBox:
+        """A copy of this fitted gray box whose residual stays only on the outputs of ``keep`` among
+        ``kept_outputs_``; the others become the base's prediction alone, bit for bit. No refit: the base does not
+        depend on the residual, and a :class:`PerOutputRegressor` residual fits each output on its own."""
+        check_is_fitted(self, "kept_outputs_")
+        wanted = {int(k) for k in keep}
+        positions = [i for i, k in enumerate(self.kept_outputs_) if k in wanted]
+        out = copy.copy(self)
+        out.kept_outputs_ = [self.kept_outputs_[i] for i in positions]
+        out.residual_outputs = tuple(out.kept_outputs_)
+        if len(positions) == len(self.kept_outputs_):
+            return out
+        if not isinstance(self.residual_, PerOutputRegressor):
+            raise TypeError(f"GrayBox.narrowed needs a PerOutputRegressor residual, not {type(self.residual_)}")
+        out.residual = PerOutputRegressor([self.residual_.estimators[i] for i in positions])
+        out.residual_ = None
+        if positions:
+            out.residual_ = copy.copy(self.residual_)
+            out.residual_.estimators = out.residual.estimators
+            out.residual_.estimators_ = [self.residual_.estimators_[i] for i in positions]
+        return out
 
     def fast_predictor(self) -> Callable[[np.ndarray], np.ndarray] | None:
         """``predict`` of the fitted gray box as its parts' fast predictors (each part's ``fast_predictor()``:

@@ -46,14 +46,17 @@ def table2(hyper: dict[str, dict[str, dict[str, Any]]], outputs: Sequence[str], 
 def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, dict[str, str]] | None = None
            ) -> tuple[str, dict[str, Any]]:
     """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check, the
-    90 % prediction interval (± half-width) and the share of the test trial(s)' targets inside it.
-    The models in ``failed`` are named under the table (JSON: ``{model: {"failed": entry}}``)."""
+    90 % prediction interval (± half-width) and the share of the test trial(s)' targets inside it; a gray box's
+    residual verdict per output from the CV's folds under the table (JSON: ``residual``). The models in ``failed``
+    are named under the table (JSON: ``{model: {"failed": entry}}``)."""
     lines = ["| Model | Output | train R² mean | train R² SD | test R² mean | test R² SD | test MAE mean | "
              "final-check R² | 90 % interval ± | final check: inside 90 % |",
              "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     doc: dict[str, Any] = {}
     for model, res in results.items():
         doc[model] = {"cv": res["summary"], "final": res["final"], "interval": res.get("interval") or {}}
+        if res.get("residual"):  # a gray box: its residual per output, kept where the CV's folds beat its base
+            doc[model]["residual"] = res["residual"]
         for out in outputs:
             s = res["summary"][out]
             final = f"{res['final'][out]['r2']:.3f}" if res["final"] else "n/a"
@@ -67,6 +70,10 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
                      "blocked CV's out-of-fold |residuals|, their spread growing with abs(p); with two or more "
                      "training trials the wider of that and the quantile of fits without whole trials); inside: "
                      "the share of the test trial(s)' measured targets within it (85–95 % expected).")
+    for model, res in results.items():
+        if res.get("residual"):
+            lines.append(f"\n{MODEL_LABELS.get(model, model)}, residual against its base on the CV's folds: "
+                         + "; ".join(f"{out} {why}" for out, why in res["residual"].items()) + ".")
     for model, entry in (failed or {}).items():
         doc[model] = {"failed": entry}
         lines.append(f"\nFailed, not in the table: {MODEL_LABELS.get(model, model)} "

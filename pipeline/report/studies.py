@@ -230,6 +230,20 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
     return html, failed
 
 
+def residual_note(doc: dict[str, Any], outputs: Sequence[str]) -> str:
+    """Per gray box, its residual kept or dropped on each output by the CV's folds (the gray box's test R² against
+    its own base's, fold by fold); '' when no model has that verdict."""
+    lines = []
+    for model, entry in doc.items():
+        verdict = entry.get("residual") if isinstance(entry, dict) else None
+        if isinstance(verdict, dict) and verdict:
+            per_out = "; ".join(f"{OUTPUT_LABELS.get(o, o)}: {verdict[o]}" for o in outputs if o in verdict)
+            lines.append(f"<p>{H.esc(label(model))}, its residual against its base on the CV's folds: "
+                         f"{H.esc(per_out)}. Where dropped, that output is the base's prediction alone, in every "
+                         "score above and in the saved model (coupled.residual_fold_check).</p>")
+    return "".join(lines)
+
+
 def cv_against_unseen(doc: dict[str, Any], outputs: Sequence[str], trace: Any = None) -> str:
     """A warning table of the models and outputs whose unseen trial's R² lies outside their CV's fold spread (the
     CV test R²'s mean ± its SD over folds, at least ± 0.005), beside the search's own CV score (tuning R²,
@@ -393,7 +407,7 @@ def coupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = N
     failed: list[dict[str, Any]] = []
     if isinstance(t3, dict):
         html, failed = _table3(t3, outputs, marks)
-        parts.append(html)
+        parts += [html, residual_note(t3, outputs)]
         best = _best_per_output(t3, outputs, marks)
         parts.append(ranking_note(best, hyper_doc))
         parts.append(cv_against_unseen(t3, outputs, trace))

@@ -1,8 +1,8 @@
 """The coupled 3-DOF motion-model study (paper 000): tune -> blocked CV -> final check.
 
-Pure functions over DataFrames (feature-store rows): :func:`tune_stage` and :func:`train_stage` are the work of the
-stage shells ``stages/tune.py`` and ``stages/train.py``, which read and write; the tables and the figure are in
-:mod:`pipeline.report.coupled`.
+Pure functions over DataFrames (feature-store rows): :func:`tune_stage` and
+:func:`pipeline.studies.training.train_stage` are the work of the stage shells ``stages/tune.py`` and
+``stages/train.py``, which read and write; the tables and the figure are in :mod:`pipeline.report.coupled`.
 
 Models: ``rbf_svr``, ``two_weights_svr``, ``wdse_svr`` (inputs ``coupled.inputs``, by default
 ``[u v r T1 T2 T3]``, the thrusters' static thrust, where the paper has their speeds ``n1 n2 n3``; one SVR per
@@ -23,7 +23,6 @@ import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator, RegressorMixin
 
-from pipeline.config import config_hash
 from pipeline.config.params import EXPLICIT_MODELS, CoupledParams
 from pipeline.config.rigid_body import RigidBody, rigid_body_mass
 from pipeline.config.vehicle import THRUST_COLUMN
@@ -40,7 +39,7 @@ from pipeline.evaluate import (
 )
 from pipeline.models.explicit import EXPLICIT_INPUTS, GertlerHagen, McFarlandWhitcomb
 from pipeline.models.fossen import Fossen3DOF
-from pipeline.models.graybox import GrayBox, kept_outputs, residual_record, residual_verdicts
+from pipeline.models.graybox import GrayBox, kept_outputs, residual_record
 from pipeline.models.manoeuvring import Abkowitz3DOF
 from pipeline.models.search import SVR_MODELS, SearchSettings, make_svr
 from pipeline.models.search_halving import fold_subset, search_rounds
@@ -49,6 +48,7 @@ from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
 from pipeline.rounds import gather, run_inline
 from pipeline.studies.intervals import held_out_trials, interval_coverage, oof_intervals, target_sd
+from pipeline.studies.residual_check import narrow_to_verdict
 from pipeline.studies.tasks import SearchCache, fitted, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
 
@@ -56,8 +56,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["EXPLICIT_MODELS", "GRAYBOX_MODELS", "NestedTuned", "SearchCache", "noise_std_from", "rigid_body_uvr",
            "tune", "tune_local", "search_settings", "tuning_block", "tune_columns", "tune_stage",
-           "build_model", "model_inputs", "model_card",
-           "evaluate_models", "run_study", "train_columns", "train_stage"]
+           "build_model", "model_inputs", "evaluate_models", "run_study", "train_columns"]
 
 #: gray-box models: explicit base (by name) + WDSE-SVR per output on its residual (pipeline/models/graybox.py)
 GRAYBOX_MODELS = {"graybox": "mcfarland_whitcomb", "graybox_gh": "gertler_hagen", "graybox_fossen": "fossen",
@@ -421,6 +420,8 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
             _failed(model, failed, failures, on_model)
             return
         mine_specs = [s for s in specs if s["model"] == model]  # the folds' test rows: out-of-fold residuals
+        check = (narrow_to_verdict(mine_specs, mine, params.outputs)  # the residual where the folds say it helps
+                 if model in GRAYBOX_MODELS and params.residual_fold_check else {})
         folds = [r["fold"] for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == "fold"]
         final = mine[-1]
         pairs = {k: [(s["test"], r["pred"]) for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == k]
@@ -432,6 +433,8 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
                 final["final"][o]["interval_coverage"] = inside[o]
         results[model] = {"folds": folds, "summary": summarize_folds(folds), "final": final["final"],
                           "estimator": final["estimator"], "interval": interval}
+        if check:  # a gray box's residual verdict per output from the folds (model card, Table III)
+            results[model]["residual"] = check
         log.info("%s: CV test R2 %s", model, {o: round(s["test_r2"]["mean"], 4)
                                              for o, s in results[model]["summary"].items()})
         if on_model is not None:
@@ -539,61 +542,3 @@ def train_columns(params: CoupledParams, available: Collection[str]) -> list[str
     cols = ["t_ns", *sorted({c for m in params.models for c in model_inputs(m, params)} | set(params.outputs))]
     cols += [c for c in NOISE_STD_COLUMNS if c in available]  # the explicit models' errors-in-variables weights
     return cols
-
-
-def model_card(model: str, result: dict[str, Any], params: CoupledParams, *, vehicle: str,
-               hyper: dict[str, Any], data_lineage: Any, train_test: pd.DataFrame, test: pd.DataFrame
-               ) -> dict[str, Any]:
-    """The card of a fitted model (:func:`pipeline.models.card.save_model` adds versions and the file's hash)."""
-    card = {"model": model, "study": "coupled 3-DOF (paper 000)", "vehicle": vehicle,
-            "inputs": model_inputs(model, params), "outputs": params.outputs,
-            "hyperparameters": hyper.get(model, {"solver": "tls"}), "seed": params.seed,
-            "params_hash": config_hash(params), "data_lineage": data_lineage,
-            "trained_on": {"split": "train_test", "rows": len(train_test),
-                           "trials": sorted(train_test["trial"].unique())},
-            "scores": {"cv": result["summary"], "final_check": result["final"],
-                       "final_check_trials": sorted(test["trial"].unique())},
-            "interval": result.get("interval")}  # per output; its coverage of the test trials in final_check
-    if model not in EXPLICIT_MODELS:  # each SVR fitted on at most this many of the rows (evenly spaced in time)
-        card["trained_on"]["svr_max_rows"] = params.svr_max_rows
-    estimator = result["estimator"]
-    if model in GRAYBOX_MODELS:  # per output: its residual kept or dropped, and the CV R² that decided
-        card["residual"] = residual_verdicts(hyper[model], params.outputs, params.residual_min_cv_r2)
-    if hasattr(estimator, "coefficients"):
-        card["coefficients"] = estimator.coefficients()
-    if getattr(estimator, "coefficient_intervals_", None):  # fossen and its gray box: block-bootstrap intervals
-        card["coefficient_intervals"] = estimator.coefficient_intervals_
-    if hasattr(estimator, "selected_terms_"):  # fossen: the backward elimination's rounds
-        card["term_selection"] = estimator.selection_record(params.outputs)
-    if getattr(estimator, "refine", False):  # coupled.explicit_refine
-        cost = estimator.refine_cost_
-        card["refinement"] = {"refined": bool(estimator.refined_),
-                              "free_run_cost": None if cost is None else {"wtls": cost[0], "refined": cost[1]},
-                              "horizon_s": params.refine_horizon_s}
-    return card
-
-
-def train_stage(train_test: pd.DataFrame, test: pd.DataFrame, tuning_keys: pd.DataFrame,
-                hyper: dict[str, dict[str, Any]], params: CoupledParams, *, vehicle: str, data_lineage: Any,
-                failures: dict[str, dict[str, str]],
-                on_model: Callable[[str, dict[str, Any] | None, dict[str, Any] | None], None] | None = None,
-                progress: Callable[..., Any] | None = None, rigid_body_mass: np.ndarray | None = None
-                ) -> dict[str, Any]:
-    """The train stage's work: :func:`evaluate_models` with the tuned ``hyper``, the nested folds' searches through
-    one :class:`SearchCache` for the run. A model that fails is recorded in ``failures`` and the others go on;
-    ``on_model(model, result, card)`` as each model finishes (its :func:`model_card`), ``(model, None, None)`` as
-    one fails, so the stage writes it at once. Returns the results; a ModelError when every model failed."""
-
-    def finished(model: str, res: dict[str, Any] | None) -> None:
-        if on_model is not None:
-            card = None if res is None else model_card(model, res, params, vehicle=vehicle, hyper=hyper,
-                                                       data_lineage=data_lineage, train_test=train_test, test=test)
-            on_model(model, res, card)
-
-    results = evaluate_models(train_test, test, hyper, params, tuning_keys=tuning_keys[["trial", "t_ns"]],
-                              n_jobs=params.n_jobs, failures=failures, on_model=finished, progress=progress,
-                              cache=SearchCache(), rigid_body_mass=rigid_body_mass)
-    if not results:
-        raise ModelError("every coupled model failed: " + "; ".join(f"{m}: {e['reason']}"
-                                                                   for m, e in failures.items()))
-    return results

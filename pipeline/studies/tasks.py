@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from sklearn.base import clone
 
-from pipeline.evaluate import MODEL_FAILURES, fit_fold, model_failure, regression_scores
+from pipeline.evaluate import MODEL_FAILURES, base_predictor, fit_fold, model_failure, regression_scores
 from pipeline.models.search import Rounds, SearchResult, SearchSettings
 from pipeline.models.search_halving import search_rounds
 from pipeline.rounds import drive, run_inline
@@ -170,7 +170,8 @@ def train_tasks(jobs_spec: Sequence[dict[str, Any]], jobs: int,
     ...}`` (a fold, or a fit without whole trials: ``train`` / ``test`` row indices and ``fold``; the final fit:
     ``X_test`` / ``y_test`` or None).
     Returns per task in order ``{"fold": scores, "pred"}`` / ``{"pred"}`` / ``{"estimator", "final", "pred"}``
-    (``pred``: the predictions of the fold's or the held-out trials' rows / of ``X_test``), or ``{"failed":
+    (``pred``: the predictions of the fold's or the held-out trials' rows / of ``X_test``; a gray box's also
+    ``base``: its base's ``pred`` alone, and a fold's base ``scores``), or ``{"failed":
     entry}`` when the model raised one of :data:`~pipeline.evaluate.MODEL_FAILURES` (:func:`model_failure`'s entry).
     ``on_task(index, result)`` as each task ends (completion order). Each is a coroutine of
     :mod:`pipeline.rounds`: a fold whose estimator searches its own hyperparameters (``tune_rounds``, the nested
@@ -241,19 +242,34 @@ def _run_train_task(spec: dict[str, Any]) -> dict[str, Any]:
     try:
         if spec["kind"] == "trial":  # a fit without whole trials: only its held-out rows' predictions (interval)
             est = clone(spec["estimator"]).fit(X[spec["train"]], y[spec["train"]])
-            return {"pred": np.asarray(est.predict(X[spec["test"]]), dtype=float).reshape(len(spec["test"]), -1)}
+            return {"pred": _rows(est.predict(X[spec["test"]]), len(spec["test"])),
+                    **_base(est, X[spec["test"]], len(spec["test"]))}
         if spec["kind"] == "fold":  # its test block's predictions calibrate the conformal interval
             scores = fit_fold(spec["estimator"], X, y, spec["train"], spec["test"], spec["outputs"], predictions=True,
                               fitted=spec.get("fitted"))
             pred = scores.pop("test_pred")
-            return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred}
+            base = scores.pop("base", None)
+            return {"fold": {**scores, "fold": spec["fold"]}, "pred": pred,
+                    **({} if base is None else {"base": {"scores": base, "pred": base["test_pred"]}})}
         est = spec["estimator"] if spec.get("final_fitted") else spec["estimator"].fit(X, y)
         if hasattr(est, "fit_intervals") and not spec.get("intervals_fitted"):  # block-bootstrap intervals (card)
             est.fit_intervals(X, y)
-        final = pred = None
-        if spec["X_test"] is not None:
-            pred = est.predict(np.ascontiguousarray(spec["X_test"], dtype=float))
-            final = regression_scores(np.ascontiguousarray(spec["y_test"], dtype=float), pred, spec["outputs"])
-        return {"estimator": est, "final": final, "pred": pred}
+        if spec["X_test"] is None:
+            return {"estimator": est, "final": None, "pred": None}
+        X_test = np.ascontiguousarray(spec["X_test"], dtype=float)
+        pred = est.predict(X_test)
+        final = regression_scores(np.ascontiguousarray(spec["y_test"], dtype=float), pred, spec["outputs"])
+        return {"estimator": est, "final": final, "pred": pred, **_base(est, X_test, len(X_test))}
     except MODEL_FAILURES as err:
         return {"failed": model_failure(spec["model"], err)}
+
+
+def _rows(pred: Any, n: int) -> np.ndarray:
+    return np.asarray(pred, dtype=float).reshape(n, -1)
+
+
+def _base(estimator: Any, X: np.ndarray, n: int) -> dict[str, Any]:
+    """``{"base": {"pred": ...}}``: a fitted gray box's base alone on ``X`` (the paired verdict's, which puts it in
+    place of the gray box on an output whose residual it drops); {} for other models."""
+    base = base_predictor(estimator)
+    return {} if base is None else {"base": {"pred": _rows(base(X), n)}}

@@ -182,7 +182,8 @@ def test_coupled_study_builds_fits_and_saves_fossen_and_its_gray_box(tmp_path):
     from pipeline.models.card import load_model, save_model
     from pipeline.models.graybox import GrayBox
     from pipeline.sim.synthetic import synthetic_frame
-    from pipeline.studies.coupled import build_model, model_card, model_inputs
+    from pipeline.studies.coupled import build_model, model_inputs
+    from pipeline.studies.training import model_card
 
     params = CoupledParams(models=["fossen", "graybox_fossen"], inputs=["u_mps", "v_mps", "r_radps"])
     train = synthetic_frame(1500, rate_hz=4, seed=2, split="train_test")

@@ -224,3 +224,91 @@ def test_nested_folds_apply_the_rule_to_their_own_search():
     assert all(fold.hyperparameters_[o]["residual_cv_r2"] == own[o] for o in params.outputs)
     se = {o: fold.hyperparameters_[o]["residual_cv_se"] for o in params.outputs}
     assert fold.estimator_.kept_outputs_ == [k for k, o in enumerate(params.outputs) if own[o] - se[o] > 0], own
+
+
+# -- the second verdict: the gray box against its own base on the train stage's CV folds -------------------------
+
+def test_paired_verdict_keeps_a_residual_only_above_its_standard_error_and_drops_ties():
+    """Kept where the folds' mean gain is above 0 by more than its SE; one fold keeping its residual, (a, 0, 0, 0,
+    0), has mean = SE = a / 5 exactly and is dropped whatever the rounding; a loss or a noisy gain is dropped."""
+    from pipeline.models.graybox import paired_verdict
+
+    assert paired_verdict([0.02, 0.03, 0.01])[0]
+    assert paired_verdict([0.004, 0.004, 0.004, 0.004])[0]  # no spread: any gain is above its SE of 0
+    for a in (0.1, 0.0123, 0.040682184936093595, 0.030371125210782276):  # the last two round to mean > SE
+        for n in (3, 4, 5):
+            assert not paired_verdict([a] + [0.0] * (n - 1))[0], (a, n)
+            assert not paired_verdict([0.0] * (n - 1) + [a])[0], (a, n)
+    assert not paired_verdict([0.0, 0.0, 0.0])[0]
+    assert not paired_verdict([-0.01, -0.02, -0.005])[0]
+    keep, why = paired_verdict([0.03, -0.02, 0.01])  # mean 0.0067, SE 0.0145
+    assert not keep and why == ("dropped (gray box − base, fold test R² +0.0067 ± 0.0145 over 3 folds: not above 0 "
+                                "by 1 SE)")
+    with pytest.raises(ValueError, match="two or more"):
+        paired_verdict([0.1])
+
+
+def _study(tuning_rows, train, test, **kw):
+    """The train stage's CV and final check of the gray box and its base McFarland-Whitcomb, tuned as the study
+    tunes them, with the tune stage's verdict off (every residual fitted)."""
+    from pipeline.studies.coupled import evaluate_models
+
+    params = CoupledParams(models=["graybox", "mcfarland_whitcomb"], max_evals=8, tuning_folds=3, fold_evals=3,
+                           folds=4, residual_min_cv_r2=None, **kw)
+    nested = params.tuning == "nested"
+    hyper, _ = tune(train if nested else tuning_rows, params, split="train_test" if nested else "tuning")
+    return params, evaluate_models(train, test, hyper, params, tuning_keys=tuning_rows[["trial", "t_ns"]])
+
+
+@pytest.mark.parametrize("tuning", ["split", "nested"])
+def test_the_folds_drop_a_residual_of_white_noise_and_every_score_and_the_model_are_the_base(tuning):
+    """Truth exactly in the base's family plus white noise, every residual fitted (the tune stage's verdict off): on
+    the CV's folds the gray box does not beat its base by one SE on any output, so every residual is dropped, and
+    then the saved gray box predicts bit for bit what its base does, and its fold scores, final check and interval
+    are the base's. With the check off the residuals stay and the gray box is not its base."""
+    tuning_rows, train, test = _in_family_frame(extra=0.0)
+    params, out = _study(tuning_rows, train, test, tuning=tuning)
+    gray, base = out["graybox"], out["mcfarland_whitcomb"]
+    assert set(gray["residual"]) == set(params.outputs)
+    assert all(why.startswith("dropped (gray box − base, fold test R² ") for why in gray["residual"].values()), gray
+    assert gray["estimator"].kept_outputs_ == [] and gray["estimator"].residual_ is None
+    X = test[model_inputs("graybox", params)].to_numpy(float)
+    np.testing.assert_array_equal(gray["estimator"].predict(X), gray["estimator"].base_predict(X))
+    np.testing.assert_allclose(gray["estimator"].predict(X), base["estimator"].predict(X[:, :6]), rtol=1e-9)
+
+    def scores(result, split):  # (the standalone base's fit on 6 columns rounds apart from the gray box's)
+        return [[f[split][o][k] for o in params.outputs for k in ("r2", "mae")] for f in result["folds"]]
+
+    for split in ("train", "test"):
+        np.testing.assert_allclose(scores(gray, split), scores(base, split), rtol=1e-9)
+    np.testing.assert_allclose([gray["final"][o]["r2"] for o in params.outputs],
+                               [base["final"][o]["r2"] for o in params.outputs], rtol=1e-9)
+    assert all(gray["interval"][o]["half_width"] == pytest.approx(base["interval"][o]["half_width"], rel=1e-9)
+               for o in params.outputs)
+
+    params, out = _study(tuning_rows, train, test, tuning=tuning, residual_fold_check=False)
+    assert "residual" not in out["graybox"] and out["graybox"]["estimator"].kept_outputs_ == [0, 1, 2]
+    assert out["graybox"]["final"] != out["mcfarland_whitcomb"]["final"]
+
+
+def test_the_folds_keep_a_residual_that_beats_the_base_and_narrow_the_rest():
+    """The same truth plus a smooth term in u on udot: the folds keep udot's residual (the gray box beats its base
+    there in every fold) and drop the two others; the saved model keeps udot's residual SVR as fitted, predicts
+    the base's exact values on vdot and rdot, and its final check is what that narrowed model scores."""
+    tuning_rows, train, test = _in_family_frame(extra=1.0)
+    params, out = _study(tuning_rows, train, test, tuning="split")
+    gray, base = out["graybox"], out["mcfarland_whitcomb"]
+    assert gray["residual"]["udot_mps2"].startswith("kept"), gray["residual"]
+    assert [why.startswith("dropped") for why in gray["residual"].values()] == [False, True, True]
+    est = gray["estimator"]
+    assert est.kept_outputs_ == [0] and est.residual_outputs == (0,) and len(est.residual_.estimators_) == 1
+    X = test[model_inputs("graybox", params)].to_numpy(float)
+    pred = est.predict(X)
+    np.testing.assert_array_equal(pred[:, 1:], est.base_predict(X)[:, 1:])
+    y = test[params.outputs].to_numpy(float)
+    assert gray["final"]["udot_mps2"]["r2"] == regression_scores(y, pred, params.outputs)["udot_mps2"]["r2"]
+    assert gray["final"]["udot_mps2"]["r2"] > base["final"]["udot_mps2"]["r2"] + 0.1
+    assert all(f["test"]["udot_mps2"]["r2"] > fb["test"]["udot_mps2"]["r2"]
+               for f, fb in zip(gray["folds"], base["folds"], strict=True))
+    fast = est.fast_predictor()
+    np.testing.assert_allclose(fast(X), pred, rtol=0, atol=1e-12)
