@@ -397,8 +397,8 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
         for m, verdicts in (r.get("residual") or {}).items():
             print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
         for m, verdicts in (r.get("residual_fold_check") or {}).items():
-            print(f"seed {r['seed']} {m} residual on the CV's folds: "
-                  + "; ".join(f"{o} {verdicts[o]}" for o in OUTPUTS if o in verdicts))
+            print(f"seed {r['seed']} {m} against its base on the CV's folds: "
+                  + "; ".join(f"{o} {verdicts[o]['verdict']}" for o in OUTPUTS if o in verdicts))
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial's MEASURED targets inside each model's 90 % interval "
               "(the method: the wider of the blocked CV's and the held-out trials' quantiles, its spread growing "

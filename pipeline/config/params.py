@@ -298,11 +298,11 @@ class CoupledParams(Frozen):
         "the explicit base alone. The nested CV's folds apply it to their own search's score. null: always kept "
         "(docs/models.md, 'Gray box').", le=1.0)
     residual_fold_check: bool = Field(
-        True, description="Gray-box models: after the train stage's CV, per output, the residual is kept only "
-        "where the gray box beat its own base on the CV's folds: the mean of the folds' test R² differences above "
-        "0 by more than its standard error (a tie dropped). Elsewhere the saved model, its CV and final-check "
-        "scores and its interval are the base's. false: the tune stage's verdict alone (docs/models.md, "
-        "'Gray box').")
+        False, description="Gray-box models: the train stage's CV always compares each fold's gray box with its own "
+        "base (card, Table III). true: per output, the residual is then kept only where that comparison says it "
+        "helps: the folds' mean test-R² gain above 0 by more than its standard error (a tie dropped); elsewhere "
+        "the saved model, its CV and final-check scores and its interval are the base's (docs/models.md, 'Gray "
+        "box': how it was measured, and why it is off by default).")
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")

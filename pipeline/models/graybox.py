@@ -82,18 +82,16 @@ def kept_outputs(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], thres
 
 
 def paired_verdict(differences: Sequence[float]) -> tuple[bool, str]:
-    """Whether a CV's folds say the residual helps on an output, and why: ``differences`` the folds' test R² of
-    the gray box minus its base's (the base fitted inside that fold's gray box). Kept where their mean is above 0
-    by more than its standard error over the folds. A tie is dropped: with one fold keeping its residual and the
-    others dropping it, (a, 0, 0, 0, 0), the mean equals the SE, a / 5, and only rounding would decide."""
+    """Whether a CV's folds say the residual helps on an output, and their score: ``differences`` the folds' test
+    R² of the gray box minus its base's (the base fitted inside that fold's gray box). It helps where their mean is
+    above 0 by more than its standard error over the folds. A tie does not: with one fold keeping its residual and
+    the others dropping it, (a, 0, 0, 0, 0), the mean equals the SE, a / 5, and only rounding would decide."""
     d = np.asarray(differences, dtype=float)
     if d.size < 2 or not np.all(np.isfinite(d)):
         raise ValueError(f"a paired verdict needs two or more finite fold scores, got {d.tolist()}")
     mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size))
-    score = f"gray box − base, fold test R² {mean:+.4f} ± {se:.4f} over {d.size} folds"
-    if mean > 0 and mean - se > 1e-9 * (abs(mean) + se):
-        return True, f"kept ({score})"
-    return False, f"dropped ({score}: not above 0 by 1 SE)"
+    score = f"gray box − base, fold test R² {mean:+.2g} ± {se:.2g} over {d.size} folds"
+    return bool(mean > 0 and mean - se > 1e-9 * (abs(mean) + se)), score
 
 
 class GrayBox(RegressorMixin, BaseEstimator):

@@ -231,16 +231,18 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
 
 
 def residual_note(doc: dict[str, Any], outputs: Sequence[str]) -> str:
-    """Per gray box, its residual kept or dropped on each output by the CV's folds (the gray box's test R² against
-    its own base's, fold by fold); '' when no model has that verdict."""
+    """Per gray box, its test R² against its own base's on the CV's folds, per output, with the verdict where
+    ``coupled.residual_fold_check`` drew one; '' when no model has that comparison."""
     lines = []
     for model, entry in doc.items():
-        verdict = entry.get("residual") if isinstance(entry, dict) else None
-        if isinstance(verdict, dict) and verdict:
-            per_out = "; ".join(f"{OUTPUT_LABELS.get(o, o)}: {verdict[o]}" for o in outputs if o in verdict)
-            lines.append(f"<p>{H.esc(label(model))}, its residual against its base on the CV's folds: "
-                         f"{H.esc(per_out)}. Where dropped, that output is the base's prediction alone, in every "
-                         "score above and in the saved model (coupled.residual_fold_check).</p>")
+        record = entry.get("residual") if isinstance(entry, dict) else None
+        if isinstance(record, dict) and record:
+            per_out = "; ".join(f"{OUTPUT_LABELS.get(o, o)}: {(record[o] or {}).get('verdict')}"
+                                for o in outputs if o in record)
+            dropped = any(str((record[o] or {}).get("verdict", "")).startswith("dropped") for o in record)
+            lines.append(f"<p>{H.esc(label(model))} against its own base on the CV's folds: {H.esc(per_out)}."
+                         + (" Where dropped, that output is the base's prediction alone, in every score above and "
+                            "in the saved model (coupled.residual_fold_check)." if dropped else "") + "</p>")
     return "".join(lines)
 
 

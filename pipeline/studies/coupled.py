@@ -48,7 +48,7 @@ from pipeline.parallel import workers
 from pipeline.rollout import grid_step_s
 from pipeline.rounds import gather, run_inline
 from pipeline.studies.intervals import held_out_trials, interval_coverage, oof_intervals, target_sd
-from pipeline.studies.residual_check import narrow_to_verdict
+from pipeline.studies.residual_check import fold_check
 from pipeline.studies.tasks import SearchCache, fitted, train_tasks, tune_chains
 from pipeline.vocabulary import NOISE_STD_COLUMNS
 
@@ -420,8 +420,8 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
             _failed(model, failed, failures, on_model)
             return
         mine_specs = [s for s in specs if s["model"] == model]  # the folds' test rows: out-of-fold residuals
-        check = (narrow_to_verdict(mine_specs, mine, params.outputs)  # the residual where the folds say it helps
-                 if model in GRAYBOX_MODELS and params.residual_fold_check else {})
+        check = (fold_check(mine_specs, mine, params.outputs, narrow=params.residual_fold_check)  # against its base
+                 if model in GRAYBOX_MODELS else {})
         folds = [r["fold"] for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == "fold"]
         final = mine[-1]
         pairs = {k: [(s["test"], r["pred"]) for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == k]
@@ -433,7 +433,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
                 final["final"][o]["interval_coverage"] = inside[o]
         results[model] = {"folds": folds, "summary": summarize_folds(folds), "final": final["final"],
                           "estimator": final["estimator"], "interval": interval}
-        if check:  # a gray box's residual verdict per output from the folds (model card, Table III)
+        if check:  # a gray box against its base on the folds, per output (model card, Table III)
             results[model]["residual"] = check
         log.info("%s: CV test R2 %s", model, {o: round(s["test_r2"]["mean"], 4)
                                              for o, s in results[model]["summary"].items()})

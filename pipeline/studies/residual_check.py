@@ -1,5 +1,6 @@
-"""The gray box's second verdict, drawn from the train stage's CV: per output, its residual stays only where the
-gray box beat its own base on the CV's folds (:func:`pipeline.models.graybox.paired_verdict`).
+"""The gray box against its own base on the train stage's CV folds, per output: recorded always, and with
+``coupled.residual_fold_check`` a second verdict, the residual kept only where the gray box beat its base there
+(:func:`pipeline.models.graybox.paired_verdict`).
 
 The tune stage's verdict judges the residual search's CV on the residual target; this one judges what a user gets,
 the whole gray box against the base it is built on, fold by fold on the same rows. Where it drops an output, that
@@ -20,24 +21,30 @@ import numpy as np
 from pipeline.evaluate import regression_scores
 from pipeline.models.graybox import paired_verdict
 
-__all__ = ["narrow_to_verdict"]
+__all__ = ["fold_check"]
 
 
-def narrow_to_verdict(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]], outputs: Sequence[str]
-                      ) -> dict[str, str]:
-    """Apply the paired verdict to one gray box's train tasks (``specs`` and their ``results`` in order, the final
-    fit last; each result with its base's predictions, ``base``), in place. Returns per output the verdict's words;
-    {} where fewer than two folds ran (no verdict: the tune stage's stands)."""
+def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]], outputs: Sequence[str], *,
+               narrow: bool) -> dict[str, dict[str, Any]]:
+    """The gray box against its base on the CV's folds, per output: ``{"verdict": words, "differences": the folds'
+    test R² differences}``, from one gray box's train tasks (``specs`` and their ``results`` in order, the final
+    fit last; each result with its base's predictions, ``base``). With ``narrow`` the residual stays only where the
+    folds say it helps (:func:`paired_verdict`), applied to the results in place; without, the comparison is only
+    recorded. {} where fewer than two folds ran (no comparison: the tune stage's verdict stands)."""
     folds = [r for s, r in zip(specs, results, strict=True) if s["kind"] == "fold"]
     final = results[-1]
     if len(folds) < 2:
         return {}
-    verdicts, base_only = {}, []
+    record, base_only = {}, []
     for k, out in enumerate(outputs):
-        keep, verdicts[out] = paired_verdict([f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"]
-                                              for f in folds])
-        if not (keep and k in final["estimator"].kept_outputs_):
+        differences = [f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"] for f in folds]
+        helps, score = paired_verdict(differences)
+        verdict = score if not narrow else f"kept ({score})" if helps else f"dropped ({score}: not above 0 by 1 SE)"
+        record[out] = {"verdict": verdict, "differences": differences}
+        if narrow and not (helps and k in final["estimator"].kept_outputs_):
             base_only.append(k)
+    if not narrow:
+        return record
     for spec, res in zip(specs, results, strict=True):
         if spec["kind"] == "fold":
             for k in base_only:
@@ -49,4 +56,4 @@ def narrow_to_verdict(specs: Sequence[dict[str, Any]], results: Sequence[dict[st
     final["estimator"] = final["estimator"].narrowed([k for k in range(len(outputs)) if k not in base_only])
     if final["final"] is not None:
         final["final"] = regression_scores(np.asarray(specs[-1]["y_test"], dtype=float), final["pred"], outputs)
-    return verdicts
+    return record

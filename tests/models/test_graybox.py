@@ -241,9 +241,8 @@ def test_paired_verdict_keeps_a_residual_only_above_its_standard_error_and_drops
             assert not paired_verdict([0.0] * (n - 1) + [a])[0], (a, n)
     assert not paired_verdict([0.0, 0.0, 0.0])[0]
     assert not paired_verdict([-0.01, -0.02, -0.005])[0]
-    keep, why = paired_verdict([0.03, -0.02, 0.01])  # mean 0.0067, SE 0.0145
-    assert not keep and why == ("dropped (gray box − base, fold test R² +0.0067 ± 0.0145 over 3 folds: not above 0 "
-                                "by 1 SE)")
+    helps, score = paired_verdict([0.03, -0.02, 0.01])  # mean 0.0067, SE 0.0145
+    assert not helps and score == "gray box − base, fold test R² +0.0067 ± 0.015 over 3 folds"
     with pytest.raises(ValueError, match="two or more"):
         paired_verdict([0.1])
 
@@ -254,7 +253,7 @@ def _study(tuning_rows, train, test, **kw):
     from pipeline.studies.coupled import evaluate_models
 
     params = CoupledParams(models=["graybox", "mcfarland_whitcomb"], max_evals=8, tuning_folds=3, fold_evals=3,
-                           folds=4, residual_min_cv_r2=None, **kw)
+                           folds=4, residual_min_cv_r2=None, **{"residual_fold_check": True, **kw})
     nested = params.tuning == "nested"
     hyper, _ = tune(train if nested else tuning_rows, params, split="train_test" if nested else "tuning")
     return params, evaluate_models(train, test, hyper, params, tuning_keys=tuning_rows[["trial", "t_ns"]])
@@ -270,7 +269,8 @@ def test_the_folds_drop_a_residual_of_white_noise_and_every_score_and_the_model_
     params, out = _study(tuning_rows, train, test, tuning=tuning)
     gray, base = out["graybox"], out["mcfarland_whitcomb"]
     assert set(gray["residual"]) == set(params.outputs)
-    assert all(why.startswith("dropped (gray box − base, fold test R² ") for why in gray["residual"].values()), gray
+    assert all(rec["verdict"].startswith("dropped (gray box − base, fold test R² ") and len(rec["differences"]) == 4
+               for rec in gray["residual"].values()), gray["residual"]
     assert gray["estimator"].kept_outputs_ == [] and gray["estimator"].residual_ is None
     X = test[model_inputs("graybox", params)].to_numpy(float)
     np.testing.assert_array_equal(gray["estimator"].predict(X), gray["estimator"].base_predict(X))
@@ -286,9 +286,12 @@ def test_the_folds_drop_a_residual_of_white_noise_and_every_score_and_the_model_
     assert all(gray["interval"][o]["half_width"] == pytest.approx(base["interval"][o]["half_width"], rel=1e-9)
                for o in params.outputs)
 
-    params, out = _study(tuning_rows, train, test, tuning=tuning, residual_fold_check=False)
-    assert "residual" not in out["graybox"] and out["graybox"]["estimator"].kept_outputs_ == [0, 1, 2]
-    assert out["graybox"]["final"] != out["mcfarland_whitcomb"]["final"]
+    params, off = _study(tuning_rows, train, test, tuning=tuning, residual_fold_check=False)
+    assert off["graybox"]["estimator"].kept_outputs_ == [0, 1, 2]  # recorded, not applied
+    assert off["graybox"]["final"] != off["mcfarland_whitcomb"]["final"]
+    assert {o: r["verdict"] for o, r in off["graybox"]["residual"].items()} == {
+        o: r["verdict"].removeprefix("dropped (").removesuffix(": not above 0 by 1 SE)")
+        for o, r in gray["residual"].items()}
 
 
 def test_the_folds_keep_a_residual_that_beats_the_base_and_narrow_the_rest():
@@ -298,8 +301,8 @@ def test_the_folds_keep_a_residual_that_beats_the_base_and_narrow_the_rest():
     tuning_rows, train, test = _in_family_frame(extra=1.0)
     params, out = _study(tuning_rows, train, test, tuning="split")
     gray, base = out["graybox"], out["mcfarland_whitcomb"]
-    assert gray["residual"]["udot_mps2"].startswith("kept"), gray["residual"]
-    assert [why.startswith("dropped") for why in gray["residual"].values()] == [False, True, True]
+    verdicts = [rec["verdict"] for rec in gray["residual"].values()]
+    assert [v.split(" ")[0] for v in verdicts] == ["kept", "dropped", "dropped"], verdicts
     est = gray["estimator"]
     assert est.kept_outputs_ == [0] and est.residual_outputs == (0,) and len(est.residual_.estimators_) == 1
     X = test[model_inputs("graybox", params)].to_numpy(float)
