@@ -443,6 +443,17 @@ def coupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = N
 
 # --------------------------------------------------------------------------------------- paper 001 (decoupled)
 
+def slowest_candidate(cost: Any) -> str | None:
+    """'31× the median (C 1e+03, ε 0.01, γ 30)': a grid search's slowest candidate (timings.json's ``search``)."""
+    slowest = (cost or {}).get("slowest") if isinstance(cost, dict) else None
+    if not slowest or not isinstance(slowest[0].get("ratio"), (int, float)):
+        return None
+    names = {"epsilon": "ε", "gamma": "γ", "alpha": "α"}
+    params = ", ".join(f"{names.get(k, k)} {v:.3g}" if isinstance(v, float) else f"{names.get(k, k)} {v}"
+                       for k, v in sorted(slowest[0]["params"].items()))
+    return f"{slowest[0]['ratio']:.0f}× the median ({params})"
+
+
 def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None = None) -> Part:
     part = Part()
     used = part.used
@@ -471,6 +482,7 @@ def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None =
                          "CV test R² (mean ± sd)": H.mean_sd(cv.get("test_r2_mean"), cv.get("test_r2_sd")),
                          "CV train MAE": cv.get("train_mae_mean"),
                          "fit time [ms]": 1e3 * t["fit_time_s"] if isinstance(t.get("fit_time_s"), float) else None,
+                         "search's slowest fit": slowest_candidate(t.get("search")),
                          "verdict": verdicts.verdict(verdicts.damping_train_failed(r), marks, model, dof)})
             bad = verdicts.damping_train_failed(r) or verdicts.failures(marks, model, dof)
             if bad:
@@ -488,6 +500,7 @@ def decoupled(root: Path, figs: dict[str, bytes], marks: verdicts.Marks | None =
             part.headline.append({"dof": dof, "model": best[0], "mae": best[1], "ls": ls, "unit": unit})
     parts = [H.table(rows, caption="Table I — the damping study (paper 001): per DOF, each model's search result "
                                    "and its blocked-CV scores on the train_test rows; MAE of the damping d_i(ν_i); "
+                                   "the search's slowest fit: its slowest grid candidate against its median one; "
                                    "verdict: train R² below 0, a free run that failed on the DOF (left out of "
                                    "“best”) or a 2σ band outside 90–98 % coverage")]
     parts += [f"<p class='box'>{H.esc(line)}</p>" for line in part.buoyancy]

@@ -70,6 +70,8 @@ TAKES_SD = ("gp",)
 #: The models from the costliest unit (search, CV, final fit) to the cheapest on the fast grids (docs/benchmarks.md,
 #: "The decoupled study's units, costliest first"): the order their units go to the workers.
 COST_ORDER = ("svr", "gp", "krr", "mlp", "ls")
+#: The log names a grid search whose slowest candidate's fit takes more than this many times its median one.
+SLOW_CANDIDATE_RATIO = 20.0
 
 
 def dof_columns(dof: str) -> tuple[str, str]:
@@ -147,6 +149,8 @@ class ModelResult:
     interval: dict[str, Any] = field(default_factory=dict)
     #: on the unseen test rows (:func:`unseen_scores`); {} without test rows
     test: dict[str, Any] = field(default_factory=dict)
+    #: what the grid search's candidates cost (:func:`grid_cost`; wall-clock, so in timings.json); {} without a grid
+    search_cost: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"dof": self.dof, "model": self.model, "best_params": self.best_params,
@@ -182,7 +186,8 @@ class StudyResult:
         return out
 
     def timings(self) -> dict[str, Any]:
-        return {f"{r.dof}/{r.model}": {"fit_time_s": r.fit_time_s, "predict_time_s": r.predict_time_s}
+        return {f"{r.dof}/{r.model}": {"fit_time_s": r.fit_time_s, "predict_time_s": r.predict_time_s,
+                                       **({"search": r.search_cost} if r.search_cost else {})}
                 for r in self.results}
 
 
@@ -201,9 +206,10 @@ def _fit_params(name: str, sd: np.ndarray | None) -> dict[str, Any] | None:
 
 def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, list[Any]] = "fast", folds: int = 5,
          seed: int = 0, gp_max_samples: int = 500, gp_warp: str = "signed_square", sd: np.ndarray | None = None,
-         intercept: bool = False) -> tuple[BaseEstimator, dict[str, Any], float]:
-    """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE)``;
-    ``intercept``: the ``ls`` model with a constant."""
+         intercept: bool = False) -> tuple[BaseEstimator, dict[str, Any], float, dict[str, Any]]:
+    """Best hyperparameters on the tuning data: ``(unfitted estimator, params in paper names, CV MAE, what the
+    grid's candidates cost)`` (:func:`grid_cost`; {} for a model without a grid); ``intercept``: the ``ls`` model
+    with a constant."""
     estimator = make_estimator(name, seed=seed, gp_max_samples=gp_max_samples, gp_warp=gp_warp, intercept=intercept)
     grid = param_grid(name, search)
     cv = KFold(n_splits=folds, shuffle=False)
@@ -213,10 +219,24 @@ def tune(name: str, X: np.ndarray, y: np.ndarray, *, search: str | dict[str, lis
         if not grid:
             scores = cross_validate(estimator, X, y, cv=cv, scoring="neg_mean_absolute_error",
                                     params=_fit_params(name, sd))["test_score"]
-            return estimator, {}, float(-scores.mean())
+            return estimator, {}, float(-scores.mean()), {}
         gs = GridSearchCV(estimator, grid, scoring="neg_mean_absolute_error", cv=cv, refit=False, n_jobs=1)
         gs.fit(X, y)
-    return clone(estimator).set_params(**gs.best_params_), paper_names(name, gs.best_params_), float(-gs.best_score_)
+    return (clone(estimator).set_params(**gs.best_params_), paper_names(name, gs.best_params_),
+            float(-gs.best_score_), grid_cost(name, gs.cv_results_, folds))
+
+
+def grid_cost(name: str, cv_results: dict[str, Any], folds: int, n_slowest: int = 3) -> dict[str, Any]:
+    """What a grid search's candidates cost, from ``GridSearchCV.cv_results_``: their number, the search's fit
+    seconds in all, a candidate's median fit (one fold's), and its ``n_slowest`` candidates (paper names) with
+    their fit and its ratio to the median, slowest first. The paper's grids hold C up to 1e4 beside small epsilons,
+    and libsvm's cost grows with C: this says how far the slowest candidates stand from the rest."""
+    fit = np.asarray(cv_results["mean_fit_time"], dtype=float)
+    median = float(np.median(fit))
+    slowest = np.argsort(-fit, kind="stable")[:n_slowest]
+    return {"candidates": int(fit.size), "fit_s": float(fit.sum() * folds), "median_fit_s": median,
+            "slowest": [{"params": paper_names(name, cv_results["params"][i]), "fit_s": float(fit[i]),
+                         "ratio": float(fit[i] / median) if median > 0 else None} for i in slowest]}
 
 
 def evaluate(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, *, folds: int = 5, curve_points: int = 5,
@@ -442,15 +462,18 @@ def _study_one(dof: str, name: str, X_tune: np.ndarray, y_tune: np.ndarray, sd_t
                curve_points: int, intercept: bool = False) -> ModelResult:
     model_search = search.get(name, "fast") if isinstance(search, dict) else search
     t0 = time.perf_counter()
-    est, best, score = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
-                            gp_max_samples=gp_max_samples, gp_warp=gp_warp, sd=sd_tune, intercept=intercept)
+    est, best, score, cost = tune(name, X_tune, y_tune, search=model_search, folds=folds, seed=seed,
+                                  gp_max_samples=gp_max_samples, gp_warp=gp_warp, sd=sd_tune, intercept=intercept)
     cv, curve, fit_s, pred_s, interval = evaluate(est, X, y, folds=folds, curve_points=curve_points, sd=sd,
                                                   name=name)
     with _quiet():
         final = clone(est).fit(X, y, **(_fit_params(name, sd) or {}))
     log.info("%s/%s: search MAE %.3f, CV test MAE %.3f, %.0f %% interval +-%.3g (%.1f s)", dof, name, score,
              cv["test_mae_mean"], 100 * interval["level"], interval["half_width"], time.perf_counter() - t0)
-    return ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final, interval)
+    if cost and (cost["slowest"][0]["ratio"] or 0.0) > SLOW_CANDIDATE_RATIO:
+        log.info("%s/%s: the search's slowest candidate %s took %.0fx its median fit (%.3g s a fold)", dof, name,
+                 cost["slowest"][0]["params"], cost["slowest"][0]["ratio"], cost["slowest"][0]["fit_s"])
+    return ModelResult(dof, name, best, score, cv, curve, fit_s, pred_s, final, interval, search_cost=cost)
 
 
 def damping_curves(study: StudyResult, ranges: dict[str, tuple[float, float]], n_points: int = 101

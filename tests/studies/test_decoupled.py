@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import pickle
 
 import numpy as np
@@ -219,3 +220,33 @@ def test_costliest_units_go_to_the_workers_first_and_results_keep_the_study_orde
                     gp_max_samples=60, max_samples=300, curve_points=2, folds=3)
     assert sent == ["u/svr", "v/svr", "u/gp", "v/gp", "u/ls", "v/ls"]
     assert [f"{r.dof}/{r.model}" for r in out.results] == ["u/ls", "u/svr", "u/gp", "v/ls", "v/svr", "v/gp"]
+
+
+def test_grid_cost_names_the_slowest_candidates_against_the_median_fit() -> None:
+    """Known fit times: the record counts the candidates, sums the folds' fits, takes the median of a candidate's
+    mean fold fit and lists the slowest first, in the paper's names, with their ratio to that median."""
+    from pipeline.studies.decoupled import grid_cost
+
+    params = [{"svr__C": c, "svr__epsilon": 0.1, "svr__gamma": 1} for c in (1.0, 10.0, 100.0, 1000.0)]
+    cost = grid_cost("svr", {"mean_fit_time": [0.01, 0.04, 0.02, 0.40], "params": params}, folds=5)
+    assert cost["candidates"] == 4 and cost["fit_s"] == pytest.approx(5 * 0.47)
+    assert cost["median_fit_s"] == pytest.approx(0.03)
+    assert [s["params"]["C"] for s in cost["slowest"]] == [1000.0, 10.0, 100.0]
+    assert cost["slowest"][0] == {"params": {"C": 1000.0, "epsilon": 0.1, "gamma": 1}, "fit_s": 0.40,
+                                  "ratio": pytest.approx(0.40 / 0.03)}
+
+
+def test_each_grid_search_records_what_its_candidates_cost_in_the_timings(study) -> None:
+    """The study's timings hold each grid search's cost (wall-clock: timings.json, not the deterministic
+    metrics.json); the models without a grid (least squares, the GP) have none."""
+    timings = study.timings()
+    for model, grid in SMALL.items():
+        cost = timings[f"v/{model}"]["search"]
+        n = int(np.prod([len(v) for v in grid.values()]))
+        assert cost["candidates"] == n and len(cost["slowest"]) == min(3, n), cost
+        fits = [s["fit_s"] for s in cost["slowest"]]
+        assert fits == sorted(fits, reverse=True) and all(s["ratio"] == s["fit_s"] / cost["median_fit_s"]
+                                                          for s in cost["slowest"])
+        assert all(set(s["params"]) == set(grid) for s in cost["slowest"])
+    assert "search" not in timings["v/ls"] and "search" not in timings["v/gp"]
+    assert "median_fit_s" not in json.dumps(study.metrics())
