@@ -38,6 +38,10 @@ def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]
     record, base_only = {}, []
     for k, out in enumerate(outputs):
         differences = [f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"] for f in folds]
+        if not all(np.isfinite(differences)):  # a fold whose targets do not vary: no R², no comparison
+            record[out] = {"verdict": "no comparison: a fold's test R² is not finite; the tune stage's verdict "
+                                      "stands", "differences": [float(d) for d in differences]}
+            continue
         helps, score = paired_verdict(differences)
         verdict = score if not narrow else f"kept ({score})" if helps else f"dropped ({score}: not above 0 by 1 SE)"
         record[out] = {"verdict": verdict, "differences": differences}

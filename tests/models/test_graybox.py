@@ -315,3 +315,22 @@ def test_the_folds_keep_a_residual_that_beats_the_base_and_narrow_the_rest():
                for f, fb in zip(gray["folds"], base["folds"], strict=True))
     fast = est.fast_predictor()
     np.testing.assert_allclose(fast(X), pred, rtol=0, atol=1e-12)
+
+
+def test_a_fold_without_a_finite_r2_leaves_that_output_to_the_tune_stages_verdict():
+    """A fold whose held-out targets do not vary has no finite R²: that output gets no comparison and keeps what
+    the tune stage decided (no error from deep inside the train stage); the others are judged as usual."""
+    from pipeline.studies.residual_check import fold_check
+
+    outputs = ["udot_mps2", "vdot_mps2"]
+
+    def fold(gray, base):
+        return {"fold": {"test": {o: {"r2": g} for o, g in zip(outputs, gray, strict=True)}},
+                "base": {"scores": {"test": {o: {"r2": b} for o, b in zip(outputs, base, strict=True)}}}}
+
+    results = [fold((float("nan"), 0.93), (float("nan"), 0.90)), fold((0.8, 0.95), (0.7, 0.91)),
+               fold((0.9, 0.94), (0.9, 0.90)), {"estimator": None, "final": None, "pred": None}]
+    specs = [{"kind": "fold"}] * 3 + [{"kind": "final"}]
+    record = fold_check(specs, results, outputs, narrow=False)
+    assert record["udot_mps2"]["verdict"].startswith("no comparison: a fold's test R² is not finite")
+    assert record["vdot_mps2"]["verdict"] == "gray box − base, fold test R² +0.037 ± 0.0033 over 3 folds"
