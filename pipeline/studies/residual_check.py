@@ -27,7 +27,8 @@ __all__ = ["fold_check"]
 def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]], outputs: Sequence[str], *,
                narrow: bool) -> dict[str, dict[str, Any]]:
     """The gray box against its base on the CV's folds, per output: ``{"verdict": words, "differences": the folds'
-    test R² differences}``, from one gray box's train tasks (``specs`` and their ``results`` in order, the final
+    test R² differences, "trial_differences": the same on each held-out training trial (where there are two or
+    more)}``, from one gray box's train tasks (``specs`` and their ``results`` in order, the final
     fit last; each result with its base's predictions, ``base``). With ``narrow`` the residual stays only where the
     folds say it helps (:func:`paired_verdict`), applied to the results in place; without, the comparison is only
     recorded. {} where fewer than two folds ran (no comparison: the tune stage's verdict stands)."""
@@ -36,15 +37,16 @@ def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]
     if len(folds) < 2:
         return {}
     record, base_only = {}, []
+    across = _held_out_trials(specs, results, outputs)
     for k, out in enumerate(outputs):
         differences = [f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"] for f in folds]
         if not all(np.isfinite(differences)):  # a fold whose targets do not vary: no R², no comparison
             record[out] = {"verdict": "no comparison: a fold's test R² is not finite; the tune stage's verdict "
-                                      "stands", "differences": [float(d) for d in differences]}
+                                      "stands", "differences": [float(d) for d in differences], **across.get(out, {})}
             continue
         helps, score = paired_verdict(differences)
         verdict = score if not narrow else f"kept ({score})" if helps else f"dropped ({score}: not above 0 by 1 SE)"
-        record[out] = {"verdict": verdict, "differences": differences}
+        record[out] = {"verdict": verdict, "differences": differences, **across.get(out, {})}
         if narrow and not (helps and k in final["estimator"].kept_outputs_):
             base_only.append(k)
     if not narrow:
@@ -61,3 +63,18 @@ def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]
     if final["final"] is not None:
         final["final"] = regression_scores(np.asarray(specs[-1]["y_test"], dtype=float), final["pred"], outputs)
     return record
+
+
+def _held_out_trials(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]], outputs: Sequence[str]
+                     ) -> dict[str, dict[str, list[float]]]:
+    """Per output, ``trial_differences``: the gray box's test R² minus its base's on each held-out training trial
+    (the train stage's fits without whole trials, whose gray boxes keep the final model's residuals, fitted with
+    the tune stage's hyperparameters); {} with fewer than two training trials."""
+    pairs = [(s, r) for s, r in zip(specs, results, strict=True) if s["kind"] == "trial" and "base" in r]
+    if not pairs:
+        return {}
+    y = np.asarray(specs[0]["y"], dtype=float)
+    scores = [(regression_scores(y[s["test"]], r["pred"], outputs),
+               regression_scores(y[s["test"]], r["base"]["pred"], outputs)) for s, r in pairs]
+    return {out: {"trial_differences": [gray[out]["r2"] - base[out]["r2"] for gray, base in scores]}
+            for out in outputs}

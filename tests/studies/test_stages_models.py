@@ -88,6 +88,11 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
         rec["verdict"].startswith("gray box − base, fold test R² ") and rec["verdict"].endswith(" over 3 folds")
         and len(rec["differences"]) == 3 for rec in folds.values()), folds
     assert json.loads((ev / "table3.json").read_text())[GRAYBOX]["residual"] == folds
+    # on each held-out training trial too: the fits without a trial keep the final model's residuals, so an output
+    # without one is the base's exactly there (a difference of 0), and one with it differs
+    for k, out in enumerate(card["outputs"]):
+        across = folds[out]["trial_differences"]
+        assert len(across) == 2 and (all(d != 0.0 for d in across) if k in kept else across == [0.0, 0.0]), across
     assert "against its own base on the CV's folds: udot_mps2: gray box − base" in (ev / "table3.md").read_text()
     metrics = res["train"].summary["metrics"]
     assert set(metrics) == set(MODELS)
