@@ -297,12 +297,13 @@ class CoupledParams(Frozen):
         "better than a constant); elsewhere that output is "
         "the explicit base alone. The nested CV's folds apply it to their own search's score. null: always kept "
         "(docs/models.md, 'Gray box').", le=1.0)
-    residual_fold_check: bool = Field(
-        False, description="Gray-box models: the train stage's CV always compares each fold's gray box with its own "
-        "base (card, Table III). true: per output, the residual is then kept only where that comparison says it "
-        "helps: the folds' mean test-R² gain above 0 by more than its standard error (a tie dropped); elsewhere "
-        "the saved model, its CV and final-check scores and its interval are the base's (docs/models.md, 'Gray "
-        "box': how it was measured, and why it is off by default).")
+    residual_fold_check: Literal["trials", "folds", "off"] = Field(
+        "trials", description="Gray-box models: the train stage compares each gray box with its own base on every "
+        "held-out training trial and every CV fold (card, Table III), and then keeps an output's residual only "
+        "where that comparison says it helps: the mean test-R² gain above 0 by more than its standard error. "
+        "trials: judged on the held-out trials (with fewer than two training trials, the tune stage's verdict "
+        "stands); folds: on the CV folds (a tie dropped); off: recorded only. Where dropped, the saved model, its "
+        "CV and final-check scores and its interval are the base's (docs/models.md, 'Gray box').")
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")

@@ -81,16 +81,16 @@ def kept_outputs(hyper: dict[str, dict[str, Any]], outputs: Sequence[str], thres
     return [k for k, (kept, _) in enumerate(_recorded_verdicts(hyper, outputs, threshold)) if kept]
 
 
-def paired_verdict(differences: Sequence[float]) -> tuple[bool, str]:
-    """Whether a CV's folds say the residual helps on an output, and their score: ``differences`` the folds' test
-    R² of the gray box minus its base's (the base fitted inside that fold's gray box). It helps where their mean is
-    above 0 by more than its standard error over the folds. A tie does not: with one fold keeping its residual and
-    the others dropping it, (a, 0, 0, 0, 0), the mean equals the SE, a / 5, and only rounding would decide."""
+def paired_verdict(differences: Sequence[float], over: str = "folds") -> tuple[bool, str]:
+    """Whether paired scores say the residual helps on an output, and their summary: ``differences`` the test R²
+    of the gray box minus its base's, one per CV fold or held-out trial (``over`` names them). It helps where their
+    mean is above 0 by more than its standard error. A tie does not: with one fold keeping its residual and the
+    others dropping it, (a, 0, 0, 0, 0), the mean equals the SE, a / 5, and only rounding would decide."""
     d = np.asarray(differences, dtype=float)
     if d.size < 2 or not np.all(np.isfinite(d)):
-        raise ValueError(f"a paired verdict needs two or more finite fold scores, got {d.tolist()}")
+        raise ValueError(f"a paired verdict needs two or more finite scores, got {d.tolist()}")
     mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size))
-    score = f"gray box − base, fold test R² {mean:+.2g} ± {se:.2g} over {d.size} folds"
+    score = f"gray box − base, test R² {mean:+.2g} ± {se:.2g} over {d.size} {over}"
     return bool(mean > 0 and mean - se > 1e-9 * (abs(mean) + se)), score
 
 

@@ -47,15 +47,15 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
            ) -> tuple[str, dict[str, Any]]:
     """Table III-like markdown + JSON: CV R² (train/test mean, SD) per model and output, MAE, final check, the
     90 % prediction interval (± half-width) and the share of the test trial(s)' targets inside it; a gray box
-    against its base on the CV's folds per output under the table (JSON: ``residual``). The models in ``failed``
-    are named under the table (JSON: ``{model: {"failed": entry}}``)."""
+    against its base on the CV's folds and held-out trials per output under the table (JSON: ``residual``). The
+    models in ``failed`` are named under the table (JSON: ``{model: {"failed": entry}}``)."""
     lines = ["| Model | Output | train R² mean | train R² SD | test R² mean | test R² SD | test MAE mean | "
              "final-check R² | 90 % interval ± | final check: inside 90 % |",
              "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     doc: dict[str, Any] = {}
     for model, res in results.items():
         doc[model] = {"cv": res["summary"], "final": res["final"], "interval": res.get("interval") or {}}
-        if res.get("residual"):  # a gray box against its base on the CV's folds, per output
+        if res.get("residual"):  # a gray box against its base on the CV's folds and held-out trials, per output
             doc[model]["residual"] = res["residual"]
         for out in outputs:
             s = res["summary"][out]
@@ -72,7 +72,7 @@ def table3(results: dict[str, Any], outputs: Sequence[str], failed: dict[str, di
                      "the share of the test trial(s)' measured targets within it (85–95 % expected).")
     for model, res in results.items():
         if res.get("residual"):
-            lines.append(f"\n{MODEL_LABELS.get(model, model)} against its own base on the CV's folds: "
+            lines.append(f"\n{MODEL_LABELS.get(model, model)} against its own base (CV folds, held-out trials): "
                          + "; ".join(f"{out}: {rec['verdict']}" for out, rec in res["residual"].items()) + ".")
     for model, entry in (failed or {}).items():
         doc[model] = {"failed": entry}

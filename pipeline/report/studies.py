@@ -231,8 +231,8 @@ def _table3(doc: dict[str, Any], outputs: Sequence[str], marks: verdicts.Marks |
 
 
 def residual_note(doc: dict[str, Any], outputs: Sequence[str]) -> str:
-    """Per gray box, its test R² against its own base's on the CV's folds, per output, with the verdict where
-    ``coupled.residual_fold_check`` drew one; '' when no model has that comparison."""
+    """Per gray box, its test R² against its own base's on the CV's folds and held-out trials, per output, with the
+    verdict where ``coupled.residual_fold_check`` drew one; '' when no model has that comparison."""
     lines = []
     for model, entry in doc.items():
         record = entry.get("residual") if isinstance(entry, dict) else None
@@ -240,7 +240,8 @@ def residual_note(doc: dict[str, Any], outputs: Sequence[str]) -> str:
             per_out = "; ".join(f"{OUTPUT_LABELS.get(o, o)}: {(record[o] or {}).get('verdict')}"
                                 for o in outputs if o in record)
             dropped = any(str((record[o] or {}).get("verdict", "")).startswith("dropped") for o in record)
-            lines.append(f"<p>{H.esc(label(model))} against its own base on the CV's folds: {H.esc(per_out)}."
+            lines.append(f"<p>{H.esc(label(model))} against its own base, on the CV's folds and on each held-out "
+                         f"training trial: {H.esc(per_out)}."
                          + (" Where dropped, that output is the base's prediction alone, in every score above and "
                             "in the saved model (coupled.residual_fold_check)." if dropped else "") + "</p>")
     return "".join(lines)

@@ -420,7 +420,7 @@ def evaluate_models(train_test: pd.DataFrame, test: pd.DataFrame, hyper: dict[st
             _failed(model, failed, failures, on_model)
             return
         mine_specs = [s for s in specs if s["model"] == model]  # the folds' test rows: out-of-fold residuals
-        check = (fold_check(mine_specs, mine, params.outputs, narrow=params.residual_fold_check)  # against its base
+        check = (fold_check(mine_specs, mine, params.outputs, rule=params.residual_fold_check)  # against its base
                  if model in GRAYBOX_MODELS else {})
         folds = [r["fold"] for s, r in zip(mine_specs, mine, strict=True) if s["kind"] == "fold"]
         final = mine[-1]

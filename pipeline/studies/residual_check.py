@@ -1,6 +1,6 @@
-"""The gray box against its own base on the train stage's CV folds, per output: recorded always, and with
-``coupled.residual_fold_check`` a second verdict, the residual kept only where the gray box beat its base there
-(:func:`pipeline.models.graybox.paired_verdict`).
+"""The gray box against its own base in the train stage, per output, on its CV folds and on its held-out training
+trials: recorded always, and with ``coupled.residual_fold_check`` a second verdict, the residual kept only where
+the gray box beat its base there (:func:`pipeline.models.graybox.paired_verdict`).
 
 The tune stage's verdict judges the residual search's CV on the residual target; this one judges what a user gets,
 the whole gray box against the base it is built on, fold by fold on the same rows. Where it drops an output, that
@@ -25,13 +25,14 @@ __all__ = ["fold_check"]
 
 
 def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]], outputs: Sequence[str], *,
-               narrow: bool) -> dict[str, dict[str, Any]]:
-    """The gray box against its base on the CV's folds, per output: ``{"verdict": words, "differences": the folds'
-    test R² differences, "trial_differences": the same on each held-out training trial (where there are two or
-    more)}``, from one gray box's train tasks (``specs`` and their ``results`` in order, the final
-    fit last; each result with its base's predictions, ``base``). With ``narrow`` the residual stays only where the
-    folds say it helps (:func:`paired_verdict`), applied to the results in place; without, the comparison is only
-    recorded. {} where fewer than two folds ran (no comparison: the tune stage's verdict stands)."""
+               rule: str) -> dict[str, dict[str, Any]]:
+    """The gray box against its base, per output: ``{"verdict": words, "differences": the CV folds' test R²
+    differences, "trial_differences": the same on each held-out training trial (where there are two or more)}``,
+    from one gray box's train tasks (``specs`` and their ``results`` in order, the final fit last; each result with
+    its base's predictions, ``base``). ``rule`` (``coupled.residual_fold_check``): ``trials``, the residual stays
+    only where the held-out trials say it helps (:func:`paired_verdict`; with fewer than two, the tune stage's
+    verdict stands); ``folds``, where the CV folds do; ``off``, the comparison only recorded. A rule's verdict is
+    applied to the results in place. {} where fewer than two folds ran."""
     folds = [r for s, r in zip(specs, results, strict=True) if s["kind"] == "fold"]
     final = results[-1]
     if len(folds) < 2:
@@ -39,17 +40,21 @@ def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]
     record, base_only = {}, []
     across = _held_out_trials(specs, results, outputs)
     for k, out in enumerate(outputs):
-        differences = [f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"] for f in folds]
-        if not all(np.isfinite(differences)):  # a fold whose targets do not vary: no R², no comparison
-            record[out] = {"verdict": "no comparison: a fold's test R² is not finite; the tune stage's verdict "
-                                      "stands", "differences": [float(d) for d in differences], **across.get(out, {})}
+        entry = {"differences": [f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"] for f in folds],
+                 **across.get(out, {})}
+        scores = {key: paired_verdict(entry[key], over) for key, over in (("differences", "folds"),
+                                                                          ("trial_differences", "held-out trials"))
+                  if len(entry.get(key, ())) >= 2 and np.all(np.isfinite(entry[key]))}
+        words = "; ".join(score for _, score in scores.values()) or "no finite scores to compare"
+        judged = scores.get({"folds": "differences", "trials": "trial_differences"}.get(rule, ""))
+        if judged is None:
+            record[out] = {"verdict": words, **entry}
             continue
-        helps, score = paired_verdict(differences)
-        verdict = score if not narrow else f"kept ({score})" if helps else f"dropped ({score}: not above 0 by 1 SE)"
-        record[out] = {"verdict": verdict, "differences": differences, **across.get(out, {})}
-        if narrow and not (helps and k in final["estimator"].kept_outputs_):
+        record[out] = {"verdict": f"kept ({words})" if judged[0] else f"dropped ({words}: not above 0 by 1 SE)",
+                       **entry}
+        if not (judged[0] and k in final["estimator"].kept_outputs_):
             base_only.append(k)
-    if not narrow:
+    if not base_only:
         return record
     for spec, res in zip(specs, results, strict=True):
         if spec["kind"] == "fold":

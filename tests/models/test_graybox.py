@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 from sklearn.base import clone
 from sklearn.utils.estimator_checks import parametrize_with_checks
@@ -242,7 +243,7 @@ def test_paired_verdict_keeps_a_residual_only_above_its_standard_error_and_drops
     assert not paired_verdict([0.0, 0.0, 0.0])[0]
     assert not paired_verdict([-0.01, -0.02, -0.005])[0]
     helps, score = paired_verdict([0.03, -0.02, 0.01])  # mean 0.0067, SE 0.0145
-    assert not helps and score == "gray box − base, fold test R² +0.0067 ± 0.015 over 3 folds"
+    assert not helps and score == "gray box − base, test R² +0.0067 ± 0.015 over 3 folds"
     with pytest.raises(ValueError, match="two or more"):
         paired_verdict([0.1])
 
@@ -253,7 +254,7 @@ def _study(tuning_rows, train, test, **kw):
     from pipeline.studies.coupled import evaluate_models
 
     params = CoupledParams(models=["graybox", "mcfarland_whitcomb"], max_evals=8, tuning_folds=3, fold_evals=3,
-                           folds=4, residual_min_cv_r2=None, **{"residual_fold_check": True, **kw})
+                           folds=4, residual_min_cv_r2=None, **{"residual_fold_check": "folds", **kw})
     nested = params.tuning == "nested"
     hyper, _ = tune(train if nested else tuning_rows, params, split="train_test" if nested else "tuning")
     return params, evaluate_models(train, test, hyper, params, tuning_keys=tuning_rows[["trial", "t_ns"]])
@@ -269,7 +270,7 @@ def test_the_folds_drop_a_residual_of_white_noise_and_every_score_and_the_model_
     params, out = _study(tuning_rows, train, test, tuning=tuning)
     gray, base = out["graybox"], out["mcfarland_whitcomb"]
     assert set(gray["residual"]) == set(params.outputs)
-    assert all(rec["verdict"].startswith("dropped (gray box − base, fold test R² ") and len(rec["differences"]) == 4
+    assert all(rec["verdict"].startswith("dropped (gray box − base, test R² ") and len(rec["differences"]) == 4
                for rec in gray["residual"].values()), gray["residual"]
     assert gray["estimator"].kept_outputs_ == [] and gray["estimator"].residual_ is None
     X = test[model_inputs("graybox", params)].to_numpy(float)
@@ -286,7 +287,7 @@ def test_the_folds_drop_a_residual_of_white_noise_and_every_score_and_the_model_
     assert all(gray["interval"][o]["half_width"] == pytest.approx(base["interval"][o]["half_width"], rel=1e-9)
                for o in params.outputs)
 
-    params, off = _study(tuning_rows, train, test, tuning=tuning, residual_fold_check=False)
+    params, off = _study(tuning_rows, train, test, tuning=tuning, residual_fold_check="off")
     assert off["graybox"]["estimator"].kept_outputs_ == [0, 1, 2]  # recorded, not applied
     assert off["graybox"]["final"] != off["mcfarland_whitcomb"]["final"]
     assert {o: r["verdict"] for o, r in off["graybox"]["residual"].items()} == {
@@ -325,12 +326,60 @@ def test_a_fold_without_a_finite_r2_leaves_that_output_to_the_tune_stages_verdic
     outputs = ["udot_mps2", "vdot_mps2"]
 
     def fold(gray, base):
-        return {"fold": {"test": {o: {"r2": g} for o, g in zip(outputs, gray, strict=True)}},
-                "base": {"scores": {"test": {o: {"r2": b} for o, b in zip(outputs, base, strict=True)}}}}
+        def scores(r2):
+            return {split: {o: {"r2": v} for o, v in zip(outputs, r2, strict=True)} for split in ("train", "test")}
+        return {"fold": scores(gray), "base": {"scores": scores(base)}}
 
-    results = [fold((float("nan"), 0.93), (float("nan"), 0.90)), fold((0.8, 0.95), (0.7, 0.91)),
-               fold((0.9, 0.94), (0.9, 0.90)), {"estimator": None, "final": None, "pred": None}]
+    results = [fold((float("nan"), 0.90), (float("nan"), 0.93)), fold((0.8, 0.91), (0.7, 0.95)),
+               fold((0.9, 0.90), (0.9, 0.94)), {"estimator": GrayBox(), "final": None, "pred": None}]
+    from pipeline.models.svr import PerOutputRegressor
+
+    gray = results[-1]["estimator"]
+    gray.kept_outputs_, gray.residual_ = [0, 1], PerOutputRegressor(["svr u", "svr v"])
+    gray.residual_.estimators_ = ["fitted u", "fitted v"]
     specs = [{"kind": "fold"}] * 3 + [{"kind": "final"}]
-    record = fold_check(specs, results, outputs, narrow=False)
-    assert record["udot_mps2"]["verdict"].startswith("no comparison: a fold's test R² is not finite")
-    assert record["vdot_mps2"]["verdict"] == "gray box − base, fold test R² +0.037 ± 0.0033 over 3 folds"
+    record = fold_check(specs, results, outputs, rule="folds")
+    assert record["udot_mps2"]["verdict"] == "no finite scores to compare"
+    assert record["vdot_mps2"]["verdict"] == "dropped (gray box − base, test R² -0.037 ± 0.0033 over 3 folds: not " \
+                                              "above 0 by 1 SE)"
+    narrowed = results[-1]["estimator"]  # v̇ narrowed to its base, u̇ left as the tune stage had it
+    assert narrowed.kept_outputs_ == [0] and narrowed.residual_.estimators_ == ["fitted u"]
+    assert [f["fold"]["test"]["vdot_mps2"]["r2"] for f in results[:3]] == [0.93, 0.95, 0.94]
+
+
+def _two_trials(extra: float) -> tuple:
+    """Two training trials (train_test rows) and an unseen one of the same truth as :func:`_in_family_frame`."""
+    tuning, train, test = _in_family_frame(extra=extra)
+    second = _in_family_frame(extra=extra, seed=5)[1].assign(trial="syn03")
+    return tuning, pd.concat([train, second], ignore_index=True), test
+
+
+@pytest.mark.parametrize("extra", [0.0, 1.0])
+def test_the_held_out_trials_keep_a_residual_only_where_it_beats_the_base_on_each(extra):
+    """The default rule (``residual_fold_check: trials``), two training trials, every residual fitted: white noise
+    on top of the base's family gives no residual that beats the base on both held-out trials, so every one is
+    dropped and the saved gray box is its base bit for bit; a smooth term in u on udot beats it on both, so udot
+    keeps its residual and the others do not. The record holds one difference per held-out trial."""
+    from pipeline.studies.coupled import evaluate_models
+
+    tuning, train, test = _two_trials(extra)
+    params = CoupledParams(models=["graybox"], max_evals=8, tuning_folds=3, fold_evals=3, folds=3,
+                           residual_min_cv_r2=None, tuning="split")
+    assert params.residual_fold_check == "trials"
+    hyper, _ = tune(tuning, params)
+    gray = evaluate_models(train, test, hyper, params, tuning_keys=tuning[["trial", "t_ns"]])["graybox"]
+    record = gray["residual"]
+    assert all(len(rec["trial_differences"]) == 2 and " over 2 held-out trials" in rec["verdict"]
+               for rec in record.values()), record
+    kept = [k for k, o in enumerate(params.outputs) if min(record[o]["trial_differences"]) > 0]  # the rule, n = 2
+    assert [k for k, o in enumerate(params.outputs) if record[o]["verdict"].startswith("kept")] == kept, record
+    if extra:
+        assert 0 in kept and min(record["udot_mps2"]["trial_differences"]) > 0.05, record
+    else:  # what a residual of white noise keeps by chance neither helps nor hurts
+        assert all(abs(d) < 0.002 for rec in record.values() for d in rec["trial_differences"]), record
+    est = gray["estimator"]
+    assert est.kept_outputs_ == kept
+    X = test[model_inputs("graybox", params)].to_numpy(float)
+    dropped = [k for k in range(3) if k not in kept]
+    assert dropped and (not kept or not np.array_equal(est.predict(X)[:, kept], est.base_predict(X)[:, kept]))
+    np.testing.assert_array_equal(est.predict(X)[:, dropped], est.base_predict(X)[:, dropped])

@@ -75,25 +75,27 @@ def test_outputs_tables_figure_and_model_cards(run_root) -> None:
         assert all(len(e["sha256"]) == 64 for e in lineage)
         assert card["trained_on"]["trials"] == ["s1", "s2"] and card["scores"]["final_check_trials"] == ["s3"]
         assert card["versions"]["scikit-learn"] and hasattr(est, "predict")
-    # the gray box's card says per output whether its residual was kept, as the tuned record and the fit do, and
-    # how it fared against its own base on the CV's folds (recorded, not applied: coupled.residual_fold_check is
-    # off by default); Table III's JSON and markdown say the second too
+    # the gray box's card says per output whether its residual was kept by the tuned record, and then how it fared
+    # against its own base on the CV's folds and on each held-out training trial, which decide by default
+    # (coupled.residual_fold_check: trials); the fit does as both say; Table III's JSON and markdown say it too
     gray = hyper["hyperparameters"][GRAYBOX]
     _, card = load_model(md / f"{GRAYBOX}.joblib")
     assert card["residual"] == {o: gray[o]["residual"] for o in gray}
-    kept = [k for k, o in enumerate(card["outputs"]) if card["residual"][o].startswith("kept")]
-    assert load_model(md / f"{GRAYBOX}.joblib")[0].kept_outputs_ == kept
     folds = card["residual_fold_check"]
     assert set(folds) == set(card["outputs"]) and all(
-        rec["verdict"].startswith("gray box − base, fold test R² ") and rec["verdict"].endswith(" over 3 folds")
+        " over 3 folds; gray box − base, test R² " in rec["verdict"] and " over 2 held-out trials" in rec["verdict"]
         and len(rec["differences"]) == 3 for rec in folds.values()), folds
+    kept = [k for k, o in enumerate(card["outputs"]) if card["residual"][o].startswith("kept")
+            and folds[o]["verdict"].startswith("kept")]
+    assert load_model(md / f"{GRAYBOX}.joblib")[0].kept_outputs_ == kept
     assert json.loads((ev / "table3.json").read_text())[GRAYBOX]["residual"] == folds
-    # on each held-out training trial too: the fits without a trial keep the final model's residuals, so an output
-    # without one is the base's exactly there (a difference of 0), and one with it differs
-    for k, out in enumerate(card["outputs"]):
+    assert "against its own base (CV folds, held-out trials): udot_mps2: " in (ev / "table3.md").read_text()
+    # the fits without a trial keep the tune stage's residuals, so an output without one is the base's exactly
+    # there (a difference of 0), and one with it differs
+    for out in card["outputs"]:
         across = folds[out]["trial_differences"]
-        assert len(across) == 2 and (all(d != 0.0 for d in across) if k in kept else across == [0.0, 0.0]), across
-    assert "against its own base on the CV's folds: udot_mps2: gray box − base" in (ev / "table3.md").read_text()
+        tuned = card["residual"][out].startswith("kept")
+        assert len(across) == 2 and (all(d != 0.0 for d in across) if tuned else across == [0.0, 0.0]), across
     metrics = res["train"].summary["metrics"]
     assert set(metrics) == set(MODELS)
     assert all(np.isfinite(v["final_r2"]) for m in metrics.values() for v in m.values())
