@@ -3,7 +3,8 @@ trials: recorded always, and with ``coupled.residual_fold_check`` a second verdi
 the gray box beat its base there (:func:`pipeline.models.graybox.paired_verdict`).
 
 The tune stage's verdict judges the residual search's CV on the residual target; this one judges what a user gets,
-the whole gray box against the base it is built on, fold by fold on the same rows. Where it drops an output, that
+the whole gray box against the base it is built on, on the same rows: each held-out training trial (the fits
+without a trial keep the final model's residuals) and each CV fold. Where it drops an output, that
 output becomes the base's alone everywhere the train stage reports it: the folds' scores, the out-of-fold and
 held-out-trial predictions the interval is calibrated on, the final check and the saved model
 (:meth:`pipeline.models.graybox.GrayBox.narrowed`). So the CV, the interval and the file describe the model that is
