@@ -31,15 +31,17 @@ def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]
     differences, "trial_differences": the same on each held-out training trial (where there are two or more)}``,
     from one gray box's train tasks (``specs`` and their ``results`` in order, the final fit last; each result with
     its base's predictions, ``base``). ``rule`` (``coupled.residual_fold_check``): ``trials``, the residual stays
-    only where the held-out trials say it helps (:func:`paired_verdict`; with fewer than two, the tune stage's
-    verdict stands); ``folds``, where the CV folds do; ``off``, the comparison only recorded. A rule's verdict is
-    applied to the results in place. {} where fewer than two folds ran."""
+    only where the held-out trials say it helps (:func:`paired_verdict`; with fewer than two held out, nowhere:
+    nothing then shows that a residual carries to another trial, and a CV within one trial does not predict it);
+    ``folds``, where the CV folds do; ``off``, the comparison only recorded. A rule's verdict is applied to the
+    results in place. {} where fewer than two folds ran and the rule drops nothing for want of trials."""
     folds = [r for s, r in zip(specs, results, strict=True) if s["kind"] == "fold"]
     final = results[-1]
-    if len(folds) < 2:
+    across = _held_out_trials(specs, results, outputs)
+    no_trials = rule == "trials" and not across
+    if len(folds) < 2 and not no_trials:
         return {}
     record, base_only = {}, []
-    across = _held_out_trials(specs, results, outputs)
     for k, out in enumerate(outputs):
         entry = {"differences": [f["fold"]["test"][out]["r2"] - f["base"]["scores"]["test"][out]["r2"] for f in folds],
                  **across.get(out, {})}
@@ -47,6 +49,11 @@ def fold_check(specs: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]
                                                                           ("trial_differences", "held-out trials"))
                   if len(entry.get(key, ())) >= 2 and np.all(np.isfinite(entry[key]))}
         words = "; ".join(score for _, score in scores.values()) or "no finite scores to compare"
+        if no_trials:
+            record[out] = {"verdict": f"dropped (fewer than two training trials held out: nothing shows the residual "
+                                      f"carries to another trial; {words})", **entry}
+            base_only.append(k)
+            continue
         judged = scores.get({"folds": "differences", "trials": "trial_differences"}.get(rule, ""))
         if judged is None:
             record[out] = {"verdict": words, **entry}

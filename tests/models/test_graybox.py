@@ -318,6 +318,27 @@ def test_the_folds_keep_a_residual_that_beats_the_base_and_narrow_the_rest():
     np.testing.assert_allclose(fast(X), pred, rtol=0, atol=1e-12)
 
 
+def test_with_one_training_trial_the_default_offers_no_residual_even_where_the_folds_would():
+    """The default rule (``residual_fold_check: trials``) with one training trial: no trial can be held out, and a
+    CV within one trial does not show that a residual carries to the next, so every residual is dropped and the
+    saved gray box predicts what its base does, bit for bit, even the smooth u term's, which the folds keep (the
+    test above) and which does help on the unseen trial. The folds' differences are still recorded."""
+    tuning_rows, train, test = _in_family_frame(extra=1.0)
+    assert train["trial"].nunique() == 1
+    params, out = _study(tuning_rows, train, test, tuning="split", residual_fold_check="trials")
+    gray = out["graybox"]
+    assert all(rec["verdict"].startswith("dropped (fewer than two training trials held out: ")
+               and len(rec["differences"]) == 4 and "trial_differences" not in rec
+               for rec in gray["residual"].values()), gray["residual"]
+    assert "over 4 folds" in gray["residual"]["udot_mps2"]["verdict"]
+    est = gray["estimator"]
+    assert est.kept_outputs_ == [] and est.residual_ is None
+    X = test[model_inputs("graybox", params)].to_numpy(float)
+    np.testing.assert_array_equal(est.predict(X), est.base_predict(X))
+    assert gray["final"]["udot_mps2"]["r2"] == pytest.approx(out["mcfarland_whitcomb"]["final"]["udot_mps2"]["r2"],
+                                                             rel=1e-9)
+
+
 def test_a_fold_without_a_finite_r2_leaves_that_output_to_the_tune_stages_verdict():
     """A fold whose held-out targets do not vary has no finite R²: that output gets no comparison and keeps what
     the tune stage decided (no error from deep inside the train stage); the others are judged as usual."""
