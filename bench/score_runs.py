@@ -9,12 +9,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import joblib
 import numpy as np
 import pandas as pd
 
 from pipeline import store
 from pipeline.config import Params
+from pipeline.models.card import load_model
 from pipeline.studies.coupled import model_inputs
 
 OUT = ["udot_mps2", "vdot_mps2", "rdot_radps2"]
@@ -32,7 +32,7 @@ def main(runs: list[Path]) -> None:
         test = store.load(run, split="test").sort_values("t_ns")
         true = truth.loc[test["t_ns"].to_numpy()][OUT].to_numpy()
         for path in sorted((run / "data/models/coupled").glob("*.joblib")):
-            pred = joblib.load(path).predict(test[model_inputs(path.stem, params)].to_numpy(float))
+            pred = load_model(path)[0].predict(test[model_inputs(path.stem, params)].to_numpy(float))
             scores.setdefault(path.stem, {})[run.name] = [round(r2(pred[:, j], true[:, j]), 4) for j in range(3)]
     print("| model | " + " | ".join(r.name for r in runs) + " |")
     print("| --- |" + " --- |" * len(runs))
