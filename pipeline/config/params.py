@@ -303,8 +303,8 @@ class CoupledParams(Frozen):
         "where that comparison says it helps: the mean test-R² gain above 0 by more than its standard error. "
         "trials: judged on the held-out trials (with fewer than two training trials, no residual is kept: a CV "
         "within one trial does not show that it carries to the next); folds: on the CV folds (a tie dropped); off: "
-        "recorded only. Where dropped, the saved model, its "
-        "CV and final-check scores and its interval are the base's (docs/models.md, 'Gray box').")
+        "recorded only. Where dropped, the saved model, its CV and final-check scores and its interval are the "
+        "base's (docs/models.md, 'Gray box').")
     selection: Literal["best", "one_se"] = Field(
         "best", description="Fast search: which candidate to keep. best: the highest mean fold R². one_se: the "
         "smoothest kernel within one standard error of it (the one-standard-error rule; docs/models.md).")
