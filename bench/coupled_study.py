@@ -397,7 +397,7 @@ def report(preset: str, args: argparse.Namespace, params: Params) -> None:
         for m, verdicts in (r.get("residual") or {}).items():
             print(f"seed {r['seed']} {m} residual: " + "; ".join(f"{o} {v}" for o, v in verdicts.items()))
         for m, verdicts in (r.get("residual_fold_check") or {}).items():
-            print(f"seed {r['seed']} {m} against its base on the CV's folds: "
+            print(f"seed {r['seed']} {m} against its base (CV folds, held-out trials): "
                   + "; ".join(f"{o} {verdicts[o]['verdict']}" for o in OUTPUTS if o in verdicts))
     if args.intervals:
         print(f"\n{preset} preset: share of the unseen trial's MEASURED targets inside each model's 90 % interval "
